@@ -1,0 +1,97 @@
+"""The clnlos command line: one entry point, thin over the pipelines.
+
+Known errors (bad file, bad parameter, device problems, kernel build failures) end in one
+line on stderr and exit status 2; nothing half-written is left behind.
+"""
+
+from __future__ import annotations
+
+import argparse
+import sys
+
+from .errors import ClnlosError
+
+EXIT_USAGE = 2
+
+
+class _Parser(argparse.ArgumentParser):
+    """argparse that reports errors as one line with exit status 2 (no usage dump)."""
+
+    def error(self, message):
+        raise SystemExit(_fail(f"{self.prog}: {message}"))
+
+
+def _fail(msg: str) -> int:
+    first = msg.strip().splitlines()
+    print(f"clnlos: error: {first[0] if first else msg}", file=sys.stderr)
+    rest = first[1:]
+    if rest:  # build logs and the like: kept, but after the one-line message
+        print("\n".join(rest), file=sys.stderr)
+    return EXIT_USAGE
+
+
+def _add_device(p: argparse.ArgumentParser) -> None:
+    p.add_argument("--device", default=None,
+                   help="OpenCL device: P:D, a name such as pocl or nvidia[:K], cpu or gpu "
+                        "(default: $CLNLOS_DEVICE, else the first GPU, else the first device)")
+
+
+def cmd_devices(args) -> int:
+    from .runtime import list_devices, resolve_device_spec, select_device
+
+    devs = list_devices()
+    try:
+        default = select_device(args.device)
+    except ClnlosError:
+        default = None
+    spec = resolve_device_spec(args.device)
+    print(f"{'':2}{'P:D':5} {'platform':32} {'device':40} {'version':22} {'CUs':>4} "
+          f"{'mem GiB':>8} {'fp64':>5} {'img':>4}")
+    for d in devs:
+        mark = "*" if default is not None and d.name == default.name.strip() and \
+            d.platform == default.platform.name.strip() else " "
+        print(f"{mark} {d.spec:5} {d.platform[:32]:32} {d.name[:40]:40} {d.version[:22]:22} "
+              f"{d.compute_units:4d} {d.global_mem_bytes / 2**30:8.1f} "
+              f"{'yes' if d.fp64 else 'no':>5} {'yes' if d.images else 'no':>4}")
+    print(f"* = default device{' for spec ' + repr(spec) if spec else ''} "
+          "(set with --device or CLNLOS_DEVICE)")
+    return 0
+
+
+def build_parser() -> argparse.ArgumentParser:
+    p = _Parser(prog="clnlos", description=__doc__.splitlines()[0])
+    sub = p.add_subparsers(dest="command", required=True, parser_class=_Parser)
+
+    d = sub.add_parser("devices", help="list OpenCL platforms and devices")
+    _add_device(d)
+    d.set_defaults(func=cmd_devices)
+
+    from . import cli_commands
+
+    cli_commands.register(sub, _add_device)
+    return p
+
+
+def main(argv: list[str] | None = None) -> int:
+    parser = build_parser()
+    try:
+        args = parser.parse_args(argv)
+        return int(args.func(args) or 0)
+    except SystemExit as exc:
+        return int(exc.code) if isinstance(exc.code, int) else EXIT_USAGE
+    except ClnlosError as exc:
+        return _fail(str(exc))
+    except KeyboardInterrupt:
+        return _fail("interrupted")
+    except MemoryError:
+        return _fail("out of host memory: use a smaller grid")
+    except Exception as exc:  # OpenCL runtime errors a user can cause (device memory, ...)
+        import pyopencl as cl
+
+        if isinstance(exc, cl.MemoryError | cl.LogicError | cl.RuntimeError):
+            return _fail(f"OpenCL error: {exc}")
+        raise
+
+
+if __name__ == "__main__":  # pragma: no cover
+    sys.exit(main())

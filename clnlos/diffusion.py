@@ -1,0 +1,280 @@
+"""Slab diffusion: time-resolved diffuse transmittance through a homogeneous slab.
+
+Physics (Patterson, Chance & Wilson 1989; Contini, Martelli & Zaccanti 1997), flux
+(Fick's law) form for a pencil beam, per unit injected energy, units 1/(m^2 s)::
+
+    T(rho, t) = (4 pi D v)^(-3/2) t^(-5/2) exp(-mu_a v t - rho^2 / (4 D v t))
+                * 1/2 * sum_{m=-M..M} [ z1_m exp(-z1_m^2/(4Dvt)) - z2_m exp(-z2_m^2/(4Dvt)) ]
+    z1_m = (1-2m) d - 4m ze - z0,   z2_m = (1-2m) d - (4m-2) ze + z0
+    D = 1/(3 (mu_a + mu_s')),  z0 = 1/mu_s',  v = c0/n,
+    ze = 2 D (1 + R_eff)/(1 - R_eff)
+
+with R_eff the effective internal reflection from the Fresnel integrals for relative index
+n (medium / outside). ``n_dipoles = M`` means 2M+1 image pairs ``m = -M..M``.
+
+The computation runs in the OpenCL kernel ``kernels/diffusion.cl`` (log space, paired
+image terms, an eigenmode series at late times in "auto" mode); see its header.
+
+Left out: anisotropic scattering beyond the reduced coefficient, refractive-index mismatch
+at the entrance other than through ze, finite beam size (pencil beam), time-dependent
+detector response (added by the forward model when a scene asks for it).
+"""
+
+from __future__ import annotations
+
+import math
+from dataclasses import dataclass
+from functools import lru_cache
+
+import numpy as np
+import pyopencl.array as cla
+
+from . import C0
+from .errors import ParameterError
+from .runtime import get_kernels, get_queue, real_defines, require_dtype, round_up
+
+# ln(1/tolerance) of the auto mode: terms below tol relative to the largest are dropped.
+LN_TOL = {np.dtype(np.float32): math.log(1e8), np.dtype(np.float64): math.log(1e17)}
+
+
+def _check_positive(name: str, value, *, allow_zero: bool = False) -> float:
+    try:
+        v = float(value)
+    except (TypeError, ValueError):
+        raise ParameterError(name, value, "a real number") from None
+    ok = math.isfinite(v) and (v >= 0 if allow_zero else v > 0)
+    if not ok:
+        raise ParameterError(name, value, ">= 0 and finite" if allow_zero else "> 0 and finite")
+    return v
+
+
+@lru_cache(maxsize=256)
+def effective_reflection(n: float) -> float:
+    """R_eff for diffuse light inside a medium of relative index ``n`` (>= 1) at its boundary.
+
+    R_eff = (R_phi + R_j) / (2 - R_phi + R_j), with
+    R_phi = int_0^{pi/2} 2 sin(th) cos(th) R_F(th) dth and
+    R_j   = int_0^{pi/2} 3 sin(th) cos(th)^2 R_F(th) dth,
+    R_F the unpolarised Fresnel reflectance from inside (total reflection past the
+    critical angle). Returns 0 for n = 1.
+    """
+    from scipy.integrate import quad
+
+    n = float(n)
+    if n == 1.0:
+        return 0.0
+    theta_c = math.asin(1.0 / n) if n > 1 else math.pi / 2
+
+    def fresnel(th: float) -> float:
+        if th >= theta_c:
+            return 1.0
+        ci = math.cos(th)
+        st = n * math.sin(th)
+        ct = math.sqrt(max(0.0, 1.0 - st * st))
+        rs = (n * ci - ct) / (n * ci + ct)
+        rp = (n * ct - ci) / (n * ct + ci)
+        return 0.5 * (rs * rs + rp * rp)
+
+    pts = [theta_c] if theta_c < math.pi / 2 else None
+    r_phi = quad(lambda th: 2 * math.sin(th) * math.cos(th) * fresnel(th), 0, math.pi / 2,
+                 points=pts, limit=200)[0]
+    r_j = quad(lambda th: 3 * math.sin(th) * math.cos(th) ** 2 * fresnel(th), 0, math.pi / 2,
+               points=pts, limit=200)[0]
+    return (r_phi + r_j) / (2 - r_phi + r_j)
+
+
+@dataclass(frozen=True)
+class Slab:
+    """A homogeneous scattering slab (SI units; coefficients in 1/m).
+
+    ``ze_m`` overrides the extrapolation distance computed from ``n``.
+    """
+
+    thickness_m: float
+    mu_a: float
+    mu_s_prime: float
+    n: float
+    ze_m: float | None = None
+
+    def __post_init__(self):
+        object.__setattr__(self, "thickness_m", _check_positive("thickness_m", self.thickness_m))
+        object.__setattr__(self, "mu_a", _check_positive("mu_a", self.mu_a, allow_zero=True))
+        object.__setattr__(self, "mu_s_prime", _check_positive("mu_s_prime", self.mu_s_prime))
+        n = _check_positive("n", self.n)
+        if n < 1.0:
+            raise ParameterError("n", self.n, ">= 1 (relative refractive index)")
+        object.__setattr__(self, "n", n)
+        if self.ze_m is not None:
+            object.__setattr__(self, "ze_m", _check_positive("ze_m", self.ze_m, allow_zero=True))
+
+    @property
+    def D(self) -> float:
+        """Diffusion coefficient D = 1/(3 (mu_a + mu_s')), m."""
+        return 1.0 / (3.0 * (self.mu_a + self.mu_s_prime))
+
+    @property
+    def v(self) -> float:
+        """Speed of light in the medium, m/s."""
+        return C0 / self.n
+
+    @property
+    def z0(self) -> float:
+        """Depth of the isotropic source, 1/mu_s', m."""
+        return 1.0 / self.mu_s_prime
+
+    @property
+    def r_eff(self) -> float:
+        return effective_reflection(self.n)
+
+    @property
+    def ze(self) -> float:
+        """Extrapolation distance, m (given, or 2 D (1+R_eff)/(1-R_eff))."""
+        if self.ze_m is not None:
+            return self.ze_m
+        r = self.r_eff
+        return 2.0 * self.D * (1.0 + r) / (1.0 - r)
+
+    def total_transmittance_lossless(self) -> float:
+        """Time- and space-integrated transmittance for mu_a = 0: (z0 + ze)/(d + 2 ze)."""
+        return (self.z0 + self.ze) / (self.thickness_m + 2.0 * self.ze)
+
+
+def _check_n_dipoles(n_dipoles) -> int:
+    if n_dipoles is None:
+        return -1
+    if isinstance(n_dipoles, bool) or int(n_dipoles) != n_dipoles or n_dipoles < 0:
+        raise ParameterError("n_dipoles", n_dipoles, "None (auto) or an integer >= 0")
+    if n_dipoles > 100_000:
+        raise ParameterError("n_dipoles", n_dipoles, "<= 100000")
+    return int(n_dipoles)
+
+
+class SlabTransmittance:
+    """Plan: evaluates T(rho, t) of one slab on one queue in one precision.
+
+    Parameters
+    ----------
+    slab : Slab
+    n_dipoles : int or None
+        M (2M+1 image pairs), or None for the auto mode (relative truncation error below
+        1e-8 in float32, 1e-17 in float64 at every sample).
+    dtype : float32 or float64
+    queue : pyopencl.CommandQueue, device spec string or None
+    """
+
+    def __init__(self, slab: Slab, *, n_dipoles: int | None = None, dtype=np.float32,
+                 queue=None):
+        self.slab = slab
+        self.queue = get_queue(queue)
+        self.dtype = require_dtype(self.queue.device, dtype)
+        self.n_pairs = _check_n_dipoles(n_dipoles)
+        self.kernels = get_kernels(self.queue, "diffusion", real_defines(self.dtype))
+        r = self.dtype.type
+        s = slab
+        self._params = (r(s.D * s.v), r(s.mu_a * s.v), r(s.thickness_m), r(s.z0), r(s.ze),
+                        np.int32(self.n_pairs), r(LN_TOL[self.dtype]))
+
+    def pairs_device(self, rho_g: cla.Array, t_g: cla.Array, out_g: cla.Array | None = None
+                     ) -> cla.Array:
+        """Element-wise T(rho_g[i], t_g[i]) on the device (1D arrays of ``self.dtype``)."""
+        n = rho_g.size
+        if out_g is None:
+            out_g = cla.empty(self.queue, n, self.dtype)
+        if n:
+            self.kernels.transmittance_pairs(
+                self.queue, (round_up(n, 64),), None, rho_g.data, t_g.data, out_g.data,
+                np.int32(n), *self._params)
+        return out_g
+
+    def outer_device(self, rho_g: cla.Array, t_g: cla.Array, scale: float = 1.0) -> cla.Array:
+        """Table ``out[it, ir] = scale * T(rho[ir], t[it])`` on the device."""
+        nr, nt = rho_g.size, t_g.size
+        out_g = cla.empty(self.queue, (nt, nr), self.dtype)
+        if nr and nt:
+            log_t0 = cla.empty(self.queue, nt, self.dtype)
+            self.kernels.log_series(self.queue, (round_up(nt, 64),), None, t_g.data,
+                                    log_t0.data, np.int32(nt), *self._params)
+            self.kernels.transmittance_outer(
+                self.queue, (round_up(nr, 16), round_up(nt, 4)), None, rho_g.data, t_g.data,
+                log_t0.data, out_g.data, np.int32(nr), np.int32(nt), self._params[0],
+                self.dtype.type(scale))
+        return out_g
+
+    def __call__(self, rho_m, t_s) -> np.ndarray:
+        rho = np.asarray(rho_m, dtype=np.float64)
+        t = np.asarray(t_s, dtype=np.float64)
+        if np.isnan(rho).any() or np.isinf(rho).any():
+            raise ParameterError("rho_m", "NaN/Inf in array", "finite distances in m")
+        if np.isnan(t).any() or np.isinf(t).any():
+            raise ParameterError("t_s", "NaN/Inf in array", "finite times in s")
+        rho_b, t_b = np.broadcast_arrays(rho, t)
+        shape = rho_b.shape
+        if rho_b.size == 0:
+            return np.zeros(shape, self.dtype)
+        rho_g = cla.to_device(self.queue, np.ascontiguousarray(rho_b.ravel(), self.dtype))
+        t_g = cla.to_device(self.queue, np.ascontiguousarray(t_b.ravel(), self.dtype))
+        return self.pairs_device(rho_g, t_g).get().reshape(shape)
+
+
+def slab_transmittance(rho_m, t_s, *, thickness_m, mu_a, mu_s_prime, n, ze_m=None,
+                       n_dipoles=None, dtype=np.float32, device=None) -> np.ndarray:
+    """Diffuse transmittance T(rho, t) of a slab, 1/(m^2 s), computed by the OpenCL kernel.
+
+    ``rho_m`` (lateral distance from the entry point, m) broadcasts against ``t_s`` (time
+    since injection, s). ``t <= 0`` gives 0. ``n_dipoles=None`` picks the series length per
+    sample for a relative truncation error below 1e-8 (float32) / 1e-17 (float64);
+    an integer M sums exactly the 2M+1 image pairs m = -M..M (values where truncation would
+    make the sum negative are clamped at 0). ``device``: spec string, queue or None.
+    """
+    slab = Slab(thickness_m=thickness_m, mu_a=mu_a, mu_s_prime=mu_s_prime, n=n, ze_m=ze_m)
+    return SlabTransmittance(slab, n_dipoles=n_dipoles, dtype=dtype, queue=device)(rho_m, t_s)
+
+
+def grid_offsets(n: int, pitch_m: float) -> np.ndarray:
+    """Offsets of an FFT grid of n cells in wrap order: 0, p, 2p, ..., -2p, -p (m).
+
+    Index 0 is zero offset (no half-cell shift); index j >= ceil(n/2) is offset (j - n) p.
+    """
+    j = np.arange(n)
+    return np.where(j < (n + 1) // 2, j, j - n) * float(pitch_m)
+
+
+def diffusion_psf(slab: Slab, *, nt: int, bin_width_s: float, ny: int, nx: int,
+                  pitch_m: float, n_dipoles: int | None = None, dtype=np.float32,
+                  queue=None, normalize: str = "physical") -> np.ndarray:
+    """The slab blur Phi(t, y, x) on an FFT grid, shape (nt, ny, nx), axes [t, y, x].
+
+    Convention (stated once, used everywhere): ``Phi[k, j, i]`` is the response at time lag
+    ``k * bin_width_s`` (k = 0..nt-1, causal, point-sampled at the lag) and lateral offset
+    ``(grid_offsets(ny)[j], grid_offsets(nx)[i])`` -- zero lag and zero offset at index
+    [0, 0, 0], wrap order, no half-pixel shift. So a convolution by FFT leaves a delta at
+    (t0, y0, x0) centred at (t0 + lag, y0, x0).
+
+    normalize: ``"physical"`` -- ``T * dt * dx * dy`` (probability that a photon entering at
+    the origin leaves in that cell and bin; the sum approximates the slab's total
+    transmittance); ``"sum"`` -- unit sum; ``"none"`` -- T in 1/(m^2 s).
+    """
+    if normalize not in ("physical", "sum", "none"):
+        raise ParameterError("normalize", normalize, "'physical', 'sum' or 'none'")
+    for name, val in (("nt", nt), ("ny", ny), ("nx", nx)):
+        if int(val) != val or val < 1:
+            raise ParameterError(name, val, "an integer >= 1")
+    dt = _check_positive("bin_width_s", bin_width_s)
+    pitch = _check_positive("pitch_m", pitch_m)
+    plan = SlabTransmittance(slab, n_dipoles=n_dipoles, dtype=dtype, queue=queue)
+    yo, xo = grid_offsets(ny, pitch), grid_offsets(nx, pitch)
+    rho = np.sqrt(yo[:, None] ** 2 + xo[None, :] ** 2).ravel()
+    t = np.arange(nt) * dt
+    scale = dt * pitch * pitch if normalize == "physical" else 1.0
+    rho_g = cla.to_device(plan.queue, rho.astype(plan.dtype))
+    t_g = cla.to_device(plan.queue, t.astype(plan.dtype))
+    psf = plan.outer_device(rho_g, t_g, scale).get().reshape(nt, ny, nx)
+    if normalize == "sum":
+        total = psf.sum(dtype=np.float64)
+        if total > 0:
+            psf = (psf / total).astype(plan.dtype)
+    return psf
+
+
+__all__ = ["Slab", "SlabTransmittance", "slab_transmittance", "diffusion_psf",
+           "effective_reflection", "grid_offsets"]

@@ -1,0 +1,332 @@
+"""The one OpenCL runtime module: device selection, contexts, queues, program cache, checks.
+
+Only this module touches platforms and program builds. Everything else asks it for a
+queue (:func:`get_queue`) and for compiled kernels (:func:`get_kernels`).
+
+Device selection never prompts. A *device spec* is, in order of precedence, the explicit
+argument (``--device`` on the command line), the environment variable ``CLNLOS_DEVICE``,
+or the default (the first GPU found, else the first device of the first platform).
+Spec forms:
+
+``"P:D"``          platform index P, device index D (as ``clnlos devices`` numbers them)
+``"name"``         first device whose platform or device name or version contains ``name``
+                   (case-insensitive), e.g. ``pocl``, ``nvidia``, ``intel``
+``"name:K"``       the K-th such device, e.g. ``nvidia:1``
+``"cpu"``/``"gpu"`` first device of that type
+"""
+
+from __future__ import annotations
+
+import hashlib
+import importlib.resources
+import os
+import re
+import warnings
+from dataclasses import dataclass
+from functools import lru_cache
+
+import numpy as np
+import pyopencl as cl
+
+from .errors import DeviceCapabilityError, DeviceError, KernelBuildError
+
+ENV_DEVICE = "CLNLOS_DEVICE"
+ENV_FFT = "CLNLOS_FFT"  # "auto" (default), "vkfft" or "numpy"
+POCL_VKFFT_ISSUE = "https://github.com/pocl/pocl/issues/2069"
+
+
+# --------------------------------------------------------------------------- devices
+@dataclass(frozen=True)
+class DeviceInfo:
+    platform_index: int
+    device_index: int
+    platform: str
+    name: str
+    version: str
+    driver: str
+    type: str
+    compute_units: int
+    global_mem_bytes: int
+    max_alloc_bytes: int
+    fp64: bool
+    images: bool
+
+    @property
+    def spec(self) -> str:
+        return f"{self.platform_index}:{self.device_index}"
+
+
+def _all_devices() -> list[tuple[int, int, cl.Platform, cl.Device]]:
+    try:
+        platforms = cl.get_platforms()
+    except cl.Error as exc:  # no ICD loader or no platform at all
+        raise DeviceError(
+            f"no OpenCL platform found ({exc}); install an OpenCL driver "
+            "(e.g. Debian pocl-opencl-icd for the CPU)"
+        ) from None
+    out = []
+    for ip, p in enumerate(platforms):
+        try:
+            devs = p.get_devices()
+        except cl.Error:
+            continue
+        for idv, d in enumerate(devs):
+            out.append((ip, idv, p, d))
+    if not out:
+        raise DeviceError("OpenCL platforms found but no devices")
+    return out
+
+
+def has_fp64(device: cl.Device) -> bool:
+    return "cl_khr_fp64" in device.extensions or device.double_fp_config != 0
+
+
+def device_info(ip: int, idv: int, p: cl.Platform, d: cl.Device) -> DeviceInfo:
+    return DeviceInfo(
+        platform_index=ip,
+        device_index=idv,
+        platform=p.name.strip(),
+        name=d.name.strip(),
+        version=d.version.strip(),
+        driver=d.driver_version.strip(),
+        type=cl.device_type.to_string(d.type),
+        compute_units=int(d.max_compute_units),
+        global_mem_bytes=int(d.global_mem_size),
+        max_alloc_bytes=int(d.max_mem_alloc_size),
+        fp64=has_fp64(d),
+        images=bool(d.image_support),
+    )
+
+
+def list_devices() -> list[DeviceInfo]:
+    """Every OpenCL device on this machine, numbered ``platform:device``."""
+    return [device_info(*row) for row in _all_devices()]
+
+
+def _default_index(rows) -> int:
+    for k, (_, _, _, d) in enumerate(rows):
+        if d.type & cl.device_type.GPU:
+            return k
+    return 0
+
+
+def resolve_device_spec(spec: str | None = None) -> str:
+    """The effective spec string: explicit argument, else ``$CLNLOS_DEVICE``, else ``""``."""
+    if spec is None or str(spec).strip() == "":
+        spec = os.environ.get(ENV_DEVICE, "")
+    return str(spec).strip()
+
+
+def select_device(spec: str | None = None) -> cl.Device:
+    """Pick one device from a spec (see module docstring); never prompts."""
+    rows = _all_devices()
+    s = resolve_device_spec(spec)
+    avail = ", ".join(f"{ip}:{idv} ({d.name.strip()})" for ip, idv, _, d in rows)
+    if s == "":
+        return rows[_default_index(rows)][3]
+    m = re.fullmatch(r"(\d+):(\d+)", s)
+    if m:
+        ip, idv = int(m.group(1)), int(m.group(2))
+        for rip, ridv, _, d in rows:
+            if (rip, ridv) == (ip, idv):
+                return d
+        raise DeviceError(f"no OpenCL device {s!r}; available: {avail}")
+    m = re.fullmatch(r"([^:]+?)(?::(\d+))?", s)
+    if not m:
+        raise DeviceError(f"cannot parse device spec {s!r}; use P:D, NAME or NAME:K")
+    name, k = m.group(1).lower(), int(m.group(2) or 0)
+    if name in ("cpu", "gpu", "accelerator"):
+        want = getattr(cl.device_type, name.upper())
+        hits = [d for _, _, _, d in rows if d.type & want]
+    else:
+        hits = [d for _, _, p, d in rows
+                if any(name in text.lower() for text in (p.name, p.version, d.name, d.version))]
+    if k >= len(hits):
+        raise DeviceError(f"no OpenCL device matches {s!r}; available: {avail}")
+    return hits[k]
+
+
+@lru_cache(maxsize=None)
+def _context_for(device: cl.Device) -> cl.Context:
+    return cl.Context([device])
+
+
+@lru_cache(maxsize=None)
+def _queue_for(device: cl.Device, profiling: bool) -> cl.CommandQueue:
+    props = cl.command_queue_properties.PROFILING_ENABLE if profiling else 0
+    return cl.CommandQueue(_context_for(device), properties=props)
+
+
+def get_context(spec: str | None = None) -> cl.Context:
+    """The (cached) context of the selected device."""
+    return _context_for(select_device(spec))
+
+
+def get_queue(device: str | cl.CommandQueue | None = None, *, profiling: bool = False
+              ) -> cl.CommandQueue:
+    """A cached in-order queue for a device spec; a queue passed in is returned as is."""
+    if isinstance(device, cl.CommandQueue):
+        return device
+    return _queue_for(select_device(device), profiling)
+
+
+# --------------------------------------------------------------------------- capabilities
+def require_dtype(device: cl.Device, dtype) -> np.dtype:
+    """Check the device can compute in ``dtype`` (float32 or float64) and return it."""
+    dt = np.dtype(dtype)
+    if dt not in (np.float32, np.float64):
+        raise DeviceCapabilityError(f"dtype must be float32 or float64, got {dt}")
+    if dt == np.float64 and not has_fp64(device):
+        raise DeviceCapabilityError(
+            f"float64 requested but device {device.name.strip()!r} has no cl_khr_fp64; "
+            "use dtype=float32 or choose another device (clnlos devices)"
+        )
+    return dt
+
+
+def require_memory(device: cl.Device, nbytes: int, what: str) -> None:
+    """Raise before allocating when ``nbytes`` cannot fit on the device."""
+    if nbytes > device.max_mem_alloc_size or nbytes > device.global_mem_size:
+        raise DeviceCapabilityError(
+            f"{what} needs {nbytes / 2**20:.1f} MiB in one buffer but device "
+            f"{device.name.strip()!r} allows {device.max_mem_alloc_size / 2**20:.1f} MiB per "
+            f"buffer ({device.global_mem_size / 2**20:.1f} MiB in all); use a smaller grid"
+        )
+
+
+def pocl_version(device: cl.Device) -> tuple[int, int] | None:
+    """PoCL (major, minor) of the device's platform, or None if it is not PoCL."""
+    from pyopencl.characterize import get_pocl_version
+
+    return get_pocl_version(device.platform)
+
+
+def vkfft_status(queue: cl.CommandQueue) -> tuple[bool, str]:
+    """Whether pyvkfft may run on this queue's device, and why not.
+
+    PoCL >= 7 miscompiles VkFFT kernels (pocl issue 2069): there the host FFT is used.
+    ``CLNLOS_FFT=numpy`` forces the host FFT, ``CLNLOS_FFT=vkfft`` forces VkFFT.
+    """
+    choice = os.environ.get(ENV_FFT, "auto").strip().lower() or "auto"
+    if choice not in ("auto", "vkfft", "numpy"):
+        raise DeviceError(f"invalid {ENV_FFT}={choice!r}: allowed auto, vkfft, numpy")
+    if choice == "numpy":
+        return False, f"{ENV_FFT}=numpy"
+    try:
+        import pyvkfft.opencl  # noqa: F401
+    except Exception as exc:  # not installed, or built without the OpenCL backend
+        return False, f"pyvkfft (OpenCL backend) not importable: {exc}"
+    ver = pocl_version(queue.device)
+    if ver is not None and ver >= (7, 0) and choice != "vkfft":
+        return False, f"PoCL {ver[0]}.{ver[1]} miscompiles VkFFT ({POCL_VKFFT_ISSUE})"
+    return True, "pyvkfft"
+
+
+_warned: set[str] = set()
+
+
+def warn_once(msg: str) -> None:
+    if msg not in _warned:
+        _warned.add(msg)
+        warnings.warn(msg, RuntimeWarning, stacklevel=3)
+
+
+# --------------------------------------------------------------------------- programs
+def kernel_dir():
+    """The packaged kernel folder (``clnlos.kernels``) as an importlib.resources Traversable."""
+    return importlib.resources.files("clnlos.kernels")
+
+
+_INCLUDE_RE = re.compile(r'^\s*#\s*include\s+"([^"]+)"', re.MULTILINE)
+
+
+def _read_kernel(name: str) -> str:
+    res = kernel_dir() / name
+    if not res.is_file():
+        raise KernelBuildError(f"kernel source {name!r} not found in package clnlos.kernels")
+    return res.read_text(encoding="utf-8")
+
+
+def _source_with_headers(family: str) -> tuple[str, str]:
+    """Source of ``family.cl`` and a hash over it and every local header it includes."""
+    src = _read_kernel(f"{family}.cl")
+    h = hashlib.sha256(src.encode())
+    seen, todo = set(), _INCLUDE_RE.findall(src)
+    while todo:
+        inc = todo.pop()
+        if inc in seen or not (kernel_dir() / inc).is_file():
+            continue  # system headers such as pyopencl-complex.h come from -I paths
+        seen.add(inc)
+        text = _read_kernel(inc)
+        h.update(inc.encode() + text.encode())
+        todo.extend(_INCLUDE_RE.findall(text))
+    return src, h.hexdigest()
+
+
+def _include_options() -> list[str]:
+    from pyopencl import _find_pyopencl_include_path
+
+    with importlib.resources.as_file(kernel_dir()) as kdir:
+        return [f"-I{kdir}", f"-I{_find_pyopencl_include_path()}"]
+
+
+class KernelSet:
+    """The kernels of one built program, each ``cl.Kernel`` fetched once (attribute access)."""
+
+    def __init__(self, program: cl.Program, family: str, options: tuple[str, ...]):
+        self.program, self.family, self.options = program, family, options
+        self._k = {k.function_name: k for k in program.all_kernels()}
+
+    def __getattr__(self, name: str) -> cl.Kernel:
+        try:
+            return self.__dict__["_k"][name]
+        except KeyError:
+            raise AttributeError(f"kernel {name!r} not in {self.family}.cl") from None
+
+
+_program_cache: dict[tuple, KernelSet] = {}
+
+
+def format_defines(defines: dict | None) -> tuple[str, ...]:
+    out = []
+    for k, v in sorted((defines or {}).items()):
+        if v is None or v is False:
+            continue
+        out.append(f"-D{k}" if v is True else f"-D{k}={v}")
+    return tuple(out)
+
+
+def get_kernels(ctx_or_queue, family: str, defines: dict | None = None) -> KernelSet:
+    """Build (once) ``kernels/<family>.cl`` with ``-D`` defines and return its kernels.
+
+    Cached by (context, source hash including local headers, build options).
+    """
+    ctx = ctx_or_queue.context if isinstance(ctx_or_queue, cl.CommandQueue) else ctx_or_queue
+    src, digest = _source_with_headers(family)
+    options = format_defines(defines) + tuple(_include_options())
+    key = (ctx, digest, options)
+    hit = _program_cache.get(key)
+    if hit is not None:
+        return hit
+    dev = ctx.devices[0]
+    try:
+        prg = cl.Program(ctx, src).build(options=list(options))
+    except cl.RuntimeError as exc:
+        raise KernelBuildError(
+            f"building kernels/{family}.cl failed on device {dev.name.strip()!r} "
+            f"with options {' '.join(options)}:\n{exc}"
+        ) from None
+    ks = KernelSet(prg, family, options)
+    _program_cache[key] = ks
+    return ks
+
+
+def real_defines(dtype) -> dict:
+    """``-D`` defines selecting the real type of a kernel family."""
+    dt = np.dtype(dtype)
+    return {"REAL_T": "double" if dt == np.float64 else "float",
+            "USE_FP64": dt == np.float64}
+
+
+def round_up(n: int, m: int) -> int:
+    return ((n + m - 1) // m) * m

@@ -1,0 +1,149 @@
+"""OpenCL runtime: device selection, program cache, build errors, capability checks."""
+
+import os
+import subprocess
+import sys
+import zipfile
+from pathlib import Path
+
+import numpy as np
+import pytest
+
+from clnlos import runtime
+from clnlos.cli import main
+from clnlos.errors import DeviceCapabilityError, DeviceError, KernelBuildError
+
+ROOT = Path(__file__).resolve().parents[1]
+
+
+def test_list_devices_has_pocl():
+    devs = runtime.list_devices()
+    assert devs and all(d.compute_units >= 1 and d.global_mem_bytes > 0 for d in devs)
+    assert any("portable" in d.platform.lower() for d in devs) or os.environ.get("CLNLOS_DEVICE")
+
+
+@pytest.mark.parametrize("spec", ["0:0", "pocl", "portable", "cpu", "portable:0"])
+def test_select_device_specs(spec):
+    if spec in ("pocl", "portable", "portable:0") and not any(
+            "portable" in d.platform.lower() for d in runtime.list_devices()):
+        pytest.skip("no PoCL")
+    dev = runtime.select_device(spec)
+    assert dev.name
+
+
+def test_env_selects_device(monkeypatch):
+    monkeypatch.setenv(runtime.ENV_DEVICE, "0:0")
+    assert runtime.select_device(None) == runtime.select_device("0:0")
+    monkeypatch.setenv(runtime.ENV_DEVICE, "no-such-device")
+    with pytest.raises(DeviceError, match="no-such-device"):
+        runtime.select_device(None)
+
+
+@pytest.mark.parametrize("spec", ["9:9", "nvidia-nonexistent", "pocl:7", ":"])
+def test_bad_device_spec_is_clear(spec):
+    with pytest.raises(DeviceError):
+        runtime.select_device(spec)
+
+
+def test_program_cache_and_kernels_fetched_once(queue):
+    a = runtime.get_kernels(queue, "diffusion", runtime.real_defines(np.float32))
+    b = runtime.get_kernels(queue.context, "diffusion", runtime.real_defines(np.float32))
+    assert a is b
+    assert a.transmittance_pairs is b.transmittance_pairs  # same cl.Kernel object
+    c = runtime.get_kernels(queue, "diffusion", {"REAL_T": "float", "X_EXTRA": 3})
+    assert c is not a and "-DX_EXTRA=3" in c.options
+
+
+def test_build_failure_names_file_options_device(queue):
+    with pytest.raises(KernelBuildError) as ei:
+        runtime.get_kernels(queue, "diffusion", {"REAL_T": "no_such_type"})
+    msg = str(ei.value)
+    assert "diffusion.cl" in msg and "-DREAL_T=no_such_type" in msg
+    assert queue.device.name.strip() in msg
+
+
+def test_missing_kernel_family(queue):
+    with pytest.raises(KernelBuildError, match="not found"):
+        runtime.get_kernels(queue, "no_such_family")
+
+
+class _NoFp64Device:
+    name = "fake device without fp64"
+    extensions = "cl_khr_byte_addressable_store"
+    double_fp_config = 0
+
+
+def test_fp64_capability_error():
+    with pytest.raises(DeviceCapabilityError, match="cl_khr_fp64"):
+        runtime.require_dtype(_NoFp64Device(), np.float64)
+    assert runtime.require_dtype(_NoFp64Device(), np.float32) == np.float32
+    with pytest.raises(DeviceCapabilityError):
+        runtime.require_dtype(_NoFp64Device(), np.int32)
+
+
+def test_memory_check_before_allocation(queue):
+    with pytest.raises(DeviceCapabilityError, match="MiB"):
+        runtime.require_memory(queue.device, queue.device.global_mem_size * 4, "test volume")
+
+
+def test_pocl7_gates_vkfft(queue, monkeypatch):
+    monkeypatch.setattr(runtime, "pocl_version", lambda dev: (7, 0))
+    monkeypatch.delenv(runtime.ENV_FFT, raising=False)
+    ok, why = runtime.vkfft_status(queue)
+    assert not ok and "2069" in why or "not importable" in why
+    monkeypatch.setattr(runtime, "pocl_version", lambda dev: (3, 1))
+    monkeypatch.setenv(runtime.ENV_FFT, "numpy")
+    assert runtime.vkfft_status(queue) == (False, "CLNLOS_FFT=numpy")
+    monkeypatch.setenv(runtime.ENV_FFT, "bogus")
+    with pytest.raises(DeviceError, match="CLNLOS_FFT"):
+        runtime.vkfft_status(queue)
+
+
+def test_cli_devices_lists_and_marks_default(capsys):
+    assert main(["devices"]) == 0
+    out = capsys.readouterr().out
+    assert "fp64" in out and "*" in out and "0:0" in out
+
+
+def test_cli_bad_device_one_line_exit_2(capsys):
+    assert main(["devices", "--device", "9:9"]) == 0  # listing still works, no default marked
+    rc = subprocess.run([sys.executable, "-m", "clnlos", "devices", "--bogus-flag"],
+                        capture_output=True, text=True)
+    assert rc.returncode == 2 and "Traceback" not in rc.stderr
+    assert len(rc.stderr.strip().splitlines()) == 1
+
+
+def test_wheel_ships_kernels_and_runs_them(tmp_path):
+    """Build a wheel, install it into an empty target dir and run a kernel from there only."""
+    wheel_dir = tmp_path / "wheel"
+    r = subprocess.run([sys.executable, "-m", "pip", "wheel", "--no-deps", "--no-build-isolation",
+                        "-q", "-w", str(wheel_dir), str(ROOT)], capture_output=True, text=True)
+    if r.returncode != 0 and "No module named" in r.stderr:
+        pytest.skip(f"cannot build a wheel here: {r.stderr.strip()[-200:]}")
+    assert r.returncode == 0, r.stderr
+    whl = next(wheel_dir.glob("clnlos-*.whl"))
+    names = zipfile.ZipFile(whl).namelist()
+    for k in (ROOT / "kernels").glob("*.[ch]*"):
+        if k.suffix in (".cl", ".h"):
+            assert f"clnlos/kernels/{k.name}" in names, k.name
+    target = tmp_path / "site"
+    r = subprocess.run([sys.executable, "-m", "pip", "install", "--no-deps", "--no-index", "-q",
+                        "--target", str(target), str(whl)], capture_output=True, text=True)
+    assert r.returncode == 0, r.stderr
+    code = (
+        "import clnlos, clnlos.runtime as rt, clnlos.diffusion as d, pathlib, sys\n"
+        f"assert pathlib.Path(clnlos.__file__).is_relative_to({str(target)!r}), clnlos.__file__\n"
+        "names = sorted(p.name for p in rt.kernel_dir().iterdir() if p.name.endswith('.cl'))\n"
+        "q = rt.get_queue()\n"
+        "for fam in names:\n"
+        "    rt.get_kernels(q, fam[:-3], rt.real_defines('float32'))\n"
+        "v = d.slab_transmittance(0.0, 1e-9, thickness_m=0.0254, mu_a=0.53, mu_s_prime=262.0, n=1.12)\n"
+        "assert v > 0\n"
+        "print(len(names))\n"
+    )
+    env = {k: v for k, v in os.environ.items() if k != "PYTHONPATH"}
+    env["PYTHONPATH"] = str(target)
+    r = subprocess.run([sys.executable, "-c", code], capture_output=True, text=True,
+                       cwd=tmp_path, env=env)
+    assert r.returncode == 0, r.stderr
+    assert int(r.stdout.strip()) == len(list((ROOT / "kernels").glob("*.cl")))

@@ -1,0 +1,34 @@
+#!/usr/bin/env bash
+# Install everything clnlos needs on a fresh Debian machine (Python >= 3.11, root or sudo):
+#   Debian: PoCL (CPU OpenCL), opencl-headers and ocl-icd-opencl-dev (to build pyvkfft);
+#   a virtual environment .venv with the CPU torch wheel first (torch==2.13.0: an unpinned
+#   torch would pull a multi-GB CUDA build), pyvkfft built for OpenCL, then clnlos itself.
+# Idempotent: what is already there is kept.
+set -euo pipefail
+cd "$(dirname "$0")/.."
+
+need=()
+for pkg in pocl-opencl-icd opencl-headers ocl-icd-opencl-dev; do
+  dpkg -s "$pkg" >/dev/null 2>&1 || need+=("$pkg")
+done
+if [ ${#need[@]} -gt 0 ]; then
+  SUDO=""; [ "$(id -u)" = 0 ] || SUDO="sudo"
+  echo "setup: installing Debian packages: ${need[*]}"
+  $SUDO apt-get update -q
+  DEBIAN_FRONTEND=noninteractive $SUDO apt-get install -y -q --no-install-recommends "${need[@]}"
+fi
+
+PY="${PYTHON:-python3}"
+if [ ! -x .venv/bin/python ]; then
+  echo "setup: creating .venv with $($PY --version)"
+  "$PY" -m venv .venv
+fi
+pip() { .venv/bin/python -m pip -q --disable-pip-version-check "$@"; }
+.venv/bin/python -c "import torch" 2>/dev/null || { echo "setup: torch (CPU)"; pip install torch==2.13.0; }
+.venv/bin/python -c "import pyvkfft.opencl" 2>/dev/null || {
+  echo "setup: pyvkfft (OpenCL backend, builds from source)"
+  VKFFT_BACKEND=opencl pip install "pyvkfft>=2024.1"
+}
+echo "setup: clnlos"
+VKFFT_BACKEND=opencl pip install -e ".[test,ml,vkfft,study]"
+.venv/bin/clnlos devices
