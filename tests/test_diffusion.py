@@ -147,7 +147,7 @@ def test_psf_grid_layout_and_normalisation(queue):
     s = Slab(**CDT)
     dt, pitch, nt, n = 16e-12, 0.01, 256, 16
     psf = diffusion_psf(s, nt=nt, bin_width_s=dt, ny=n, nx=n, pitch_m=pitch, dtype=np.float64,
-                        queue=queue)
+                        queue=queue, time_nodes=1)
     assert psf.shape == (nt, n, n)
     assert np.all(psf[0] == 0)  # zero lag
     # wrap order: zero offset at index 0, symmetric in +-offset
@@ -159,6 +159,14 @@ def test_psf_grid_layout_and_normalisation(queue):
     unit = diffusion_psf(s, nt=nt, bin_width_s=dt, ny=n, nx=n, pitch_m=pitch, queue=queue,
                          normalize="sum")
     assert unit.sum() == pytest.approx(1.0, rel=1e-5)
+    # bin-averaged (default) against the reference integrated by the midpoint rule
+    avg = diffusion_psf(s, nt=nt, bin_width_s=dt, ny=n, nx=n, pitch_m=pitch, dtype=np.float64,
+                        queue=queue)
+    fine = (np.arange(nt)[:, None] + (np.arange(64) + 0.5)[None, :] / 64 - 0.5) * dt
+    ref_avg = slab_transmittance_ref(np.hypot(off[3], off[5]), fine, **CDT,
+                                     ze_m=s.ze).mean(axis=1)
+    np.testing.assert_allclose(avg[:, 3, 5], ref_avg * dt * pitch**2, rtol=2e-4,
+                               atol=1e-4 * ref_avg.max() * dt * pitch**2)
 
 
 def test_plan_reuses_program(queue):

@@ -1,0 +1,62 @@
+"""The confocal slab blur Phi * Phi on the zero-padded measurement grid.
+
+Light crosses the slab twice in a confocal CDT capture (laser in, return out), so the
+measurement is tau = (Phi * Phi) * I with * a 3D convolution over (t, y, x) and Phi the
+slab transmittance of :mod:`clnlos.diffusion` on the scan grid (Lindell & Wetzstein 2020,
+Eq. 11). Grid conventions are those of :func:`clnlos.diffusion.diffusion_psf`: zero lag and
+zero offset at index [0, 0, 0], wrap order, no half-pixel shift.
+
+Left out: the lateral tails of Phi * Phi beyond one scan width (they alias on the 2N
+padded grid; the CDT slab's blur is a few cm against scan widths of tens of cm).
+"""
+
+from __future__ import annotations
+
+import numpy as np
+import pyopencl.array as cla
+
+from .diffusion import Slab, diffusion_psf
+from .fft import RealFFT3
+from .runtime import get_kernels, get_queue, real_defines, require_dtype, round_up
+from .wiener import SpectralFilter
+
+
+def confocal_psf(slab: Slab, shape: tuple[int, int, int], *, bin_width_s: float,
+                 pitch_m: float, n_dipoles: int | None = None, dtype=np.float32,
+                 queue=None) -> cla.Array:
+    """Phi * Phi on the padded grid (2 nt, 2 ny, 2 nx) for transients of ``shape``.
+
+    Phi is computed with ``normalize="physical"`` (so the sum of Phi * Phi approximates the
+    squared total transmittance) for lags 0..nt-1; the self-convolution is exact on the
+    2 nt grid and is then cut to lags 0..nt-1, the only ones that reach the time window
+    from inside it -- longer lags would wrap around the padded FFT.
+    """
+    q = get_queue(queue)
+    dt = require_dtype(q.device, dtype)
+    nt, ny, nx = (int(s) for s in shape)
+    pad = (2 * nt, 2 * ny, 2 * nx)
+    phi = diffusion_psf(slab, nt=pad[0], bin_width_s=bin_width_s, ny=pad[1], nx=pad[2],
+                        pitch_m=pitch_m, n_dipoles=n_dipoles, dtype=dt, queue=q)
+    phi[nt:] = 0
+    fft = RealFFT3(pad, dt, q)
+    spec = fft.forward(cla.to_device(q, phi))
+    k = get_kernels(q, "wiener", real_defines(dt))
+    k.spectral_square(q, (round_up(spec.size, 256),), None, spec.data, np.int64(spec.size))
+    phi2 = fft.inverse(spec)
+    phi2[nt:].fill(0)
+    return phi2
+
+
+def slab_blur(slab: Slab, shape, *, bin_width_s: float, pitch_m: float, mode: str = "convolve",
+              snr: float | None = None, n_dipoles: int | None = None, dtype=np.float32,
+              queue=None) -> SpectralFilter:
+    """The confocal blur as an operator on transients of ``shape`` [t, y, x].
+
+    ``mode="convolve"``: the forward model tau = (Phi * Phi) * I in physical units (the DC
+    gain is the squared slab transmittance). ``mode="wiener"``: the deconvolution
+    conj(H)/(|H|^2 + 1/SNR) with H normalised to unit DC gain.
+    """
+    psf = confocal_psf(slab, shape, bin_width_s=bin_width_s, pitch_m=pitch_m,
+                       n_dipoles=n_dipoles, dtype=dtype, queue=queue)
+    return SpectralFilter(psf, shape, mode=mode, snr=snr, normalize=(mode == "wiener"),
+                          dtype=dtype, queue=queue)

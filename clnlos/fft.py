@@ -1,0 +1,107 @@
+"""3D FFT plans on an OpenCL queue: pyvkfft where it is safe, a host numpy fallback elsewhere.
+
+The backend is chosen once per plan by :func:`clnlos.runtime.vkfft_status` (PoCL >= 7
+miscompiles VkFFT, pocl issue 2069; ``CLNLOS_FFT=numpy|vkfft`` overrides) and recorded in
+``plan.backend``. Conventions are numpy's: forward unnormalised, inverse divided by N.
+
+``RealFFT3``: real (n0, n1, n2) <-> half spectrum (n0, n1, n2//2 + 1) (the spectral filters).
+``ComplexFFT3``: complex (n0, n1, n2) in place (f-k migration needs the full spectrum).
+"""
+
+from __future__ import annotations
+
+from functools import lru_cache
+
+import numpy as np
+import pyopencl.array as cla
+
+from .runtime import get_queue, require_dtype, require_memory, vkfft_status, warn_once
+
+COMPLEX_OF = {np.dtype(np.float32): np.dtype(np.complex64),
+              np.dtype(np.float64): np.dtype(np.complex128)}
+
+
+@lru_cache(maxsize=64)
+def _vkfft_app(shape: tuple, dtype: np.dtype, queue, r2c: bool):
+    """VkFFT apps are costly to build (kernel generation and compilation): one per
+    (shape, dtype, queue, kind), shared by every plan, as pyvkfft's own fft module does."""
+    from pyvkfft.opencl import VkFFTApp
+
+    return VkFFTApp(shape, dtype, queue, ndim=3, inplace=not r2c, r2c=r2c, norm=1)
+
+
+def _backend(queue) -> str:
+    ok, why = vkfft_status(queue)
+    if ok:
+        return "vkfft"
+    if "2069" in why or "not importable" in why:
+        warn_once(f"clnlos: host (numpy) FFT fallback: {why}")
+    return "numpy"
+
+
+class RealFFT3:
+    """Real-to-complex 3D FFT plan for a fixed shape and precision on one queue."""
+
+    def __init__(self, shape: tuple[int, int, int], dtype=np.float32, queue=None):
+        self.queue = get_queue(queue)
+        self.dtype = require_dtype(self.queue.device, dtype)
+        self.cdtype = COMPLEX_OF[self.dtype]
+        self.shape = tuple(int(s) for s in shape)
+        self.spec_shape = self.shape[:-1] + (self.shape[-1] // 2 + 1,)
+        require_memory(self.queue.device, int(np.prod(self.spec_shape)) * self.cdtype.itemsize,
+                       f"FFT of shape {self.shape}")
+        self.backend = _backend(self.queue)
+        self._app = None
+        if self.backend == "vkfft":
+            self._app = _vkfft_app(self.shape, self.dtype, self.queue, True)
+
+    def empty_spectrum(self) -> cla.Array:
+        return cla.empty(self.queue, self.spec_shape, self.cdtype)
+
+    def forward(self, x_g: cla.Array, out_g: cla.Array | None = None) -> cla.Array:
+        """Half spectrum of the real array ``x_g`` (not modified)."""
+        out_g = self.empty_spectrum() if out_g is None else out_g
+        if self._app is not None:
+            self._app.fft(x_g, out_g)
+        else:
+            out_g.set(np.fft.rfftn(x_g.get()).astype(self.cdtype), queue=self.queue)
+        return out_g
+
+    def inverse(self, s_g: cla.Array, out_g: cla.Array | None = None) -> cla.Array:
+        """Real array from a half spectrum; ``s_g`` is overwritten (VkFFT C2R does)."""
+        out_g = cla.empty(self.queue, self.shape, self.dtype) if out_g is None else out_g
+        if self._app is not None:
+            self._app.ifft(s_g, out_g)
+        else:
+            out_g.set(np.fft.irfftn(s_g.get(), s=self.shape, axes=(0, 1, 2)).astype(self.dtype), queue=self.queue)
+        return out_g
+
+
+class ComplexFFT3:
+    """In-place complex 3D FFT plan for a fixed shape and precision on one queue."""
+
+    def __init__(self, shape: tuple[int, int, int], dtype=np.float32, queue=None):
+        self.queue = get_queue(queue)
+        self.dtype = require_dtype(self.queue.device, dtype)
+        self.cdtype = COMPLEX_OF[self.dtype]
+        self.shape = tuple(int(s) for s in shape)
+        require_memory(self.queue.device, int(np.prod(self.shape)) * self.cdtype.itemsize,
+                       f"FFT of shape {self.shape}")
+        self.backend = _backend(self.queue)
+        self._app = None
+        if self.backend == "vkfft":
+            self._app = _vkfft_app(self.shape, self.cdtype, self.queue, False)
+
+    def forward(self, a_g: cla.Array) -> cla.Array:
+        if self._app is not None:
+            self._app.fft(a_g)
+        else:
+            a_g.set(np.fft.fftn(a_g.get()).astype(self.cdtype), queue=self.queue)
+        return a_g
+
+    def inverse(self, a_g: cla.Array) -> cla.Array:
+        if self._app is not None:
+            self._app.ifft(a_g)
+        else:
+            a_g.set(np.fft.ifftn(a_g.get()).astype(self.cdtype), queue=self.queue)
+        return a_g

@@ -1,0 +1,68 @@
+"""Confocal inversion by f-k migration (Lindell, Wetzstein & O'Toole, SIGGRAPH 2019).
+
+The confocal measurement is treated as a wavefield psi(x, y, t) recorded at z = 0 of an
+exploding reflector moving at c/2: with t expressed as distance z_t = c t / 2, the
+dispersion relation is k_t^2 = k_x^2 + k_y^2 + k_z^2. Steps (``kernels/fk.cl``):
+
+1. psi = sqrt((t/T)^p tau), zero padded to (2M, 2Ny, 2Nx) (p = ``falloff``, default 2);
+2. 3D FFT; Stolt interpolation PSI'(k_z) = PSI(sqrt(k_z^2 + k_x^2 + k_y^2)) k_z / k_t for
+   k_z > 0 (linear along k_t); 3. inverse FFT, volume = |psi'|^2 on the unpadded block.
+
+Same input/output contract as :class:`clnlos.lct.LCT`. Left out: BRDF, occlusions; the
+square root assumes non-negative measurements (negative values are clipped to 0).
+"""
+
+from __future__ import annotations
+
+import numpy as np
+import pyopencl.array as cla
+
+from . import C0
+from .errors import ParameterError
+from .fft import ComplexFFT3
+from .runtime import get_kernels, get_queue, real_defines, require_dtype, round_up
+
+
+class FKMigration:
+    def __init__(self, shape, *, bin_width_s: float, scan_width_m: float, falloff: float = 2.0,
+                 dtype=np.float32, queue=None):
+        self.queue = get_queue(queue)
+        self.dtype = require_dtype(self.queue.device, dtype)
+        nt, ny, nx = (int(s) for s in shape)
+        if min(nt, ny, nx) < 1:
+            raise ParameterError("shape", shape, "three sizes >= 1")
+        if not np.isfinite(falloff) or not 0 <= falloff <= 8:
+            raise ParameterError("falloff", falloff, "0 to 8")
+        self.shape = (nt, ny, nx)
+        self.pad_shape = (2 * nt, 2 * ny, 2 * nx)
+        dz = C0 * float(bin_width_s) / 2
+        pitch = float(scan_width_m) / nx
+        self.alpha_y = (nt * dz / (ny * pitch)) ** 2
+        self.alpha_x = (nt * dz / (nx * pitch)) ** 2
+        self.fft = ComplexFFT3(self.pad_shape, self.dtype, self.queue)
+        self._k = get_kernels(self.queue, "fk", real_defines(self.dtype))
+        w = ((np.arange(nt) + 0.5) / nt) ** falloff
+        self._w = cla.to_device(self.queue, w.astype(self.dtype))
+        self._a = cla.empty(self.queue, self.pad_shape, self.fft.cdtype)
+        self._b = cla.empty(self.queue, self.pad_shape, self.fft.cdtype)
+
+    def __call__(self, tau):
+        on_device = isinstance(tau, cla.Array)
+        x = tau if on_device else cla.to_device(self.queue,
+                                                np.ascontiguousarray(tau, self.dtype))
+        nt, ny, nx = self.shape
+        pt, py, px = self.pad_shape
+        q = self.queue
+        self._k.fk_prepare(q, (round_up(px, 8), round_up(py, 8), pt), None, x.data,
+                           self._w.data, self._a.data, np.int32(nt), np.int32(ny),
+                           np.int32(nx))
+        self.fft.forward(self._a)
+        r = self.dtype.type
+        self._k.stolt(q, (round_up(px, 8), round_up(py, 8), pt), None, self._a.data,
+                      self._b.data, np.int32(pt), np.int32(py), np.int32(px),
+                      r(self.alpha_y), r(self.alpha_x))
+        self.fft.inverse(self._b)
+        vol = cla.empty(q, self.shape, self.dtype)
+        self._k.fk_finish(q, (round_up(nx, 8), round_up(ny, 8), nt), None, self._b.data,
+                          vol.data, np.int32(nt), np.int32(ny), np.int32(nx))
+        return vol if on_device else vol.get()

@@ -1,0 +1,121 @@
+"""Confocal inversion by the light-cone transform (O'Toole, Lindell & Wetzstein, Nature 2018).
+
+With r = c t / 2, v = r^2 and u = z^2, the confocal measurement of an albedo volume
+rho(x, y, z) (Lambertian falloff 1/r^4)::
+
+    r^4 tau(x, y, r) = 2 r iiint rho(x', y', z) delta(r^2 - |x-x'|^2 - |y-y'|^2 - z^2)
+
+becomes a 3D convolution in (v, y, x): v^{3/2} tau(sqrt v) = h * [rho(sqrt u) / sqrt u] with
+the light cone h(x, y, v) = delta(v - x^2 - y^2). The inverse:
+
+1. weight tau by (t/T)^p (p = ``falloff``: 4 for diffuse, 2 for retroreflective surfaces) and
+   resample t -> v with mass-conserving bin overlaps (density 1/(2r): together r^3 tau);
+2. Wiener-filter in (v, y, x) with the light cone: conj(H)/(|H|^2 + 1/SNR), zero padded to
+   (2M, 2Ny, 2Nx), light cone splatted linearly between v bins (no aliasing);
+3. resample u -> z (mass-conserving), clamp at 0.
+
+Input: transient [t, y, x], bin 0 starting at t = 0 (round trip from the scan plane), nt bins
+of ``bin_width_s``, scan of width ``scan_width_m`` (cell centres). Output: albedo volume
+[z, y, x], depth bin k covering [k, k+1) * c * bin_width_s / 2, same lateral grid.
+Left out: surface normals and BRDF (assumed isotropic scatterers), occlusions.
+"""
+
+from __future__ import annotations
+
+import numpy as np
+import scipy.sparse as sp
+
+from . import C0
+from .errors import ParameterError
+from .operators import LinearOperator
+from .resample import AxisResample, overlap_matrix
+from .runtime import get_kernels, get_queue, real_defines, require_dtype, round_up
+from .wiener import SpectralFilter
+
+
+def lightcone_psf(nt: int, ny: int, nx: int, *, bin_width_s: float, pitch_m: float
+                  ) -> np.ndarray:
+    """Light cone h on the padded (2nt, 2ny, 2nx) v-grid in wrap order, unit sum (float64).
+
+    For a lateral offset q = (dy^2 + dx^2) pitch^2 the response sits at v-shift
+    s = q / R^2 * nt bins (R = nt c dt / 2), split linearly between bins floor(s), floor(s)+1.
+    """
+    R = nt * C0 * bin_width_s / 2
+    oy = np.where(np.arange(2 * ny) < ny, np.arange(2 * ny), np.arange(2 * ny) - 2 * ny)
+    ox = np.where(np.arange(2 * nx) < nx, np.arange(2 * nx), np.arange(2 * nx) - 2 * nx)
+    q = (oy[:, None] * pitch_m) ** 2 + (ox[None, :] * pitch_m) ** 2
+    s = q / R**2 * nt
+    k0 = np.floor(s).astype(np.int64)
+    f = s - k0
+    psf = np.zeros((2 * nt, 2 * ny, 2 * nx))
+    yy, xx = np.indices(q.shape)
+    for kk, w in ((k0, 1 - f), (k0 + 1, f)):
+        ok = kk < 2 * nt
+        np.add.at(psf, (kk[ok], yy[ok], xx[ok]), w[ok])
+    return psf / psf.sum()
+
+
+def t_to_v_matrix(nt: int, falloff: float) -> sp.csr_matrix:
+    """Radiometric weight (t/T)^p then mass-conserving resampling t -> v = t^2 (normalised)."""
+    t_edges = np.linspace(0.0, 1.0, nt + 1)
+    v_edges_in_t = np.sqrt(np.linspace(0.0, 1.0, nt + 1))
+    centres = (np.arange(nt) + 0.5) / nt
+    return (overlap_matrix(t_edges, v_edges_in_t) @ sp.diags(centres**falloff)).tocsr()
+
+
+def u_to_z_matrix(nt: int) -> sp.csr_matrix:
+    """Mass-conserving resampling u = z^2 -> z (normalised)."""
+    u_edges_in_z = np.sqrt(np.linspace(0.0, 1.0, nt + 1))
+    return overlap_matrix(u_edges_in_z, np.linspace(0.0, 1.0, nt + 1))
+
+
+class LCT:
+    """LCT plan for transients of one shape, precision and device.
+
+    Parameters: shape (nt, ny, nx); bin_width_s; scan_width_m (side of the scanned square,
+    so the lateral pitch is scan_width_m / nx); snr of the light-cone Wiener filter;
+    falloff exponent p.
+    """
+
+    def __init__(self, shape, *, bin_width_s: float, scan_width_m: float, snr: float = 1e2,
+                 falloff: float = 4.0, dtype=np.float32, queue=None):
+        self.queue = get_queue(queue)
+        self.dtype = require_dtype(self.queue.device, dtype)
+        nt, ny, nx = (int(s) for s in shape)
+        if min(nt, ny, nx) < 1:
+            raise ParameterError("shape", shape, "three sizes >= 1")
+        if not np.isfinite(falloff) or not 0 <= falloff <= 8:
+            raise ParameterError("falloff", falloff, "0 to 8")
+        self.shape = (nt, ny, nx)
+        self.bin_width_s, self.scan_width_m = float(bin_width_s), float(scan_width_m)
+        pitch = self.scan_width_m / nx
+        self.to_v = AxisResample(t_to_v_matrix(nt, falloff), (ny, nx), dtype=self.dtype,
+                                 queue=self.queue)
+        self.to_v.name = "lct_t_to_v"
+        psf = lightcone_psf(nt, ny, nx, bin_width_s=bin_width_s, pitch_m=pitch)
+        self.cone = SpectralFilter(psf, self.shape, mode="convolve", dtype=self.dtype,
+                                   queue=self.queue)
+        self.cone.name = "lct_lightcone"
+        self.inverse_filter = SpectralFilter.from_spectrum(self.cone, self.cone.H,
+                                                           mode="wiener", snr=snr)
+        self.to_z = AxisResample(u_to_z_matrix(nt), (ny, nx), dtype=self.dtype,
+                                 queue=self.queue)
+        self.to_z.name = "lct_u_to_z"
+        self._k = get_kernels(self.queue, "resample", real_defines(self.dtype))
+
+    @property
+    def forward_operator(self) -> LinearOperator:
+        """The linear model in the (v, y, x) domain used by the inverse: light-cone convolution."""
+        return self.cone
+
+    def __call__(self, tau):
+        """Albedo volume [z, y, x] (clamped at 0) from a transient [t, y, x]."""
+        import pyopencl.array as cla
+
+        on_device = isinstance(tau, cla.Array)
+        x = tau if on_device else cla.to_device(self.queue,
+                                                np.ascontiguousarray(tau, self.dtype))
+        vol = self.to_z(self.inverse_filter(self.to_v(x)))
+        self._k.clamp_nonnegative(self.queue, (round_up(vol.size, 256),), None, vol.data,
+                                  np.int64(vol.size))
+        return vol if on_device else vol.get()

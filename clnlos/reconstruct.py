@@ -1,0 +1,194 @@
+"""Reconstruction pipeline: capture -> preprocess -> [slab deconvolution] -> confocal inverse.
+
+Stages (each a plan built once for the capture's shape, dtype and device):
+
+1. ``preprocess``: one mass-conserving resampling of the time axis that aligns bin 0 to
+   t = 0 (using ``start_s``), crops to ``max_path_m`` of round-trip path and rebins to
+   ``bins`` bins (sums of overlapping bins, never point samples); then normalisation.
+2. ``deconvolve`` (only with a slab): Wiener deconvolution of Phi * Phi (:mod:`clnlos.blur`).
+3. ``invert``: LCT (:mod:`clnlos.lct`) or f-k migration (:mod:`clnlos.fk`).
+
+Output volume [z, y, x]: depth bin k spans [k, k+1) * c * dt / 2 behind the scan plane
+(the slab's hidden face), x and y the scan-cell centres, x increasing with the column
+index and y with the row index (images are drawn with +x to the right and +y up).
+"""
+
+from __future__ import annotations
+
+import time
+from dataclasses import dataclass, field
+
+import numpy as np
+import pyopencl.array as cla
+import scipy.sparse as sp
+
+from . import C0
+from .blur import slab_blur
+from .config import ReconstructionConfig
+from .errors import ParameterError
+from .fk import FKMigration
+from .io import Capture
+from .lct import LCT
+from .resample import AxisResample, overlap_matrix
+from .runtime import get_queue, require_dtype
+
+
+@dataclass
+class Reconstruction:
+    volume: np.ndarray
+    bin_width_s: float
+    scan_width_m: float
+    stages: list[str]
+    timings_s: dict[str, float]
+    params: dict
+    transient: np.ndarray | None = None
+    extents: dict = field(default_factory=dict)
+
+
+def preprocess_matrix(nt_in: int, bin_width_s: float, start_s: float, max_path_m: float | None,
+                      bins: int | None, guard_fraction: float = 0.0):
+    """(matrix, new bin width, n_out): align to t = 0, crop to max path, rebin -- one resampling.
+
+    The matrix has ``n_out + n_guard`` rows: up to ``guard_fraction * n_out`` extra bins past
+    the kept window, taken from the capture where it extends that far. The slab
+    deconvolution runs on them (light that entered the window late leaves the slab after
+    it), then they are dropped, so the deconvolution's edge effects fall outside the volume.
+    """
+    src_edges = start_s + bin_width_s * np.arange(nt_in + 1)
+    t_end = src_edges[-1]
+    if max_path_m is not None:
+        t_end = min(t_end, max_path_m / C0)
+    if t_end <= 0:
+        raise ParameterError("preprocess.max_path_m", max_path_m,
+                             "a path length that keeps some of the capture's time window")
+    n_keep = max(1, int(round(t_end / bin_width_s)))
+    n_out = n_keep if bins is None else int(bins)
+    t_keep = n_keep * bin_width_s
+    dt_out = t_keep / n_out
+    n_avail = int(np.floor((src_edges[-1] - t_keep) / dt_out + 1e-9))
+    n_guard = max(0, min(n_avail, int(np.ceil(guard_fraction * n_out))))
+    dst_edges = np.linspace(0.0, t_keep + n_guard * dt_out, n_out + n_guard + 1)
+    return overlap_matrix(src_edges, dst_edges), dt_out, n_out
+
+
+class ReconstructionPipeline:
+    """The composed stages for one capture geometry (shape, bin width, scan width)."""
+
+    def __init__(self, shape_in, *, bin_width_s: float, start_s: float, scan_width_m: float,
+                 config: ReconstructionConfig, dtype=np.float32, queue=None):
+        self.queue = get_queue(queue)
+        self.dtype = require_dtype(self.queue.device, dtype)
+        self.config = config
+        nt_in, ny, nx = shape_in
+        guard = config.guard_fraction if config.slab is not None else 0.0
+        A, self.bin_width_s, n_out = preprocess_matrix(nt_in, bin_width_s, start_s,
+                                                       config.max_path_m, config.bins, guard)
+        self.scan_width_m = scan_width_m
+        self.shape = (n_out, ny, nx)
+        self.n_guard = A.shape[0] - n_out
+        self.stages = ["preprocess"]
+        self.pre = AxisResample(A, (ny, nx), dtype=self.dtype, queue=self.queue)
+        self.pre.name = "preprocess"
+        pitch = scan_width_m / nx
+        self.deconv = self.crop = None
+        if config.slab is not None:
+            self.deconv = slab_blur(config.slab, (A.shape[0], ny, nx),
+                                    bin_width_s=self.bin_width_s, pitch_m=pitch, mode="wiener",
+                                    snr=config.snr, n_dipoles=config.n_dipoles,
+                                    dtype=self.dtype, queue=self.queue)
+            self.stages.append("deconvolve")
+        if self.n_guard:
+            self.crop = AxisResample(sp.identity(A.shape[0], format="csr")[:n_out], (ny, nx),
+                                     dtype=self.dtype, queue=self.queue)
+        if config.method == "lct":
+            self.invert = LCT(self.shape, bin_width_s=self.bin_width_s,
+                              scan_width_m=scan_width_m, snr=config.inversion_snr,
+                              falloff=4.0 if config.falloff is None else config.falloff,
+                              dtype=self.dtype, queue=self.queue)
+        else:
+            self.invert = FKMigration(self.shape, bin_width_s=self.bin_width_s,
+                                      scan_width_m=scan_width_m,
+                                      falloff=2.0 if config.falloff is None else config.falloff,
+                                      dtype=self.dtype, queue=self.queue)
+        self.stages.append(f"invert:{config.method}")
+
+    def _timed(self, timings, name, fn, *a):
+        self.queue.finish()
+        t0 = time.perf_counter()
+        out = fn(*a)
+        self.queue.finish()
+        timings[name] = timings.get(name, 0.0) + time.perf_counter() - t0
+        return out
+
+    def run(self, transient: np.ndarray, *, keep_transient: bool = False) -> Reconstruction:
+        timings: dict[str, float] = {}
+        x = cla.to_device(self.queue, np.ascontiguousarray(transient, self.dtype))
+        tau = self._timed(timings, "preprocess", self.pre, x)
+        norm = self.config.normalize
+        if norm != "none":
+            s = float((cla.max(tau) if norm == "max" else cla.sum(tau)).get())
+            if s > 0:
+                tau *= self.dtype.type(1.0 / s)
+        if self.deconv is not None:
+            tau = self._timed(timings, "deconvolve", self.deconv, tau)
+        if self.crop is not None:
+            tau = self.crop(tau)
+        vol = self._timed(timings, f"invert:{self.config.method}", self.invert, tau)
+        volume = vol.get()
+        nt, ny, nx = self.shape
+        dz = C0 * self.bin_width_s / 2
+        w = self.scan_width_m
+        extents = {"depth_min_m": 0.0, "depth_max_m": nt * dz, "voxel_depth_m": dz,
+                   "x_min_m": -w / 2, "x_max_m": w / 2, "y_min_m": -w * ny / nx / 2,
+                   "y_max_m": w * ny / nx / 2, "voxel_lateral_m": w / nx}
+        return Reconstruction(volume=volume, bin_width_s=self.bin_width_s, scan_width_m=w,
+                              stages=list(self.stages), timings_s=timings,
+                              params=self.config.as_attrs(),
+                              transient=tau.get() if keep_transient else None, extents=extents)
+
+
+def resolve_geometry(capture: Capture, config: ReconstructionConfig) -> tuple[float, float, float]:
+    """(bin_width_s, start_s, scan_width_m): the config overrides the file."""
+    bw = config.bin_width_s if config.bin_width_s is not None else capture.bin_width_s
+    if bw is None:
+        raise ParameterError("capture.bin_width_s", None, "> 0: give --bin-width")
+    sw = config.scan_width_m if config.scan_width_m is not None else capture.scan_width_m
+    if sw is None:
+        raise ParameterError("capture.scan_width_m", None,
+                             "> 0: the capture does not store it, give --scan-width")
+    start = config.start_s if config.start_s is not None else capture.start_s
+    return float(bw), float(start), float(sw)
+
+
+def reconstruct(capture: Capture, config: ReconstructionConfig, *, dtype=np.float32,
+                device=None, keep_transient: bool = False) -> Reconstruction:
+    """Reconstruct an albedo volume from a capture with the given configuration."""
+    bw, start, sw = resolve_geometry(capture, config)
+    pipe = ReconstructionPipeline(capture.transient.shape, bin_width_s=bw, start_s=start,
+                                  scan_width_m=sw, config=config, dtype=dtype, queue=device)
+    return pipe.run(capture.transient, keep_transient=keep_transient)
+
+
+def volume_figure(rec: Reconstruction, title: str = ""):
+    """Max-intensity projection (x-y) and x-z / y-z projections (seed Fig. 8 layout)."""
+    import matplotlib
+
+    matplotlib.use("Agg")
+    import matplotlib.pyplot as plt
+
+    v = rec.volume
+    e = rec.extents
+    fig, ax = plt.subplots(1, 3, figsize=(12, 4))
+    ax[0].imshow(v.max(axis=0), origin="lower", cmap="gray",
+                 extent=(e["x_min_m"], e["x_max_m"], e["y_min_m"], e["y_max_m"]))
+    ax[0].set(xlabel="x (m)", ylabel="y (m)", title="max over depth (x-y)")
+    ax[1].imshow(v.max(axis=1), origin="lower", cmap="gray", aspect="auto",
+                 extent=(e["x_min_m"], e["x_max_m"], e["depth_min_m"], e["depth_max_m"]))
+    ax[1].set(xlabel="x (m)", ylabel="depth z (m)", title="max over y (x-z)")
+    ax[2].imshow(v.max(axis=2), origin="lower", cmap="gray", aspect="auto",
+                 extent=(e["y_min_m"], e["y_max_m"], e["depth_min_m"], e["depth_max_m"]))
+    ax[2].set(xlabel="y (m)", ylabel="depth z (m)", title="max over x (y-z)")
+    if title:
+        fig.suptitle(title)
+    fig.tight_layout()
+    return fig

@@ -1,0 +1,116 @@
+"""Spectral filters on zero-padded 3D grids: convolution, its adjoint, Wiener deconvolution.
+
+For a real volume x of shape (n0, n1, n2) and a PSF h on the padded grid P (wrap order:
+zero lag/offset at index [0, 0, 0], see :func:`clnlos.diffusion.grid_offsets`)::
+
+    convolve:  y = crop(F^-1[ H . F[pad(x)] ])
+    wiener:    y = crop(F^-1[ conj(H) / (|H|^2 + 1/SNR) . F[pad(x)] ])
+
+H = F[h] / H(0) (unit DC gain: 1/SNR is relative to |H(0)|^2 = 1) unless
+``normalize=False``. The multiply runs in ``kernels/wiener.cl``; FFTs from
+:mod:`clnlos.fft` (pyvkfft, host fallback) on the same queue. Padding the time axis to at
+least twice the causal PSF support keeps the circular convolution from wrapping.
+"""
+
+from __future__ import annotations
+
+import numpy as np
+import pyopencl.array as cla
+import scipy.sparse as sp
+
+from .errors import ParameterError, ShapeError
+from .fft import RealFFT3
+from .operators import LinearOperator
+from .resample import AxisResample
+from .runtime import get_kernels, get_queue, real_defines, require_dtype, round_up
+
+
+class SpectralFilter(LinearOperator):
+    """Padded convolution (``mode="convolve"``) or Wiener deconvolution (``mode="wiener"``).
+
+    Parameters
+    ----------
+    psf : ndarray or pyopencl Array, shape ``pad_shape``, real
+        PSF on the padded grid in wrap order.
+    in_shape : (n0, n1, n2)
+        Shape of the volumes filtered (placed at the low corner of the padded grid).
+    snr : float, for ``mode="wiener"``: 1/SNR regularises the inverse.
+    """
+
+    name = "spectral_filter"
+
+    def __init__(self, psf, in_shape, *, mode: str = "convolve", snr: float | None = None,
+                 normalize: bool = True, dtype=np.float32, queue=None):
+        self.queue = get_queue(queue)
+        self.dtype = require_dtype(self.queue.device, dtype)
+        if mode not in ("convolve", "wiener"):
+            raise ParameterError("mode", mode, "'convolve' or 'wiener'")
+        self.mode = mode
+        if mode == "wiener":
+            if snr is None or not np.isfinite(snr) or snr <= 0:
+                raise ParameterError("snr", snr, "> 0 and finite")
+            self.inv_snr = 1.0 / float(snr)
+        else:
+            self.inv_snr = 0.0
+        self.name = f"{mode}_filter"
+        pad_shape = tuple(int(s) for s in psf.shape)
+        self.in_shape = self.out_shape = tuple(int(s) for s in in_shape)
+        if len(pad_shape) != 3 or any(p < n for p, n in zip(pad_shape, self.in_shape,
+                                                             strict=True)):
+            raise ShapeError(f"padded PSF shape {pad_shape} must cover the volume {in_shape}")
+        self.pad_shape = pad_shape
+        n0, n1, n2 = self.in_shape
+        self._pad = AxisResample(sp.identity(n0, format="csr"), (n1, n2), dtype=self.dtype,
+                                 queue=self.queue, out_plane=pad_shape[1:],
+                                 out_rows=pad_shape[0])
+        self.fft = RealFFT3(pad_shape, self.dtype, self.queue)
+        self._k = get_kernels(self.queue, "wiener", real_defines(self.dtype))
+        psf_g = psf if isinstance(psf, cla.Array) else cla.to_device(
+            self.queue, np.ascontiguousarray(psf, self.dtype))
+        if psf_g.dtype != self.dtype:
+            psf_g = psf_g.astype(self.dtype)
+        self.H = self.fft.forward(psf_g)
+        self.dc_gain = float(self.H[0, 0, 0].get().real) if self.H.size else 0.0
+        if normalize:
+            if not self.dc_gain > 0:
+                raise ParameterError("psf", f"sum {self.dc_gain}", "> 0 (a non-negative PSF)")
+            self.H *= self.dtype.type(1.0 / self.dc_gain)
+        self._buf = cla.zeros(self.queue, pad_shape, self.dtype)
+
+    @classmethod
+    def from_spectrum(cls, base: SpectralFilter, H: cla.Array, *, mode: str,
+                      snr: float | None = None) -> SpectralFilter:
+        """A filter sharing ``base``'s grid and plans with another (normalised) spectrum."""
+        new = object.__new__(cls)
+        new.__dict__.update(base.__dict__)
+        new.mode, new.name = mode, f"{mode}_filter"
+        new.inv_snr = 0.0 if mode == "convolve" else 1.0 / float(snr)
+        new.H = H
+        new._buf = cla.zeros(base.queue, base.pad_shape, base.dtype)
+        return new
+
+    def _filter(self, x_g: cla.Array, adjoint: bool) -> cla.Array:
+        self._buf.fill(0)
+        self._pad.apply_into(x_g, self._buf)
+        spec = self.fft.forward(self._buf)
+        n = spec.size
+        gsize = (round_up(n, 256),)
+        if self.mode == "wiener":
+            self._k.wiener_apply(self.queue, gsize, None, self.H.data, spec.data,
+                                 self.dtype.type(self.inv_snr), np.int32(adjoint), np.int64(n))
+        else:
+            self._k.spectral_multiply(self.queue, gsize, None, self.H.data, spec.data,
+                                      np.int32(adjoint), np.int64(n))
+        self.fft.inverse(spec, self._buf)
+        return self._pad._adjoint(self._buf)
+
+    def _apply(self, x_g):
+        return self._filter(x_g, adjoint=False)
+
+    def _adjoint(self, y_g):
+        return self._filter(y_g, adjoint=True)
+
+    def square_spectrum(self) -> None:
+        """H <- H . H: the PSF convolved with itself (the slab crossed twice)."""
+        self._k.spectral_square(self.queue, (round_up(self.H.size, 256),), None, self.H.data,
+                                np.int64(self.H.size))

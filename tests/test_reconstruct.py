@@ -1,0 +1,353 @@
+"""Reconstruction: FFT, Wiener, LCT, f-k against the float64 references; adjoints; synthetic
+targets; the real CDT captures; the reconstruct CLI."""
+
+import h5py
+import numpy as np
+import pyopencl.array as cla
+import pytest
+import scipy.sparse as sp
+from helpers import rel_l2
+from reference.recon_ref import confocal_psf_ref, fk_ref, lct_ref, pad_filter, resample_cumsum
+from reference.scene_ref import patch_points, points_transient, scan_centres
+
+from clnlos import C0
+from clnlos.blur import confocal_psf, slab_blur
+from clnlos.cli import main
+from clnlos.config import ReconstructionConfig
+from clnlos.diffusion import Slab
+from clnlos.fft import ComplexFFT3, RealFFT3
+from clnlos.fk import FKMigration
+from clnlos.io import Capture, read_capture, write_capture
+from clnlos.lct import LCT
+from clnlos.operators import dot_test
+from clnlos.reconstruct import preprocess_matrix, reconstruct
+from clnlos.resample import AxisResample, overlap_matrix, rebin_matrix
+from clnlos.wiener import SpectralFilter
+
+CDT = dict(thickness_m=0.0254, mu_a=0.53, mu_s_prime=262.0, n=1.12)
+# Stated tolerances (relative L2 against the float64 numpy reference)
+TOL = {"fft": {np.float32: 2e-6, np.float64: 1e-13},
+       "stage": {np.float32: 1e-4, np.float64: 1e-9},
+       "pipeline": {np.float32: 2e-3, np.float64: 1e-8}}
+
+
+def tol(kind, dtype):
+    return TOL[kind][np.dtype(dtype).type]
+
+
+# ------------------------------------------------------------------ FFT
+@pytest.mark.parametrize("backend", ["auto", "numpy"])
+@pytest.mark.parametrize("shape", [(16, 8, 8), (34, 10, 14), (7, 5, 9), (1, 4, 6)])
+def test_fft_round_trip_vs_numpy(queue, dtype, backend, shape, monkeypatch):
+    monkeypatch.setenv("CLNLOS_FFT", backend)
+    rng = np.random.default_rng(1)
+    x = rng.standard_normal(shape).astype(dtype)
+    p = RealFFT3(shape, dtype, queue)
+    assert p.backend == ("numpy" if backend == "numpy" else p.backend)
+    xg = cla.to_device(queue, x)
+    spec = p.forward(xg)
+    np.testing.assert_array_equal(xg.get(), x)  # input unchanged
+    assert rel_l2(np.fft.rfftn(x.astype(np.float64)), spec.get()) < tol("fft", dtype)
+    assert rel_l2(x, p.inverse(spec).get()) < tol("fft", dtype)
+    c = ComplexFFT3(shape, dtype, queue)
+    z = (x + 1j * x[::-1]).astype(c.cdtype)
+    zg = cla.to_device(queue, z)
+    assert rel_l2(np.fft.fftn(z.astype(np.complex128)), c.forward(zg).get()) < tol("fft", dtype)
+    assert rel_l2(z, c.inverse(zg).get()) < tol("fft", dtype)
+
+
+def test_vkfft_used_on_old_pocl(queue):
+    from clnlos.runtime import pocl_version
+
+    ver = pocl_version(queue.device)
+    p = RealFFT3((8, 8, 8), np.float32, queue)
+    if ver is not None and ver >= (7, 0):
+        assert p.backend == "numpy"
+    else:
+        pytest.importorskip("pyvkfft.opencl")
+        assert p.backend == "vkfft"
+
+
+# ------------------------------------------------------------------ resampling
+def test_overlap_matrix_conserves_mass_and_matches_cumsum(queue, dtype):
+    rng = np.random.default_rng(2)
+    x = rng.random((50, 3, 4))
+    src = np.linspace(0, 1, 51)
+    dst = np.sqrt(np.linspace(0, 1, 38))
+    ref = resample_cumsum(x, src, dst)
+    op = AxisResample(overlap_matrix(src, dst), (3, 4), dtype=dtype, queue=queue)
+    out = op(x.astype(dtype))
+    assert rel_l2(ref, out) < tol("stage", dtype)
+    assert out.sum() == pytest.approx(x.sum(), rel=1e-5)
+    assert rebin_matrix(417, 128).sum() == pytest.approx(417)
+
+
+def test_preprocess_aligns_crops_rebins():
+    A, dt, n_out = preprocess_matrix(512, 16e-12, 0.0, 2.0, 128)
+    assert n_out == 128 and A.shape == (128, 512)
+    assert dt * 128 * C0 == pytest.approx(417 * 16e-12 * C0, rel=1e-12)
+    A2, _, _ = preprocess_matrix(100, 1e-11, 2e-10, None, None)  # bin 0 starts at 20 bins
+    x = np.zeros(100)
+    x[0] = 1
+    assert (A2 @ x)[20] == pytest.approx(1.0)
+    A3, _, n3 = preprocess_matrix(512, 16e-12, 0.0, 2.0, 128, guard_fraction=0.25)
+    assert n3 == 128 and A3.shape[0] == 128 + 29  # 95 spare 16 ps bins = 29 bins of 52 ps
+
+
+# ------------------------------------------------------------------ stages vs reference
+def test_confocal_psf_vs_reference(queue, dtype):
+    shape, dt, pitch = (64, 8, 8), 48e-12, 0.02
+    slab = Slab(**CDT)
+    ref = confocal_psf_ref(CDT, slab.ze, shape, dt, pitch)
+    out = confocal_psf(slab, shape, bin_width_s=dt, pitch_m=pitch, dtype=dtype, queue=queue)
+    assert rel_l2(ref, out.get()) < tol("stage", dtype)
+
+
+@pytest.mark.parametrize("snr", [1e2, 1e4])
+def test_wiener_vs_reference(queue, dtype, snr):
+    shape, dt, pitch = (48, 8, 8), 48e-12, 0.03
+    slab = Slab(**CDT)
+    psf = confocal_psf_ref(CDT, slab.ze, shape, dt, pitch)
+    x = np.random.default_rng(3).random(shape)
+    ref = pad_filter(x, psf, "wiener", snr)
+    op = slab_blur(slab, shape, bin_width_s=dt, pitch_m=pitch, mode="wiener", snr=snr,
+                   dtype=dtype, queue=queue)
+    assert rel_l2(ref, op(x.astype(dtype))) < tol("stage", dtype) * (10 if snr > 1e3 else 1)
+
+
+def test_lct_vs_reference(queue, dtype):
+    tau = points_transient([(0.05, -0.03, 0.2), (-0.1, 0.08, 0.35)], [1, 1], 64, 12, 0.5,
+                           48e-12)
+    assert tau.max() > 0
+    ref = lct_ref(tau, 48e-12, 0.5, 1e3)
+    out = LCT(tau.shape, bin_width_s=48e-12, scan_width_m=0.5, snr=1e3, dtype=dtype,
+              queue=queue)(tau.astype(dtype))
+    assert rel_l2(ref, out) < tol("pipeline", dtype)
+
+
+def test_fk_vs_reference(queue, dtype):
+    tau = points_transient([(0.05, -0.03, 0.2), (-0.1, 0.08, 0.35)], [1, 1], 64, 12, 0.5,
+                           48e-12)
+    assert tau.max() > 0
+    tau /= tau.max()
+    ref = fk_ref(tau, 48e-12, 0.5)
+    out = FKMigration(tau.shape, bin_width_s=48e-12, scan_width_m=0.5, dtype=dtype,
+                      queue=queue)(tau.astype(dtype))
+    assert rel_l2(ref, out) < tol("pipeline", dtype)
+
+
+def test_pipeline_vs_reference(queue, dtype):
+    """preprocess -> Wiener deconvolution -> LCT, end to end against numpy float64."""
+    nt_in, n, width, dt_in = 120, 8, 0.4, 16e-12
+    slab = Slab(**CDT)
+    pts = points_transient([(0.05, 0.0, 0.25)], [1], nt_in, n, width, dt_in)
+    cfg = ReconstructionConfig(scan_width_m=width, bins=60, slab=slab, snr=1e3,
+                               inversion_snr=1e3, guard_fraction=0.0).validate()
+    cap = Capture(pts.astype(np.float32), dt_in, 0.0, width)
+    out = reconstruct(cap, cfg, dtype=dtype, device=queue).volume
+    e = np.arange(nt_in + 1) * dt_in
+    tau = resample_cumsum(pts.astype(np.float32).astype(np.float64), e,
+                          np.linspace(0, e[-1], 61))
+    tau /= tau.max()
+    psf = confocal_psf_ref(CDT, slab.ze, tau.shape, 2 * dt_in, width / n)
+    dec = pad_filter(tau, psf, "wiener", 1e3)
+    ref = lct_ref(dec, 2 * dt_in, width, 1e3)
+    assert rel_l2(ref, out) < tol("pipeline", dtype)
+
+
+# ------------------------------------------------------------------ adjoints
+_OPS = {}
+
+
+def _operators(queue, dtype):
+    if dtype not in _OPS:
+        _OPS[dtype] = _build_operators(queue, dtype)
+    return _OPS[dtype]
+
+
+def _build_operators(queue, dtype):
+    slab = Slab(**CDT)
+    shape = (24, 6, 5)
+    ops = {
+        "axis_resample": AxisResample(overlap_matrix(np.linspace(0, 1, 25),
+                                                     np.sqrt(np.linspace(0, 1, 20))),
+                                      (6, 5), dtype=dtype, queue=queue),
+        "pad": AxisResample(sp.identity(24, format="csr"), (6, 5), out_plane=(12, 10),
+                            out_rows=48, dtype=dtype, queue=queue),
+        "slab_blur": slab_blur(slab, shape, bin_width_s=50e-12, pitch_m=0.03, dtype=dtype,
+                               queue=queue),
+        "slab_wiener": slab_blur(slab, shape, bin_width_s=50e-12, pitch_m=0.03, mode="wiener",
+                                 snr=1e2, dtype=dtype, queue=queue),
+        "lct_lightcone": LCT(shape, bin_width_s=50e-12, scan_width_m=0.3, dtype=dtype,
+                             queue=queue).forward_operator,
+    }
+    lct = LCT(shape, bin_width_s=50e-12, scan_width_m=0.3, dtype=dtype, queue=queue)
+    ops["lct_linear_chain"] = lct.to_z @ lct.inverse_filter @ lct.to_v
+    return ops
+
+
+@pytest.mark.parametrize("name", ["axis_resample", "pad", "slab_blur", "slab_wiener",
+                                  "lct_lightcone", "lct_linear_chain"])
+def test_adjoint_dot_product(queue, dtype, name):
+    op = _operators(queue, dtype)[name]
+    err = dot_test(op, np.random.default_rng(4))
+    assert err < (1e-5 if dtype == np.float32 else 1e-12), (name, err)
+
+
+def test_shape_errors(queue):
+    from clnlos.errors import ShapeError
+
+    op = slab_blur(Slab(**CDT), (8, 4, 4), bin_width_s=5e-11, pitch_m=0.02, queue=queue)
+    with pytest.raises(ShapeError, match="expected shape"):
+        op(np.zeros((8, 4, 5), np.float32))
+    with pytest.raises(ShapeError, match="dtype"):
+        op(np.zeros((8, 4, 4), np.float64))
+    with pytest.raises(ShapeError, match="compose"):
+        _ = op @ AxisResample(sp.identity(3, format="csr"), (4, 4), queue=queue)
+
+
+def test_energy_of_blur_is_squared_transmission(queue):
+    """sum(Phi * Phi * I) = sum(I) x T_total^2 (mu_a = 0: T_total = (z0+ze)/(d+2ze))."""
+    lossless = dict(CDT, mu_a=0.0)
+    slab = Slab(**lossless)
+    nt, n, dt, pitch = 400, 24, 10e-12, 0.01
+    op = slab_blur(slab, (nt, n, n), bin_width_s=dt, pitch_m=pitch, dtype=np.float64,
+                   queue=queue)
+    x = np.zeros((nt, n, n))
+    x[5, n // 2, n // 2] = 1.0
+    y = op(x)
+    assert y.sum() == pytest.approx(slab.total_transmittance_lossless() ** 2, rel=2e-2)
+
+
+# ------------------------------------------------------------------ synthetic targets
+def _blurred_capture(points, weights, nt=512, n=24, width=0.6, dt=16e-12, queue=None):
+    """A capture through the CDT slab: points (1/r^4) blurred by Phi * Phi, 16 ps bins;
+    512 bins cover 2.46 m of path, so the deconvolution has data past max_path = 2 m."""
+    tau = points_transient(points, weights, nt, n, width, dt)
+    op = slab_blur(Slab(**CDT), tau.shape, bin_width_s=dt, pitch_m=width / n,
+                   dtype=np.float64, queue=queue)
+    return Capture(np.maximum(op(tau), 0).astype(np.float32), dt, 0.0, width)
+
+
+@pytest.mark.parametrize("method", ["lct", "fk"])
+@pytest.mark.parametrize("target", ["point", "patch"])
+def test_synthetic_target_at_right_voxel(queue, method, target):
+    centre = (0.1, -0.075, 0.5)
+    if target == "point":
+        pts, w = [centre], [1.0]
+    else:
+        pts, w = patch_points(centre, 0.05)
+    n, width, dt = 24, 0.6, 16e-12
+    cap = _blurred_capture(pts, w, n=n, width=width, dt=dt, queue=queue)
+    # noise-free data: a high Wiener SNR (at 1e6 the residual blur tail pulls f-k, whose
+    # square root lifts faint tails, 1.5 voxels shallower)
+    cfg = ReconstructionConfig(bins=128, max_path_m=2.0, slab=Slab(**CDT), snr=1e8,
+                               method=method, inversion_snr=1e4).validate()
+    rec = reconstruct(cap, cfg, device=queue)
+    k = np.unravel_index(np.argmax(rec.volume), rec.volume.shape)
+    dz = rec.extents["voxel_depth_m"]
+    c = scan_centres(n, width)
+    assert abs((k[0] + 0.5) * dz - centre[2]) <= dz, ((k[0] + 0.5) * dz, centre[2], dz)
+    assert abs(c[k[1]] - centre[1]) <= width / n
+    assert abs(c[k[2]] - centre[0]) <= width / n
+
+
+# ------------------------------------------------------------------ real captures
+def _region_mean(img, xs, ys, width):
+    n = img.shape[0]
+    c = scan_centres(n, width)
+    mx = (c >= xs[0]) & (c <= xs[1])
+    my = (c >= ys[0]) & (c <= ys[1])
+    return img[np.ix_(my, mx)].mean()
+
+
+@pytest.mark.shared_data
+@pytest.mark.parametrize("method", ["lct", "fk"])
+def test_real_letters_ut(queue, shared_data, method):
+    from pathlib import Path
+
+    cfg = ReconstructionConfig.from_toml(Path(__file__).parents[1] / "examples" /
+                                         "cdt_letters_ut.toml")
+    cfg.method = method
+    rec = reconstruct(read_capture(shared_data / "cdt" / "letters_ut.mat"), cfg, device=queue)
+    v = rec.volume
+    depth = (np.argmax(v.max(axis=(1, 2))) + 0.5) * rec.extents["voxel_depth_m"]
+    assert 0.4 <= depth <= 0.65, depth
+    mip = v.max(axis=0) / v.max()
+    W = 0.7
+    u_bottom = _region_mean(mip, (-0.25, 0.0), (-0.25, -0.15), W)  # the U's bowl
+    u_inside = _region_mean(mip, (-0.17, -0.08), (-0.05, 0.15), W)  # inside the U
+    t_bar = _region_mean(mip, (-0.02, 0.3), (0.17, 0.27), W)  # the T's bar
+    t_side = _region_mean(mip, (0.2, 0.33), (-0.3, 0.05), W)  # right of the T's stem
+    assert u_bottom > 1.5 * u_inside and t_bar > 1.5 * t_side, (u_bottom, u_inside, t_bar,
+                                                                 t_side)
+
+
+@pytest.mark.shared_data
+def test_real_letter_s(queue, shared_data):
+    from pathlib import Path
+
+    cfg = ReconstructionConfig.from_toml(Path(__file__).parents[1] / "examples" /
+                                         "cdt_letter_s.toml")
+    rec = reconstruct(read_capture(shared_data / "cdt" / "letter_s.mat"), cfg, device=queue)
+    v = rec.volume
+    depth = (np.argmax(v.max(axis=(1, 2))) + 0.5) * rec.extents["voxel_depth_m"]
+    assert 0.4 <= depth <= 0.6, depth
+    mip = v.max(axis=0) / v.max()
+    W = 0.6
+    # S: bright middle stroke, dark gaps between strokes on the left-lower and right-upper
+    middle = _region_mean(mip, (-0.1, 0.1), (-0.02, 0.05), W)
+    gap_upper_right = _region_mean(mip, (0.05, 0.2), (0.08, 0.18), W)
+    gap_lower_left = _region_mean(mip, (-0.2, -0.05), (-0.17, -0.08), W)
+    assert middle > 1.3 * gap_upper_right and middle > 1.3 * gap_lower_left
+
+
+# ------------------------------------------------------------------ CLI
+def test_cli_reconstruct_writes_volume_and_png(tmp_path, queue):
+    cap = _blurred_capture([(0.0, 0.05, 0.4)], [1.0], nt=256, n=16, width=0.5, queue=queue)
+    src = write_capture(tmp_path / "cap.h5", cap.transient, bin_width_s=cap.bin_width_s,
+                        start_s=0.0, scan_width_m=0.5)
+    out = tmp_path / "vol.h5"
+    rc = main(["reconstruct", str(src), "-o", str(out), "--bins", "100", "--snr", "1e5",
+               "--slab-thickness", "0.0254", "--mu-a", "0.53", "--mu-s-prime", "262",
+               "--n", "1.12", "--method", "fk", "--device", "0:0"])
+    assert rc == 0
+    with h5py.File(out) as f:
+        v = f["volume"][()]
+        assert v.shape == (100, 16, 16) and v.dtype == np.float32
+        for a in ("depth_min_m", "depth_max_m", "x_min_m", "x_max_m", "params", "stages"):
+            assert a in f.attrs
+        assert "deconvolve" in f.attrs["stages"]
+    assert out.with_suffix(".png").stat().st_size > 1000
+    assert not list(tmp_path.glob(".*tmp"))
+
+
+@pytest.mark.parametrize("args,needle", [
+    (["--bins", "0"], "preprocess.bins"),
+    (["--snr", "-1"], "deconvolution.snr"),
+    (["--mu-a", "0.5"], "slab.thickness_m"),
+    (["--n", "0.5", "--slab-thickness", "0.01", "--mu-a", "0", "--mu-s-prime", "100"], "slab.n"),
+])
+def test_cli_bad_parameters_exit_2_no_output(tmp_path, capsys, args, needle):
+    src = write_capture(tmp_path / "cap.h5", np.ones((20, 4, 4)), bin_width_s=1e-11,
+                        start_s=0.0, scan_width_m=0.3)
+    out = tmp_path / "o.h5"
+    assert main(["reconstruct", str(src), "-o", str(out), *args]) == 2
+    err = capsys.readouterr().err.strip().splitlines()
+    assert len(err) == 1 and needle in err[0]
+    assert not out.exists()
+
+
+def test_cli_bad_capture_files(tmp_path, capsys):
+    bad = tmp_path / "bad.h5"
+    bad.write_bytes(b"not an hdf5 file")
+    assert main(["reconstruct", str(bad), "-o", str(tmp_path / "o.h5")]) == 2
+    nan = write_capture(tmp_path / "nan.h5", np.full((5, 2, 2), np.nan), bin_width_s=1e-11,
+                        start_s=0, scan_width_m=0.1)
+    assert main(["reconstruct", str(nan), "-o", str(tmp_path / "o.h5")]) == 2
+    with h5py.File(tmp_path / "nosw.h5", "w") as f:
+        f["meas"] = np.ones((4, 4, 10), np.float32)
+    assert main(["reconstruct", str(tmp_path / "nosw.h5"), "-o", str(tmp_path / "o.h5")]) == 2
+    errs = capsys.readouterr().err.strip().splitlines()
+    assert len(errs) == 3 and "NaN" in errs[1] and "scan_width" in errs[2]
+    assert not (tmp_path / "o.h5").exists()
