@@ -48,8 +48,8 @@ def confocal_psf(slab: Slab, shape: tuple[int, int, int], *, bin_width_s: float,
 
 
 def slab_blur(slab: Slab, shape, *, bin_width_s: float, pitch_m: float, mode: str = "convolve",
-              snr: float | None = None, n_dipoles: int | None = None, dtype=np.float32,
-              queue=None) -> SpectralFilter:
+              snr: float | None = None, n_dipoles: int | None = None,
+              lateral_pad: str = "zero", dtype=np.float32, queue=None) -> SpectralFilter:
     """The confocal blur as an operator on transients of ``shape`` [t, y, x].
 
     ``mode="convolve"``: the forward model tau = (Phi * Phi) * I in physical units (the DC
@@ -59,4 +59,4 @@ def slab_blur(slab: Slab, shape, *, bin_width_s: float, pitch_m: float, mode: st
     psf = confocal_psf(slab, shape, bin_width_s=bin_width_s, pitch_m=pitch_m,
                        n_dipoles=n_dipoles, dtype=dtype, queue=queue)
     return SpectralFilter(psf, shape, mode=mode, snr=snr, normalize=(mode == "wiener"),
-                          dtype=dtype, queue=queue)
+                          lateral_pad=lateral_pad, dtype=dtype, queue=queue)

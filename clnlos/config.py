@@ -21,6 +21,7 @@ Reconstruction parameters (``clnlos reconstruct --config PARAMS.toml``)::
     snr = 1e4                    # Wiener SNR of the slab deconvolution
     guard_fraction = 0.25        # deconvolve this much more of the capture past max_path_m
                                  # (where it has it), then drop it: keeps edge effects out
+    lateral_pad = "mirror"       # "mirror" (even extension across the scan border) or "zero"
     [inversion]
     method = "lct"               # "lct" or "fk"
     snr = 100.0                  # Wiener SNR of the LCT light-cone filter
@@ -109,6 +110,7 @@ class ReconstructionConfig:
     n_dipoles: int | None = None
     snr: float = 1e4
     guard_fraction: float = 0.25
+    lateral_pad: str = "mirror"
     method: str = "lct"
     inversion_snr: float = 1e2
     falloff: float | None = None
@@ -132,6 +134,8 @@ class ReconstructionConfig:
         self.snr = positive("deconvolution.snr", self.snr, upper=1e30)
         self.guard_fraction = positive("deconvolution.guard_fraction", self.guard_fraction,
                                        allow_zero=True, upper=4.0)
+        self.lateral_pad = choice("deconvolution.lateral_pad", self.lateral_pad,
+                                  ("mirror", "zero"))
         self.method = choice("inversion.method", self.method, ("lct", "fk"))
         self.inversion_snr = positive("inversion.snr", self.inversion_snr, upper=1e30)
         if self.falloff is not None:
@@ -153,7 +157,7 @@ class ReconstructionConfig:
         pre = d.get("preprocess", {})
         check_keys("preprocess", pre, {"max_path_m", "bins", "normalize"})
         dec = d.get("deconvolution", {})
-        check_keys("deconvolution", dec, {"snr", "guard_fraction"})
+        check_keys("deconvolution", dec, {"snr", "guard_fraction", "lateral_pad"})
         inv = d.get("inversion", {})
         check_keys("inversion", inv, {"method", "snr", "falloff"})
         slab, nd = slab_from_table(d["slab"]) if "slab" in d else (None, None)
@@ -161,7 +165,8 @@ class ReconstructionConfig:
                    start_s=cap.get("start_s"), max_path_m=pre.get("max_path_m"),
                    bins=pre.get("bins"), normalize=pre.get("normalize", "max"), slab=slab,
                    n_dipoles=nd, snr=dec.get("snr", 1e4),
-                   guard_fraction=dec.get("guard_fraction", 0.25), method=inv.get("method", "lct"),
+                   guard_fraction=dec.get("guard_fraction", 0.25),
+                   lateral_pad=dec.get("lateral_pad", "mirror"), method=inv.get("method", "lct"),
                    inversion_snr=inv.get("snr", 1e2), falloff=inv.get("falloff")).validate()
 
     def as_attrs(self) -> dict:

@@ -1,8 +1,10 @@
-"""3D FFT plans on an OpenCL queue: pyvkfft where it is safe, a host numpy fallback elsewhere.
+"""3D FFT plans on an OpenCL queue: pyvkfft where it is safe, a host FFT fallback elsewhere.
 
 The backend is chosen once per plan by :func:`clnlos.runtime.vkfft_status` (PoCL >= 7
-miscompiles VkFFT, pocl issue 2069; ``CLNLOS_FFT=numpy|vkfft`` overrides) and recorded in
-``plan.backend``. Conventions are numpy's: forward unnormalised, inverse divided by N.
+miscompiles VkFFT, pocl issue 2069; ``CLNLOS_FFT=host|vkfft`` overrides, ``numpy`` is an
+alias of ``host``) and recorded in ``plan.backend``. The host FFT is scipy.fft (pocketfft,
+all cores) with a copy to and from the device. Conventions are numpy's: forward
+unnormalised, inverse divided by N.
 
 ``RealFFT3``: real (n0, n1, n2) <-> half spectrum (n0, n1, n2//2 + 1) (the spectral filters).
 ``ComplexFFT3``: complex (n0, n1, n2) in place (f-k migration needs the full spectrum).
@@ -10,10 +12,12 @@ miscompiles VkFFT, pocl issue 2069; ``CLNLOS_FFT=numpy|vkfft`` overrides) and re
 
 from __future__ import annotations
 
+import os
 from functools import lru_cache
 
 import numpy as np
 import pyopencl.array as cla
+import scipy.fft as sfft
 
 from .runtime import get_queue, require_dtype, require_memory, vkfft_status, warn_once
 
@@ -35,8 +39,12 @@ def _backend(queue) -> str:
     if ok:
         return "vkfft"
     if "2069" in why or "not importable" in why:
-        warn_once(f"clnlos: host (numpy) FFT fallback: {why}")
-    return "numpy"
+        warn_once(f"clnlos: host FFT fallback: {why}")
+    return "host"
+
+
+def _workers() -> int:
+    return os.cpu_count() or 1
 
 
 class RealFFT3:
@@ -64,7 +72,8 @@ class RealFFT3:
         if self._app is not None:
             self._app.fft(x_g, out_g)
         else:
-            out_g.set(np.fft.rfftn(x_g.get()).astype(self.cdtype), queue=self.queue)
+            out_g.set(sfft.rfftn(x_g.get(), workers=_workers()).astype(self.cdtype, copy=False),
+                      queue=self.queue)
         return out_g
 
     def inverse(self, s_g: cla.Array, out_g: cla.Array | None = None) -> cla.Array:
@@ -73,7 +82,8 @@ class RealFFT3:
         if self._app is not None:
             self._app.ifft(s_g, out_g)
         else:
-            out_g.set(np.fft.irfftn(s_g.get(), s=self.shape, axes=(0, 1, 2)).astype(self.dtype), queue=self.queue)
+            out_g.set(sfft.irfftn(s_g.get(), s=self.shape, axes=(0, 1, 2), workers=_workers()
+                                  ).astype(self.dtype, copy=False), queue=self.queue)
         return out_g
 
 
@@ -96,12 +106,14 @@ class ComplexFFT3:
         if self._app is not None:
             self._app.fft(a_g)
         else:
-            a_g.set(np.fft.fftn(a_g.get()).astype(self.cdtype), queue=self.queue)
+            a_g.set(sfft.fftn(a_g.get(), workers=_workers()).astype(self.cdtype, copy=False),
+                    queue=self.queue)
         return a_g
 
     def inverse(self, a_g: cla.Array) -> cla.Array:
         if self._app is not None:
             self._app.ifft(a_g)
         else:
-            a_g.set(np.fft.ifftn(a_g.get()).astype(self.cdtype), queue=self.queue)
+            a_g.set(sfft.ifftn(a_g.get(), workers=_workers()).astype(self.cdtype, copy=False),
+                    queue=self.queue)
         return a_g

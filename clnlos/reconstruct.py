@@ -95,7 +95,8 @@ class ReconstructionPipeline:
             self.deconv = slab_blur(config.slab, (A.shape[0], ny, nx),
                                     bin_width_s=self.bin_width_s, pitch_m=pitch, mode="wiener",
                                     snr=config.snr, n_dipoles=config.n_dipoles,
-                                    dtype=self.dtype, queue=self.queue)
+                                    lateral_pad=config.lateral_pad, dtype=self.dtype,
+                                    queue=self.queue)
             self.stages.append("deconvolve")
         if self.n_guard:
             self.crop = AxisResample(sp.identity(A.shape[0], format="csr")[:n_out], (ny, nx),

@@ -31,7 +31,7 @@ import pyopencl as cl
 from .errors import DeviceCapabilityError, DeviceError, KernelBuildError
 
 ENV_DEVICE = "CLNLOS_DEVICE"
-ENV_FFT = "CLNLOS_FFT"  # "auto" (default), "vkfft" or "numpy"
+ENV_FFT = "CLNLOS_FFT"  # "auto" (default), "vkfft" or "host" ("numpy" is an alias)
 POCL_VKFFT_ISSUE = "https://github.com/pocl/pocl/issues/2069"
 
 
@@ -205,13 +205,13 @@ def vkfft_status(queue: cl.CommandQueue) -> tuple[bool, str]:
     """Whether pyvkfft may run on this queue's device, and why not.
 
     PoCL >= 7 miscompiles VkFFT kernels (pocl issue 2069): there the host FFT is used.
-    ``CLNLOS_FFT=numpy`` forces the host FFT, ``CLNLOS_FFT=vkfft`` forces VkFFT.
+    ``CLNLOS_FFT=host`` (or ``numpy``) forces the host FFT, ``CLNLOS_FFT=vkfft`` forces VkFFT.
     """
     choice = os.environ.get(ENV_FFT, "auto").strip().lower() or "auto"
-    if choice not in ("auto", "vkfft", "numpy"):
-        raise DeviceError(f"invalid {ENV_FFT}={choice!r}: allowed auto, vkfft, numpy")
-    if choice == "numpy":
-        return False, f"{ENV_FFT}=numpy"
+    if choice not in ("auto", "vkfft", "host", "numpy"):
+        raise DeviceError(f"invalid {ENV_FFT}={choice!r}: allowed auto, vkfft, host")
+    if choice in ("host", "numpy"):
+        return False, f"{ENV_FFT}={choice}"
     try:
         import pyvkfft.opencl  # noqa: F401
     except Exception as exc:  # not installed, or built without the OpenCL backend

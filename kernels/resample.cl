@@ -35,3 +35,20 @@ __kernel void clamp_nonnegative(__global real_t *a, const long n)
     if (i < n)
         a[i] = fmax(a[i], (real_t)0);
 }
+
+/* Zero padding in time, mirror padding laterally, into a (pt, 2 ny, 2 nx) FFT buffer:
+ *   out[t, y, x] = in[t, m(y, ny), m(x, nx)] for t < nt, else 0,  m(j, n) = j < n ? j : 2n-1-j
+ * Over the wrap-around half of a 2n grid this is the even (mirror) extension across both
+ * edges at once, so a circular deconvolution sees no step at the scan border. */
+__kernel void pad_mirror_xy(__global const real_t *in, __global real_t *out, const int nt,
+                            const int ny, const int nx, const int pt)
+{
+    const int x = get_global_id(0), y = get_global_id(1), t = get_global_id(2);
+    const int py = 2 * ny, px = 2 * nx;
+    if (x >= px || y >= py || t >= pt)
+        return;
+    const int sy = y < ny ? y : py - 1 - y;
+    const int sx = x < nx ? x : px - 1 - x;
+    out[((size_t)t * py + y) * px + x] =
+        t < nt ? in[((size_t)t * ny + sy) * nx + sx] : (real_t)0;
+}

@@ -1,0 +1,1 @@
+"""Built-in default scenes (package data)."""

@@ -1,0 +1,45 @@
+"""Image-quality measures against known ground truth (synthetic scenes)."""
+
+from __future__ import annotations
+
+import numpy as np
+
+from .geometry import letters_mask
+
+
+def otsu_threshold(img: np.ndarray, bins: int = 256) -> float:
+    """Threshold maximising the between-class variance of the intensity histogram."""
+    v = np.asarray(img, np.float64).ravel()
+    lo, hi = float(v.min()), float(v.max())
+    if hi <= lo:
+        return hi
+    hist, edges = np.histogram(v, bins=bins, range=(lo, hi))
+    p = hist / hist.sum()
+    centres = (edges[:-1] + edges[1:]) / 2
+    w0 = np.cumsum(p)
+    m = np.cumsum(p * centres)
+    mt = m[-1]
+    with np.errstate(divide="ignore", invalid="ignore"):
+        between = (mt * w0 - m) ** 2 / (w0 * (1 - w0))
+    between[~np.isfinite(between)] = -1
+    return float(edges[1:][int(np.argmax(between))])
+
+
+def iou(pred: np.ndarray, truth: np.ndarray) -> float:
+    pred, truth = np.asarray(pred, bool), np.asarray(truth, bool)
+    union = np.logical_or(pred, truth).sum()
+    return float(np.logical_and(pred, truth).sum() / union) if union else 1.0
+
+
+def letters_truth_mask(text, height_m, stroke_m, centre_xy, scan_centres) -> np.ndarray:
+    """Mask [y, x] of fronto-parallel letters (no rotation) on the scan grid."""
+    Y, X = np.meshgrid(scan_centres, scan_centres, indexing="ij")
+    xy = np.column_stack([X.ravel() - centre_xy[0], Y.ravel() - centre_xy[1]])
+    return letters_mask(text, height_m, stroke_m, xy).reshape(X.shape)
+
+
+def mip_iou(volume: np.ndarray, truth: np.ndarray) -> tuple[float, np.ndarray]:
+    """IoU of the Otsu-thresholded max-intensity projection with the true mask."""
+    mip = volume.max(axis=0)
+    pred = mip > otsu_threshold(mip)
+    return iou(pred, truth), pred

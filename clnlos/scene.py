@@ -1,0 +1,241 @@
+"""Scene description for ``clnlos simulate`` (TOML, typed, validated).
+
+Minimum contract (every error names the field, its value and the allowed range)::
+
+    [scan]                  # confocal scan points on the relay / slab exit plane z = 0
+    width_m = 0.3           # side of the square scanned area (points at cell centres)
+    points = 32             # points per side
+    [time]
+    bin_width_s = 6.671e-12
+    bins = 512
+    start_s = 1.668e-9      # start of bin 0 (round trip from the scan point)
+    [[objects]]
+    shape = "letters"       # "letters" (text, height_m, stroke_m), "rectangle" (size_m = [w, h]),
+                            # "sphere" (radius_m), "mesh" (path = ASCII PLY or OBJ)
+    translate_m = [0.0, 0.0, 0.5]
+    rotate_deg = [0.0, 30.0, 0.0]   # about x, y, z: R = Rz Ry Rx
+    material = "lambertian"         # a preset name, or an analytic model table
+                                    # { model = "phong", kd = 0.2, ks = 0.8, shininess = 40 },
+                                    # or brdf_retro_csv = "f.csv" (theta_deg, brdf)
+    albedo = 1.0
+    [slab]                  # optional; absent = plain NLOS relay wall, no diffusion
+    thickness_m = 0.0254; mu_a = 0.53; mu_s_prime = 262.0; n = 1.12
+    [laser]                 # optional
+    pulse_width_s = 35e-12  # FWHM of a Gaussian pulse -> temporal blur
+    [detector]              # optional: photon budget -> Poisson noise
+    power_w = 0.4; rep_rate_hz = 10e6; exposure_s = 1.0; efficiency = 0.3
+    wavelength_m = 532e-9; etendue_m2_sr = 1e-8; dark_count_rate_hz = 100.0
+    [sampling]              # optional accuracy knobs
+    density_per_m2 = 4e5    # surface elements per square metre
+    splat_order = 1         # 0: nearest bin, 1: linear between bin centres
+    seed = 0
+"""
+
+from __future__ import annotations
+
+import csv
+import math
+from dataclasses import dataclass, field
+from pathlib import Path
+
+import numpy as np
+
+from .config import check_keys, choice, integer, load_toml, positive, slab_from_table
+from .diffusion import Slab
+from .errors import InputFileError, ParameterError
+
+SHAPES = ("letters", "rectangle", "sphere", "mesh")
+
+
+def _vec3(name, v) -> tuple[float, float, float]:
+    if not isinstance(v, list | tuple) or len(v) != 3:
+        raise ParameterError(name, v, "a list of three numbers")
+    out = []
+    for x in v:
+        if isinstance(x, bool) or not isinstance(x, int | float) or not math.isfinite(x):
+            raise ParameterError(name, v, "three finite numbers")
+        out.append(float(x))
+    return tuple(out)
+
+
+@dataclass
+class SceneObject:
+    shape: str
+    translate_m: tuple[float, float, float] = (0.0, 0.0, 0.5)
+    rotate_deg: tuple[float, float, float] = (0.0, 0.0, 0.0)
+    material: str | dict = "lambertian"
+    albedo: float = 1.0
+    text: str = "UT"
+    height_m: float = 0.2
+    stroke_m: float = 0.04
+    size_m: tuple[float, float] = (0.1, 0.1)
+    radius_m: float = 0.05
+    path: str | None = None
+    brdf_retro_csv: str | None = None
+
+
+@dataclass
+class Detector:
+    power_w: float = 0.4
+    rep_rate_hz: float = 10e6
+    exposure_s: float = 1.0
+    efficiency: float = 0.3
+    wavelength_m: float = 532e-9
+    etendue_m2_sr: float = 1e-8
+    dark_count_rate_hz: float = 0.0
+
+    def photons_emitted(self) -> float:
+        """Photons leaving the laser during the exposure, P lambda / (h c) * T."""
+        h, c = 6.62607015e-34, 299_792_458.0
+        return self.power_w * self.wavelength_m / (h * c) * self.exposure_s
+
+
+@dataclass
+class Scene:
+    width_m: float
+    points: int
+    bin_width_s: float
+    bins: int
+    start_s: float
+    objects: list[SceneObject]
+    slab: Slab | None = None
+    n_dipoles: int | None = None
+    pulse_width_s: float | None = None
+    detector: Detector | None = None
+    density_per_m2: float = 4e5
+    splat_order: int = 1
+    seed: int = 0
+    base_dir: Path = field(default_factory=Path.cwd)
+    text: str = ""
+
+    @property
+    def pitch_m(self) -> float:
+        return self.width_m / self.points
+
+    def scan_centres(self) -> np.ndarray:
+        return (np.arange(self.points) + 0.5) * self.pitch_m - self.width_m / 2
+
+    @classmethod
+    def from_toml(cls, path) -> Scene:
+        p = Path(path)
+        d = load_toml(p)
+        return cls.from_dict(d, base_dir=p.parent, text=p.read_text(encoding="utf-8"))
+
+    @classmethod
+    def from_dict(cls, d: dict, *, base_dir: Path | None = None, text: str = "") -> Scene:
+        check_keys("", d, {"scan", "time", "objects", "slab", "laser", "detector", "sampling",
+                           "seed"})
+        for sec in ("scan", "time", "objects"):
+            if sec not in d:
+                raise ParameterError(sec, None, "a required section")
+        scan, tm = d["scan"], d["time"]
+        check_keys("scan", scan, {"width_m", "points"})
+        check_keys("time", tm, {"bin_width_s", "bins", "start_s"})
+        width = positive("scan.width_m", scan.get("width_m"), upper=100.0)
+        points = integer("scan.points", scan.get("points"), 1, 4096)
+        bw = positive("time.bin_width_s", tm.get("bin_width_s"), upper=1e-6)
+        bins = integer("time.bins", tm.get("bins"), 1, 1 << 16)
+        start = tm.get("start_s", 0.0)
+        if isinstance(start, bool) or not isinstance(start, int | float) or not (
+                math.isfinite(start) and 0 <= start <= 1e-3):
+            raise ParameterError("time.start_s", start, "0 to 1e-3 s")
+        objs = d["objects"]
+        if not isinstance(objs, list) or not objs:
+            raise ParameterError("objects", objs, "one or more [[objects]] tables")
+        objects = [_object(i, o) for i, o in enumerate(objs)]
+        slab, nd = slab_from_table(d["slab"]) if "slab" in d else (None, None)
+        pulse = None
+        if "laser" in d:
+            check_keys("laser", d["laser"], {"pulse_width_s", "wavelength_m"})
+            if "pulse_width_s" in d["laser"]:
+                pulse = positive("laser.pulse_width_s", d["laser"]["pulse_width_s"], upper=1e-6)
+        det = None
+        if "detector" in d:
+            t = d["detector"]
+            check_keys("detector", t, set(Detector.__dataclass_fields__))
+            det = Detector(**{k: positive(f"detector.{k}", v, allow_zero=k ==
+                                          "dark_count_rate_hz", upper=1e12)
+                              for k, v in t.items()})
+            if det.efficiency > 1:
+                raise ParameterError("detector.efficiency", det.efficiency, "0 to 1")
+        smp = d.get("sampling", {})
+        check_keys("sampling", smp, {"density_per_m2", "splat_order"})
+        dens = positive("sampling.density_per_m2", smp.get("density_per_m2", 4e5), upper=1e10)
+        splat = integer("sampling.splat_order", smp.get("splat_order", 1), 0, 1)
+        seed = integer("seed", d.get("seed", 0), 0, 2**63 - 1)
+        return cls(width, points, bw, bins, float(start), objects, slab, nd, pulse, det, dens,
+                   splat, seed, base_dir or Path.cwd(), text)
+
+
+def _object(i: int, o: dict) -> SceneObject:
+    sec = f"objects[{i}]"
+    if not isinstance(o, dict):
+        raise ParameterError(sec, o, "a table")
+    check_keys(sec, o, set(SceneObject.__dataclass_fields__))
+    shape = choice(f"{sec}.shape", o.get("shape"), SHAPES)
+    kw = {"shape": shape}
+    if "translate_m" in o:
+        kw["translate_m"] = _vec3(f"{sec}.translate_m", o["translate_m"])
+    if "rotate_deg" in o:
+        kw["rotate_deg"] = _vec3(f"{sec}.rotate_deg", o["rotate_deg"])
+    if "albedo" in o:
+        kw["albedo"] = positive(f"{sec}.albedo", o["albedo"], allow_zero=True, upper=1e3)
+    if "material" in o:
+        m = o["material"]
+        if not isinstance(m, str | dict):
+            raise ParameterError(f"{sec}.material", m, "a preset name or a model table")
+        kw["material"] = m
+    for k in ("height_m", "stroke_m", "radius_m"):
+        if k in o:
+            kw[k] = positive(f"{sec}.{k}", o[k], upper=100.0)
+    if "text" in o:
+        if not isinstance(o["text"], str) or not o["text"].strip():
+            raise ParameterError(f"{sec}.text", o["text"], "a non-empty string")
+        kw["text"] = o["text"]
+    if "size_m" in o:
+        s = o["size_m"]
+        if not isinstance(s, list) or len(s) != 2:
+            raise ParameterError(f"{sec}.size_m", s, "[width, height] in m")
+        kw["size_m"] = (positive(f"{sec}.size_m", s[0], upper=100.0),
+                        positive(f"{sec}.size_m", s[1], upper=100.0))
+    for k in ("path", "brdf_retro_csv"):
+        if k in o:
+            if not isinstance(o[k], str):
+                raise ParameterError(f"{sec}.{k}", o[k], "a file path")
+            kw[k] = o[k]
+    if shape == "mesh" and "path" not in kw:
+        raise ParameterError(f"{sec}.path", None, "an ASCII PLY or OBJ file for shape = mesh")
+    obj = SceneObject(**kw)
+    if shape == "letters" and not obj.stroke_m < obj.height_m:
+        raise ParameterError(f"{sec}.stroke_m", obj.stroke_m, f"< height_m = {obj.height_m}")
+    return obj
+
+
+def read_retro_csv(path) -> tuple[np.ndarray, np.ndarray]:
+    """(theta_rad, f) of a confocal retro-reflection slice CSV with columns theta_deg,brdf."""
+    p = Path(path)
+    if not p.is_file():
+        raise InputFileError(f"{p}: no such file")
+    rows = []
+    with p.open(newline="", encoding="utf-8") as f:
+        lines = [ln for ln in f if ln.strip() and not ln.lstrip().startswith("#")]
+    reader = csv.reader(lines)
+    header = [h.strip() for h in next(reader, [])]
+    if header[:2] != ["theta_deg", "brdf"]:
+        raise InputFileError(f"{p}: header must be 'theta_deg,brdf', got {','.join(header)}")
+    for k, row in enumerate(reader, start=2):
+        try:
+            th, fv = float(row[0]), float(row[1])
+        except (ValueError, IndexError):
+            raise InputFileError(f"{p}: line {k}: two numbers expected") from None
+        if not (math.isfinite(th) and math.isfinite(fv)):
+            raise InputFileError(f"{p}: line {k}: NaN or Inf")
+        if not 0 <= th <= 90:
+            raise InputFileError(f"{p}: line {k}: theta_deg {th} outside 0..90")
+        if fv < 0:
+            raise InputFileError(f"{p}: line {k}: negative BRDF {fv}")
+        rows.append((th, fv))
+    if len(rows) < 2:
+        raise InputFileError(f"{p}: at least two rows needed")
+    a = np.asarray(sorted(rows))
+    return np.radians(a[:, 0]), a[:, 1]

@@ -1,0 +1,119 @@
+#!/usr/bin/env python3
+"""Light-cone accumulation: element-scan-point pairs per second, total time, error vs density.
+
+UT letters (0.3 m high) 0.5 m from the scan plane, Lambertian, no slab: the light-cone
+stage alone, at 32x32x512 and 64x64x1024, OpenCL (float32 / float64, linear splatting) vs
+a vectorised numpy float64 implementation of the same sum; then the error of each sampling
+density against a dense float64 reference (4e6 elements/m^2) and its cost.
+
+    python tools/bench_forward.py [--device SPEC] [-o DIR] [--quick]
+"""
+
+from __future__ import annotations
+
+import argparse
+import sys
+import time
+from pathlib import Path
+
+import numpy as np
+
+sys.path.insert(0, str(Path(__file__).resolve().parent))
+from benchlib import device_meta, print_table, timeit, write_rows  # noqa: E402
+
+from clnlos import C0  # noqa: E402
+from clnlos.forward import LightCone, sample_scene  # noqa: E402
+from clnlos.runtime import get_queue, has_fp64  # noqa: E402
+from clnlos.scene import Scene  # noqa: E402
+
+
+def ut_scene(points: int, bins: int, density: float) -> Scene:
+    return Scene.from_dict({
+        "scan": {"width_m": 0.6, "points": points},
+        "time": {"bin_width_s": 4.0 / (C0 * bins), "bins": bins, "start_s": 0.0},
+        "objects": [{"shape": "letters", "text": "UT", "height_m": 0.3, "stroke_m": 0.06,
+                     "translate_m": [0.0, 0.0, 0.5]}],
+        "sampling": {"density_per_m2": density}})
+
+
+def numpy_lightcone(s: Scene, samples) -> np.ndarray:
+    el = samples.elements
+    c = s.scan_centres()
+    out = np.zeros((s.bins, s.points, s.points))
+    for iy, sy in enumerate(c):
+        d = el.pos[None, :, :] - np.stack([c, np.full_like(c, sy), np.zeros_like(c)], 1)[:, None]
+        r = np.linalg.norm(d, axis=2)
+        cr = d[..., 2] / r
+        co = -(d * el.normal[None]).sum(2) / r
+        w = samples.albedo * cr**2 * co**2 / r**4 * el.area / np.pi
+        w[(cr <= 0) | (co <= 0)] = 0
+        b = (2 * r / C0 - s.start_s) / s.bin_width_s - 0.5
+        k = np.floor(b).astype(int)
+        f = b - k
+        for ix in range(len(c)):
+            for kk, ww in ((k[ix], w[ix] * (1 - f[ix])), (k[ix] + 1, w[ix] * f[ix])):
+                ok = (kk >= 0) & (kk < s.bins)
+                out[:, iy, ix] += np.bincount(kk[ok], ww[ok], minlength=s.bins)
+    return out
+
+
+def main(argv=None):
+    ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
+    ap.add_argument("--device", default=None)
+    ap.add_argument("-o", "--out", default="out/bench", type=Path)
+    ap.add_argument("--quick", action="store_true")
+    args = ap.parse_args(argv)
+    q = get_queue(args.device)
+    meta = device_meta(q)
+    rows = []
+    dtypes = [np.float32] + ([np.float64] if has_fp64(q.device) else [])
+    sizes = [(32, 512)] if args.quick else [(32, 512), (64, 1024)]
+    for points, bins in sizes:
+        s = ut_scene(points, bins, 4e5)
+        smp = sample_scene(s)
+        pairs = len(smp.elements) * points * points
+        for dt in dtypes:
+            lc = LightCone(points=points, width_m=s.width_m, bins=bins,
+                           bin_width_s=s.bin_width_s, start_s=0.0, retro=False, dtype=dt,
+                           queue=q)
+            t = timeit(lambda lc=lc: lc(smp), q, repeat=3)
+            rows.append({**meta, "kernel": "lightcone", "knob": "grid",
+                         "value": f"{points}x{points}x{bins}", "dtype": np.dtype(dt).name,
+                         "impl": "opencl", "elements": len(smp.elements), **t,
+                         "pairs_per_s": pairs / t["median_s"]})
+        t0 = time.perf_counter()
+        numpy_lightcone(s, smp)
+        tn = time.perf_counter() - t0
+        rows.append({**meta, "kernel": "lightcone", "knob": "grid",
+                     "value": f"{points}x{points}x{bins}", "dtype": "float64", "impl": "numpy",
+                     "elements": len(smp.elements), "median_s": tn, "min_s": tn, "max_s": tn,
+                     "pairs_per_s": pairs / tn})
+    # error vs time across sampling densities (32x32x512), against a dense float64 reference
+    ref_s = ut_scene(32, 512, 4e6)
+    ref_lc = LightCone(points=32, width_m=0.6, bins=512, bin_width_s=ref_s.bin_width_s,
+                       start_s=0.0, retro=False, dtype=dtypes[-1], queue=q)
+    ref = ref_lc(sample_scene(ref_s)).get().astype(np.float64)
+    for dens in (2.5e3, 1e4, 4e4, 1.6e5, 6.4e5):
+        for dt in dtypes:
+            s = ut_scene(32, 512, dens)
+            lc = LightCone(points=32, width_m=0.6, bins=512, bin_width_s=s.bin_width_s,
+                           start_s=0.0, retro=False, dtype=dt, queue=q)
+
+            def run(s=s, lc=lc):
+                return lc(sample_scene(s))
+
+            t = timeit(run, q, repeat=3)
+            out = run().get().astype(np.float64)
+            rows.append({**meta, "kernel": "lightcone", "knob": "density_per_m2",
+                         "value": dens, "dtype": np.dtype(dt).name, "impl": "opencl",
+                         "elements": len(sample_scene(s).elements), **t,
+                         "error": float(np.linalg.norm(out - ref) / np.linalg.norm(ref))})
+    print(f"device: {meta['device']} ({meta['platform']}, PoCL {meta['pocl']})")
+    print_table(rows, ["knob", "value", "impl", "dtype", "elements", "median_s",
+                       "pairs_per_s", "error"])
+    p, _ = write_rows(rows, args.out, "bench_forward")
+    print(f"wrote {p}")
+
+
+if __name__ == "__main__":
+    main()
