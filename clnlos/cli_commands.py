@@ -86,6 +86,7 @@ def register(sub, add_device) -> None:
     add_device(r)
     r.set_defaults(func=cmd_reconstruct)
     register_forward(sub, add_device)
+    register_brdf(sub, add_device)
 
 
 def transient_figure(tau: np.ndarray, scene, title: str = ""):
@@ -206,3 +207,119 @@ def register_forward(sub, add_device) -> None:
     d.add_argument("-o", "--output", default="out/demo", help="output folder")
     add_device(d)
     d.set_defaults(func=cmd_demo)
+
+
+def _read_samples(path):
+    from .brdf.data import read_gonio_csv, read_pbrt_brdf
+
+    p = str(path)
+    return read_pbrt_brdf(p) if p.endswith(".brdf") else read_gonio_csv(p)
+
+
+def cmd_brdf_fit(args) -> int:
+    from .brdf.data import agreement, relative_error
+    from .brdf.fit import fit_analytic
+    from .brdf.store import save_model
+    from .io import atomic_path
+
+    train = _read_samples(args.data)
+    test = _read_samples(args.test) if args.test else None
+    if args.model in ("mlp", "mlp-seed"):
+        from .brdf.mlp import MLPConfig, train_mlp
+
+        model, log = train_mlp(train, MLPConfig(recipe="seed" if args.model == "mlp-seed"
+                                                else "improved", seed=args.seed))
+        metrics = {"model": args.model, "epochs_run": log["epochs_run"]}
+        for name, s in (("train", train), ("test", test)):
+            if s is not None:
+                pr = model(s.theta_i, s.phi_i, s.theta_s, s.phi_s)
+                metrics[f"{name}_relative_error"] = relative_error(pr, s.brdf)
+                metrics[f"{name}_agreement_pct"] = agreement(pr, s.brdf)
+    else:
+        r = fit_analytic(args.model, train, test, seed=args.seed)
+        model, metrics = r.model, r.metrics
+    prov = {"train": train.meta, "test": test.meta if test else None}
+    save_model(args.output, model, metrics, prov)
+    for k, v in metrics.items():
+        if k != "loss_log":
+            print(f"{k}: {v:.4g}" if isinstance(v, float) else f"{k}: {v}")
+    if args.metrics_json:
+        with atomic_path(args.metrics_json) as tmp:
+            tmp.write_text(json.dumps(metrics, indent=1))
+    print(f"wrote {args.output}")
+    return 0
+
+
+def cmd_brdf_texture(args) -> int:
+    from .brdf.store import load_model
+    from .brdf.texture import tabulate, write_texture
+
+    model, meta = load_model(args.model)
+    tex = tabulate(model, args.resolution, args.dphi or args.resolution, args.retro,
+                   provenance={"model_file": str(args.model), **meta})
+    write_texture(args.output, tex)
+    print(f"wrote {args.output} texture {tex.shape} [theta_i, theta_s, dphi], "
+          f"retro slice {len(tex.retro)}")
+    return 0
+
+
+def cmd_brdf_plot(args) -> int:
+    import matplotlib
+
+    matplotlib.use("Agg")
+    import matplotlib.pyplot as plt
+
+    from .brdf.store import load_model
+    from .io import save_figure
+
+    model, meta = load_model(args.model)
+    data = _read_samples(args.data) if args.data else None
+    fig, axes = plt.subplots(1, 3, figsize=(13, 4), sharey=True)
+    ts = np.radians(np.linspace(-89, 89, 357))
+    for ax, ti_deg in zip(axes, (30, 45, 60), strict=True):
+        ti = np.radians(ti_deg)
+        # in-plane: detector at phi = 180 (forward, positive angles) or 0 (backward)
+        f = model(np.full_like(ts, ti), np.zeros_like(ts), np.abs(ts),
+                  np.where(ts >= 0, np.pi, 0.0))
+        ax.semilogy(np.degrees(ts), np.maximum(f, 1e-6), label="model")
+        if data is not None:
+            sel = (np.abs(np.degrees(data.theta_i) - ti_deg) < 0.6) & (
+                np.abs(np.sin(data.phi_s - data.phi_i)) < 0.05)
+            sign = np.where(np.cos(data.phi_s[sel] - data.phi_i[sel]) < 0, 1, -1)
+            ax.semilogy(sign * np.degrees(data.theta_s[sel]), np.maximum(data.brdf[sel], 1e-6),
+                        ".", ms=3, label="data")
+        ax.set(title=f"theta_i = {ti_deg} deg (in plane)", xlabel="theta_s (deg, + = forward)")
+    axes[0].set_ylabel("BRDF (1/sr)")
+    axes[0].legend()
+    fig.suptitle(f"{args.model}: {meta['metrics'].get('model', '')}")
+    out = args.output or str(Path(args.model).with_suffix(".png"))
+    save_figure(fig, out)
+    print(f"wrote {out}")
+    return 0
+
+
+def register_brdf(sub, add_device) -> None:
+    b = sub.add_parser("brdf", help="fit, tabulate and plot BRDF models")
+    bs = b.add_subparsers(dest="brdf_command", required=True)
+    f = bs.add_parser("fit", help="fit a model to measured data (CSV or pbrt .brdf)")
+    f.add_argument("data")
+    f.add_argument("--model", required=True, choices=["mlp", "mlp-seed", "five-param",
+                                                      "torrance-sparrow", "phong", "minnaert",
+                                                      "lambert"])
+    f.add_argument("-o", "--output", required=True)
+    f.add_argument("--test", help="held-out data for the test metrics")
+    f.add_argument("--metrics-json")
+    f.add_argument("--seed", type=int, default=0)
+    f.set_defaults(func=cmd_brdf_fit)
+    t = bs.add_parser("texture", help="tabulate a model to a BRDF texture (HDF5)")
+    t.add_argument("model")
+    t.add_argument("-o", "--output", required=True)
+    t.add_argument("--resolution", type=int, default=64, help="theta_i and theta_s nodes")
+    t.add_argument("--dphi", type=int, default=None, help="delta-phi nodes (default: same)")
+    t.add_argument("--retro", type=int, default=256, help="nodes of the retro slice")
+    t.set_defaults(func=cmd_brdf_texture)
+    p = bs.add_parser("plot", help="in-plane curves at theta_i 30/45/60 with the data")
+    p.add_argument("model")
+    p.add_argument("--data", help="measured CSV to overlay")
+    p.add_argument("-o", "--output")
+    p.set_defaults(func=cmd_brdf_plot)

@@ -58,6 +58,11 @@ def material_retro(obj: SceneObject, base_dir) -> np.ndarray | None:
     m = obj.material
     if isinstance(m, dict):
         return retro_slice(make_model(m), N_THETA)
+    if str(m).endswith((".h5", ".hdf5")):  # a BRDF texture file: its retro slice
+        from .brdf.texture import read_texture
+
+        r = read_texture(base_dir / m).retro.astype(float)
+        return np.interp(np.linspace(0, 1, N_THETA), np.linspace(0, 1, len(r)), r)
     key = str(m).lower()
     if key not in PRESETS:
         raise ParameterError("objects.material", m, "lambertian, " + ", ".join(

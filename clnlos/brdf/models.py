@@ -85,7 +85,8 @@ def microfacet(ti, pi_, ts, ps, kd=0.0, ks=1.0, alpha=0.2, f0=0.04, distribution
 def five_param(ti, pi_, ts, ps, kb=1.0, kr=1.5, b=-5.0, a_exp=1.0, kd=0.1, diffuse="kd",
                W=1.0, tau=0.5):
     ci, cs = np.cos(ti), np.cos(ts)
-    cos2g = np.clip(ci * cs + np.sin(ti) * np.sin(ts) * np.cos(ps - np.pi), -1, 1)
+    # the data convention writes cos(ps - pi) with phi_i = 0: in general the relative azimuth
+    cos2g = np.clip(ci * cs + np.sin(ti) * np.sin(ts) * np.cos(ps - pi_ - np.pi), -1, 1)
     g = 0.5 * np.arccos(cos2g)
     cg = np.cos(g)
     cos_a = np.clip((ci + cs) / (2 * np.maximum(cg, 1e-12)), -1, 1)

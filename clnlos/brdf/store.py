@@ -1,0 +1,52 @@
+"""Saving and loading fitted BRDF models (HDF5, ``format = "clnlos-brdf-model"``).
+
+Analytic models store their name and parameters; neural models store the network weights
+(one dataset per tensor) and their configuration. Both carry the fit metrics and the data
+provenance as JSON attributes.
+"""
+
+from __future__ import annotations
+
+import json
+
+import numpy as np
+
+from ..errors import InputFileError
+from .models import BRDFModel
+
+FORMAT = "clnlos-brdf-model"
+
+
+def save_model(path, model, metrics: dict, provenance: dict) -> None:
+    from ..io import write_h5
+    from .mlp import NeuralBRDF
+
+    attrs = {"format": FORMAT, "version": 1, "metrics": json.dumps(metrics),
+             "provenance": json.dumps(provenance)}
+    if isinstance(model, NeuralBRDF):
+        attrs.update(kind="mlp", meta=json.dumps(model.meta()))
+        data = {f"weights/{k}": v for k, v in model.state().items()}
+    else:
+        attrs.update(kind="analytic", model=model.name, params=json.dumps(model.params))
+        data = {}
+    write_h5(path, data, attrs)
+
+
+def load_model(path):
+    import h5py
+
+    from .mlp import NeuralBRDF
+
+    try:
+        with h5py.File(path, "r") as f:
+            if f.attrs.get("format") != FORMAT:
+                raise InputFileError(f"{path}: not a clnlos BRDF model file")
+            kind = f.attrs["kind"]
+            meta = {"metrics": json.loads(f.attrs.get("metrics", "{}")),
+                    "provenance": json.loads(f.attrs.get("provenance", "{}"))}
+            if kind == "mlp":
+                state = {k: np.asarray(v) for k, v in f["weights"].items()}
+                return NeuralBRDF.from_state(state, json.loads(f.attrs["meta"])), meta
+            return BRDFModel(str(f.attrs["model"]), json.loads(f.attrs["params"])), meta
+    except OSError as exc:
+        raise InputFileError(f"{path}: unreadable ({exc})") from None
