@@ -40,7 +40,8 @@ from .scene import Scene, SceneObject, read_retro_csv
 
 N_THETA = 256  # samples of the retro-reflection tables over [0, 90] degrees
 
-# Analytic presets until the measured-BRDF presets exist (names are case-insensitive).
+# Analytic presets beside the seed's ten measured-data presets of clnlos.brdf.presets
+# (names are case-insensitive).
 PRESETS: dict[str, BRDFModel | None] = {
     "lambertian": None,
     "matte-dark": BRDFModel("minnaert", {"kd": 0.3, "k": 1.5}),
@@ -64,9 +65,15 @@ def material_retro(obj: SceneObject, base_dir) -> np.ndarray | None:
         r = read_texture(base_dir / m).retro.astype(float)
         return np.interp(np.linspace(0, 1, N_THETA), np.linspace(0, 1, len(r)), r)
     key = str(m).lower()
+    from .brdf.presets import preset_model, preset_table
+
+    if key in preset_table():
+        return retro_slice(preset_model(key), N_THETA)
     if key not in PRESETS:
-        raise ParameterError("objects.material", m, "lambertian, " + ", ".join(
-            k for k in PRESETS if k != "lambertian") + ", or a model table")
+        raise ParameterError("objects.material", m, "lambertian, one of the seed presets ("
+                             + ", ".join(preset_table()) + "), " + ", ".join(
+                                 k for k in PRESETS if k != "lambertian")
+                             + ", a BRDF texture .h5 or a model table")
     model = PRESETS[key]
     return None if model is None else retro_slice(model, N_THETA)
 

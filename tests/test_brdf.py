@@ -203,3 +203,21 @@ def test_measured_ptfe_five_param_fit(shared_data):
     r = fit_analytic("five-param", read_gonio_csv(d / "nist_ptfe_white_532nm_gonio.csv"),
                      read_gonio_csv(d / "nist_ptfe_white_532nm_test.csv"))
     assert r.metrics["test_agreement_pct"] > 95
+
+
+def test_ten_presets_in_four_classes(queue):
+    from clnlos.brdf.presets import CLASSES, preset_model, preset_table
+    from clnlos.forward import ForwardModel
+    from clnlos.scene import Scene
+
+    t = preset_table()
+    assert len(t) == 10 and {v["class"] for v in t.values()} == set(CLASSES)
+    for name, v in t.items():
+        assert v["provenance"]
+        r = retro_slice(preset_model(name), 64)
+        assert np.all(np.isfinite(r)) and r.max() > 0, name
+    d = {"scan": {"width_m": 0.3, "points": 4}, "time": {"bin_width_s": 2e-11, "bins": 100,
+                                                          "start_s": 2.5e-9},
+         "objects": [{"shape": "rectangle", "size_m": [0.1, 0.1], "material": "Quartz Glass",
+                      "translate_m": [0, 0, 0.4]}]}
+    assert ForwardModel(Scene.from_dict(d), queue=queue).run().sum() > 0
