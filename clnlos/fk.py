@@ -18,8 +18,8 @@ import numpy as np
 import pyopencl.array as cla
 
 from . import C0
-from .errors import ParameterError
 from .fft import ComplexFFT3
+from .lct import check_inversion_args
 from .runtime import get_kernels, get_queue, real_defines, require_dtype, round_up
 
 
@@ -28,12 +28,7 @@ class FKMigration:
                  dtype=np.float32, queue=None):
         self.queue = get_queue(queue)
         self.dtype = require_dtype(self.queue.device, dtype)
-        nt, ny, nx = (int(s) for s in shape)
-        if min(nt, ny, nx) < 1:
-            raise ParameterError("shape", shape, "three sizes >= 1")
-        if not np.isfinite(falloff) or not 0 <= falloff <= 8:
-            raise ParameterError("falloff", falloff, "0 to 8")
-        self.shape = (nt, ny, nx)
+        nt, ny, nx = self.shape = check_inversion_args(shape, falloff)
         self.pad_shape = (2 * nt, 2 * ny, 2 * nx)
         dz = C0 * float(bin_width_s) / 2
         pitch = float(scan_width_m) / nx

@@ -33,6 +33,16 @@ from .runtime import get_kernels, get_queue, real_defines, require_dtype, round_
 from .wiener import SpectralFilter
 
 
+def check_inversion_args(shape, falloff: float) -> tuple[int, int, int]:
+    """Validated (nt, ny, nx) and radiometric exponent of a confocal inversion plan."""
+    nt, ny, nx = (int(s) for s in shape)
+    if min(nt, ny, nx) < 1:
+        raise ParameterError("shape", shape, "three sizes >= 1")
+    if not np.isfinite(falloff) or not 0 <= falloff <= 8:
+        raise ParameterError("falloff", falloff, "0 to 8")
+    return nt, ny, nx
+
+
 def lightcone_psf(nt: int, ny: int, nx: int, *, bin_width_s: float, pitch_m: float
                   ) -> np.ndarray:
     """Light cone h on the padded (2nt, 2ny, 2nx) v-grid in wrap order, unit sum (float64).
@@ -81,12 +91,7 @@ class LCT:
                  falloff: float = 4.0, dtype=np.float32, queue=None):
         self.queue = get_queue(queue)
         self.dtype = require_dtype(self.queue.device, dtype)
-        nt, ny, nx = (int(s) for s in shape)
-        if min(nt, ny, nx) < 1:
-            raise ParameterError("shape", shape, "three sizes >= 1")
-        if not np.isfinite(falloff) or not 0 <= falloff <= 8:
-            raise ParameterError("falloff", falloff, "0 to 8")
-        self.shape = (nt, ny, nx)
+        nt, ny, nx = self.shape = check_inversion_args(shape, falloff)
         self.bin_width_s, self.scan_width_m = float(bin_width_s), float(scan_width_m)
         pitch = self.scan_width_m / nx
         self.to_v = AxisResample(t_to_v_matrix(nt, falloff), (ny, nx), dtype=self.dtype,

@@ -23,6 +23,15 @@ inline real_t grid_pos(const real_t a, const real_t amax, const int n)
     return clamp(a, (real_t)0, amax) / amax * (real_t)(n - 1);
 }
 
+/* Fractional grid positions (theta_i, theta_s, delta_phi) of query q. */
+inline void query_grid_pos(__global const real_t *angles, const int q, const int n_ti,
+                           const int n_ts, const int n_dp, real_t *u, real_t *v, real_t *w)
+{
+    *u = grid_pos(angles[4 * q], PI_R / 2, n_ti);
+    *v = grid_pos(angles[4 * q + 2], PI_R / 2, n_ts);
+    *w = grid_pos(wrap_dphi(angles[4 * q + 1], angles[4 * q + 3]), PI_R, n_dp);
+}
+
 __kernel void brdf_lookup_buffer(__global const real_t *tex, const int n_ti, const int n_ts,
                                  const int n_dp, __global const real_t *angles,
                                  __global real_t *out, const int n)
@@ -30,9 +39,8 @@ __kernel void brdf_lookup_buffer(__global const real_t *tex, const int n_ti, con
     const int q = get_global_id(0);
     if (q >= n)
         return;
-    const real_t u = grid_pos(angles[4 * q], PI_R / 2, n_ti);
-    const real_t v = grid_pos(angles[4 * q + 2], PI_R / 2, n_ts);
-    const real_t w = grid_pos(wrap_dphi(angles[4 * q + 1], angles[4 * q + 3]), PI_R, n_dp);
+    real_t u, v, w;
+    query_grid_pos(angles, q, n_ti, n_ts, n_dp, &u, &v, &w);
     const int i0 = min((int)u, n_ti - 2), j0 = min((int)v, n_ts - 2), k0 = min((int)w, n_dp - 2);
     const real_t fu = u - i0, fv = v - j0, fw = w - k0;
     real_t acc = 0;
@@ -50,15 +58,14 @@ __constant sampler_t LINEAR = CLK_NORMALIZED_COORDS_FALSE | CLK_ADDRESS_CLAMP_TO
                               CLK_FILTER_LINEAR;
 
 __kernel void brdf_lookup_image(__read_only image3d_t tex, const int n_ti, const int n_ts,
-                                const int n_dp, __global const float *angles,
-                                __global float *out, const int n)
+                                const int n_dp, __global const real_t *angles,
+                                __global real_t *out, const int n)
 {
     const int q = get_global_id(0);
     if (q >= n)
         return;
-    const float u = grid_pos(angles[4 * q], PI_R / 2, n_ti);
-    const float v = grid_pos(angles[4 * q + 2], PI_R / 2, n_ts);
-    const float w = grid_pos(wrap_dphi(angles[4 * q + 1], angles[4 * q + 3]), PI_R, n_dp);
+    real_t u, v, w;
+    query_grid_pos(angles, q, n_ti, n_ts, n_dp, &u, &v, &w);
     /* image axes: x = delta_phi (fastest), y = theta_s, z = theta_i; texel centres at +0.5 */
     out[q] = read_imagef(tex, LINEAR, (float4)(w + 0.5f, v + 0.5f, u + 0.5f, 0.0f)).x;
 }
