@@ -87,6 +87,7 @@ def register(sub, add_device) -> None:
     r.set_defaults(func=cmd_reconstruct)
     register_forward(sub, add_device)
     register_brdf(sub, add_device)
+    register_study(sub, add_device)
 
 
 def transient_figure(tau: np.ndarray, scene, title: str = ""):
@@ -323,3 +324,43 @@ def register_brdf(sub, add_device) -> None:
     p.add_argument("--data", help="measured CSV to overlay")
     p.add_argument("-o", "--output")
     p.set_defaults(func=cmd_brdf_plot)
+
+
+def cmd_study(args) -> int:
+    from .study.run import StudyOptions, run_study
+
+    opts = StudyOptions() if args.full else StudyOptions.quick()
+    if args.n_dataset is not None:
+        opts.n_dataset = args.n_dataset
+    res = run_study(Path(args.output), opts, workers=args.workers, scheduler=args.scheduler,
+                    device=args.device)
+    for m in res["materials"]:
+        print(f"{m['name']:36s} {m['brdf_class']:26s} clarity {m['clarity_score']:.3g} "
+              f"label {m['clarity_label']} CNN {m['cnn_label']} IoU {m['iou']:.3f} "
+              f"depth error {m['depth_error_m'] * 100:.1f} cm")
+    print(f"CNN validation accuracy {res['cnn_validation_accuracy']:.3f}")
+    print(res["findings"]["statement"])
+    print(f"wrote {Path(args.output) / 'report.html'} and results.json")
+    return 0
+
+
+def register_study(sub, add_device) -> None:
+    s = sub.add_parser("study", help="the material study (main job)")
+    g = s.add_mutually_exclusive_group()
+    g.add_argument("--quick", action="store_true", help="built-in default: 400 samples, "
+                   "coarser time grid (minutes on 2 cores)")
+    g.add_argument("--full", action="store_true", help="seed-sized: 1000 samples, 16 ps bins")
+    s.add_argument("-o", "--output", default="out/study")
+    w = s.add_mutually_exclusive_group()
+    w.add_argument("--workers", type=int, default=None,
+                   help="local Dask worker processes (default: CPU count; 1 = serial)")
+    w.add_argument("--scheduler", default=None, help="address of an existing Dask scheduler")
+    s.add_argument("--n-dataset", type=int, default=None, help=argparse_suppress())
+    add_device(s)
+    s.set_defaults(func=cmd_study)
+
+
+def argparse_suppress():
+    import argparse
+
+    return argparse.SUPPRESS

@@ -19,6 +19,7 @@ from __future__ import annotations
 
 import math
 from dataclasses import dataclass
+from functools import lru_cache
 
 import numpy as np
 import pyopencl.array as cla
@@ -202,6 +203,13 @@ def photon_counts(tau: np.ndarray, scene: Scene, rng: np.random.Generator) -> np
     return rng.poisson(lam).astype(np.float32)
 
 
+@lru_cache(maxsize=4)
+def _forward_blur(slab, shape, bin_width_s, pitch_m, n_dipoles, dtype_str, queue):
+    """The physical Phi * Phi operator, shared by every scene of one geometry (a study)."""
+    return slab_blur(slab, shape, bin_width_s=bin_width_s, pitch_m=pitch_m, mode="convolve",
+                     n_dipoles=n_dipoles, dtype=np.dtype(dtype_str), queue=queue)
+
+
 class ForwardModel:
     """The stages a scene asks for, built once; ``run()`` returns the capture [t, y, x]."""
 
@@ -223,9 +231,8 @@ class ForwardModel:
                 raise ParameterError("time.start_s", s.start_s,
                                      "0 when a [slab] is given (the slab blur is causal from "
                                      "t = 0)")
-            self.blur = slab_blur(s.slab, self.lightcone.shape, bin_width_s=s.bin_width_s,
-                                  pitch_m=s.pitch_m, mode="convolve", n_dipoles=s.n_dipoles,
-                                  dtype=self.dtype, queue=self.queue)
+            self.blur = _forward_blur(s.slab, self.lightcone.shape, s.bin_width_s, s.pitch_m,
+                                      s.n_dipoles, self.dtype.str, self.queue)
             self.stages.append("slab_blur")
         if s.pulse_width_s is not None:
             self.pulse = PulseBlur(self.lightcone.shape, s.pulse_width_s, s.bin_width_s,

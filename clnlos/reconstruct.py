@@ -161,12 +161,29 @@ def resolve_geometry(capture: Capture, config: ReconstructionConfig) -> tuple[fl
     return float(bw), float(start), float(sw)
 
 
+_PIPELINES: dict = {}
+
+
 def reconstruct(capture: Capture, config: ReconstructionConfig, *, dtype=np.float32,
                 device=None, keep_transient: bool = False) -> Reconstruction:
-    """Reconstruct an albedo volume from a capture with the given configuration."""
+    """Reconstruct an albedo volume from a capture with the given configuration.
+
+    Pipelines (PSFs, spectra, FFT plans) are kept for the last few geometries, so many
+    captures of one geometry (a study) pay the set-up once.
+    """
+    import json
+
     bw, start, sw = resolve_geometry(capture, config)
-    pipe = ReconstructionPipeline(capture.transient.shape, bin_width_s=bw, start_s=start,
-                                  scan_width_m=sw, config=config, dtype=dtype, queue=device)
+    queue = get_queue(device)
+    key = (capture.transient.shape, bw, start, sw, json.dumps(config.as_attrs(), sort_keys=True),
+           np.dtype(dtype).str, queue)
+    pipe = _PIPELINES.get(key)
+    if pipe is None:
+        pipe = ReconstructionPipeline(capture.transient.shape, bin_width_s=bw, start_s=start,
+                                      scan_width_m=sw, config=config, dtype=dtype, queue=queue)
+        if len(_PIPELINES) >= 4:
+            _PIPELINES.pop(next(iter(_PIPELINES)))
+        _PIPELINES[key] = pipe
     return pipe.run(capture.transient, keep_transient=keep_transient)
 
 

@@ -52,6 +52,7 @@ def minnaert(ti, pi_, ts, ps, kd=1.0, k=1.0):
 
 
 def _half_vector_cos(ti, pi_, ts, ps):
+    ti, pi_, ts, ps = np.broadcast_arrays(*(np.asarray(a, float) for a in (ti, pi_, ts, ps)))
     wi = np.stack([np.sin(ti) * np.cos(pi_), np.sin(ti) * np.sin(pi_), np.cos(ti)])
     wo = np.stack([np.sin(ts) * np.cos(ps), np.sin(ts) * np.sin(ps), np.cos(ts)])
     h = wi + wo
