@@ -88,6 +88,7 @@ def register(sub, add_device) -> None:
     register_forward(sub, add_device)
     register_brdf(sub, add_device)
     register_study(sub, add_device)
+    register_bench(sub, add_device)
 
 
 def transient_figure(tau: np.ndarray, scene, title: str = ""):
@@ -364,3 +365,39 @@ def argparse_suppress():
     import argparse
 
     return argparse.SUPPRESS
+
+
+def cmd_bench(args) -> int:
+    """Thin front of tools/bench_all.py (benchmarks live in the source checkout's tools/)."""
+    import subprocess
+    import sys
+
+    from .errors import InputFileError
+
+    script = Path(__file__).resolve().parents[1] / "tools" / "bench_all.py"
+    if not script.is_file():
+        raise InputFileError(f"{script}: clnlos bench runs the benchmark scripts of a source "
+                             "checkout (tools/); this installation has none")
+    cmd = [sys.executable, str(script), "-o", args.output]
+    if args.quick:
+        cmd.append("--quick")
+    if args.tiny:
+        cmd.append("--tiny")
+    if args.only:
+        cmd += ["--only", args.only]
+    if args.device:
+        cmd += ["--device", args.device]
+    return subprocess.run(cmd).returncode
+
+
+def register_bench(sub, add_device) -> None:
+    b = sub.add_parser("bench", help="accuracy versus time of every kernel knob (bench.json, "
+                                     "bench.html)")
+    g = b.add_mutually_exclusive_group()
+    g.add_argument("--quick", action="store_true", help="under 5 minutes on 2 CPU cores")
+    g.add_argument("--tiny", action="store_true", help=argparse_suppress())
+    b.add_argument("-o", "--output", default="out/bench")
+    b.add_argument("--only", default=None, help="comma-separated sections (diffusion, "
+                   "lightcone, brdf, forward, reconstruction, end_to_end)")
+    add_device(b)
+    b.set_defaults(func=cmd_bench)
