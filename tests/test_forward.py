@@ -240,3 +240,22 @@ def test_round_trip_letters_through_slab(queue):
     assert abs(depth - 0.5) <= 2 * rec.extents["voxel_depth_m"]
     score, _ = mip_iou(rec.volume, truth)
     assert score >= 0.45, score
+
+
+def test_pulse_blur_kernel_vs_numpy(queue, dtype):
+    """kernels/temporal.cl (time_convolve) against numpy's convolution, float64 reference."""
+    import pyopencl.array as cla
+
+    from clnlos.forward import PulseBlur
+
+    rng = np.random.default_rng(7)
+    x = rng.random((90, 3, 4))
+    x[:, 0, 0] = 0  # an empty column stays empty
+    op = PulseBlur(x.shape, 35e-12, 16e-12, dtype=dtype, queue=queue)
+    out = op(cla.to_device(queue, x.astype(dtype))).get()
+    taps = pulse_taps(35e-12, 16e-12)
+    K = (len(taps) - 1) // 2
+    ref = np.apply_along_axis(lambda c: np.convolve(c, taps)[K:K + len(c)], 0, x)
+    assert rel_l2(ref, out) < TOL[np.dtype(dtype).type]
+    assert np.all(out[:, 0, 0] == 0)
+    assert out.sum() == pytest.approx(ref.sum(), rel=1e-5)

@@ -2,7 +2,8 @@
 
 Parameters live in ``presets.json`` beside this file, written by ``tools/fit_presets.py``:
 a GGX microfacet + Lambertian model fitted (log space) to the closest measured set in
-../shared/data/brdf, or documented analytic parameters where no data is close.
+the project's shared measured-BRDF data, or documented analytic parameters where no data is
+close (the data itself is never copied into the package).
 """
 
 from __future__ import annotations
