@@ -17,7 +17,7 @@ import pyopencl.array as cla
 
 from .diffusion import Slab, diffusion_psf
 from .fft import RealFFT3
-from .runtime import get_kernels, get_queue, real_defines, require_dtype, round_up
+from .runtime import fill_zero, get_kernels, get_queue, real_defines, require_dtype, round_up
 from .wiener import SpectralFilter
 
 
@@ -43,7 +43,7 @@ def confocal_psf(slab: Slab, shape: tuple[int, int, int], *, bin_width_s: float,
     k = get_kernels(q, "wiener", real_defines(dt))
     k.spectral_square(q, (round_up(spec.size, 256),), None, spec.data, np.int64(spec.size))
     phi2 = fft.inverse(spec)
-    phi2[nt:].fill(0)
+    fill_zero(q, phi2, offset_bytes=nt * pad[1] * pad[2] * dt.itemsize)
     return phi2
 
 

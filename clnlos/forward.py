@@ -36,7 +36,15 @@ from .geometry import (
     sample_sphere,
     transform,
 )
-from .runtime import get_kernels, get_queue, real_defines, require_dtype, require_memory, round_up
+from .runtime import (
+    get_kernels,
+    get_queue,
+    real_defines,
+    require_dtype,
+    require_memory,
+    round_up,
+    zeros,
+)
 from .scene import Scene, SceneObject, read_retro_csv
 
 N_THETA = 256  # samples of the retro-reflection tables over [0, 90] degrees
@@ -145,7 +153,7 @@ class LightCone:
     def __call__(self, samples: SurfaceSamples) -> cla.Array:
         q, dt = self.queue, self.dtype
         el = samples.elements
-        out = cla.zeros(q, self.shape, dt)
+        out = zeros(q, self.shape, dt)
         if len(el) == 0:
             return out
 

@@ -15,7 +15,7 @@ import scipy.sparse as sp
 
 from .errors import ShapeError
 from .operators import LinearOperator
-from .runtime import get_kernels, get_queue, real_defines, require_dtype, round_up
+from .runtime import get_kernels, get_queue, real_defines, require_dtype, round_up, zeros
 
 
 def overlap_matrix(src_edges, dst_edges) -> sp.csr_matrix:
@@ -104,7 +104,7 @@ class AxisResample(LinearOperator):
 
     def _apply(self, x_g):
         padded = self.out_plane != self.plane or self.n_rows_out != self.matrix.shape[0]
-        out_g = (cla.zeros if padded else cla.empty)(self.queue, self.out_shape, self.dtype)
+        out_g = (zeros if padded else cla.empty)(self.queue, self.out_shape, self.dtype)
         return self.apply_into(x_g, out_g)
 
     def _adjoint(self, y_g):

@@ -1,0 +1,61 @@
+"""Runs every kernel family once on tiny inputs; executed under Oclgrind by test_memcheck.py.
+
+Run with OCL_ICD_VENDORS pointing at Oclgrind's ICD and CLNLOS_FFT=host (VkFFT's generated
+kernels are not ours and take minutes to interpret).
+"""
+
+import numpy as np
+import pyopencl.array as cla
+import scipy.sparse as sp
+
+from clnlos.blur import slab_blur
+from clnlos.brdf.models import BRDFModel
+from clnlos.brdf.texture import TextureLookup, tabulate
+from clnlos.diffusion import Slab, SlabTransmittance, diffusion_psf
+from clnlos.fk import FKMigration
+from clnlos.forward import N_THETA, LightCone, PulseBlur, SurfaceSamples
+from clnlos.geometry import Elements
+from clnlos.lct import LCT
+from clnlos.resample import AxisResample, overlap_matrix
+from clnlos.runtime import get_queue, has_fp64
+
+q = get_queue("oclgrind")
+slab = Slab(thickness_m=0.0254, mu_a=0.53, mu_s_prime=262.0, n=1.12)
+dtypes = [np.float32] + ([np.float64] if has_fp64(q.device) else [])
+for dt in dtypes:
+    # diffusion: element-wise, series table, PSF table (odd sizes on purpose)
+    p = SlabTransmittance(slab, dtype=dt, queue=q)
+    p(np.array([0.0, 0.01, 0.02]), np.array([0.0, 1e-10, 2e-9]))
+    diffusion_psf(slab, nt=5, bin_width_s=5e-11, ny=3, nx=5, pitch_m=0.02, dtype=dt, queue=q)
+    # resampling, padding (zero and mirror), Wiener and spectral kernels, LCT, f-k
+    shape = (6, 3, 5)
+    x = np.random.default_rng(0).random(shape).astype(dt)
+    op = AxisResample(overlap_matrix(np.linspace(0, 1, 7), np.sqrt(np.linspace(0, 1, 5))),
+                      (3, 5), dtype=dt, queue=q, out_plane=(4, 6), out_rows=5)
+    op.apply_adjoint(op(x))
+    blur = slab_blur(slab, shape, bin_width_s=5e-11, pitch_m=0.03, dtype=dt, queue=q)
+    blur.apply_adjoint(blur(x))
+    slab_blur(slab, shape, bin_width_s=5e-11, pitch_m=0.03, mode="wiener", snr=1e2,
+              lateral_pad="mirror", dtype=dt, queue=q)(x)
+    LCT(shape, bin_width_s=5e-11, scan_width_m=0.3, dtype=dt, queue=q)(x)
+    FKMigration(shape, bin_width_s=5e-11, scan_width_m=0.3, dtype=dt, queue=q)(x)
+    # light cone (Lambertian and BRDF-table paths, both splatting orders), pulse blur
+    el = Elements(np.array([[0.01, 0.0, 0.2], [-0.02, 0.01, 0.25], [0.0, 0.0, 0.21]]),
+                  np.array([[0, 0, -1.0], [0, 0.6, -0.8], [0, 0, 1.0]]), np.full(3, 1e-4))
+    tables = np.stack([np.linspace(1.0, 0.1, N_THETA), np.full(N_THETA, 0.3)])
+    for retro in (False, True):
+        for splat in (0, 1):
+            lc = LightCone(points=3, width_m=0.1, bins=7, bin_width_s=3e-11, start_s=1.2e-9,
+                           retro=retro, splat_order=splat, dtype=dt, queue=q)
+            out = lc(SurfaceSamples(el, np.ones(3), np.array([0, 1, 0], np.int32),
+                                    tables if retro else None))
+    PulseBlur((7, 3, 3), 35e-12, 3e-11, dtype=dt, queue=q)(out)
+    # BRDF texture lookup
+    tex = tabulate(BRDFModel("phong", {}), 3, 4, 5)
+    ang = np.array([[0.0, 0.0, 0.0, 0.0], [1.5707963, 3.1415, 1.5707963, -3.1415],
+                    [0.3, 0.1, 0.7, 2.0]])
+    TextureLookup(tex, path="buffer", dtype=dt, queue=q)(ang)
+    if dt == np.float32 and q.device.image_support:
+        TextureLookup(tex, path="image", queue=q)(ang)
+q.finish()
+print("MEMCHECK DONE", [np.dtype(d).name for d in dtypes])
