@@ -219,8 +219,7 @@ def _read_samples(path):
 
 
 def cmd_brdf_fit(args) -> int:
-    from .brdf.data import agreement, relative_error
-    from .brdf.fit import fit_analytic
+    from .brdf.fit import fit_analytic, metrics_for
     from .brdf.store import save_model
     from .io import atomic_path
 
@@ -231,12 +230,8 @@ def cmd_brdf_fit(args) -> int:
 
         model, log = train_mlp(train, MLPConfig(recipe="seed" if args.model == "mlp-seed"
                                                 else "improved", seed=args.seed))
-        metrics = {"model": args.model, "epochs_run": log["epochs_run"]}
-        for name, s in (("train", train), ("test", test)):
-            if s is not None:
-                pr = model(s.theta_i, s.phi_i, s.theta_s, s.phi_s)
-                metrics[f"{name}_relative_error"] = relative_error(pr, s.brdf)
-                metrics[f"{name}_agreement_pct"] = agreement(pr, s.brdf)
+        metrics = {"model": args.model, "epochs_run": log["epochs_run"],
+                   **metrics_for(model, train, test)}
     else:
         r = fit_analytic(args.model, train, test, seed=args.seed)
         model, metrics = r.model, r.metrics

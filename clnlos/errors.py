@@ -12,7 +12,7 @@ class ClnlosError(Exception):
 
 
 class ParameterError(ClnlosError, ValueError):
-    """A physical or numerical parameter is invalid; the message names it, its value and the range."""
+    """A parameter is invalid; the message names it, its value and the allowed range."""
 
     def __init__(self, name: str, value, allowed: str):
         self.name, self.value, self.allowed = name, value, allowed

@@ -210,7 +210,7 @@ def read_mesh(path) -> tuple[np.ndarray, np.ndarray]:
                 raise InputFileError(f"{p}: only ASCII PLY is supported")
             nv = nf = 0
             k = 0
-            for k, ln in enumerate(lines):
+            for k, ln in enumerate(lines):  # noqa: B007 (k is the header length, used below)
                 if ln.startswith("element vertex"):
                     nv = int(ln.split()[2])
                 elif ln.startswith("element face"):

@@ -23,7 +23,7 @@ import os
 import re
 import warnings
 from dataclasses import dataclass
-from functools import lru_cache
+from functools import cache
 
 import numpy as np
 import pyopencl as cl
@@ -146,12 +146,12 @@ def select_device(spec: str | None = None) -> cl.Device:
     return hits[k]
 
 
-@lru_cache(maxsize=None)
+@cache
 def _context_for(device: cl.Device) -> cl.Context:
     return cl.Context([device])
 
 
-@lru_cache(maxsize=None)
+@cache
 def _queue_for(device: cl.Device, profiling: bool) -> cl.CommandQueue:
     props = cl.command_queue_properties.PROFILING_ENABLE if profiling else 0
     return cl.CommandQueue(_context_for(device), properties=props)

@@ -5,8 +5,6 @@ kernels are not ours and take minutes to interpret).
 """
 
 import numpy as np
-import pyopencl.array as cla
-import scipy.sparse as sp
 
 from clnlos.blur import slab_blur
 from clnlos.brdf.models import BRDFModel

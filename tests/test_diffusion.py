@@ -10,7 +10,13 @@ from reference.diffusion_ref import (
     slab_transmittance_ref,
 )
 
-from clnlos.diffusion import Slab, SlabTransmittance, diffusion_psf, grid_offsets, slab_transmittance
+from clnlos.diffusion import (
+    Slab,
+    SlabTransmittance,
+    diffusion_psf,
+    grid_offsets,
+    slab_transmittance,
+)
 from clnlos.errors import ParameterError
 
 CDT = dict(thickness_m=0.0254, mu_a=0.53, mu_s_prime=262.0, n=1.12)

@@ -98,7 +98,9 @@ def test_lambertian_square_matches_quadrature(queue):
     c = (np.arange(3) + 0.5) * 0.1 - 0.15
     for iy in range(3):
         for ix in range(3):
-            f = lambda y, x: z0**4 / ((x - c[ix]) ** 2 + (y - c[iy]) ** 2 + z0**2) ** 4 / np.pi  # noqa: E731
+            def f(y, x, cx=c[ix], cy=c[iy]):
+                return z0**4 / ((x - cx) ** 2 + (y - cy) ** 2 + z0**2) ** 4 / np.pi
+
             ref = dblquad(f, -side / 2, side / 2, -side / 2, side / 2, epsabs=0, epsrel=1e-10)[0]
             assert out[iy, ix] == pytest.approx(ref, rel=1e-4)
 

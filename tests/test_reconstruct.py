@@ -22,7 +22,6 @@ from clnlos.lct import LCT
 from clnlos.operators import dot_test
 from clnlos.reconstruct import preprocess_matrix, reconstruct
 from clnlos.resample import AxisResample, overlap_matrix, rebin_matrix
-from clnlos.wiener import SpectralFilter
 
 CDT = dict(thickness_m=0.0254, mu_a=0.53, mu_s_prime=262.0, n=1.12)
 # Stated tolerances (relative L2 against the float64 numpy reference)

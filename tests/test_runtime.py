@@ -137,7 +137,8 @@ def test_wheel_ships_kernels_and_runs_them(tmp_path):
         "q = rt.get_queue()\n"
         "for fam in names:\n"
         "    rt.get_kernels(q, fam[:-3], rt.real_defines('float32'))\n"
-        "v = d.slab_transmittance(0.0, 1e-9, thickness_m=0.0254, mu_a=0.53, mu_s_prime=262.0, n=1.12)\n"
+        "v = d.slab_transmittance(0.0, 1e-9, thickness_m=0.0254, mu_a=0.53,\n"
+        "                         mu_s_prime=262.0, n=1.12)\n"
         "assert v > 0\n"
         "print(len(names))\n"
     )

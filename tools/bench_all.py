@@ -288,8 +288,9 @@ def bench_roofline(b: Bench) -> float:
     for row in b.rows:
         if row.get("bytes_moved"):
             row["bandwidth_fraction"] = row["bytes_moved"] / row["median_s"] / bw
-            print(f"  {row['knob']} {row['value']}: {row['bytes_moved'] / row['median_s'] / 1e9:.2f}"
-                  f" GB/s = {row['bandwidth_fraction']:.2f} of copy bandwidth")
+            gbs = row["bytes_moved"] / row["median_s"] / 1e9
+            print(f"  {row['knob']} {row['value']}: {gbs:.2f} GB/s = "
+                  f"{row['bandwidth_fraction']:.2f} of copy bandwidth")
     return bw
 
 

@@ -64,7 +64,8 @@ def main(argv=None) -> list[dict]:
         t_g = cla.to_device(q, t.astype(dt))
         for M in (1, 2, 3, 5, 10, 20, None):
             plan = SlabTransmittance(slab, n_dipoles=M, dtype=dt, queue=q)
-            timing = timeit(lambda p=plan: p.outer_device(rho_g, t_g), q, repeat=repeat)
+            timing = timeit(lambda p=plan, r=rho_g, t=t_g: p.outer_device(r, t), q,
+                            repeat=repeat)
             out = plan.outer_device(rho_g, t_g).get().astype(np.float64)
             err = float(np.linalg.norm(out - ref) / np.linalg.norm(ref))
             rows.append({**meta, "kernel": "diffusion", "knob": "n_dipoles",

@@ -76,7 +76,7 @@ def main(argv=None):
             lc = LightCone(points=points, width_m=s.width_m, bins=bins,
                            bin_width_s=s.bin_width_s, start_s=0.0, retro=False, dtype=dt,
                            queue=q)
-            t = timeit(lambda lc=lc: lc(smp), q, repeat=3)
+            t = timeit(lambda lc=lc, smp=smp: lc(smp), q, repeat=3)
             rows.append({**meta, "kernel": "lightcone", "knob": "grid",
                          "value": f"{points}x{points}x{bins}", "dtype": np.dtype(dt).name,
                          "impl": "opencl", "elements": len(smp.elements), **t,

@@ -36,7 +36,7 @@ def train_classifier(images: np.ndarray, labels: np.ndarray, *, epochs: int = 10
     opt = torch.optim.Adam(net.parameters(), lr=2e-3)
     lossf = torch.nn.CrossEntropyLoss()
     history = []
-    for ep in range(epochs):
+    for _ in range(epochs):
         net.train()
         perm = tr[rng.permutation(len(tr))]
         tot = 0.0
