@@ -42,6 +42,8 @@ from .errors import InputFileError, ParameterError
 
 def positive(name: str, v: Any, *, allow_zero: bool = False, upper: float | None = None
              ) -> float:
+    if isinstance(v, bool):
+        raise ParameterError(name, v, "a number")
     try:
         x = float(v)
     except (TypeError, ValueError):
@@ -54,7 +56,8 @@ def positive(name: str, v: Any, *, allow_zero: bool = False, upper: float | None
 
 
 def integer(name: str, v: Any, lo: int, hi: int) -> int:
-    if isinstance(v, bool) or not isinstance(v, int | float) or int(v) != v or not lo <= v <= hi:
+    if (isinstance(v, bool) or not isinstance(v, int | float) or not math.isfinite(v)
+            or int(v) != v or not lo <= v <= hi):
         raise ParameterError(name, v, f"an integer from {lo} to {hi}")
     return int(v)
 

@@ -37,14 +37,19 @@ from .runtime import get_kernels, get_queue, real_defines, require_dtype, round_
 LN_TOL = {np.dtype(np.float32): math.log(1e8), np.dtype(np.float64): math.log(1e17)}
 
 
-def _check_positive(name: str, value, *, allow_zero: bool = False) -> float:
+def _check_positive(name: str, value, *, allow_zero: bool = False,
+                    upper: float = math.inf) -> float:
+    if isinstance(value, bool):
+        raise ParameterError(name, value, "a real number")
     try:
         v = float(value)
     except (TypeError, ValueError):
         raise ParameterError(name, value, "a real number") from None
-    ok = math.isfinite(v) and (v >= 0 if allow_zero else v > 0)
+    ok = math.isfinite(v) and (v >= 0 if allow_zero else v > 0) and v <= upper
     if not ok:
-        raise ParameterError(name, value, ">= 0 and finite" if allow_zero else "> 0 and finite")
+        rng = (">= 0" if allow_zero else "> 0") + (f" and <= {upper:g}" if upper < math.inf
+                                                   else " and finite")
+        raise ParameterError(name, value, rng)
     return v
 
 
@@ -97,15 +102,20 @@ class Slab:
     ze_m: float | None = None
 
     def __post_init__(self):
-        object.__setattr__(self, "thickness_m", _check_positive("thickness_m", self.thickness_m))
-        object.__setattr__(self, "mu_a", _check_positive("mu_a", self.mu_a, allow_zero=True))
-        object.__setattr__(self, "mu_s_prime", _check_positive("mu_s_prime", self.mu_s_prime))
-        n = _check_positive("n", self.n)
+        # upper bounds: well past any physical slab, before the series degenerates
+        object.__setattr__(self, "thickness_m",
+                           _check_positive("thickness_m", self.thickness_m, upper=10.0))
+        object.__setattr__(self, "mu_a",
+                           _check_positive("mu_a", self.mu_a, allow_zero=True, upper=1e6))
+        object.__setattr__(self, "mu_s_prime",
+                           _check_positive("mu_s_prime", self.mu_s_prime, upper=1e7))
+        n = _check_positive("n", self.n, upper=5.0)
         if n < 1.0:
             raise ParameterError("n", self.n, ">= 1 (relative refractive index)")
         object.__setattr__(self, "n", n)
         if self.ze_m is not None:
-            object.__setattr__(self, "ze_m", _check_positive("ze_m", self.ze_m, allow_zero=True))
+            object.__setattr__(self, "ze_m",
+                               _check_positive("ze_m", self.ze_m, allow_zero=True, upper=10.0))
 
     @property
     def D(self) -> float:
