@@ -30,27 +30,12 @@ import numpy as np
 import pyopencl.array as cla
 
 from . import C0
+from .checks import positive
 from .errors import ParameterError
 from .runtime import get_kernels, get_queue, real_defines, require_dtype, round_up
 
 # ln(1/tolerance) of the auto mode: terms below tol relative to the largest are dropped.
 LN_TOL = {np.dtype(np.float32): math.log(1e8), np.dtype(np.float64): math.log(1e17)}
-
-
-def _check_positive(name: str, value, *, allow_zero: bool = False,
-                    upper: float = math.inf) -> float:
-    if isinstance(value, bool):
-        raise ParameterError(name, value, "a real number")
-    try:
-        v = float(value)
-    except (TypeError, ValueError):
-        raise ParameterError(name, value, "a real number") from None
-    ok = math.isfinite(v) and (v >= 0 if allow_zero else v > 0) and v <= upper
-    if not ok:
-        rng = (">= 0" if allow_zero else "> 0") + (f" and <= {upper:g}" if upper < math.inf
-                                                   else " and finite")
-        raise ParameterError(name, value, rng)
-    return v
 
 
 @lru_cache(maxsize=256)
@@ -104,18 +89,18 @@ class Slab:
     def __post_init__(self):
         # upper bounds: well past any physical slab, before the series degenerates
         object.__setattr__(self, "thickness_m",
-                           _check_positive("thickness_m", self.thickness_m, upper=10.0))
+                           positive("thickness_m", self.thickness_m, upper=10.0))
         object.__setattr__(self, "mu_a",
-                           _check_positive("mu_a", self.mu_a, allow_zero=True, upper=1e6))
+                           positive("mu_a", self.mu_a, allow_zero=True, upper=1e6))
         object.__setattr__(self, "mu_s_prime",
-                           _check_positive("mu_s_prime", self.mu_s_prime, upper=1e7))
-        n = _check_positive("n", self.n, upper=5.0)
+                           positive("mu_s_prime", self.mu_s_prime, upper=1e7))
+        n = positive("n", self.n, upper=5.0)
         if n < 1.0:
             raise ParameterError("n", self.n, ">= 1 (relative refractive index)")
         object.__setattr__(self, "n", n)
         if self.ze_m is not None:
             object.__setattr__(self, "ze_m",
-                               _check_positive("ze_m", self.ze_m, allow_zero=True, upper=10.0))
+                               positive("ze_m", self.ze_m, allow_zero=True, upper=10.0))
 
     @property
     def D(self) -> float:
@@ -271,8 +256,8 @@ def diffusion_psf(slab: Slab, *, nt: int, bin_width_s: float, ny: int, nx: int,
     for name, val in (("nt", nt), ("ny", ny), ("nx", nx)):
         if int(val) != val or val < 1:
             raise ParameterError(name, val, "an integer >= 1")
-    dt = _check_positive("bin_width_s", bin_width_s)
-    pitch = _check_positive("pitch_m", pitch_m)
+    dt = positive("bin_width_s", bin_width_s)
+    pitch = positive("pitch_m", pitch_m)
     if int(time_nodes) != time_nodes or not 1 <= time_nodes <= 32:
         raise ParameterError("time_nodes", time_nodes, "an integer from 1 to 32")
     plan = SlabTransmittance(slab, n_dipoles=n_dipoles, dtype=dtype, queue=queue)

@@ -26,6 +26,7 @@ import numpy as np
 import scipy.sparse as sp
 
 from . import C0
+from .diffusion import grid_offsets
 from .errors import ParameterError
 from .operators import LinearOperator
 from .resample import AxisResample, overlap_matrix
@@ -51,9 +52,8 @@ def lightcone_psf(nt: int, ny: int, nx: int, *, bin_width_s: float, pitch_m: flo
     s = q / R^2 * nt bins (R = nt c dt / 2), split linearly between bins floor(s), floor(s)+1.
     """
     R = nt * C0 * bin_width_s / 2
-    oy = np.where(np.arange(2 * ny) < ny, np.arange(2 * ny), np.arange(2 * ny) - 2 * ny)
-    ox = np.where(np.arange(2 * nx) < nx, np.arange(2 * nx), np.arange(2 * nx) - 2 * nx)
-    q = (oy[:, None] * pitch_m) ** 2 + (ox[None, :] * pitch_m) ** 2
+    oy, ox = grid_offsets(2 * ny, pitch_m), grid_offsets(2 * nx, pitch_m)
+    q = oy[:, None] ** 2 + ox[None, :] ** 2
     s = q / R**2 * nt
     k0 = np.floor(s).astype(np.int64)
     f = s - k0

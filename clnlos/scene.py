@@ -40,7 +40,8 @@ from pathlib import Path
 
 import numpy as np
 
-from .config import check_keys, choice, integer, load_toml, positive, slab_from_table
+from .checks import choice, integer, positive
+from .config import check_keys, load_toml, slab_from_table
 from .diffusion import Slab
 from .errors import InputFileError, ParameterError
 
