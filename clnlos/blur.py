@@ -8,23 +8,40 @@ zero offset at index [0, 0, 0], wrap order, no half-pixel shift.
 
 Left out: the lateral tails of Phi * Phi beyond one scan width (they alias on the 2N
 padded grid; the CDT slab's blur is a few cm against scan widths of tens of cm).
+:func:`lateral_reach_m` says how far the blur reaches, so that a forward model can compute
+the hidden-side transient I on a grid that extends that far past the scan area.
 """
 
 from __future__ import annotations
 
+import math
+
 import numpy as np
 import pyopencl.array as cla
+from scipy.signal import fftconvolve
 
 from .diffusion import Slab, diffusion_psf
 from .fft import RealFFT3
-from .runtime import fill_zero, get_kernels, get_queue, real_defines, require_dtype, round_up
+from .runtime import (
+    fill_zero,
+    get_kernels,
+    get_queue,
+    has_fp64,
+    real_defines,
+    require_dtype,
+    round_up,
+)
 from .wiener import SpectralFilter
 
 
 def confocal_psf(slab: Slab, shape: tuple[int, int, int], *, bin_width_s: float,
-                 pitch_m: float, n_dipoles: int | None = None, dtype=np.float32,
-                 queue=None) -> cla.Array:
+                 pitch_m: float, n_dipoles: int | None = None, periodic_xy: bool = False,
+                 dtype=np.float32, queue=None) -> cla.Array:
     """Phi * Phi on the padded grid (2 nt, 2 ny, 2 nx) for transients of ``shape``.
+
+    ``periodic_xy``: the grid is (2 nt, ny, nx), a convolution that wraps laterally -- for
+    a forward model whose input already extends past the kept area by the blur's reach
+    (:func:`lateral_reach_m`), where the wrapped border is cropped away.
 
     Phi is computed with ``normalize="physical"`` (so the sum of Phi * Phi approximates the
     squared total transmittance) for lags 0..nt-1; the self-convolution is exact on the
@@ -34,7 +51,7 @@ def confocal_psf(slab: Slab, shape: tuple[int, int, int], *, bin_width_s: float,
     q = get_queue(queue)
     dt = require_dtype(q.device, dtype)
     nt, ny, nx = (int(s) for s in shape)
-    pad = (2 * nt, 2 * ny, 2 * nx)
+    pad = (2 * nt, ny, nx) if periodic_xy else (2 * nt, 2 * ny, 2 * nx)
     phi = diffusion_psf(slab, nt=pad[0], bin_width_s=bin_width_s, ny=pad[1], nx=pad[2],
                         pitch_m=pitch_m, n_dipoles=n_dipoles, dtype=dt, queue=q)
     phi[nt:] = 0
@@ -47,9 +64,39 @@ def confocal_psf(slab: Slab, shape: tuple[int, int, int], *, bin_width_s: float,
     return phi2
 
 
+def lateral_reach_m(slab: Slab, *, window_s: float, pitch_m: float, tol: float = 1e-3,
+                    n_dipoles: int | None = None, queue=None) -> float:
+    """Radius R (m) outside which the confocal blur holds less than ``tol`` of its energy.
+
+    With P(rho) = integral of Phi(t, rho) over lags 0..window_s (the light that can reach the
+    time window), the confocal blur integrated over time is about P * P (2D convolution);
+    R is the smallest offset with sum_{|rho| > R} (P * P) < tol * sum (P * P). The profile is
+    computed on a grid of at most 256 cells per side reaching 20 (d + 2 z_e), a bound well
+    past the lateral decay length (d + 2 z_e) / pi of the slab's diffuse spot.
+    """
+    r_max = 20.0 * (slab.thickness_m + 2.0 * slab.ze)
+    pitch = max(float(pitch_m), 2.0 * r_max / 256)
+    n = 2 * int(math.ceil(r_max / pitch))
+    nt = 64
+    q = get_queue(queue)
+    phi = diffusion_psf(slab, nt=nt, bin_width_s=window_s / nt, ny=n, nx=n, pitch_m=pitch,
+                        n_dipoles=n_dipoles, dtype=np.float64 if has_fp64(q.device) else
+                        np.float32, queue=q)
+    p = np.fft.fftshift(phi.astype(np.float64).sum(axis=0))  # centre (zero offset) at n/2
+    pp = fftconvolve(p, p, mode="full")  # zero offset at index n
+    off = (np.arange(2 * n - 1) - n) * pitch
+    rho = np.hypot(off[:, None], off[None, :]).ravel()
+    e = np.clip(pp.ravel(), 0, None)
+    order = np.argsort(rho)
+    outside = 1.0 - np.cumsum(e[order]) / e.sum()
+    k = int(np.argmax(outside < tol))
+    return float(rho[order][k])
+
+
 def slab_blur(slab: Slab, shape, *, bin_width_s: float, pitch_m: float, mode: str = "convolve",
               snr: float | None = None, n_dipoles: int | None = None,
-              lateral_pad: str = "zero", dtype=np.float32, queue=None) -> SpectralFilter:
+              lateral_pad: str = "zero", periodic_xy: bool = False, dtype=np.float32,
+              queue=None) -> SpectralFilter:
     """The confocal blur as an operator on transients of ``shape`` [t, y, x].
 
     ``mode="convolve"``: the forward model tau = (Phi * Phi) * I in physical units (the DC
@@ -57,6 +104,6 @@ def slab_blur(slab: Slab, shape, *, bin_width_s: float, pitch_m: float, mode: st
     conj(H)/(|H|^2 + 1/SNR) with H normalised to unit DC gain.
     """
     psf = confocal_psf(slab, shape, bin_width_s=bin_width_s, pitch_m=pitch_m,
-                       n_dipoles=n_dipoles, dtype=dtype, queue=queue)
+                       n_dipoles=n_dipoles, periodic_xy=periodic_xy, dtype=dtype, queue=queue)
     return SpectralFilter(psf, shape, mode=mode, snr=snr, normalize=(mode == "wiener"),
                           lateral_pad=lateral_pad, dtype=dtype, queue=queue)

@@ -1,7 +1,9 @@
 """Forward simulation composed from a scene: only the effects the scene asks for are built.
 
     I   = LightCone(elements)                 always   (kernels/lightcone.cl)
-    tau = (Phi * Phi) * I                     [slab]   (clnlos.blur, physical units)
+    tau = (Phi * Phi) * I                     [slab]   (clnlos.blur, physical units; I is
+                                                        computed on the scan grid widened by
+                                                        the blur's lateral reach, then cropped)
     tau = g_pulse * tau                       [laser] pulse_width_s (kernels/temporal.cl)
     N   ~ Poisson(eta tau + dark)             [detector] (numpy Generator seeded by `seed`)
 
@@ -24,7 +26,7 @@ from functools import lru_cache
 import numpy as np
 import pyopencl.array as cla
 
-from .blur import slab_blur
+from .blur import lateral_reach_m, slab_blur
 from .brdf.models import BRDFModel, make_model, retro_slice
 from .errors import ParameterError
 from .geometry import (
@@ -211,11 +213,34 @@ def photon_counts(tau: np.ndarray, scene: Scene, rng: np.random.Generator) -> np
     return rng.poisson(lam).astype(np.float32)
 
 
+def _fft_friendly(n: int) -> bool:
+    for p in (2, 3, 5):
+        while n % p == 0:
+            n //= p
+    return n == 1
+
+
+@lru_cache(maxsize=16)
+def _blur_margin(slab, window_s, pitch_m, points, tol, n_dipoles, queue) -> int:
+    """Cells per side to add so the scan grid covers the blur's reach (2-3-5-smooth size)."""
+    reach = lateral_reach_m(slab, window_s=window_s, pitch_m=pitch_m, tol=tol,
+                            n_dipoles=n_dipoles, queue=queue)
+    m = min(int(math.ceil(reach / pitch_m - 1e-9)), 2 * points)
+    while not _fft_friendly(points + 2 * m):
+        m += 1
+    return m
+
+
 @lru_cache(maxsize=4)
-def _forward_blur(slab, shape, bin_width_s, pitch_m, n_dipoles, dtype_str, queue):
-    """The physical Phi * Phi operator, shared by every scene of one geometry (a study)."""
+def _forward_blur(slab, shape, bin_width_s, pitch_m, n_dipoles, periodic, dtype_str, queue):
+    """The physical Phi * Phi operator, shared by every scene of one geometry (a study).
+
+    ``periodic``: the input carries the blur's reach as a margin that is cropped after the
+    blur, so the lateral convolution may wrap (no lateral padding: 4x fewer FFT cells).
+    """
     return slab_blur(slab, shape, bin_width_s=bin_width_s, pitch_m=pitch_m, mode="convolve",
-                     n_dipoles=n_dipoles, dtype=np.dtype(dtype_str), queue=queue)
+                     n_dipoles=n_dipoles, periodic_xy=periodic, dtype=np.dtype(dtype_str),
+                     queue=queue)
 
 
 class ForwardModel:
@@ -229,7 +254,16 @@ class ForwardModel:
         s = scene
         self.stages = ["lightcone:" + ("brdf-table" if self.samples.retro_tables is not None
                                        else "lambertian")]
-        self.lightcone = LightCone(points=s.points, width_m=s.width_m, bins=s.bins,
+        # Light diffuses through the slab sideways: a scan point also sees the hidden-side
+        # transient I up to the blur's reach outside the scanned square, so I is computed
+        # on a grid widened by that many cells per side (cell centres kept) and cropped
+        # after the blur. Without it the border of the capture lacks that light.
+        self.margin = 0
+        if s.slab is not None:
+            self.margin = _blur_margin(s.slab, s.bins * s.bin_width_s, s.pitch_m, s.points,
+                                       s.blur_reach_tol, s.n_dipoles, self.queue)
+        n_ext = s.points + 2 * self.margin
+        self.lightcone = LightCone(points=n_ext, width_m=n_ext * s.pitch_m, bins=s.bins,
                                    bin_width_s=s.bin_width_s, start_s=s.start_s,
                                    retro=self.samples.retro_tables is not None,
                                    splat_order=s.splat_order, dtype=self.dtype, queue=self.queue)
@@ -240,7 +274,7 @@ class ForwardModel:
                                      "0 when a [slab] is given (the slab blur is causal from "
                                      "t = 0)")
             self.blur = _forward_blur(s.slab, self.lightcone.shape, s.bin_width_s, s.pitch_m,
-                                      s.n_dipoles, self.dtype.str, self.queue)
+                                      s.n_dipoles, self.margin > 0, self.dtype.str, self.queue)
             self.stages.append("slab_blur")
         if s.pulse_width_s is not None:
             self.pulse = PulseBlur(self.lightcone.shape, s.pulse_width_s, s.bin_width_s,
@@ -255,7 +289,11 @@ class ForwardModel:
             x = self.blur(x)
         if self.pulse is not None:
             x = self.pulse(x)
-        tau = np.maximum(x.get(), 0)  # FFT round-off can leave -1e-17 where tau is 0
+        tau = x.get()
+        if self.margin:
+            m = self.margin
+            tau = tau[:, m:-m, m:-m]
+        tau = np.maximum(tau, 0)  # FFT round-off can leave -1e-17 where tau is 0
         if self.scene.detector is not None:
             tau = photon_counts(tau, self.scene, np.random.default_rng(self.scene.seed))
         return tau.astype(np.float32)

@@ -28,6 +28,8 @@ Minimum contract (every error names the field, its value and the allowed range):
     [sampling]              # optional accuracy knobs
     density_per_m2 = 4e5    # surface elements per square metre
     splat_order = 1         # 0: nearest bin, 1: linear between bin centres
+    blur_reach_tol = 1e-3   # with a slab: I is computed past the scan border as far as the
+                            # blur carries more than this fraction of its energy
     seed = 0
 """
 
@@ -106,6 +108,7 @@ class Scene:
     density_per_m2: float = 4e5
     splat_order: int = 1
     seed: int = 0
+    blur_reach_tol: float = 1e-3
     base_dir: Path = field(default_factory=Path.cwd)
     text: str = ""
 
@@ -160,12 +163,15 @@ class Scene:
             if det.efficiency > 1:
                 raise ParameterError("detector.efficiency", det.efficiency, "0 to 1")
         smp = d.get("sampling", {})
-        check_keys("sampling", smp, {"density_per_m2", "splat_order"})
+        check_keys("sampling", smp, {"density_per_m2", "splat_order", "blur_reach_tol"})
         dens = positive("sampling.density_per_m2", smp.get("density_per_m2", 4e5), upper=1e10)
         splat = integer("sampling.splat_order", smp.get("splat_order", 1), 0, 1)
+        reach_tol = positive("sampling.blur_reach_tol", smp.get("blur_reach_tol", 1e-3),
+                             upper=1.0)
         seed = integer("seed", d.get("seed", 0), 0, 2**63 - 1)
         return cls(width, points, bw, bins, float(start), objects, slab, nd, pulse, det, dens,
-                   splat, seed, base_dir or Path.cwd(), text)
+                   splat, seed, blur_reach_tol=reach_tol, base_dir=base_dir or Path.cwd(),
+                   text=text)
 
 
 def _object(i: int, o: dict) -> SceneObject:

@@ -44,6 +44,12 @@ class StudyGrid:
 SLAB = {"thickness_m": 0.0254, "mu_a": 0.53, "mu_s_prime": 262.0, "n": 1.12}
 
 
+# Part of every cache key: bump it when a change to the simulation or the reconstruction
+# changes results (2: the forward model computes I past the scan border, as far as the slab's
+# blur reaches), so that a cache folder left by an older version is not reused.
+CACHE_REVISION = 2
+
+
 def sample_key(sample: dict) -> str:
     return hashlib.sha1(json.dumps(sample, sort_keys=True).encode()).hexdigest()
 
@@ -127,7 +133,9 @@ def render_sample(sample: dict, grid: StudyGrid, keep_volume: bool = False,
 
 def _cached(sample: dict, grid: StudyGrid, cache: Path, keep_volume: bool,
             device: str | None) -> dict:
-    path = cache / f"{sample_key({**sample, 'grid': asdict(grid), 'vol': keep_volume})}.npz"
+    key = sample_key({**sample, "grid": asdict(grid), "vol": keep_volume,
+                      "revision": CACHE_REVISION})
+    path = cache / f"{key}.npz"
     if path.is_file():
         with np.load(path, allow_pickle=False) as z:
             return {k: (z[k].item() if z[k].ndim == 0 else z[k]) for k in z.files}
