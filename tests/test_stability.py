@@ -179,3 +179,71 @@ def test_depth_range_larger_than_window(queue):
                FKMigration((64, 8, 8), bin_width_s=2e-11, scan_width_m=0.3, queue=queue)):
         v = op(tau.astype(np.float32))
         assert np.all(np.isfinite(v)) and not v.any()
+
+
+# ------------------------------------------------------------------ BRDF texture and MLP
+# Angles at the edges of the domain: normal and grazing incidence exactly (and a hair past
+# grazing, clamped), azimuths at +-180 degrees, just inside them, and several turns away.
+_EDGE_THETA = [0.0, np.pi / 2, np.pi / 2 + 1e-7, 1e-9]
+_EDGE_PHI = [-np.pi, np.pi, np.pi - 1e-6, -np.pi + 1e-6, 0.0, 3 * np.pi, -5 * np.pi]
+
+
+def _edge_angles() -> np.ndarray:
+    g = np.meshgrid(_EDGE_THETA, _EDGE_PHI, _EDGE_THETA, _EDGE_PHI, indexing="ij")
+    return np.column_stack([a.ravel() for a in g])
+
+
+@pytest.mark.parametrize("path", ["buffer", "image"])
+def test_texture_lookup_at_domain_edges(queue, dtype, path):
+    """kernels/brdf.cl at 0 and 90 degrees and across the +-180 degree azimuth wrap: finite,
+    non-negative, equal to the float64 reference (f32 1e-5, f64 1e-12 of the texture's
+    peak), and the same on both sides of the wrap."""
+    from clnlos.brdf.texture import TextureLookup, lookup_numpy, tabulate
+
+    if path == "image" and (dtype != np.float32 or not queue.device.image_support):
+        pytest.skip("3D float images: float32 on devices with image support")
+    tex = tabulate(BRDFModel("microfacet", {"kd": 0.2, "ks": 0.8, "alpha": 0.2, "f0": 0.5}),
+                   16, 24, 8)
+    a = _edge_angles()
+    got = TextureLookup(tex, path=path, dtype=dtype, queue=queue)(a)
+    ref = lookup_numpy(tex.texture, a)
+    peak = float(tex.texture.max())
+    assert np.all(np.isfinite(got)) and np.all(got >= 0)
+    tol = 1e-5 if dtype == np.float32 else 1e-12
+    if path == "image":
+        tol = 2e-3  # the sampler's 8-bit fixed-point interpolation weights (OpenCL spec)
+    assert np.max(np.abs(got - ref)) <= tol * peak
+    # +-180 degrees is one azimuth: phi_s = pi and -pi (and 3 pi) give one value
+    lut = TextureLookup(tex, path=path, dtype=dtype, queue=queue)
+    rtol = 1e-4 if dtype == np.float32 else 1e-9
+    b = np.array([[0.3, 0.0, 0.7, np.pi], [0.3, 0.0, 0.7, -np.pi], [0.3, 0.0, 0.7, 3 * np.pi],
+                  [0.3, 2 * np.pi, 0.7, np.pi]])
+    v = lut(b)
+    np.testing.assert_allclose(v, v[0], rtol=rtol)
+    # phi_i = -179.99..., phi_s = +179.99... degrees: 2e-6 rad apart across the wrap
+    c = lut(np.array([[0.3, -np.pi + 1e-6, 0.7, np.pi - 1e-6], [0.3, 0.0, 0.7, 0.0]]))
+    np.testing.assert_allclose(c[0], c[1], rtol=1e-4)
+
+
+def test_mlp_at_domain_edges():
+    """The neural BRDF (improved recipe) at 0 and 90 degrees and across the azimuth wrap:
+    finite, non-negative, and continuous across +-180 degrees (the half/difference encoding
+    has no seam there)."""
+    from clnlos.brdf.data import BRDFSamples
+    from clnlos.brdf.mlp import MLPConfig, train_mlp
+
+    truth = BRDFModel("phong", {"kd": 0.3, "ks": 0.7, "shininess": 10.0})
+    rng = np.random.default_rng(0)
+    n = 300
+    ti, ts = rng.uniform(0, 1.4, n), rng.uniform(0, 1.4, n)
+    pi_, ps = np.zeros(n), rng.uniform(-np.pi, np.pi, n)
+    samples = BRDFSamples(ti, pi_, ts, ps, truth(ti, pi_, ts, ps), {"material": "synthetic"})
+    model, _ = train_mlp(samples, MLPConfig(recipe="improved", epochs=150, seed=1))
+    a = _edge_angles()
+    f = model(a[:, 0], a[:, 1], a[:, 2], a[:, 3])
+    assert np.all(np.isfinite(f)) and np.all(f >= 0)
+    left = model(np.full(3, 0.4), np.zeros(3), np.full(3, 0.6), np.array([np.pi - 1e-7,
+                                                                        np.pi, 3 * np.pi]))
+    right = model(np.full(3, 0.4), np.zeros(3), np.full(3, 0.6), np.array([-np.pi + 1e-7,
+                                                                         -np.pi, -np.pi]))
+    np.testing.assert_allclose(left, right, rtol=1e-5)
