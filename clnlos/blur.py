@@ -30,6 +30,8 @@ from .runtime import (
     real_defines,
     require_dtype,
     round_up,
+    upload_into,
+    zeros,
 )
 from .wiener import SpectralFilter
 
@@ -52,11 +54,13 @@ def confocal_psf(slab: Slab, shape: tuple[int, int, int], *, bin_width_s: float,
     dt = require_dtype(q.device, dtype)
     nt, ny, nx = (int(s) for s in shape)
     pad = (2 * nt, ny, nx) if periodic_xy else (2 * nt, 2 * ny, 2 * nx)
-    phi = diffusion_psf(slab, nt=pad[0], bin_width_s=bin_width_s, ny=pad[1], nx=pad[2],
-                        pitch_m=pitch_m, n_dipoles=n_dipoles, dtype=dt, queue=q)
-    phi[nt:] = 0
+    phi_g = zeros(q, pad, dt)  # lags nt..2nt-1 stay 0
+    upload_into(phi_g[:nt], diffusion_psf(slab, nt=nt, bin_width_s=bin_width_s, ny=pad[1],
+                                          nx=pad[2], pitch_m=pitch_m, n_dipoles=n_dipoles,
+                                          dtype=dt, queue=q))
     fft = RealFFT3(pad, dt, q)
-    spec = fft.forward(cla.to_device(q, phi))
+    spec = fft.forward(phi_g)
+    del phi_g
     k = get_kernels(q, "wiener", real_defines(dt))
     k.spectral_square(q, (round_up(spec.size, 256),), None, spec.data, np.int64(spec.size))
     phi2 = fft.inverse(spec)

@@ -268,13 +268,16 @@ def diffusion_psf(slab: Slab, *, nt: int, bin_width_s: float, ny: int, nx: int,
     else:
         u, w = np.polynomial.legendre.leggauss(int(time_nodes))
         u, w = u / 2, w / 2  # nodes in (-1/2, 1/2) of a bin, weights summing to 1
-    t = ((np.arange(nt)[:, None] + u[None, :]) * dt).ravel()
     scale = dt * pitch * pitch if normalize == "physical" else 1.0
     rho_g = cla.to_device(plan.queue, rho.astype(plan.dtype))
-    t_g = cla.to_device(plan.queue, t.astype(plan.dtype))
-    table = plan.outer_device(rho_g, t_g, scale).get().reshape(nt, len(u), ny * nx)
-    psf = np.einsum("knr,n->kr", table.astype(np.float64), w).astype(plan.dtype)
-    psf = psf.reshape(nt, ny, nx)
+    # one time node per pass, accumulated in float64 on the host: memory stays at one
+    # (nt, ny, nx) table per pass instead of time_nodes of them
+    acc = np.zeros((nt, ny * nx))
+    for node, weight in zip(u, w, strict=True):
+        t_g = cla.to_device(plan.queue, ((np.arange(nt) + node) * dt).astype(plan.dtype))
+        acc += weight * plan.outer_device(rho_g, t_g, scale).get()
+    psf = acc.astype(plan.dtype).reshape(nt, ny, nx)
+    del acc
     if normalize == "sum":
         total = psf.sum(dtype=np.float64)
         if total > 0:

@@ -19,7 +19,15 @@ import numpy as np
 import pyopencl.array as cla
 import scipy.fft as sfft
 
-from .runtime import get_queue, require_dtype, require_memory, vkfft_status, warn_once
+from .runtime import (
+    download,
+    get_queue,
+    require_dtype,
+    require_memory,
+    upload_into,
+    vkfft_status,
+    warn_once,
+)
 
 COMPLEX_OF = {np.dtype(np.float32): np.dtype(np.complex64),
               np.dtype(np.float64): np.dtype(np.complex128)}
@@ -72,8 +80,7 @@ class RealFFT3:
         if self._app is not None:
             self._app.fft(x_g, out_g)
         else:
-            out_g.set(sfft.rfftn(x_g.get(), workers=_workers()).astype(self.cdtype, copy=False),
-                      queue=self.queue)
+            upload_into(out_g, sfft.rfftn(download(x_g), workers=_workers()))
         return out_g
 
     def inverse(self, s_g: cla.Array, out_g: cla.Array | None = None) -> cla.Array:
@@ -82,8 +89,8 @@ class RealFFT3:
         if self._app is not None:
             self._app.ifft(s_g, out_g)
         else:
-            out_g.set(sfft.irfftn(s_g.get(), s=self.shape, axes=(0, 1, 2), workers=_workers()
-                                  ).astype(self.dtype, copy=False), queue=self.queue)
+            upload_into(out_g, sfft.irfftn(download(s_g), s=self.shape, axes=(0, 1, 2),
+                                           workers=_workers()))
         return out_g
 
 
@@ -106,14 +113,12 @@ class ComplexFFT3:
         if self._app is not None:
             self._app.fft(a_g)
         else:
-            a_g.set(sfft.fftn(a_g.get(), workers=_workers()).astype(self.cdtype, copy=False),
-                    queue=self.queue)
+            upload_into(a_g, sfft.fftn(download(a_g), workers=_workers(), overwrite_x=True))
         return a_g
 
     def inverse(self, a_g: cla.Array) -> cla.Array:
         if self._app is not None:
             self._app.ifft(a_g)
         else:
-            a_g.set(sfft.ifftn(a_g.get(), workers=_workers()).astype(self.cdtype, copy=False),
-                    queue=self.queue)
+            upload_into(a_g, sfft.ifftn(download(a_g), workers=_workers(), overwrite_x=True))
         return a_g

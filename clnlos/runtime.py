@@ -28,7 +28,7 @@ from functools import cache
 import numpy as np
 import pyopencl as cl
 
-from .errors import DeviceCapabilityError, DeviceError, KernelBuildError
+from .errors import DeviceCapabilityError, DeviceError, KernelBuildError, ShapeError
 
 ENV_DEVICE = "CLNLOS_DEVICE"
 ENV_FFT = "CLNLOS_FFT"  # "auto" (default), "vkfft" or "host" ("numpy" is an alias)
@@ -330,6 +330,29 @@ def real_defines(dtype) -> dict:
 
 def is_oclgrind(device: cl.Device) -> bool:
     return "oclgrind" in device.platform.name.lower()
+
+
+def download(a_g) -> np.ndarray:
+    """Blocking copy of a device array to a new host array.
+
+    Unlike ``Array.get()``, the copy's event is not appended to ``a_g.events``: pyopencl keeps
+    up to 12 events per array and each holds its host buffer, so a plan buffer copied to
+    and from the host on every call retained 12 copies of itself (1 GiB more per call at
+    128x128x512 with the host FFT).
+    """
+    out = np.empty(a_g.shape, a_g.dtype)
+    cl.enqueue_copy(a_g.queue, out, a_g.base_data, src_offset=a_g.offset,
+                    wait_for=a_g.events, is_blocking=True)
+    return out
+
+
+def upload_into(a_g, host: np.ndarray) -> None:
+    """Blocking copy of ``host`` (same shape and dtype) into the device array ``a_g``."""
+    host = np.ascontiguousarray(host, a_g.dtype)
+    if host.shape != a_g.shape:
+        raise ShapeError(f"upload of {host.shape} into a device array of {a_g.shape}")
+    cl.enqueue_copy(a_g.queue, a_g.base_data, host, dst_offset=a_g.offset,
+                    wait_for=a_g.events, is_blocking=True)
 
 
 def fill_zero(queue: cl.CommandQueue, a_g, offset_bytes: int = 0, nbytes: int | None = None):
