@@ -7,6 +7,17 @@ kernels are not ours and take minutes to interpret).
 import numpy as np
 import pyopencl.array as cla
 
+from clnlos.blur import slab_blur
+from clnlos.brdf.models import BRDFModel
+from clnlos.brdf.texture import TextureLookup, tabulate
+from clnlos.diffusion import Slab, SlabTransmittance, diffusion_psf
+from clnlos.fk import FKMigration
+from clnlos.forward import N_THETA, LightCone, PulseBlur, SurfaceSamples
+from clnlos.geometry import Elements
+from clnlos.lct import LCT
+from clnlos.resample import AxisResample, overlap_matrix
+from clnlos.runtime import get_queue, has_fp64
+
 # Keep every device array alive until exit. Oclgrind 21.10's uninitialised-value tracking
 # goes wrong when a freed buffer's address is reused by a larger buffer (the cells past the
 # old size read as uninitialised although a kernel or the host has written them; the values
@@ -21,17 +32,6 @@ def _keep_alive(self, *args, **kwargs):
 
 
 cla.Array.__init__ = _keep_alive
-
-from clnlos.blur import slab_blur
-from clnlos.brdf.models import BRDFModel
-from clnlos.brdf.texture import TextureLookup, tabulate
-from clnlos.diffusion import Slab, SlabTransmittance, diffusion_psf
-from clnlos.fk import FKMigration
-from clnlos.forward import N_THETA, LightCone, PulseBlur, SurfaceSamples
-from clnlos.geometry import Elements
-from clnlos.lct import LCT
-from clnlos.resample import AxisResample, overlap_matrix
-from clnlos.runtime import get_queue, has_fp64
 
 q = get_queue("oclgrind")
 slab = Slab(thickness_m=0.0254, mu_a=0.53, mu_s_prime=262.0, n=1.12)

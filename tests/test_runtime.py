@@ -148,3 +148,26 @@ def test_wheel_ships_kernels_and_runs_them(tmp_path):
                        cwd=tmp_path, env=env)
     assert r.returncode == 0, r.stderr
     assert int(r.stdout.strip()) == len(list((ROOT / "kernels").glob("*.cl")))
+
+
+def test_host_copies_respect_offsets_and_keep_no_events(queue):
+    """runtime.download / upload_into: a slice with an offset round-trips, and no event (each
+    of which would hold a host buffer) is left on the array -- Array.get()/set() keep up to
+    12 per array, which made the host-FFT path hold 12 copies of its plan buffers."""
+    import pyopencl.array as cla
+
+    from clnlos.errors import ShapeError
+    from clnlos.runtime import download, upload_into
+
+    a = cla.to_device(queue, np.arange(24, dtype=np.float32).reshape(4, 6))
+    a.finish()
+    tail = a[2:]
+    np.testing.assert_array_equal(download(tail), np.arange(12, 24).reshape(2, 6))
+    upload_into(tail, -np.ones((2, 6)))
+    np.testing.assert_array_equal(download(a)[2:], -1)
+    np.testing.assert_array_equal(download(a)[:2], np.arange(12).reshape(2, 6))
+    for _ in range(20):
+        upload_into(a, download(a))
+    assert not a.events and not tail.events
+    with pytest.raises(ShapeError):
+        upload_into(a, np.zeros((3, 6)))
