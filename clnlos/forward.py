@@ -221,14 +221,17 @@ def _fft_friendly(n: int) -> bool:
 
 
 @lru_cache(maxsize=16)
-def _blur_margin(slab, window_s, pitch_m, points, tol, n_dipoles, queue) -> int:
-    """Cells per side to add so the scan grid covers the blur's reach (2-3-5-smooth size)."""
+def _blur_margin(slab, window_s, pitch_m, points, tol, n_dipoles, queue) -> tuple[int, bool]:
+    """(cells per side to add so the scan grid covers the blur's reach, rounded to a
+    2-3-5-smooth size; whether that covers all of it). The margin is capped at twice the
+    scan; a capped margin needs a non-wrapping (zero-padded) lateral convolution."""
     reach = lateral_reach_m(slab, window_s=window_s, pitch_m=pitch_m, tol=tol,
                             n_dipoles=n_dipoles, queue=queue)
-    m = min(int(math.ceil(reach / pitch_m - 1e-9)), 2 * points)
+    need = int(math.ceil(reach / pitch_m - 1e-9))
+    m = min(need, 2 * points)
     while not _fft_friendly(points + 2 * m):
         m += 1
-    return m
+    return m, m >= need
 
 
 @lru_cache(maxsize=4)
@@ -258,10 +261,12 @@ class ForwardModel:
         # transient I up to the blur's reach outside the scanned square, so I is computed
         # on a grid widened by that many cells per side (cell centres kept) and cropped
         # after the blur. Without it the border of the capture lacks that light.
-        self.margin = 0
+        self.margin, covered = 0, False
         if s.slab is not None:
-            self.margin = _blur_margin(s.slab, s.bins * s.bin_width_s, s.pitch_m, s.points,
-                                       s.blur_reach_tol, s.n_dipoles, self.queue)
+            self.margin, covered = _blur_margin(s.slab, s.bins * s.bin_width_s, s.pitch_m,
+                                                s.points, s.blur_reach_tol, s.n_dipoles,
+                                                self.queue)
+        self.reach_covered = covered  # False: margin capped, the blur pads instead of wrapping
         n_ext = s.points + 2 * self.margin
         self.lightcone = LightCone(points=n_ext, width_m=n_ext * s.pitch_m, bins=s.bins,
                                    bin_width_s=s.bin_width_s, start_s=s.start_s,
@@ -274,7 +279,7 @@ class ForwardModel:
                                      "0 when a [slab] is given (the slab blur is causal from "
                                      "t = 0)")
             self.blur = _forward_blur(s.slab, self.lightcone.shape, s.bin_width_s, s.pitch_m,
-                                      s.n_dipoles, self.margin > 0, self.dtype.str, self.queue)
+                                      s.n_dipoles, covered, self.dtype.str, self.queue)
             self.stages.append("slab_blur")
         if s.pulse_width_s is not None:
             self.pulse = PulseBlur(self.lightcone.shape, s.pulse_width_s, s.bin_width_s,

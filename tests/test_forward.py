@@ -267,6 +267,13 @@ def test_forward_blur_sees_light_from_outside_the_scan(queue):
     assert fm0.margin == 0
     thick = {**base, "slab": {**base["slab"], "thickness_m": 0.05}}
     assert ForwardModel(Scene.from_dict(thick), queue=queue).margin > fm.margin
+    # a blur reaching past twice the scan: margin capped, zero-padded (non-wrapping) blur
+    wide = {**base, "slab": {"thickness_m": 0.3, "mu_a": 0.0, "mu_s_prime": 10.0, "n": 1.0}}
+    fw = ForwardModel(Scene.from_dict(wide), queue=queue)
+    assert fm.reach_covered and not fw.reach_covered and fw.margin >= 16
+    assert fw.blur.pad_shape[1] == 2 * (8 + 2 * fw.margin)
+    tau = fw.run()
+    assert np.all(np.isfinite(tau)) and tau.sum() > 0
 
 
 def test_pulse_blur_kernel_vs_numpy(queue, dtype):
