@@ -163,7 +163,7 @@ def cmd_demo(args) -> int:
 
     from .config import ReconstructionConfig, load_toml
     from .io import atomic_path, read_capture, save_figure, write_h5
-    from .metrics import letters_truth_mask, mip_iou
+    from .metrics import letters_truth_mask, mip_iou, peak_depth_m
     from .reconstruct import reconstruct, volume_figure
     from .runtime import get_queue
     from .scene import Scene
@@ -196,7 +196,7 @@ def cmd_demo(args) -> int:
         cfg = dataclasses.replace(base_cfg, method=method).validate()
         rec = reconstruct(read_capture(cap_path), cfg, device=queue)
         score, _ = mip_iou(rec.volume, truth)
-        depth = (np.argmax(rec.volume.max(axis=(1, 2))) + 0.5) * rec.extents["voxel_depth_m"]
+        depth = peak_depth_m(rec.volume, rec.extents["voxel_depth_m"])
         vol_path = out / f"volume_{method}.h5"
         write_h5(vol_path, {"volume": rec.volume}, {**rec.extents,
                                                     "params": json.dumps(rec.params)})

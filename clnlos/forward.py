@@ -25,6 +25,7 @@ from functools import lru_cache
 
 import numpy as np
 import pyopencl.array as cla
+import scipy.fft as sfft
 
 from .blur import lateral_reach_m, slab_blur
 from .brdf.models import BRDFModel, make_model, retro_slice
@@ -213,13 +214,6 @@ def photon_counts(tau: np.ndarray, scene: Scene, rng: np.random.Generator) -> np
     return rng.poisson(lam).astype(np.float32)
 
 
-def _fft_friendly(n: int) -> bool:
-    for p in (2, 3, 5):
-        while n % p == 0:
-            n //= p
-    return n == 1
-
-
 @lru_cache(maxsize=16)
 def _blur_margin(slab, window_s, pitch_m, points, tol, n_dipoles, queue) -> tuple[int, bool]:
     """(cells per side to add so the scan grid covers the blur's reach, rounded to a
@@ -229,7 +223,7 @@ def _blur_margin(slab, window_s, pitch_m, points, tol, n_dipoles, queue) -> tupl
                             n_dipoles=n_dipoles, queue=queue)
     need = int(math.ceil(reach / pitch_m - 1e-9))
     m = min(need, 2 * points)
-    while not _fft_friendly(points + 2 * m):
+    while sfft.next_fast_len(points + 2 * m, real=True) != points + 2 * m:
         m += 1
     return m, m >= need
 

@@ -38,6 +38,11 @@ def letters_truth_mask(text, height_m, stroke_m, centre_xy, scan_centres) -> np.
     return letters_mask(text, height_m, stroke_m, xy).reshape(X.shape)
 
 
+def peak_depth_m(volume: np.ndarray, voxel_depth_m: float) -> float:
+    """Depth (m) of the brightest depth slice of a [z, y, x] volume, at the voxel centre."""
+    return (float(np.argmax(volume.max(axis=(1, 2)))) + 0.5) * voxel_depth_m
+
+
 def mip_iou(volume: np.ndarray, truth: np.ndarray) -> tuple[float, np.ndarray]:
     """IoU of the Otsu-thresholded max-intensity projection with the true mask."""
     mip = volume.max(axis=0)

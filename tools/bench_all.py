@@ -244,6 +244,7 @@ def bench_end_to_end(b: Bench):
     from clnlos.diffusion import Slab
     from clnlos.forward import ForwardModel
     from clnlos.io import Capture
+    from clnlos.metrics import peak_depth_m
     from clnlos.reconstruct import reconstruct
     from clnlos.scene import Scene
 
@@ -267,7 +268,7 @@ def bench_end_to_end(b: Bench):
                                device=b.q).volume
 
         vol = run()
-        depth = (np.argmax(vol.max(axis=(1, 2))) + 0.5) * 2.0 / nt / 2
+        depth = peak_depth_m(vol, 2.0 / nt / 2)
         b.add("end_to_end", "grid", f"{n}x{n}x{nt}", np.float32, run, abs(depth - 0.5) / 0.5,
               error_kind="relative depth error")
 

@@ -17,7 +17,7 @@ from pathlib import Path
 import numpy as np
 
 from ..config import ReconstructionConfig
-from ..metrics import iou, otsu_threshold
+from ..metrics import iou, otsu_threshold, peak_depth_m
 from .clarity import clarity_score
 
 
@@ -114,8 +114,7 @@ def render_sample(sample: dict, grid: StudyGrid, keep_volume: bool = False,
     truth = truth_image(fm.samples.elements, scene.scan_centres())
     mask = truth >= 0.5
     pred = mip > otsu_threshold(mip)
-    dz = rec.extents["voxel_depth_m"]
-    depth = (np.argmax(vol.max(axis=(1, 2))) + 0.5) * dz
+    depth = peak_depth_m(vol, rec.extents["voxel_depth_m"])
     true_depth = float(np.mean(fm.samples.elements.pos[:, 2]))
     mse = float(np.mean((mip - np.clip(truth, 0, 1)) ** 2))
     out = {"mip": mip.astype(np.float32), "truth": truth.astype(np.float32),
