@@ -20,7 +20,8 @@ import numpy as np
 import pyopencl.array as cla
 from scipy.signal import fftconvolve
 
-from .diffusion import Slab, diffusion_psf
+from .diffusion import diffusion_psf
+from .slab import Slab
 from .fft import RealFFT3
 from .runtime import (
     fill_zero,

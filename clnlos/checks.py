@@ -1,37 +1,74 @@
-"""Validation of user-given parameters: each failure names the field, its value and the range."""
+"""Validation of user-given parameters: each failure names the field, its value and the range.
+
+Types are strict: a number must be an int or float (not a string such as "0.3", not a
+boolean), a count must be an int (not 3.0).
+"""
 
 from __future__ import annotations
 
+import difflib
 import math
+import numbers
 from typing import Any
 
 from .errors import ParameterError
 
 
+def _is_real(v: Any) -> bool:
+    return isinstance(v, numbers.Real) and not isinstance(v, bool)
+
+
 def positive(name: str, v: Any, *, allow_zero: bool = False, upper: float | None = None
              ) -> float:
     """A finite real number > 0 (>= 0 with ``allow_zero``), at most ``upper``."""
-    if isinstance(v, bool):
-        raise ParameterError(name, v, "a number")
-    try:
-        x = float(v)
-    except (TypeError, ValueError):
-        raise ParameterError(name, v, "a number") from None
+    rng = (">= 0" if allow_zero else "> 0") + (f" and <= {upper:g}" if upper else "")
+    if not _is_real(v):
+        raise ParameterError(name, v, f"a number {rng}")
+    x = float(v)
     lo_ok = x >= 0 if allow_zero else x > 0
     if not (math.isfinite(x) and lo_ok and (upper is None or x <= upper)):
-        rng = (">= 0" if allow_zero else "> 0") + (f" and <= {upper:g}" if upper else "")
         raise ParameterError(name, v, rng + " (finite)")
     return x
 
 
+def real(name: str, v: Any, lo: float, hi: float) -> float:
+    """A finite real number in [lo, hi]."""
+    if not _is_real(v) or not math.isfinite(float(v)) or not lo <= float(v) <= hi:
+        raise ParameterError(name, v, f"a number from {lo:g} to {hi:g}")
+    return float(v)
+
+
 def integer(name: str, v: Any, lo: int, hi: int) -> int:
-    if (isinstance(v, bool) or not isinstance(v, int | float) or not math.isfinite(v)
-            or int(v) != v or not lo <= v <= hi):
+    """An int (not a float, not a boolean) in [lo, hi]."""
+    if isinstance(v, bool) or not isinstance(v, numbers.Integral) or not lo <= v <= hi:
         raise ParameterError(name, v, f"an integer from {lo} to {hi}")
     return int(v)
 
 
 def choice(name: str, v: Any, allowed: tuple[str, ...]) -> str:
     if v not in allowed:
-        raise ParameterError(name, v, " or ".join(repr(a) for a in allowed))
+        raise ParameterError(name, v, " or ".join(repr(a) for a in allowed)
+                             + did_you_mean(v, allowed))
     return v
+
+
+def auto_or_positive(name: str, v: Any, *, upper: float) -> float | str:
+    """The string "auto" or a number > 0 (at most ``upper``)."""
+    if v == "auto":
+        return "auto"
+    if isinstance(v, str):
+        raise ParameterError(name, v, f"\"auto\" or a number > 0 and <= {upper:g}"
+                             + did_you_mean(v, ("auto",)))
+    return positive(name, v, upper=upper)
+
+
+def did_you_mean(v: Any, options) -> str:
+    """' (did you mean 'x'?)' for the closest option to a string, else ''."""
+    if not isinstance(v, str):
+        return ""
+    hits = difflib.get_close_matches(v.lower(), [str(o).lower() for o in options], n=1,
+                                     cutoff=0.6)
+    if not hits:
+        return ""
+    original = next(o for o in options if str(o).lower() == hits[0])
+    return f" (did you mean {original!r}?)"

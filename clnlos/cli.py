@@ -7,6 +7,7 @@ line on stderr and exit status 2; nothing half-written is left behind.
 from __future__ import annotations
 
 import argparse
+import re
 import sys
 
 from .errors import ClnlosError
@@ -15,7 +16,14 @@ EXIT_USAGE = 2
 
 
 class _Parser(argparse.ArgumentParser):
-    """argparse that reports errors as one line with exit status 2 (no usage dump)."""
+    """argparse that reports errors as one line with exit status 2 (no usage dump), and reads
+    negative numbers in any float notation (``--bin-width -1e-12``) as values, so that the
+    value's own check names the flag."""
+
+    def __init__(self, *a, **kw):
+        super().__init__(*a, **kw)
+        self._negative_number_matcher = re.compile(
+            r"^-(\d+\.?\d*|\.\d+)([eE][-+]?\d+)?$|^-(inf|nan)$", re.IGNORECASE)
 
     def error(self, message):
         raise SystemExit(_fail(f"{self.prog}: {message}"))

@@ -18,33 +18,61 @@ def _add_precision(p) -> None:
                    help="kernel precision (default float32)")
 
 
+# CLI flag -> ReconstructionConfig field (error messages name the flag the user typed)
+RECON_FLAGS = {"scan_width": ("scan_width_m", "--scan-width"),
+               "bin_width": ("bin_width_s", "--bin-width"),
+               "snr": ("snr", "--snr"), "inversion_snr": ("inversion_snr", "--inversion-snr"),
+               "falloff": ("falloff", "--falloff"), "max_path": ("max_path_m", "--max-path"),
+               "bins": ("bins", "--bins"), "method": ("method", "--method"),
+               "iterations": ("iterations", "--iterations"),
+               "tv_weight": ("tv_weight", "--tv-weight"),
+               "l1_weight": ("l1_weight", "--l1-weight"),
+               "depth_min": ("depth_min_m", "--depth-min")}
+SLAB_FLAGS = {"slab_thickness": ("thickness_m", "--slab-thickness"), "mu_a": ("mu_a", "--mu-a"),
+              "mu_s_prime": ("mu_s_prime", "--mu-s-prime"), "n": ("n", "--n")}
+
+
+def number_or_auto(text: str):
+    """argparse type: "auto" or a float (validated later with the flag's name)."""
+    if text.strip().lower() == "auto":
+        return "auto"
+    try:
+        return float(text)
+    except ValueError:
+        import argparse
+
+        raise argparse.ArgumentTypeError(f"expected a number or 'auto', got {text!r}") from None
+
+
+def config_from_args(args):
+    """The reconstruction config: TOML file (if any), overridden by flags; validated with
+    the flags' names in error messages."""
+    from .config import ReconstructionConfig, slab_from_table, slab_table
+
+    cfg = ReconstructionConfig.from_toml(args.config) if args.config else ReconstructionConfig()
+    changes, names = {}, {}
+    for dest, (field, flag) in RECON_FLAGS.items():
+        v = getattr(args, dest, None)
+        if v is not None:
+            changes[field], names[field] = v, flag
+    slab_given = {k: getattr(args, dest) for dest, (k, _) in SLAB_FLAGS.items()
+                  if getattr(args, dest) is not None}
+    if args.no_slab:
+        changes["slab"] = None
+    elif slab_given:
+        base = {} if cfg.slab is None else slab_table(cfg.slab)
+        base.update(slab_given)
+        changes["slab"], _ = slab_from_table(
+            base, names={k: flag for k, flag in SLAB_FLAGS.values()})
+    return cfg.replace(**changes).validate(names)
+
+
 def cmd_reconstruct(args) -> int:
-    from .config import ReconstructionConfig, slab_from_table
     from .io import read_capture, save_figure, write_h5
     from .reconstruct import reconstruct, volume_figure
     from .runtime import get_queue
 
-    cfg = ReconstructionConfig.from_toml(args.config) if args.config else ReconstructionConfig()
-    for flag, attr in (("scan_width", "scan_width_m"), ("bin_width", "bin_width_s"),
-                       ("snr", "snr"), ("max_path", "max_path_m"), ("bins", "bins"),
-                       ("method", "method"), ("inversion_snr", "inversion_snr"),
-                       ("falloff", "falloff")):
-        v = getattr(args, flag)
-        if v is not None:
-            setattr(cfg, attr, v)
-    slab_flags = {"thickness_m": args.slab_thickness, "mu_a": args.mu_a,
-                  "mu_s_prime": args.mu_s_prime, "n": args.n}
-    if args.no_slab:
-        cfg.slab = None
-    elif any(v is not None for v in slab_flags.values()):
-        base = {} if cfg.slab is None else {"thickness_m": cfg.slab.thickness_m,
-                                            "mu_a": cfg.slab.mu_a,
-                                            "mu_s_prime": cfg.slab.mu_s_prime, "n": cfg.slab.n,
-                                            "ze_m": cfg.slab.ze_m}
-        base.update({k: v for k, v in slab_flags.items() if v is not None})
-        base = {k: v for k, v in base.items() if v is not None}
-        cfg.slab, nd = slab_from_table(base)
-    cfg.validate()
+    cfg = config_from_args(args)
     capture = read_capture(args.capture)
     queue = get_queue(args.device)
     rec = reconstruct(capture, cfg, dtype=DTYPES[args.dtype], device=queue)
@@ -52,6 +80,7 @@ def cmd_reconstruct(args) -> int:
     attrs = {**rec.extents, "bin_width_s": rec.bin_width_s, "scan_width_m": rec.scan_width_m,
              "stages": json.dumps(rec.stages), "timings_s": json.dumps(rec.timings_s),
              "params": json.dumps(rec.params), "capture": str(args.capture),
+             "noise": json.dumps(rec.noise), "solver": json.dumps(rec.solver),
              "dtype": args.dtype, "device": queue.device.name.strip(),
              "axes": "volume[z, y, x]; +x with column index, +y with row index",
              "format": "clnlos-volume-1"}
@@ -72,14 +101,26 @@ def register(sub, add_device) -> None:
     r.add_argument("capture", help="clnlos HDF5 capture or CDT .mat file")
     r.add_argument("-o", "--output", required=True, help="output HDF5 (a PNG is written beside)")
     r.add_argument("--config", help="reconstruction parameters (TOML)")
-    r.add_argument("--method", choices=["lct", "fk"], default=None)
+    r.add_argument("--method", choices=["lct", "fk", "iterative"], default=None)
     r.add_argument("--scan-width", type=float, help="side of the scanned square (m)")
     r.add_argument("--bin-width", type=float, help="histogram bin width (s)")
-    r.add_argument("--snr", type=float, help="Wiener SNR of the slab deconvolution")
-    r.add_argument("--inversion-snr", type=float, help="Wiener SNR of the LCT filter")
+    r.add_argument("--snr", type=number_or_auto,
+                   help="Wiener SNR of the slab deconvolution, or auto (default: from the "
+                        "capture's photon count)")
+    r.add_argument("--inversion-snr", type=number_or_auto,
+                   help="Wiener SNR of the LCT filter (and of the iterative warm start), or "
+                        "auto (default)")
     r.add_argument("--falloff", type=float, help="radiometric exponent of the inversion")
     r.add_argument("--max-path", type=float, help="keep round-trip paths below this (m)")
     r.add_argument("--bins", type=int, help="rebin the kept window to this many bins")
+    r.add_argument("--iterations", type=int, help="iterative: iterations at most (default 200)")
+    r.add_argument("--tv-weight", type=float,
+                   help="iterative: total-variation weight, relative (default 0)")
+    r.add_argument("--l1-weight", type=float,
+                   help="iterative: L1 (sparsity) weight, relative (default 0.1)")
+    r.add_argument("--depth-min", type=number_or_auto,
+                   help="iterative: shallowest depth of the volume (m), or auto (default: "
+                        "from the capture's first arrival)")
     r.add_argument("--slab-thickness", type=float, help="slab thickness (m)")
     r.add_argument("--mu-a", type=float, help="slab absorption coefficient (1/m)")
     r.add_argument("--mu-s-prime", type=float, help="slab reduced scattering coefficient (1/m)")
@@ -132,8 +173,7 @@ def simulate_to_file(scene, out: Path, *, dtype, queue) -> tuple[np.ndarray, lis
     seconds = time.perf_counter() - t0
     write_capture(out, tau, bin_width_s=scene.bin_width_s, start_s=scene.start_s,
                   scan_width_m=scene.width_m,
-                  attrs={"scene": scene.text, "stages": json.dumps(fm.stages),
-                         "elements": len(fm.samples.elements), "seconds": seconds,
+                  attrs={**fm.setup_attrs(), "seconds": seconds,
                          "units": "photon counts" if scene.detector else
                          "1/(m^2 sr) per bin (light-cone normalisation)"})
     save_figure(transient_figure(tau, scene, f"{out.name}: {', '.join(fm.stages)}"),
@@ -158,7 +198,6 @@ def cmd_simulate(args) -> int:
 def cmd_demo(args) -> int:
     """Simulate a scene (default: the seed's Table 1 round trip), reconstruct it with LCT and
     f-k, and score it against the true letters."""
-    import dataclasses
     import importlib.resources
 
     from .config import ReconstructionConfig, load_toml
@@ -180,7 +219,7 @@ def cmd_demo(args) -> int:
                 else tomllib.loads(data.joinpath("demo_reconstruct.toml").read_text()))
     base_cfg = ReconstructionConfig.from_dict(cfg_dict)
     if base_cfg.slab is None:
-        base_cfg.slab = scene.slab
+        base_cfg = base_cfg.replace(slab=scene.slab)
     obj = scene.objects[0]
     if obj.shape != "letters":
         raise ParameterError("objects[0].shape", obj.shape, "'letters' (the demo scores letters)")
@@ -192,8 +231,8 @@ def cmd_demo(args) -> int:
                "methods": {}}
     truth = letters_truth_mask(obj.text, obj.height_m, obj.stroke_m, obj.translate_m[:2],
                                scene.scan_centres())
-    for method in ("lct", "fk"):
-        cfg = dataclasses.replace(base_cfg, method=method).validate()
+    for method in ("lct", "fk", "iterative"):
+        cfg = base_cfg.replace(method=method).validate()
         rec = reconstruct(read_capture(cap_path), cfg, device=queue)
         score, _ = mip_iou(rec.volume, truth)
         depth = peak_depth_m(rec.volume, rec.extents["voxel_depth_m"])

@@ -1,16 +1,17 @@
 """Typed, validated configuration loaded from TOML (every error names field, value and range).
 
-Reconstruction parameters (``clnlos reconstruct --config PARAMS.toml``)::
+Reconstruction parameters (``clnlos reconstruct --config PARAMS.toml``); every key is
+optional and its default is the field default of :class:`ReconstructionConfig`::
 
     [capture]                    # geometry not stored in the capture file (CDT .mat)
     scan_width_m = 0.7           # side of the scanned square
-    bin_width_s = 16e-12         # optional: overrides the file
-    start_s = 0.0                # optional: time of the start of bin 0
+    bin_width_s = 16e-12         # overrides the file
+    start_s = 0.0                # time of the start of bin 0
     [preprocess]
     max_path_m = 2.0             # keep round-trip path lengths c t below this
     bins = 128                   # rebin the kept window to this many bins (mass-conserving)
     normalize = "max"            # "max", "sum" or "none"
-    [slab]                       # optional: absent = plain NLOS (no deconvolution)
+    [slab]                       # absent = plain NLOS (no deconvolution)
     thickness_m = 0.0254
     mu_a = 0.53
     mu_s_prime = 262.0
@@ -18,33 +19,73 @@ Reconstruction parameters (``clnlos reconstruct --config PARAMS.toml``)::
     ze_m = 0.0036                # optional
     n_dipoles = 20               # optional (default: auto)
     [deconvolution]
-    snr = 1e4                    # Wiener SNR of the slab deconvolution
+    snr = "auto"                 # Wiener SNR of the slab deconvolution, or "auto": from the
+                                 # capture's photon count and model_snr (clnlos.noise)
+    model_snr = "auto"           # accuracy of the slab model as an SNR; "auto": exact for a
+                                 # capture clnlos simulated with this slab, else
+                                 # clnlos.noise.MEASURED_MODEL_SNR
     guard_fraction = 0.25        # deconvolve this much more of the capture past max_path_m
                                  # (where it has it), then drop it: keeps edge effects out
     lateral_pad = "mirror"       # "mirror" (even extension across the scan border) or "zero"
     [inversion]
-    method = "lct"               # "lct" or "fk"
-    snr = 100.0                  # Wiener SNR of the LCT light-cone filter
-    falloff = 4.0                # radiometric exponent p (LCT default 4, f-k default 2)
+    method = "lct"               # "lct", "fk" or "iterative"
+    snr = "auto"                 # Wiener SNR of the LCT light-cone filter (and of the
+                                 # iterative method's LCT warm start); "auto" = sqrt of the
+                                 # deconvolution SNR
+    falloff = 4.0                # radiometric exponent p (default: LCT 4, f-k 2)
+    iterations = 200             # iterative: FISTA iterations at most
+    l1_weight = 0.1              # iterative: L1 weight relative to max(L^T I)
+    tv_weight = 0.0              # iterative: TV weight relative to max(L^T I)
+    depth_min_m = "auto"         # iterative: shallowest depth of the support, or "auto"
+                                 # (the capture's first arrival minus DEPTH_GUARD_M)
 """
 
 from __future__ import annotations
 
-import math
+import dataclasses
 import tomllib
-from dataclasses import asdict, dataclass, field
+from dataclasses import asdict, dataclass
 from pathlib import Path
 
-from .checks import choice, integer, positive
-from .diffusion import Slab
+from .checks import auto_or_positive, choice, did_you_mean, integer, positive, real
 from .errors import InputFileError, ParameterError
+from .slab import Slab
+
+METHODS = ("lct", "fk", "iterative")
+DEPTH_GUARD_M = 0.15  # "auto" support: first-arrival depth minus this (slab delay + noise)
+
+# TOML (section, key) -> config field; the one table both directions use.
+TOML_FIELDS: dict[tuple[str, str], str] = {
+    ("capture", "scan_width_m"): "scan_width_m",
+    ("capture", "bin_width_s"): "bin_width_s",
+    ("capture", "start_s"): "start_s",
+    ("preprocess", "max_path_m"): "max_path_m",
+    ("preprocess", "bins"): "bins",
+    ("preprocess", "normalize"): "normalize",
+    ("deconvolution", "snr"): "snr",
+    ("deconvolution", "model_snr"): "model_snr",
+    ("deconvolution", "guard_fraction"): "guard_fraction",
+    ("deconvolution", "lateral_pad"): "lateral_pad",
+    ("inversion", "method"): "method",
+    ("inversion", "snr"): "inversion_snr",
+    ("inversion", "falloff"): "falloff",
+    ("inversion", "iterations"): "iterations",
+    ("inversion", "l1_weight"): "l1_weight",
+    ("inversion", "tv_weight"): "tv_weight",
+    ("inversion", "depth_min_m"): "depth_min_m",
+}
+FIELD_NAMES = {f: f"{sec}.{key}" for (sec, key), f in TOML_FIELDS.items()}
+SLAB_KEYS = ("thickness_m", "mu_a", "mu_s_prime", "n", "ze_m", "n_dipoles")
 
 
-def check_keys(section: str, table: dict, allowed: set[str]) -> None:
-    extra = sorted(set(table) - allowed)
+def check_keys(section: str, table: dict, allowed) -> None:
+    """Unknown keys are an error that names the key and suggests the closest known one."""
+    allowed = sorted(allowed)
+    extra = sorted(set(table) - set(allowed))
     if extra:
         raise ParameterError(f"{section}.{extra[0]}" if section else extra[0], table[extra[0]],
-                             "one of the known keys: " + ", ".join(sorted(allowed)))
+                             "one of the known keys: " + ", ".join(allowed)
+                             + did_you_mean(extra[0], allowed))
 
 
 def load_toml(path) -> dict:
@@ -57,24 +98,46 @@ def load_toml(path) -> dict:
         raise InputFileError(f"{p}: invalid TOML ({exc})") from None
 
 
-def slab_from_table(t: dict, section: str = "slab") -> tuple[Slab, int | None]:
-    check_keys(section, t, {"thickness_m", "mu_a", "mu_s_prime", "n", "ze_m", "n_dipoles"})
+def slab_from_table(t: dict, section: str = "slab", names: dict | None = None
+                    ) -> tuple[Slab, int | None]:
+    """(Slab, n_dipoles) from a [slab] table; ``names`` maps keys to how the user wrote
+    them (a CLI flag) for error messages."""
+    names = names or {}
+
+    def nm(k):
+        return names.get(k, f"{section}.{k}")
+
+    check_keys(section, t, SLAB_KEYS)
     missing = [k for k in ("thickness_m", "mu_a", "mu_s_prime", "n") if k not in t]
     if missing:
-        raise ParameterError(f"{section}.{missing[0]}", None, "required when a slab is given")
+        raise ParameterError(nm(missing[0]), None, "required when a slab is given")
     nd = t.get("n_dipoles")
     if nd is not None:
-        nd = integer(f"{section}.n_dipoles", nd, 0, 10000)
+        nd = integer(nm("n_dipoles"), nd, 0, 10000)
+    for k in ("thickness_m", "mu_a", "mu_s_prime", "n", "ze_m"):
+        if k in t and t[k] is not None:
+            positive(nm(k), t[k], allow_zero=k in ("mu_a", "ze_m"))
     try:
         slab = Slab(thickness_m=t["thickness_m"], mu_a=t["mu_a"], mu_s_prime=t["mu_s_prime"],
                     n=t["n"], ze_m=t.get("ze_m"))
     except ParameterError as exc:
-        raise ParameterError(f"{section}.{exc.name}", exc.value, exc.allowed) from None
+        raise ParameterError(nm(exc.name), exc.value, exc.allowed) from None
     return slab, nd
 
 
-@dataclass
+def slab_table(slab: Slab) -> dict:
+    """The [slab] table of a Slab (inverse of :func:`slab_from_table`)."""
+    d = {"thickness_m": slab.thickness_m, "mu_a": slab.mu_a, "mu_s_prime": slab.mu_s_prime,
+         "n": slab.n}
+    if slab.ze_m is not None:
+        d["ze_m"] = slab.ze_m
+    return d
+
+
+@dataclass(frozen=True)
 class ReconstructionConfig:
+    """Reconstruction parameters; the field defaults are the defaults (stated once here)."""
+
     scan_width_m: float | None = None
     bin_width_s: float | None = None
     start_s: float | None = None
@@ -83,42 +146,64 @@ class ReconstructionConfig:
     normalize: str = "max"
     slab: Slab | None = None
     n_dipoles: int | None = None
-    snr: float = 1e4
+    snr: float | str = "auto"
+    model_snr: float | str = "auto"
     guard_fraction: float = 0.25
     lateral_pad: str = "mirror"
     method: str = "lct"
-    inversion_snr: float = 1e2
+    inversion_snr: float | str = "auto"
     falloff: float | None = None
-    extra: dict = field(default_factory=dict)
+    iterations: int = 200
+    l1_weight: float = 0.1
+    tv_weight: float = 0.0
+    depth_min_m: float | str = "auto"
 
-    def validate(self) -> ReconstructionConfig:
+    def validate(self, names: dict[str, str] | None = None) -> ReconstructionConfig:
+        """A validated copy. ``names`` maps field names to how the user gave them (a CLI
+        flag such as ``--scan-width``), for error messages; else the TOML name."""
+        names = names or {}
+
+        def nm(f):
+            return names.get(f, FIELD_NAMES.get(f, f))
+
+        v = {}
         if self.scan_width_m is not None:
-            self.scan_width_m = positive("capture.scan_width_m", self.scan_width_m, upper=1e3)
+            v["scan_width_m"] = positive(nm("scan_width_m"), self.scan_width_m, upper=1e3)
         if self.bin_width_s is not None:
-            self.bin_width_s = positive("capture.bin_width_s", self.bin_width_s, upper=1e-6)
+            v["bin_width_s"] = positive(nm("bin_width_s"), self.bin_width_s, upper=1e-6)
         if self.start_s is not None:
-            s = float(self.start_s)
-            if not math.isfinite(s) or abs(s) > 1e-3:
-                raise ParameterError("capture.start_s", self.start_s, "finite, |start_s| <= 1e-3")
-            self.start_s = s
+            v["start_s"] = real(nm("start_s"), self.start_s, -1e-3, 1e-3)
         if self.max_path_m is not None:
-            self.max_path_m = positive("preprocess.max_path_m", self.max_path_m, upper=1e4)
+            v["max_path_m"] = positive(nm("max_path_m"), self.max_path_m, upper=1e4)
         if self.bins is not None:
-            self.bins = integer("preprocess.bins", self.bins, 1, 1 << 16)
-        self.normalize = choice("preprocess.normalize", self.normalize, ("max", "sum", "none"))
-        self.snr = positive("deconvolution.snr", self.snr, upper=1e30)
-        self.guard_fraction = positive("deconvolution.guard_fraction", self.guard_fraction,
+            v["bins"] = integer(nm("bins"), self.bins, 1, 1 << 16)
+        if self.slab is not None and not isinstance(self.slab, Slab):
+            raise ParameterError("slab", self.slab, "a Slab")
+        if self.n_dipoles is not None:
+            v["n_dipoles"] = integer(nm("n_dipoles"), self.n_dipoles, 0, 10000)
+        v["normalize"] = choice(nm("normalize"), self.normalize, ("max", "sum", "none"))
+        v["snr"] = auto_or_positive(nm("snr"), self.snr, upper=1e30)
+        v["model_snr"] = auto_or_positive(nm("model_snr"), self.model_snr, upper=1e30)
+        v["guard_fraction"] = positive(nm("guard_fraction"), self.guard_fraction,
                                        allow_zero=True, upper=4.0)
-        self.lateral_pad = choice("deconvolution.lateral_pad", self.lateral_pad,
-                                  ("mirror", "zero"))
-        self.method = choice("inversion.method", self.method, ("lct", "fk"))
-        self.inversion_snr = positive("inversion.snr", self.inversion_snr, upper=1e30)
+        v["lateral_pad"] = choice(nm("lateral_pad"), self.lateral_pad, ("mirror", "zero"))
+        v["method"] = choice(nm("method"), self.method, METHODS)
+        v["inversion_snr"] = auto_or_positive(nm("inversion_snr"), self.inversion_snr,
+                                              upper=1e30)
         if self.falloff is not None:
-            f = float(self.falloff)
-            if not (math.isfinite(f) and 0 <= f <= 8):
-                raise ParameterError("inversion.falloff", self.falloff, "0 to 8")
-            self.falloff = f
-        return self
+            v["falloff"] = real(nm("falloff"), self.falloff, 0.0, 8.0)
+        v["iterations"] = integer(nm("iterations"), self.iterations, 0, 100_000)
+        v["l1_weight"] = real(nm("l1_weight"), self.l1_weight, 0.0, 1e3)
+        v["tv_weight"] = real(nm("tv_weight"), self.tv_weight, 0.0, 1e3)
+        if self.depth_min_m != "auto":
+            if isinstance(self.depth_min_m, str):
+                raise ParameterError(nm("depth_min_m"), self.depth_min_m,
+                                     "\"auto\" or a depth in m from 0 to 1000")
+            v["depth_min_m"] = real(nm("depth_min_m"), self.depth_min_m, 0.0, 1e3)
+        return dataclasses.replace(self, **v)
+
+    def replace(self, **changes) -> ReconstructionConfig:
+        return dataclasses.replace(self, **changes)
 
     @classmethod
     def from_toml(cls, path) -> ReconstructionConfig:
@@ -126,27 +211,22 @@ class ReconstructionConfig:
 
     @classmethod
     def from_dict(cls, d: dict) -> ReconstructionConfig:
-        check_keys("", d, {"capture", "preprocess", "slab", "deconvolution", "inversion"})
-        cap = d.get("capture", {})
-        check_keys("capture", cap, {"scan_width_m", "bin_width_s", "start_s"})
-        pre = d.get("preprocess", {})
-        check_keys("preprocess", pre, {"max_path_m", "bins", "normalize"})
-        dec = d.get("deconvolution", {})
-        check_keys("deconvolution", dec, {"snr", "guard_fraction", "lateral_pad"})
-        inv = d.get("inversion", {})
-        check_keys("inversion", inv, {"method", "snr", "falloff"})
-        slab, nd = slab_from_table(d["slab"]) if "slab" in d else (None, None)
-        return cls(scan_width_m=cap.get("scan_width_m"), bin_width_s=cap.get("bin_width_s"),
-                   start_s=cap.get("start_s"), max_path_m=pre.get("max_path_m"),
-                   bins=pre.get("bins"), normalize=pre.get("normalize", "max"), slab=slab,
-                   n_dipoles=nd, snr=dec.get("snr", 1e4),
-                   guard_fraction=dec.get("guard_fraction", 0.25),
-                   lateral_pad=dec.get("lateral_pad", "mirror"), method=inv.get("method", "lct"),
-                   inversion_snr=inv.get("snr", 1e2), falloff=inv.get("falloff")).validate()
+        sections = {sec for sec, _ in TOML_FIELDS} | {"slab"}
+        check_keys("", d, sections)
+        kw = {}
+        for sec in sections - {"slab"}:
+            table = d.get(sec, {})
+            if not isinstance(table, dict):
+                raise ParameterError(sec, table, "a table")
+            check_keys(sec, table, {k for s, k in TOML_FIELDS if s == sec})
+            for key, value in table.items():
+                kw[TOML_FIELDS[(sec, key)]] = value
+        if "slab" in d:
+            kw["slab"], kw["n_dipoles"] = slab_from_table(d["slab"])
+        return cls(**kw).validate()
 
     def as_attrs(self) -> dict:
         d = asdict(self)
-        d.pop("extra", None)
         d["slab"] = None if self.slab is None else {**asdict(self.slab), "ze_used_m":
                                                     self.slab.ze}
         return d

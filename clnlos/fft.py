@@ -1,8 +1,9 @@
 """3D FFT plans on an OpenCL queue: pyvkfft where it is safe, a host FFT fallback elsewhere.
 
-The backend is chosen once per plan by :func:`clnlos.runtime.vkfft_status` (PoCL >= 7
-miscompiles VkFFT, pocl issue 2069; ``CLNLOS_FFT=host|vkfft`` overrides, ``numpy`` is an
-alias of ``host``) and recorded in ``plan.backend``. The host FFT is scipy.fft (pocketfft,
+The backend is chosen once per plan by :func:`clnlos.runtime.fft_backend` (host FFT on CPU
+devices and on PoCL >= 7, which miscompiles VkFFT, pocl issue 2069; VkFFT on GPUs;
+``CLNLOS_FFT=host|vkfft`` overrides, ``numpy`` is an alias of ``host``) and recorded in
+``plan.backend``. The host FFT is scipy.fft (pocketfft,
 all cores) with a copy to and from the device. Conventions are numpy's: forward
 unnormalised, inverse divided by N.
 
@@ -25,7 +26,7 @@ from .runtime import (
     require_dtype,
     require_memory,
     upload_into,
-    vkfft_status,
+    fft_backend,
     warn_once,
 )
 
@@ -43,12 +44,10 @@ def _vkfft_app(shape: tuple, dtype: np.dtype, queue, r2c: bool):
 
 
 def _backend(queue) -> str:
-    ok, why = vkfft_status(queue)
-    if ok:
-        return "vkfft"
-    if "2069" in why or "not importable" in why:
-        warn_once(f"clnlos: host FFT fallback: {why}")
-    return "host"
+    choice = fft_backend(queue)
+    if choice.warn:
+        warn_once(f"clnlos: host FFT fallback: {choice.reason}")
+    return choice.backend
 
 
 def _workers() -> int:

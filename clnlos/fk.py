@@ -23,8 +23,12 @@ from .lct import check_inversion_args
 from .runtime import get_kernels, get_queue, real_defines, require_dtype, round_up
 
 
+DEFAULT_FALLOFF = 2.0  # the square root of the (t/T)^p-weighted measurement is the wave
+
+
 class FKMigration:
-    def __init__(self, shape, *, bin_width_s: float, scan_width_m: float, falloff: float = 2.0,
+    def __init__(self, shape, *, bin_width_s: float, scan_width_m: float,
+                 falloff: float = DEFAULT_FALLOFF,
                  dtype=np.float32, queue=None):
         self.queue = get_queue(queue)
         self.dtype = require_dtype(self.queue.device, dtype)

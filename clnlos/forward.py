@@ -30,6 +30,7 @@ import scipy.fft as sfft
 from .blur import lateral_reach_m, slab_blur
 from .brdf.models import BRDFModel, make_model, retro_slice
 from .errors import ParameterError
+from .pulse import PulseBlur, pulse_taps  # noqa: F401 (re-exported)
 from .geometry import (
     Elements,
     read_mesh,
@@ -176,36 +177,6 @@ class LightCone:
         return out
 
 
-def pulse_taps(pulse_width_s: float, bin_width_s: float) -> np.ndarray:
-    """Bin-integrated Gaussian of FWHM ``pulse_width_s``, truncated at 5 sigma, unit sum."""
-    sigma = pulse_width_s / (2 * math.sqrt(2 * math.log(2))) / bin_width_s
-    K = max(1, int(math.ceil(5 * sigma)))
-    edges = (np.arange(-K, K + 2) - 0.5) / (sigma * math.sqrt(2))
-    from scipy.special import erf
-
-    taps = np.diff(erf(edges)) / 2
-    return taps / taps.sum()
-
-
-class PulseBlur:
-    def __init__(self, shape, pulse_width_s, bin_width_s, dtype=np.float32, queue=None):
-        self.queue = get_queue(queue)
-        self.dtype = require_dtype(self.queue.device, dtype)
-        self.shape = tuple(shape)
-        taps = pulse_taps(pulse_width_s, bin_width_s)
-        self.K = (len(taps) - 1) // 2
-        self.taps = cla.to_device(self.queue, taps.astype(self.dtype))
-        self._k = get_kernels(self.queue, "temporal", real_defines(self.dtype))
-
-    def __call__(self, x: cla.Array) -> cla.Array:
-        nt = self.shape[0]
-        n_scan = int(np.prod(self.shape[1:]))
-        out = cla.empty_like(x)
-        self._k.time_convolve(self.queue, (round_up(n_scan, 64), nt), None, x.data, out.data,
-                              self.taps.data, np.int32(self.K), np.int32(nt), np.int32(n_scan))
-        return out
-
-
 def photon_counts(tau: np.ndarray, scene: Scene, rng: np.random.Generator) -> np.ndarray:
     det = scene.detector
     eta = det.photons_emitted() * det.efficiency * det.etendue_m2_sr
@@ -281,6 +252,32 @@ class ForwardModel:
             self.stages.append("pulse_blur")
         if s.detector is not None:
             self.stages.append("photon_noise")
+
+    def setup_attrs(self) -> dict:
+        """What a capture of this model records about its setup (see io.Capture)."""
+        import json
+
+        from .config import slab_table
+
+        s = self.scene
+        a = {"scene": s.text, "stages": json.dumps(self.stages),
+             "elements": len(self.samples.elements)}
+        if s.slab is not None:
+            t = slab_table(s.slab)
+            if s.n_dipoles is not None:
+                t["n_dipoles"] = s.n_dipoles
+            a["slab"] = json.dumps(t)
+        if s.pulse_width_s is not None:
+            a["pulse_width_s"] = s.pulse_width_s
+        return a
+
+    def capture(self):
+        """Run the model and return the capture with its recorded setup (io.Capture)."""
+        from .io import Capture
+
+        s = self.scene
+        return Capture(self.run(), s.bin_width_s, s.start_s, s.width_m, "simulated",
+                       self.setup_attrs())
 
     def run(self) -> np.ndarray:
         x = self.lightcone(self.samples)

@@ -25,7 +25,7 @@ from pathlib import Path
 
 import numpy as np
 
-from .errors import InputFileError
+from .errors import ClnlosError, InputFileError
 
 CDT_MAT_BIN_WIDTH_S = 16e-12  # the CDT capture format's histogram bin
 
@@ -40,6 +40,40 @@ class Capture:
     scan_width_m: float | None
     source: str = ""
     attrs: dict = field(default_factory=dict)
+
+    def recorded_scene(self) -> dict | None:
+        """The scene a clnlos simulation recorded in the file (parsed TOML), else None."""
+        import tomllib
+
+        text = self.attrs.get("scene")
+        if not isinstance(text, str) or not text.strip():
+            return None
+        try:
+            return tomllib.loads(text)
+        except tomllib.TOMLDecodeError:
+            return None
+
+    def recorded_slab(self):
+        """(Slab, n_dipoles) of the slab a clnlos simulation recorded (attribute ``slab``, a
+        JSON [slab] table, or the [slab] of the recorded scene), else None."""
+        from .config import slab_from_table
+
+        table = None
+        raw = self.attrs.get("slab")
+        if isinstance(raw, str) and raw.strip().startswith("{"):
+            try:
+                table = json.loads(raw)
+            except json.JSONDecodeError:
+                table = None
+        if table is None:
+            scene = self.recorded_scene()
+            table = scene.get("slab") if scene else None
+        if not isinstance(table, dict):
+            return None
+        try:
+            return slab_from_table(table, section="capture [slab]")
+        except ClnlosError:  # a recorded slab that no longer validates: not used
+            return None
 
 
 def _validate_transient(arr, path) -> np.ndarray:

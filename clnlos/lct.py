@@ -26,12 +26,16 @@ import numpy as np
 import scipy.sparse as sp
 
 from . import C0
-from .diffusion import grid_offsets
+from .grid import grid_offsets
 from .errors import ParameterError
 from .operators import LinearOperator
 from .resample import AxisResample, overlap_matrix
 from .runtime import get_kernels, get_queue, real_defines, require_dtype, round_up
 from .wiener import SpectralFilter
+
+
+DEFAULT_FALLOFF = 4.0  # diffuse (Lambertian) surfaces
+DEFAULT_SNR = 1e2  # light-cone Wiener SNR when none is given
 
 
 def check_inversion_args(shape, falloff: float) -> tuple[int, int, int]:
@@ -87,8 +91,9 @@ class LCT:
     falloff exponent p.
     """
 
-    def __init__(self, shape, *, bin_width_s: float, scan_width_m: float, snr: float = 1e2,
-                 falloff: float = 4.0, dtype=np.float32, queue=None):
+    def __init__(self, shape, *, bin_width_s: float, scan_width_m: float,
+                 snr: float = DEFAULT_SNR, falloff: float = DEFAULT_FALLOFF, dtype=np.float32,
+                 queue=None):
         self.queue = get_queue(queue)
         self.dtype = require_dtype(self.queue.device, dtype)
         nt, ny, nx = self.shape = check_inversion_args(shape, falloff)
@@ -107,6 +112,10 @@ class LCT:
                                  queue=self.queue)
         self.to_z.name = "lct_u_to_z"
         self._k = get_kernels(self.queue, "resample", real_defines(self.dtype))
+
+    def set_snr(self, snr: float) -> None:
+        """Change the SNR of the light-cone Wiener filter (no rebuild)."""
+        self.inverse_filter.set_snr(snr)
 
     @property
     def forward_operator(self) -> LinearOperator:

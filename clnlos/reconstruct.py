@@ -6,7 +6,11 @@ Stages (each a plan built once for the capture's shape, dtype and device):
    t = 0 (using ``start_s``), crops to ``max_path_m`` of round-trip path and rebins to
    ``bins`` bins (sums of overlapping bins, never point samples); then normalisation.
 2. ``deconvolve`` (only with a slab): Wiener deconvolution of Phi * Phi (:mod:`clnlos.blur`).
-3. ``invert``: LCT (:mod:`clnlos.lct`) or f-k migration (:mod:`clnlos.fk`).
+3. ``invert``: LCT (:mod:`clnlos.lct`), f-k migration (:mod:`clnlos.fk`) or the regularised
+   iterative inversion (:mod:`clnlos.iterative`).
+
+SNRs given as "auto" come from the capture's noise level (:mod:`clnlos.noise`), estimated
+on the preprocessed transient before normalisation.
 
 Output volume [z, y, x]: depth bin k spans [k, k+1) * c * dt / 2 behind the scan plane
 (the slab's hidden face), x and y the scan-cell centres, x increasing with the column
@@ -15,6 +19,7 @@ index and y with the row index (images are drawn with +x to the right and +y up)
 
 from __future__ import annotations
 
+import math
 import time
 from dataclasses import dataclass, field
 
@@ -24,11 +29,19 @@ import scipy.sparse as sp
 
 from . import C0
 from .blur import slab_blur
-from .config import ReconstructionConfig
-from .errors import ParameterError
+from .config import DEPTH_GUARD_M, ReconstructionConfig
+from .errors import InputFileError, ParameterError
 from .fk import FKMigration
 from .io import Capture
+from .iterative import IterativeInversion
 from .lct import LCT
+from .noise import (
+    MEASURED_MODEL_SNR,
+    NoiseEstimate,
+    combined_snr,
+    estimate_noise,
+    lightcone_snr,
+)
 from .resample import AxisResample, overlap_matrix
 from .runtime import get_queue, require_dtype
 
@@ -43,6 +56,8 @@ class Reconstruction:
     params: dict
     transient: np.ndarray | None = None
     extents: dict = field(default_factory=dict)
+    noise: dict = field(default_factory=dict)      # clnlos.noise.NoiseEstimate of the capture
+    solver: dict | None = None                     # iterative: the solver's report
 
 
 def preprocess_matrix(nt_in: int, bin_width_s: float, start_s: float, max_path_m: float | None,
@@ -71,6 +86,37 @@ def preprocess_matrix(nt_in: int, bin_width_s: float, start_s: float, max_path_m
     return overlap_matrix(src_edges, dst_edges), dt_out, n_out
 
 
+def model_snr_for(capture: Capture, config: ReconstructionConfig) -> float:
+    """The slab model's accuracy as an SNR (:mod:`clnlos.noise`): the configured number, or
+    for "auto" infinite when the capture was simulated by clnlos with this very slab (the
+    model made the data) and MEASURED_MODEL_SNR otherwise."""
+    if config.model_snr != "auto":
+        return float(config.model_snr)
+    recorded = capture.recorded_slab()
+    if config.slab is None or (recorded is not None and recorded[0] == config.slab):
+        return math.inf
+    return MEASURED_MODEL_SNR
+
+
+def auto_snrs(noise: NoiseEstimate, config: ReconstructionConfig,
+              model_snr: float = math.inf) -> tuple[float, float]:
+    """(deconvolution SNR, light-cone SNR) of a capture: the configured numbers, or for
+    "auto" the rules of :mod:`clnlos.noise` (photon count and model accuracy;
+    :func:`lightcone_snr`)."""
+    snr = (combined_snr(noise.snr, model_snr) if config.snr == "auto"
+           else float(config.snr))
+    inv = (lightcone_snr(snr) if config.inversion_snr == "auto" else float(config.inversion_snr))
+    return snr, inv
+
+
+def support_depth_m(noise: NoiseEstimate, config: ReconstructionConfig) -> float:
+    """Shallowest depth of the iterative method's support (m)."""
+    if config.depth_min_m != "auto":
+        return float(config.depth_min_m)
+    first = noise.nearest_depth_m
+    return 0.0 if first is None else max(0.0, first - DEPTH_GUARD_M)
+
+
 class ReconstructionPipeline:
     """The composed stages for one capture geometry (shape, bin width, scan width)."""
 
@@ -90,51 +136,83 @@ class ReconstructionPipeline:
         self.pre = AxisResample(A, (ny, nx), dtype=self.dtype, queue=self.queue)
         self.pre.name = "preprocess"
         pitch = scan_width_m / nx
+        snr0 = 1.0 if config.snr == "auto" else float(config.snr)  # set per capture if auto
+        isnr0 = 1.0 if config.inversion_snr == "auto" else float(config.inversion_snr)
         self.deconv = self.crop = None
         if config.slab is not None:
             self.deconv = slab_blur(config.slab, (A.shape[0], ny, nx),
                                     bin_width_s=self.bin_width_s, pitch_m=pitch, mode="wiener",
-                                    snr=config.snr, n_dipoles=config.n_dipoles,
+                                    snr=snr0, n_dipoles=config.n_dipoles,
                                     lateral_pad=config.lateral_pad, dtype=self.dtype,
                                     queue=self.queue)
             self.stages.append("deconvolve")
         if self.n_guard:
             self.crop = AxisResample(sp.identity(A.shape[0], format="csr")[:n_out], (ny, nx),
                                      dtype=self.dtype, queue=self.queue)
+        geo = dict(bin_width_s=self.bin_width_s, scan_width_m=scan_width_m, dtype=self.dtype,
+                   queue=self.queue)
+        falloff = {} if config.falloff is None else {"falloff": config.falloff}
         if config.method == "lct":
-            self.invert = LCT(self.shape, bin_width_s=self.bin_width_s,
-                              scan_width_m=scan_width_m, snr=config.inversion_snr,
-                              falloff=4.0 if config.falloff is None else config.falloff,
-                              dtype=self.dtype, queue=self.queue)
+            self.invert = LCT(self.shape, snr=isnr0, **falloff, **geo)
+        elif config.method == "fk":
+            self.invert = FKMigration(self.shape, **falloff, **geo)
         else:
-            self.invert = FKMigration(self.shape, bin_width_s=self.bin_width_s,
-                                      scan_width_m=scan_width_m,
-                                      falloff=2.0 if config.falloff is None else config.falloff,
-                                      dtype=self.dtype, queue=self.queue)
+            self.invert = IterativeInversion(self.shape, iterations=config.iterations,
+                                             l1_weight=config.l1_weight,
+                                             tv_weight=config.tv_weight, warm_snr=isnr0, **geo)
         self.stages.append(f"invert:{config.method}")
 
-    def _timed(self, timings, name, fn, *a):
+    def _timed(self, timings, name, fn, *a, **kw):
         self.queue.finish()
         t0 = time.perf_counter()
-        out = fn(*a)
+        out = fn(*a, **kw)
         self.queue.finish()
         timings[name] = timings.get(name, 0.0) + time.perf_counter() - t0
         return out
 
-    def run(self, transient: np.ndarray, *, keep_transient: bool = False) -> Reconstruction:
+    def run(self, transient: np.ndarray, *, keep_transient: bool = False,
+            progress=None, model_snr: float = math.inf) -> Reconstruction:
+        """Reconstruct one capture. ``progress(k, n)`` is called during the iterative
+        method's iterations; ``model_snr`` is the slab model's accuracy
+        (:func:`model_snr_for`)."""
         timings: dict[str, float] = {}
         x = cla.to_device(self.queue, np.ascontiguousarray(transient, self.dtype))
         tau = self._timed(timings, "preprocess", self.pre, x)
+        if not float(cla.max(tau).get()) > 0:
+            raise InputFileError("the capture holds no signal in the kept time window "
+                                 "(all zero): nothing to reconstruct")
+        noise = estimate_noise(tau.get()[:self.shape[0]], self.bin_width_s)
+        snr, inv_snr = auto_snrs(noise, self.config, model_snr)
         norm = self.config.normalize
         if norm != "none":
             s = float((cla.max(tau) if norm == "max" else cla.sum(tau)).get())
             if s > 0:
                 tau *= self.dtype.type(1.0 / s)
+        params = self.config.as_attrs()
         if self.deconv is not None:
+            self.deconv.set_snr(snr)
+            params["snr_used"] = snr
+            params["model_snr_used"] = model_snr
             tau = self._timed(timings, "deconvolve", self.deconv, tau)
         if self.crop is not None:
             tau = self.crop(tau)
-        vol = self._timed(timings, f"invert:{self.config.method}", self.invert, tau)
+        method = self.config.method
+        solve = None
+        if method == "lct":
+            self.invert.set_snr(inv_snr)
+            params["inversion_snr_used"] = inv_snr
+            vol = self._timed(timings, "invert:lct", self.invert, tau)
+        elif method == "fk":
+            vol = self._timed(timings, "invert:fk", self.invert, tau)
+        else:
+            self.invert.warm.set_snr(inv_snr)
+            params["inversion_snr_used"] = inv_snr
+            depth_min = support_depth_m(noise, self.config)
+            cb = None if progress is None else (lambda k, _x: progress(k + 1,
+                                                                       self.config.iterations))
+            vol = self._timed(timings, "invert:iterative", self.invert, tau,
+                              depth_min_m=depth_min, callback=cb)
+            solve = self.invert.report.as_dict()
         volume = vol.get()
         nt, ny, nx = self.shape
         dz = C0 * self.bin_width_s / 2
@@ -143,9 +221,9 @@ class ReconstructionPipeline:
                    "x_min_m": -w / 2, "x_max_m": w / 2, "y_min_m": -w * ny / nx / 2,
                    "y_max_m": w * ny / nx / 2, "voxel_lateral_m": w / nx}
         return Reconstruction(volume=volume, bin_width_s=self.bin_width_s, scan_width_m=w,
-                              stages=list(self.stages), timings_s=timings,
-                              params=self.config.as_attrs(),
-                              transient=tau.get() if keep_transient else None, extents=extents)
+                              stages=list(self.stages), timings_s=timings, params=params,
+                              transient=tau.get() if keep_transient else None, extents=extents,
+                              noise=noise.as_dict(), solver=solve)
 
 
 def resolve_geometry(capture: Capture, config: ReconstructionConfig) -> tuple[float, float, float]:
@@ -165,7 +243,7 @@ _PIPELINES: dict = {}
 
 
 def reconstruct(capture: Capture, config: ReconstructionConfig, *, dtype=np.float32,
-                device=None, keep_transient: bool = False) -> Reconstruction:
+                device=None, keep_transient: bool = False, progress=None) -> Reconstruction:
     """Reconstruct an albedo volume from a capture with the given configuration.
 
     Pipelines (PSFs, spectra, FFT plans) are kept for the last few geometries, so many
@@ -184,7 +262,8 @@ def reconstruct(capture: Capture, config: ReconstructionConfig, *, dtype=np.floa
         if len(_PIPELINES) >= 4:
             _PIPELINES.pop(next(iter(_PIPELINES)))
         _PIPELINES[key] = pipe
-    return pipe.run(capture.transient, keep_transient=keep_transient)
+    return pipe.run(capture.transient, keep_transient=keep_transient, progress=progress,
+                    model_snr=model_snr_for(capture, config))
 
 
 def volume_figure(rec: Reconstruction, title: str = ""):

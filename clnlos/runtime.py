@@ -201,25 +201,53 @@ def pocl_version(device: cl.Device) -> tuple[int, int] | None:
     return get_pocl_version(device.platform)
 
 
-def vkfft_status(queue: cl.CommandQueue) -> tuple[bool, str]:
-    """Whether pyvkfft may run on this queue's device, and why not.
+@dataclass(frozen=True)
+class FFTChoice:
+    """The FFT backend of a queue: ``"vkfft"`` (pyvkfft on the device) or ``"host"``
+    (scipy.fft on the host, with copies), why, and whether the reason deserves a warning."""
 
-    PoCL >= 7 miscompiles VkFFT kernels (pocl issue 2069): there the host FFT is used.
-    ``CLNLOS_FFT=host`` (or ``numpy``) forces the host FFT, ``CLNLOS_FFT=vkfft`` forces VkFFT.
+    backend: str
+    reason: str
+    warn: bool = False
+
+
+def fft_backend(queue: cl.CommandQueue) -> FFTChoice:
+    """The FFT backend for this queue's device.
+
+    ``CLNLOS_FFT`` (``auto`` by default) overrides: ``host`` (alias ``numpy``) or ``vkfft``
+    (an error when pyvkfft's OpenCL backend cannot be imported). ``auto``: the host FFT on CPU
+    devices (there the FFT runs on the same cores either way, and scipy's pocketfft measured
+    1.3-1.6x faster than VkFFT on PoCL, tools/results/bench_reconstruct.csv), and on PoCL >= 7,
+    which miscompiles VkFFT (pocl issue 2069); VkFFT elsewhere (GPUs), falling back to the host
+    with a warning when pyvkfft is missing.
     """
     choice = os.environ.get(ENV_FFT, "auto").strip().lower() or "auto"
     if choice not in ("auto", "vkfft", "host", "numpy"):
         raise DeviceError(f"invalid {ENV_FFT}={choice!r}: allowed auto, vkfft, host")
     if choice in ("host", "numpy"):
-        return False, f"{ENV_FFT}={choice}"
+        return FFTChoice("host", f"{ENV_FFT}={choice}")
     try:
         import pyvkfft.opencl  # noqa: F401
+
+        vk_error = None
     except Exception as exc:  # not installed, or built without the OpenCL backend
-        return False, f"pyvkfft (OpenCL backend) not importable: {exc}"
+        vk_error = f"{type(exc).__name__}: {exc}"
+    if choice == "vkfft":
+        if vk_error is not None:
+            raise DeviceError(f"{ENV_FFT}=vkfft but pyvkfft's OpenCL backend is not importable "
+                              f"({vk_error}); install the extra: pip install "
+                              "'clnlos[vkfft]' (VKFFT_BACKEND=opencl), or unset " + ENV_FFT)
+        return FFTChoice("vkfft", f"{ENV_FFT}=vkfft")
     ver = pocl_version(queue.device)
-    if ver is not None and ver >= (7, 0) and choice != "vkfft":
-        return False, f"PoCL {ver[0]}.{ver[1]} miscompiles VkFFT ({POCL_VKFFT_ISSUE})"
-    return True, "pyvkfft"
+    if ver is not None and ver >= (7, 0):
+        return FFTChoice("host", f"PoCL {ver[0]}.{ver[1]} miscompiles VkFFT "
+                                 f"({POCL_VKFFT_ISSUE})", warn=True)
+    if queue.device.type & cl.device_type.CPU:
+        return FFTChoice("host", "CPU device: the host FFT is faster than VkFFT there")
+    if vk_error is not None:
+        return FFTChoice("host", f"pyvkfft (OpenCL backend) not importable: {vk_error}",
+                         warn=True)
+    return FFTChoice("vkfft", "pyvkfft on the device")
 
 
 _warned: set[str] = set()

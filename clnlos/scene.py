@@ -44,7 +44,7 @@ import numpy as np
 
 from .checks import choice, integer, positive
 from .config import check_keys, load_toml, slab_from_table
-from .diffusion import Slab
+from .slab import Slab
 from .errors import InputFileError, ParameterError
 
 SHAPES = ("letters", "rectangle", "sphere", "mesh")

@@ -101,6 +101,14 @@ class SpectralFilter(LinearOperator):
         new._buf = zeros(base.queue, base.pad_shape, base.dtype)
         return new
 
+    def set_snr(self, snr: float) -> None:
+        """Change the Wiener SNR of this filter (a per-capture choice; no rebuild)."""
+        if self.mode != "wiener":
+            raise ParameterError("snr", snr, "only for mode='wiener'")
+        if snr is None or not np.isfinite(snr) or snr <= 0:
+            raise ParameterError("snr", snr, "> 0 and finite")
+        self.inv_snr = 1.0 / float(snr)
+
     def _filter(self, x_g: cla.Array, adjoint: bool) -> cla.Array:
         if self.lateral_pad == "mirror" and not adjoint:
             n0, n1, n2 = self.in_shape

@@ -2,17 +2,20 @@
  *
  *   out[r, y, x] = sum_{e = row_ptr[r]}^{row_ptr[r+1]-1} val[e] * in[col[e], y, x]
  *
- * for r < n_rows, y < ny, x < nx. Input and output may have larger (padded) planes:
- * in_ny x in_nx and out_ny x out_nx, so the same kernel pads, crops, rebins in time
+ * for r < n_rows, y < ny, x < nx (the block), read at (in_y0, in_x0) of an input plane of
+ * in_ny x in_nx and written at (out_y0, out_x0) of an output plane of out_ny x out_nx, so the
+ * same kernel pads and crops at any offset, rebins in time
  * (mass-conserving bin overlaps), maps t -> t^2 for LCT and applies radiometric weights.
  * The adjoint is the same kernel with the transposed matrix.
  */
 #include "common.h"
 
-__kernel void csr_resample(__global const int *row_ptr, __global const int *col,
-                           __global const real_t *val,
-                           __global const real_t *in, const int in_ny, const int in_nx,
-                           __global real_t *out, const int out_ny, const int out_nx,
+__kernel void csr_resample(__global const int *restrict row_ptr, __global const int *restrict col,
+                           __global const real_t *restrict val,
+                           __global const real_t *restrict in, const int in_ny, const int in_nx,
+                           const int in_y0, const int in_x0,
+                           __global real_t *restrict out, const int out_ny, const int out_nx,
+                           const int out_y0, const int out_x0,
                            const int n_rows, const int ny, const int nx)
 {
     const int x = get_global_id(0);
@@ -21,11 +24,11 @@ __kernel void csr_resample(__global const int *row_ptr, __global const int *col,
     if (x >= nx || y >= ny || r >= n_rows)
         return;
     const size_t in_plane = (size_t)in_ny * in_nx;
-    const size_t off = (size_t)y * in_nx + x;
+    const size_t off = (size_t)(y + in_y0) * in_nx + (size_t)(x + in_x0);
     real_t acc = 0;
     for (int e = row_ptr[r]; e < row_ptr[r + 1]; ++e)
         acc += val[e] * in[(size_t)col[e] * in_plane + off];
-    out[(size_t)r * out_ny * out_nx + (size_t)y * out_nx + x] = acc;
+    out[(size_t)r * out_ny * out_nx + (size_t)(y + out_y0) * out_nx + (size_t)(x + out_x0)] = acc;
 }
 
 /* out[i] = max(in[i], 0): the albedo volume is non-negative. */

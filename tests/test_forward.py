@@ -218,36 +218,41 @@ translate_m = [0.0, 0.0, 0.4]
     assert not (tmp_path / "bad.h5").exists()
 
 
-@pytest.mark.slow
-@pytest.mark.parametrize("method", ["lct", "fk"])
-def test_round_trip_letters_through_slab(queue, method):
-    """The issue's round trip: the built-in demo scene (seed Table 1: "UT" 0.5 m behind the
-    2.54 cm slab, 0.3 m x 0.3 m scan, 35 ps pulse, Lambertian, noise-free), reconstructed
-    with the built-in demo parameters: letters at the right depth and the Otsu-thresholded
-    MIP overlaps the true letter mask with IoU >= 0.6 (measured 0.67 LCT, 0.62 f-k)."""
-    import dataclasses
+@pytest.fixture(scope="module")
+def demo_capture(queue):
+    """The built-in demo scene (seed Table 1: "UT" 0.5 m behind the 2.54 cm slab, 0.3 m x
+    0.3 m scan, 35 ps pulse, Lambertian, noise-free), simulated once."""
     import importlib.resources
     import tomllib
+
+    from clnlos.io import Capture
 
     data = importlib.resources.files("clnlos").joinpath("data")
     scene = Scene.from_dict(tomllib.loads(data.joinpath("demo_scene.toml").read_text()))
     assert scene.width_m ** 2 == pytest.approx(0.09) and scene.detector is None
     fm = ForwardModel(scene, queue=queue)
     assert fm.margin >= 10  # the ~11 cm reach of the CDT slab's blur at a 9.4 mm pitch
-    tau = fm.run()
     o = scene.objects[0]
     truth = letters_truth_mask(o.text, o.height_m, o.stroke_m, o.translate_m[:2],
                                scene.scan_centres())
-    from clnlos.io import Capture
-
     cfg = ReconstructionConfig.from_dict(tomllib.loads(
         data.joinpath("demo_reconstruct.toml").read_text()))
-    cfg = dataclasses.replace(cfg, slab=scene.slab, method=method).validate()
-    rec = reconstruct(Capture(tau, scene.bin_width_s, 0.0, scene.width_m), cfg, device=queue)
+    return fm.capture(), truth, cfg.replace(
+        slab=scene.slab)
+
+
+@pytest.mark.slow
+@pytest.mark.parametrize("method,min_iou", [("lct", 0.6), ("fk", 0.6), ("iterative", 0.8)])
+def test_round_trip_letters_through_slab(queue, demo_capture, method, min_iou):
+    """The demo capture reconstructed with the built-in demo parameters: letters at the right
+    depth and the Otsu-thresholded MIP overlapping the true letter mask (measured: LCT 0.70,
+    f-k 0.64, iterative 0.86)."""
+    cap, truth, cfg = demo_capture
+    rec = reconstruct(cap, cfg.replace(method=method).validate(), device=queue)
     depth = peak_depth_m(rec.volume, rec.extents["voxel_depth_m"])
     assert abs(depth - 0.5) <= 0.01  # 1 cm: 4 voxels of 2.4 mm (f-k lands 7 mm short)
     score, _ = mip_iou(rec.volume, truth)
-    assert score >= 0.6, score
+    assert score >= min_iou, score
 
 
 def test_forward_blur_sees_light_from_outside_the_scan(queue):

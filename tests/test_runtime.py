@@ -86,17 +86,38 @@ def test_memory_check_before_allocation(queue):
         runtime.require_memory(queue.device, queue.device.global_mem_size * 4, "test volume")
 
 
-def test_pocl7_gates_vkfft(queue, monkeypatch):
-    monkeypatch.setattr(runtime, "pocl_version", lambda dev: (7, 0))
+def test_fft_backend_choice(queue, monkeypatch):
     monkeypatch.delenv(runtime.ENV_FFT, raising=False)
-    ok, why = runtime.vkfft_status(queue)
-    assert not ok and "2069" in why or "not importable" in why
+    monkeypatch.setattr(runtime, "pocl_version", lambda dev: (7, 0))
+    c = runtime.fft_backend(queue)
+    assert c.backend == "host" and "2069" in c.reason and c.warn
     monkeypatch.setattr(runtime, "pocl_version", lambda dev: (3, 1))
+    c = runtime.fft_backend(queue)
+    if queue.device.type & runtime.cl.device_type.CPU:
+        assert c.backend == "host" and "CPU" in c.reason and not c.warn
     monkeypatch.setenv(runtime.ENV_FFT, "host")
-    assert runtime.vkfft_status(queue) == (False, "CLNLOS_FFT=host")
+    assert runtime.fft_backend(queue) == runtime.FFTChoice("host", "CLNLOS_FFT=host")
     monkeypatch.setenv(runtime.ENV_FFT, "bogus")
     with pytest.raises(DeviceError, match="CLNLOS_FFT"):
-        runtime.vkfft_status(queue)
+        runtime.fft_backend(queue)
+
+
+def test_forced_vkfft_without_pyvkfft_is_an_error(queue, monkeypatch):
+    import builtins
+
+    real_import = builtins.__import__
+
+    def no_vkfft(name, *a, **kw):
+        if name.startswith("pyvkfft"):
+            raise ImportError("no pyvkfft here")
+        return real_import(name, *a, **kw)
+
+    monkeypatch.setattr(builtins, "__import__", no_vkfft)
+    monkeypatch.setenv(runtime.ENV_FFT, "vkfft")
+    with pytest.raises(DeviceError, match="pyvkfft"):
+        runtime.fft_backend(queue)
+    monkeypatch.setenv(runtime.ENV_FFT, "auto")
+    assert runtime.fft_backend(queue).backend == "host"
 
 
 def test_cli_devices_lists_and_marks_default(capsys):

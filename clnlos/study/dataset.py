@@ -17,7 +17,7 @@ from pathlib import Path
 import numpy as np
 
 from ..config import ReconstructionConfig
-from ..metrics import iou, otsu_threshold, peak_depth_m
+from ..metrics import coverage_image, iou, otsu_threshold, peak_depth_m
 from .clarity import clarity_score
 
 
@@ -77,20 +77,6 @@ def scene_dict(sample: dict, grid: StudyGrid) -> dict:
             "sampling": {"density_per_m2": grid.density_per_m2, "splat_order": 1}}
 
 
-def truth_image(elements, scan_centres: np.ndarray) -> np.ndarray:
-    """Projection of the surface elements facing the scan plane onto the scan grid [y, x]."""
-    n = len(scan_centres)
-    pitch = scan_centres[1] - scan_centres[0] if n > 1 else 1.0
-    lo = scan_centres[0] - pitch / 2
-    front = elements.normal[:, 2] < 0
-    ix = np.floor((elements.pos[front, 0] - lo) / pitch).astype(int)
-    iy = np.floor((elements.pos[front, 1] - lo) / pitch).astype(int)
-    ok = (ix >= 0) & (ix < n) & (iy >= 0) & (iy < n)
-    img = np.zeros((n, n))
-    np.add.at(img, (iy[ok], ix[ok]), elements.area[front][ok])
-    return img / (pitch * pitch)  # covered fraction of each cell
-
-
 def render_sample(sample: dict, grid: StudyGrid, keep_volume: bool = False,
                   device: str | None = None) -> dict:
     """Simulate, reconstruct (LCT) and score one sample; returns arrays and numbers."""
@@ -111,7 +97,7 @@ def render_sample(sample: dict, grid: StudyGrid, keep_volume: bool = False,
     vol = rec.volume
     mip = vol.max(axis=0)
     mip = mip / mip.max() if mip.max() > 0 else mip
-    truth = truth_image(fm.samples.elements, scene.scan_centres())
+    truth = coverage_image(fm.samples.elements, scene.scan_centres())
     mask = truth >= 0.5
     pred = mip > otsu_threshold(mip)
     depth = peak_depth_m(vol, rec.extents["voxel_depth_m"])
