@@ -3,6 +3,7 @@
 from __future__ import annotations
 
 import json
+import sys
 import tomllib
 from pathlib import Path
 
@@ -44,10 +45,13 @@ def number_or_auto(text: str):
         raise argparse.ArgumentTypeError(f"expected a number or 'auto', got {text!r}") from None
 
 
-def config_from_args(args):
+def config_from_args(args, capture=None):
     """The reconstruction config: TOML file (if any), overridden by flags; validated with
-    the flags' names in error messages."""
+    the flags' names in error messages. Without slab flags, --no-slab or a [slab] in the
+    config, the slab a clnlos capture recorded is used (:func:`clnlos.reconstruct.setup_slab`).
+    """
     from .config import ReconstructionConfig, slab_from_table, slab_table
+    from .reconstruct import setup_slab
 
     cfg = ReconstructionConfig.from_toml(args.config) if args.config else ReconstructionConfig()
     changes, names = {}, {}
@@ -64,7 +68,11 @@ def config_from_args(args):
         base.update(slab_given)
         changes["slab"], _ = slab_from_table(
             base, names={k: flag for k, flag in SLAB_FLAGS.values()})
-    return cfg.replace(**changes).validate(names)
+    cfg = cfg.replace(**changes).validate(names)
+    if capture is not None and not args.no_slab and cfg.slab is None:
+        cfg, note = setup_slab(cfg, capture)
+        print(f"clnlos: note: {note}", file=sys.stderr)
+    return cfg
 
 
 def cmd_reconstruct(args) -> int:
@@ -72,8 +80,9 @@ def cmd_reconstruct(args) -> int:
     from .reconstruct import reconstruct, volume_figure
     from .runtime import get_queue
 
-    cfg = config_from_args(args)
+    config_from_args(args)  # parameter errors before reading the capture
     capture = read_capture(args.capture)
+    cfg = config_from_args(args, capture)
     queue = get_queue(args.device)
     rec = reconstruct(capture, cfg, dtype=DTYPES[args.dtype], device=queue)
     out = Path(args.output)
@@ -420,26 +429,14 @@ def argparse_suppress():
 
 
 def cmd_bench(args) -> int:
-    """Thin front of tools/bench_all.py (benchmarks live in the source checkout's tools/)."""
-    import subprocess
-    import sys
+    """Thin front of :func:`clnlos.bench.main` (runs from an installed package)."""
+    from .bench import main as bench_main
 
-    from .errors import InputFileError
-
-    script = Path(__file__).resolve().parents[1] / "tools" / "bench_all.py"
-    if not script.is_file():
-        raise InputFileError(f"{script}: clnlos bench runs the benchmark scripts of a source "
-                             "checkout (tools/); this installation has none")
-    cmd = [sys.executable, str(script), "-o", args.output]
-    if args.quick:
-        cmd.append("--quick")
-    if args.tiny:
-        cmd.append("--tiny")
-    if args.only:
-        cmd += ["--only", args.only]
-    if args.device:
-        cmd += ["--device", args.device]
-    return subprocess.run(cmd).returncode
+    argv = ["-o", args.output] + (["--quick"] if args.quick else []) + (
+        ["--tiny"] if args.tiny else []) + (["--only", args.only] if args.only else []) + (
+        ["--device", args.device] if args.device else [])
+    bench_main(argv)
+    return 0
 
 
 def register_bench(sub, add_device) -> None:
@@ -450,6 +447,6 @@ def register_bench(sub, add_device) -> None:
     g.add_argument("--tiny", action="store_true", help=argparse_suppress())
     b.add_argument("-o", "--output", default="out/bench")
     b.add_argument("--only", default=None, help="comma-separated sections (diffusion, "
-                   "lightcone, brdf, forward, reconstruction, end_to_end)")
+                   "lightcone, brdf, forward, reconstruction, iterative, end_to_end)")
     add_device(b)
     b.set_defaults(func=cmd_bench)

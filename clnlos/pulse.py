@@ -44,7 +44,7 @@ class PulseBlur(LinearOperator):
         self.taps_reversed = cla.to_device(self.queue, taps[::-1].astype(self.dtype))
         self._k = get_kernels(self.queue, "temporal", real_defines(self.dtype))
 
-    def _run(self, x: cla.Array, taps: cla.Array) -> cla.Array:
+    def _convolve(self, x: cla.Array, taps: cla.Array) -> cla.Array:
         nt = self.shape[0]
         n_scan = int(np.prod(self.shape[1:]))
         out = cla.empty_like(x)
@@ -53,10 +53,10 @@ class PulseBlur(LinearOperator):
         return out
 
     def _apply(self, x):
-        return self._run(x, self.taps)
+        return self._convolve(x, self.taps)
 
     def _adjoint(self, y):
-        return self._run(y, self.taps_reversed)
+        return self._convolve(y, self.taps_reversed)
 
     def __call__(self, x):
         if isinstance(x, cla.Array) and tuple(x.shape) == self.shape:

@@ -145,7 +145,7 @@ class ReconstructionPipeline:
                                     snr=snr0, n_dipoles=config.n_dipoles,
                                     lateral_pad=config.lateral_pad, dtype=self.dtype,
                                     queue=self.queue)
-            self.stages.append("deconvolve")
+            self.stages.append(f"deconvolve:slab({describe_slab(config.slab)})")
         if self.n_guard:
             self.crop = AxisResample(sp.identity(A.shape[0], format="csr")[:n_out], (ny, nx),
                                      dtype=self.dtype, queue=self.queue)
@@ -224,6 +224,25 @@ class ReconstructionPipeline:
                               stages=list(self.stages), timings_s=timings, params=params,
                               transient=tau.get() if keep_transient else None, extents=extents,
                               noise=noise.as_dict(), solver=solve)
+
+
+def setup_slab(config: ReconstructionConfig, capture: Capture
+               ) -> tuple[ReconstructionConfig, str]:
+    """For a config without a slab: the slab the capture recorded (a clnlos simulation), with
+    a one-line note of what was chosen."""
+    recorded = capture.recorded_slab()
+    if recorded is None:
+        return config, ("no slab given (--slab-* flags or [slab]) or recorded in the capture: "
+                        "no deconvolution runs (plain NLOS)")
+    slab, nd = recorded
+    cfg = config.replace(slab=slab, n_dipoles=config.n_dipoles if nd is None else nd)
+    return cfg, f"using the slab recorded in the capture: {describe_slab(slab)} (--no-slab " \
+                "to skip the deconvolution)"
+
+
+def describe_slab(slab) -> str:
+    return (f"d = {slab.thickness_m:g} m, mu_a = {slab.mu_a:g} 1/m, mu_s' = "
+            f"{slab.mu_s_prime:g} 1/m, n = {slab.n:g}")
 
 
 def resolve_geometry(capture: Capture, config: ReconstructionConfig) -> tuple[float, float, float]:

@@ -17,6 +17,8 @@ from clnlos.geometry import Elements
 from clnlos.lct import LCT
 from clnlos.resample import AxisResample, overlap_matrix
 from clnlos.runtime import get_queue, has_fp64
+from clnlos.solvers import ProxKernels, fista
+from clnlos.transport import LightConeTransport
 
 # Keep every device array alive until exit. Oclgrind 21.10's uninitialised-value tracking
 # goes wrong when a freed buffer's address is reused by a larger buffer (the cells past the
@@ -64,6 +66,16 @@ for dt in dtypes:
             out = lc(SurfaceSamples(el, np.ones(3), np.array([0, 1, 0], np.int32),
                                     tables if retro else None))
     PulseBlur((7, 3, 3), 35e-12, 3e-11, dtype=dt, queue=q)(out)
+    # light-cone transport (margin, support) and the solver's prox kernels (with TV)
+    tr = LightConeTransport((9, 3, 4), bin_width_s=5e-11, scan_width_m=0.2, margin=1,
+                            depth_min_m=0.02, dtype=dt, queue=q)
+    y = tr(np.random.default_rng(1).random((9, 3, 4)).astype(dt))
+    tr.apply_adjoint(y)
+    fista(tr, cla.to_device(q, y), cla.zeros(q, (9, 3, 4), dt), l1=1e-3, tv=1e-3,
+          row_min=tr.k_min, iterations=2, lipschitz_const=1.0)
+    pk = ProxKernels(q, (9, 3, 4), dt)
+    a = cla.to_device(q, np.random.default_rng(2).random((9, 3, 4)).astype(dt))
+    pk.weighted_residual(a, a, a, cla.empty_like(a))
     # BRDF texture lookup
     tex = tabulate(BRDFModel("phong", {}), 3, 4, 5)
     ang = np.array([[0.0, 0.0, 0.0, 0.0], [1.5707963, 3.1415, 1.5707963, -3.1415],

@@ -2,32 +2,25 @@
 property of the kernels, not a timing)."""
 
 import json
-import sys
-from pathlib import Path
 
 import pytest
 
+from clnlos import bench
 from clnlos.cli import main as cli_main
-
-sys.path.insert(0, str(Path(__file__).resolve().parents[1] / "tools"))
 
 
 @pytest.fixture(scope="module")
 def bench_doc(tmp_path_factory):
-    import bench_all
-
     out = tmp_path_factory.mktemp("bench")
-    bench_all.main(["--tiny", "-o", str(out), "--only", "diffusion,lightcone,brdf"])
+    bench.main(["--tiny", "-o", str(out), "--only", "diffusion,lightcone,brdf,iterative"])
     return json.loads((out / "bench.json").read_text()), out
 
 
 def test_schema(bench_doc):
-    import bench_all
-
     doc, out = bench_doc
     assert doc["copy_bandwidth_gbs"] > 0 and doc["rows"]
     for r in doc["rows"]:
-        for k in bench_all.ROW_KEYS:
+        for k in bench.ROW_KEYS:
             assert k in r, (k, r)
         assert r["median_s"] > 0 and r["min_s"] <= r["median_s"] <= r["max_s"]
     assert (out / "bench.html").read_text().count("data:image/png") >= 3
@@ -51,6 +44,19 @@ def test_errors_fall_as_accuracy_rises(bench_doc):
     # linear splatting beats nearest-bin deposit at the same density
     s0 = _series(doc, "lightcone", "density_per_m2@splat0", "float32")[-1]["error"]
     assert den[-1] < s0
+
+
+def test_iterative_rows_beside_lct_and_fk(bench_doc):
+    """The inversion-quality section: LCT, f-k and the iterative method at each iteration
+    count, for a noise-free and a photon-noise capture; error = 1 - IoU."""
+    doc, out = bench_doc
+    rows = [r for r in doc["rows"] if r["kernel"] == "inversion_quality"]
+    values = {r["value"] for r in rows}
+    assert {"lct", "fk", "iterative@5", "iterative@20"} <= values
+    assert all(0 <= r["error"] <= 1 and r["error"] == pytest.approx(1 - r["iou"]) for r in rows)
+    assert {r["knob"] for r in rows} == {"method@noise-free", "method@photon-noise"}
+    assert all(r["depth_error_m"] >= 0 and r["mip_rel_l2"] >= 0 for r in rows)
+    assert "inversion_quality" in (out / "bench.html").read_text()
 
 
 def test_cli_bench(tmp_path):

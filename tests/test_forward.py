@@ -225,7 +225,6 @@ def demo_capture(queue):
     import importlib.resources
     import tomllib
 
-    from clnlos.io import Capture
 
     data = importlib.resources.files("clnlos").joinpath("data")
     scene = Scene.from_dict(tomllib.loads(data.joinpath("demo_scene.toml").read_text()))

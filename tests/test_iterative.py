@@ -13,7 +13,6 @@ from clnlos import C0
 from clnlos.config import ReconstructionConfig
 from clnlos.forward import ForwardModel, LightCone, SurfaceSamples
 from clnlos.geometry import Elements
-from clnlos.io import Capture
 from clnlos.iterative import IterativeInversion
 from clnlos.metrics import mip_iou, truth_mask
 from clnlos.noise import K_SNR, SNR_MAX, estimate_noise, is_counts
@@ -268,3 +267,58 @@ def test_transport_adjoint(queue, dtype):
                             depth_min_m=0.1, depth_weight=np.linspace(0.5, 1, 40),
                             dtype=dtype, queue=queue)
     assert dot_test(op, np.random.default_rng(7)) < (1e-5 if dtype == np.float32 else 1e-12)
+
+
+@pytest.mark.slow
+def test_cli_iterative_uses_recorded_slab(tmp_path, capsys, queue):
+    """clnlos simulate -> clnlos reconstruct --method iterative with no slab flags: the slab
+    the capture recorded is used (named in the note and in the output's stages), the noise
+    estimate and the solver's report are stored; --no-slab opts out."""
+    import h5py
+
+    from clnlos.cli import main
+
+    scene = tmp_path / "s.toml"
+    scene.write_text("""seed = 2
+[scan]
+width_m = 0.3
+points = 12
+[time]
+bin_width_s = 48e-12
+bins = 80
+[[objects]]
+shape = "rectangle"
+size_m = [0.1, 0.05]
+translate_m = [0.0, 0.0, 0.45]
+[slab]
+thickness_m = 0.0254
+mu_a = 0.53
+mu_s_prime = 262.0
+n = 1.12
+[detector]
+exposure_s = 0.1
+etendue_m2_sr = 1e-9
+""")
+    cap = tmp_path / "c.h5"
+    assert main(["simulate", str(scene), "-o", str(cap)]) == 0
+    out = tmp_path / "v.h5"
+    capsys.readouterr()
+    assert main(["reconstruct", str(cap), "-o", str(out), "--method", "iterative",
+                 "--iterations", "30"]) == 0
+    err = capsys.readouterr().err
+    assert "slab recorded in the capture" in err and "mu_s' = 262" in err
+    with h5py.File(out) as f:
+        import json
+
+        assert "deconvolve:slab(d = 0.0254 m" in f.attrs["stages"]
+        assert json.loads(f.attrs["noise"])["photon_counts"] is True
+        solver = json.loads(f.attrs["solver"])
+        assert 1 <= solver["iterations"] <= 30 and solver["depth_min_m"] > 0.2
+        params = json.loads(f.attrs["params"])
+        assert params["model_snr_used"] == "inf" or params["model_snr_used"] == float("inf")
+        v = f["volume"][()]
+    assert v.min() >= 0 and v.max() > 0
+    out2 = tmp_path / "v2.h5"
+    assert main(["reconstruct", str(cap), "-o", str(out2), "--no-slab"]) == 0
+    with h5py.File(out2) as f:
+        assert "deconvolve" not in f.attrs["stages"]

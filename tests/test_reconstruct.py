@@ -21,7 +21,9 @@ from clnlos.io import Capture, read_capture, write_capture
 from clnlos.lct import LCT
 from clnlos.operators import dot_test
 from clnlos.reconstruct import preprocess_matrix, reconstruct
+from clnlos.pulse import PulseBlur
 from clnlos.resample import AxisResample, overlap_matrix, rebin_matrix
+from clnlos.transport import LightConeTransport
 
 CDT = dict(thickness_m=0.0254, mu_a=0.53, mu_s_prime=262.0, n=1.12)
 # Stated tolerances (relative L2 against the float64 numpy reference)
@@ -211,11 +213,28 @@ def _build_operators(queue, dtype):
     }
     lct = LCT(shape, bin_width_s=50e-12, scan_width_m=0.3, dtype=dtype, queue=queue)
     ops["lct_linear_chain"] = lct.to_z @ lct.inverse_filter @ lct.to_v
+    ops["crop_offset"] = AxisResample(overlap_matrix(np.linspace(0, 1, 25),
+                                                     np.linspace(0, 1, 13)), (4, 3),
+                                      in_plane=(6, 5), in_offset=(1, 2), out_plane=(7, 4),
+                                      out_offset=(2, 1), dtype=dtype, queue=queue)
+    ops["pulse_blur"] = PulseBlur(shape, 60e-12, 50e-12, dtype=dtype, queue=queue)
+    # the full physical model of a slab capture: light cone on a widened grid, periodic
+    # slab blur, crop to the scan (what clnlos simulate computes, as one linear operator)
+    m = 2
+    tr = LightConeTransport(shape, bin_width_s=50e-12, scan_width_m=0.3, margin=m,
+                            depth_min_m=0.1, dtype=dtype, queue=queue)
+    blur = slab_blur(slab, tr.out_shape, bin_width_s=50e-12, pitch_m=0.06, periodic_xy=True,
+                     dtype=dtype, queue=queue)
+    crop = AxisResample(sp.identity(24, format="csr"), (6, 5), in_plane=(10, 9),
+                        in_offset=(m, m), dtype=dtype, queue=queue)
+    ops["lightcone_transport"] = tr
+    ops["full_slab_model"] = crop @ blur @ tr
     return ops
 
 
 @pytest.mark.parametrize("name", ["axis_resample", "pad", "slab_blur", "slab_wiener",
-                                  "lct_lightcone", "lct_linear_chain"])
+                                  "lct_lightcone", "lct_linear_chain", "crop_offset",
+                                  "pulse_blur", "lightcone_transport", "full_slab_model"])
 def test_adjoint_dot_product(queue, dtype, name):
     op = _operators(queue, dtype)[name]
     err = dot_test(op, np.random.default_rng(4))
@@ -290,7 +309,7 @@ def _region_mean(img, xs, ys, width):
 
 
 @pytest.mark.shared_data
-@pytest.mark.parametrize("method", ["lct", "fk"])
+@pytest.mark.parametrize("method", ["lct", "fk", "iterative"])
 def test_real_letters_ut(queue, shared_data, method):
     from pathlib import Path
 
@@ -312,11 +331,12 @@ def test_real_letters_ut(queue, shared_data, method):
 
 
 @pytest.mark.shared_data
-def test_real_letter_s(queue, shared_data):
+@pytest.mark.parametrize("method", ["lct", "iterative"])
+def test_real_letter_s(queue, shared_data, method):
     from pathlib import Path
 
     cfg = ReconstructionConfig.from_toml(Path(__file__).parents[1] / "examples" /
-                                         "cdt_letter_s.toml")
+                                         "cdt_letter_s.toml").replace(method=method)
     rec = reconstruct(read_capture(shared_data / "cdt" / "letter_s.mat"), cfg, device=queue)
     v = rec.volume
     depth = (np.argmax(v.max(axis=(1, 2))) + 0.5) * rec.extents["voxel_depth_m"]

@@ -17,24 +17,10 @@ from pathlib import Path
 import numpy as np
 from benchlib import device_meta, print_table, timeit, write_rows
 
+from clnlos.bench.baselines import numpy_transmittance
+
 from clnlos.diffusion import Slab, SlabTransmittance, grid_offsets
 from clnlos.runtime import get_queue, has_fp64
-
-
-def numpy_transmittance(slab: Slab, rho, t, M: int) -> np.ndarray:
-    """Vectorised float64 numpy image sum (the baseline)."""
-    D, v, d, z0, ze = slab.D, slab.v, slab.thickness_m, slab.z0, slab.ze
-    t = np.maximum(t, 1e-300)  # T(t=0) = 0: the exp underflows to exactly 0 here
-    a = 4 * D * v * t
-    s = np.zeros_like(a)
-    for m in range(-M, M + 1):
-        z1 = (1 - 2 * m) * d - 4 * m * ze - z0
-        z2 = (1 - 2 * m) * d - (4 * m - 2) * ze + z0
-        s += z1 * np.exp(-z1 * z1 / a) - z2 * np.exp(-z2 * z2 / a)
-    with np.errstate(over="ignore", invalid="ignore"):
-        out = ((4 * np.pi * D * v) ** -1.5 * t**-2.5 * np.exp(-slab.mu_a * v * t - rho**2 / a)
-               * 0.5 * s)
-    return np.nan_to_num(out, nan=0.0, posinf=0.0)
 
 
 def main(argv=None) -> list[dict]:

@@ -23,40 +23,10 @@ import numpy as np
 sys.path.insert(0, str(Path(__file__).resolve().parent))
 from benchlib import device_meta, print_table, timeit, write_rows  # noqa: E402
 
-from clnlos import C0  # noqa: E402
+from clnlos.bench.baselines import numpy_lightcone, ut_scene  # noqa: E402
 from clnlos.forward import LightCone, sample_scene  # noqa: E402
 from clnlos.runtime import get_queue, has_fp64  # noqa: E402
 from clnlos.scene import Scene  # noqa: E402
-
-
-def ut_scene(points: int, bins: int, density: float) -> Scene:
-    return Scene.from_dict({
-        "scan": {"width_m": 0.6, "points": points},
-        "time": {"bin_width_s": 4.0 / (C0 * bins), "bins": bins, "start_s": 0.0},
-        "objects": [{"shape": "letters", "text": "UT", "height_m": 0.3, "stroke_m": 0.06,
-                     "translate_m": [0.0, 0.0, 0.5]}],
-        "sampling": {"density_per_m2": density}})
-
-
-def numpy_lightcone(s: Scene, samples) -> np.ndarray:
-    el = samples.elements
-    c = s.scan_centres()
-    out = np.zeros((s.bins, s.points, s.points))
-    for iy, sy in enumerate(c):
-        d = el.pos[None, :, :] - np.stack([c, np.full_like(c, sy), np.zeros_like(c)], 1)[:, None]
-        r = np.linalg.norm(d, axis=2)
-        cr = d[..., 2] / r
-        co = -(d * el.normal[None]).sum(2) / r
-        w = samples.albedo * cr**2 * co**2 / r**4 * el.area / np.pi
-        w[(cr <= 0) | (co <= 0)] = 0
-        b = (2 * r / C0 - s.start_s) / s.bin_width_s - 0.5
-        k = np.floor(b).astype(int)
-        f = b - k
-        for ix in range(len(c)):
-            for kk, ww in ((k[ix], w[ix] * (1 - f[ix])), (k[ix] + 1, w[ix] * f[ix])):
-                ok = (kk >= 0) & (kk < s.bins)
-                out[:, iy, ix] += np.bincount(kk[ok], ww[ok], minlength=s.bins)
-    return out
 
 
 def blur_reach_rows(q, meta, quick: bool) -> list[dict]:

@@ -69,7 +69,7 @@ def worker(impl: str, size: int, device: str | None, repeat: int) -> dict:
                   "fk": lambda: fk(x_g),
                   "end_to_end": lambda: lct(dec(cla.to_device(q, x_np))).get()}
     else:
-        from recon_baselines import NumpyReconstruction, TorchReconstruction
+        from clnlos.bench.baselines import NumpyReconstruction, TorchReconstruction
 
         from clnlos.runtime import get_queue
 

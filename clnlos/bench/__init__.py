@@ -1,0 +1,70 @@
+"""``clnlos bench``: what accuracy costs in time -- every accuracy knob of every kernel.
+
+Each knob's error is measured against a float64 high-accuracy reference computed in the same
+run on the same device; times are medians over repeats after a warm-up (queue.finish() around
+each run). Baselines (vectorised numpy float64, torch CPU for the reconstruction) run beside
+them and are reported as ratios. A trivial copy kernel gives the device's memory bandwidth,
+and the bandwidth-bound stages are reported as a fraction of it.
+
+Writes DIR/bench.json (one row per measurement) and DIR/bench.html (Pareto plots of error
+against time per kernel, and a table of recommended settings). Runs from an installed
+package (``clnlos bench``); ``tools/bench_all.py`` is a thin wrapper.
+"""
+
+from __future__ import annotations
+
+import argparse
+import json
+import time
+from pathlib import Path
+
+from ..runtime import get_queue
+from .harness import ROW_KEYS, Bench, print_table  # noqa: F401 (ROW_KEYS: row schema)
+from .report import recommendations, write_html
+from .sections import (
+    bench_brdf,
+    bench_diffusion,
+    bench_end_to_end,
+    bench_iterative,
+    bench_lightcone,
+    bench_model_level,
+    bench_reconstruction,
+    bench_roofline,
+)
+
+SECTIONS = {"diffusion": bench_diffusion, "lightcone": bench_lightcone, "brdf": bench_brdf,
+            "forward": bench_model_level, "reconstruction": bench_reconstruction,
+            "iterative": bench_iterative, "end_to_end": bench_end_to_end}
+
+
+def main(argv=None) -> dict:
+    ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
+    ap.add_argument("--device", default=None)
+    ap.add_argument("-o", "--out", default="out/bench", type=Path)
+    g = ap.add_mutually_exclusive_group()
+    g.add_argument("--quick", action="store_true", help="under 5 minutes on 2 CPU cores")
+    g.add_argument("--tiny", action="store_true", help="seconds; for tests")
+    ap.add_argument("--only", default=",".join(SECTIONS), help="comma-separated sections")
+    args = ap.parse_args(argv)
+    b = Bench(get_queue(args.device), "tiny" if args.tiny else "quick" if args.quick else "full")
+    t0 = time.perf_counter()
+    for name in args.only.split(","):
+        if name not in SECTIONS:
+            raise SystemExit(f"unknown section {name!r}: choose from {', '.join(SECTIONS)}")
+        print(f"== {name}", flush=True)
+        SECTIONS[name](b)
+    bw = bench_roofline(b)
+    for r in b.rows:  # ratios against the baselines of the same kernel/knob/value
+        base = [x for x in b.rows if x["impl"] in ("numpy", "torch") and
+                (x["kernel"], x["knob"], x["value"]) == (r["kernel"], r["knob"], r["value"])]
+        for x in base:
+            r[f"speedup_vs_{x['impl']}"] = x["median_s"] / r["median_s"]
+    recs = recommendations(b.rows)
+    args.out.mkdir(parents=True, exist_ok=True)
+    doc = {"meta": b.meta, "size": b.size, "seconds": time.perf_counter() - t0,
+           "copy_bandwidth_gbs": bw / 1e9, "rows": b.rows, "recommendations": recs}
+    (args.out / "bench.json").write_text(json.dumps(doc, indent=1, default=str))
+    write_html(args.out / "bench.html", b.rows, recs, b.meta, bw)
+    print_table(b.rows, ["kernel", "knob", "value", "dtype", "impl", "median_s", "error"])
+    print(f"wrote {args.out / 'bench.json'} and bench.html in {doc['seconds']:.1f} s")
+    return doc

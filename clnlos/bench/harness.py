@@ -1,0 +1,122 @@
+"""Benchmark harness: synchronised timing, device metadata, rows, tables (CSV/JSON).
+
+Timing follows pyopencl's characterize._get_time: warm-up, queue.finish() around each run,
+median/min/max over repeats. Each row pairs a time with an error against a float64 reference
+of the same run.
+"""
+
+from __future__ import annotations
+
+import csv
+import json
+import os
+import platform
+import resource
+import statistics
+import tempfile
+import time
+from pathlib import Path
+
+import numpy as np
+
+from ..runtime import has_fp64, pocl_version
+
+
+def device_meta(queue) -> dict:
+    dev = queue.device
+    pv = pocl_version(dev)
+    return {"device": dev.name.strip(), "platform": dev.platform.name.strip(),
+            "driver": dev.driver_version.strip(),
+            "pocl": f"{pv[0]}.{pv[1]}" if pv else None,
+            "host": platform.processor() or platform.machine(), "cpus": os.cpu_count()}
+
+
+def timeit(fn, queue=None, *, warmup: int = 1, repeat: int = 5, min_time: float = 0.0):
+    """Run fn() warmup times, then repeat times (more while the total is under min_time)."""
+    for _ in range(warmup):
+        fn()
+        if queue is not None:
+            queue.finish()
+    times = []
+    t_total = 0.0
+    while len(times) < repeat or t_total < min_time:
+        if queue is not None:
+            queue.finish()
+        t0 = time.perf_counter()
+        fn()
+        if queue is not None:
+            queue.finish()
+        dt = time.perf_counter() - t0
+        times.append(dt)
+        t_total += dt
+        if len(times) > 1000:
+            break
+    return {"median_s": statistics.median(times), "min_s": min(times), "max_s": max(times),
+            "repeats": len(times)}
+
+
+def write_rows(rows: list[dict], out_dir: Path, stem: str) -> tuple[Path, Path]:
+    """Write rows as CSV and JSON atomically; returns both paths."""
+    out_dir.mkdir(parents=True, exist_ok=True)
+    keys: list[str] = []
+    for r in rows:
+        keys.extend(k for k in r if k not in keys)
+    paths = []
+    for ext in ("csv", "json"):
+        path = out_dir / f"{stem}.{ext}"
+        fd, tmp = tempfile.mkstemp(dir=out_dir, suffix=f".{ext}.tmp")
+        with os.fdopen(fd, "w", newline="") as f:
+            if ext == "csv":
+                w = csv.DictWriter(f, fieldnames=keys)
+                w.writeheader()
+                w.writerows(rows)
+            else:
+                json.dump(rows, f, indent=1)
+        os.replace(tmp, path)
+        paths.append(path)
+    return paths[0], paths[1]
+
+
+def print_table(rows: list[dict], cols: list[str]) -> None:
+    def fmt(v):
+        if isinstance(v, float):
+            return f"{v:.3g}"
+        return str(v)
+
+    width = {c: max(len(c), *(len(fmt(r.get(c, ""))) for r in rows)) for c in cols}
+    print("  ".join(c.rjust(width[c]) for c in cols))
+    for r in rows:
+        print("  ".join(fmt(r.get(c, "")).rjust(width[c]) for c in cols))
+
+
+ROW_KEYS = ("device", "driver", "pocl", "kernel", "knob", "value", "dtype", "impl", "median_s",
+            "min_s", "max_s", "error", "peak_mem_bytes")
+
+
+def rel_error(a, b) -> float:
+    a, b = np.asarray(a, np.float64), np.asarray(b, np.float64)
+    return float(np.linalg.norm(a - b) / max(np.linalg.norm(b), 1e-300))
+
+
+class Bench:
+    def __init__(self, queue, size: str):
+        self.q, self.size = queue, size
+        self.meta = device_meta(queue)
+        self.rows: list[dict] = []
+        self.repeat = {"tiny": 1, "quick": 3, "full": 5}[size]
+        self.f64 = has_fp64(queue.device)
+
+    def add(self, kernel, knob, value, dtype, fn, error, impl="opencl", sync=True, **extra):
+        t = timeit(fn, self.q if sync else None, repeat=self.repeat)
+        row = {"device": self.meta["device"], "driver": self.meta["driver"],
+               "pocl": self.meta["pocl"], "kernel": kernel, "knob": knob, "value": value,
+               "dtype": np.dtype(dtype).name, "impl": impl, **t,
+               "error": None if error is None else float(error),
+               "peak_mem_bytes": resource.getrusage(resource.RUSAGE_SELF).ru_maxrss * 1024,
+               **extra}
+        self.rows.append(row)
+        return row
+
+    @property
+    def dtypes(self):
+        return [np.float32] + ([np.float64] if self.f64 else [])

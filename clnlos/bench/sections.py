@@ -1,0 +1,277 @@
+"""Benchmark sections: every accuracy knob of every stage against its cost."""
+
+from __future__ import annotations
+
+import numpy as np
+import pyopencl as cl
+import pyopencl.array as cla
+
+from .. import C0
+from .baselines import numpy_lightcone, numpy_transmittance, ut_scene
+from .harness import Bench, rel_error as _rel
+
+
+# ------------------------------------------------------------------ kernels
+def bench_diffusion(b: Bench):
+    from ..diffusion import Slab, SlabTransmittance, grid_offsets
+
+    slab = Slab(thickness_m=0.0254, mu_a=0.53, mu_s_prime=262.0, n=1.12)
+    n, nt = {"tiny": (8, 64), "quick": (32, 256), "full": (64, 512)}[b.size]
+    off = grid_offsets(n, 0.01)
+    rho = np.sqrt(off[:, None] ** 2 + off[None, :] ** 2).ravel()
+    t = np.arange(nt) * 16e-12
+    ref_dt = b.dtypes[-1]
+    ref = SlabTransmittance(slab, dtype=ref_dt, queue=b.q).outer_device(
+        cla.to_device(b.q, rho.astype(ref_dt)), cla.to_device(b.q, t.astype(ref_dt))).get()
+    for dt in b.dtypes:
+        rg, tg = cla.to_device(b.q, rho.astype(dt)), cla.to_device(b.q, t.astype(dt))
+        for M in (1, 2, 3, 5, 10, 20, None):
+            p = SlabTransmittance(slab, n_dipoles=M, dtype=dt, queue=b.q)
+            err = _rel(p.outer_device(rg, tg).get(), ref)
+            b.add("diffusion", "n_dipoles", "auto" if M is None else M, dt,
+                  lambda p=p, rg=rg, tg=tg: p.outer_device(rg, tg), err)
+    R, T = rho[None, :], t[:, None]
+    b.add("diffusion", "n_dipoles", 20, np.float64, lambda: numpy_transmittance(slab, R, T, 20),
+          _rel(numpy_transmittance(slab, R, T, 20), ref), impl="numpy", sync=False)
+
+
+def bench_lightcone(b: Bench):
+    from ..forward import LightCone, sample_scene
+
+    pts, bins = {"tiny": (8, 128), "quick": (32, 512), "full": (32, 512)}[b.size]
+    dens = {"tiny": (2.5e3, 1e4, 4e4), "quick": (2.5e3, 1e4, 4e4, 1.6e5),
+            "full": (2.5e3, 1e4, 4e4, 1.6e5, 6.4e5)}[b.size]
+    ref_s = ut_scene(pts, bins, 16 * dens[-1])
+    ref = LightCone(points=pts, width_m=0.6, bins=bins, bin_width_s=ref_s.bin_width_s,
+                    start_s=0.0, retro=False, dtype=b.dtypes[-1], queue=b.q)(
+        sample_scene(ref_s)).get()
+    for dt in b.dtypes:
+        for splat in (0, 1):
+            for d in dens:
+                s = ut_scene(pts, bins, d)
+                smp = sample_scene(s)
+                lc = LightCone(points=pts, width_m=0.6, bins=bins, bin_width_s=s.bin_width_s,
+                               start_s=0.0, retro=False, splat_order=splat, dtype=dt,
+                               queue=b.q)
+                err = _rel(lc(smp).get(), ref)
+                knob = "density_per_m2" if splat == 1 else "density_per_m2@splat0"
+                b.add("lightcone", knob, d, dt, lambda lc=lc, smp=smp: lc(smp), err,
+                      elements=len(smp.elements))
+    s = ut_scene(pts, bins, dens[-1])
+    smp = sample_scene(s)
+    b.add("lightcone", "density_per_m2", dens[-1], np.float64, lambda: numpy_lightcone(s, smp),
+          _rel(numpy_lightcone(s, smp), ref), impl="numpy", sync=False)
+
+
+def bench_brdf(b: Bench):
+    from ..brdf.models import BRDFModel
+    from ..brdf.texture import TextureLookup, tabulate
+
+    model = BRDFModel("microfacet", {"kd": 0.1, "ks": 1.0, "alpha": 0.2, "f0": 0.9})
+    rng = np.random.default_rng(0)
+    n = {"tiny": 20_000, "quick": 200_000, "full": 1_000_000}[b.size]
+    a = np.column_stack([rng.uniform(0, 1.45, n), rng.uniform(-np.pi, np.pi, n),
+                         rng.uniform(0, 1.45, n), rng.uniform(-np.pi, np.pi, n)])
+    truth = model(*a.T)
+    for res in (8, 16, 32, 64) if b.size == "tiny" else (8, 16, 32, 64, 128):
+        tex = tabulate(model, res, res, 16)
+        for path in ("buffer", "image"):
+            if path == "image" and not b.q.device.image_support:
+                continue
+            lk = TextureLookup(tex, path=path, queue=b.q)
+            b.add("brdf", f"resolution@{path}", res, np.float32, lambda lk=lk: lk(a),
+                  _rel(lk(a), truth))
+    b.add("brdf", "model-eval", "analytic", np.float64, lambda: model(*a.T), 0.0,
+          impl="numpy", sync=False)
+
+
+def bench_model_level(b: Bench):
+    """Forward model level: Lambertian confocal vs BRDF (glossy) confocal, same scene."""
+    from ..forward import ForwardModel
+
+    pts, bins = {"tiny": (8, 128), "quick": (32, 512), "full": (32, 512)}[b.size]
+    ref = ForwardModel(ut_scene(pts, bins, 4e4, "painted steel plate"), queue=b.q,
+                       dtype=b.dtypes[-1]).run()
+    for level, mat in (("lambertian-confocal", "lambertian"),
+                       ("brdf-confocal", "painted steel plate")):
+        fm = ForwardModel(ut_scene(pts, bins, 4e4, mat), queue=b.q)
+        out = fm.run()
+        err = _rel(out / max(out.sum(), 1e-300), ref / max(ref.sum(), 1e-300))
+        b.add("forward", "model_level", level, np.float32, fm.run, err)
+
+
+def bench_reconstruction(b: Bench):
+    from ..blur import slab_blur
+    from ..diffusion import Slab
+    from ..fk import FKMigration
+    from ..lct import LCT
+
+    sizes = {"tiny": [16], "quick": [32, 64], "full": [32, 64, 128]}[b.size]
+    slab = Slab(thickness_m=0.0254, mu_a=0.53, mu_s_prime=262.0, n=1.12)
+    for n in sizes:
+        shape = (4 * n, n, n)
+        dt_s = 2.0 / (C0 * shape[0])
+        x = np.random.default_rng(0).random(shape)
+        refs = {}
+        for dt in reversed(b.dtypes):
+            ops = {"wiener": slab_blur(slab, shape, bin_width_s=dt_s, pitch_m=0.7 / n,
+                                       mode="wiener", snr=1e4, dtype=dt, queue=b.q),
+                   "lct": LCT(shape, bin_width_s=dt_s, scan_width_m=0.7, snr=1e4, dtype=dt,
+                              queue=b.q),
+                   "fk": FKMigration(shape, bin_width_s=dt_s, scan_width_m=0.7, dtype=dt,
+                                     queue=b.q)}
+            xg = cla.to_device(b.q, x.astype(dt))
+            for name, op in ops.items():
+                out = op(xg).get()
+                if dt == b.dtypes[-1]:
+                    refs[name] = out
+                b.add("reconstruction", f"{name}@grid", f"{shape[2]}x{shape[1]}x{shape[0]}",
+                      dt, lambda op=op, xg=xg: op(xg), _rel(out, refs[name]),
+                      fft_backend=ops["wiener"].fft.backend)
+            if dt == np.float32:
+                _bandwidth_rows(b, ops, xg, f"{shape[2]}x{shape[1]}x{shape[0]}")
+        if b.size != "tiny":
+            from .baselines import NumpyReconstruction, TorchReconstruction
+
+            for impl, cls_ in (("numpy", NumpyReconstruction), ("torch", TorchReconstruction)):
+                p = cls_(shape, bin_width_s=dt_s, scan_width_m=0.7, slab=slab, snr=1e4,
+                         lct_snr=1e4, queue=b.q)
+                xi = x if impl == "numpy" else __import__("torch").from_numpy(
+                    x.astype(np.float32))
+                for name, fn in (("wiener", p.deconvolve), ("lct", p.lct), ("fk", p.fk)):
+                    out = np.asarray(fn(xi))
+                    b.add("reconstruction", f"{name}@grid", f"{shape[2]}x{shape[1]}x{shape[0]}",
+                          np.float64 if impl == "numpy" else np.float32,
+                          lambda fn=fn, xi=xi: fn(xi), _rel(out, refs[name]), impl=impl,
+                          sync=False)
+
+
+def _bandwidth_rows(b: Bench, ops, xg, grid: str) -> None:
+    """The bandwidth-bound pieces alone, with the bytes each must move at least."""
+    from ..runtime import round_up
+
+    w = ops["wiener"]
+    spec = w.fft.forward(w._buf)
+    n = spec.size
+    k = w._k.wiener_apply
+    r = b.add("roofline", "wiener_multiply", grid, np.float32,
+              lambda: k(b.q, (round_up(n, 256),), None, w.H.data, spec.data, np.float32(1e-4),
+                        np.int32(0), np.int64(n)), None)
+    r["bytes_moved"] = 3 * n * spec.dtype.itemsize  # read H and X, write X
+    r = b.add("roofline", "fft_r2c_pass", grid, np.float32, lambda: w.fft.forward(w._buf, spec),
+              None, fft_backend=w.fft.backend)
+    r["bytes_moved"] = w._buf.nbytes + spec.nbytes  # one read + one write: a single pass
+    lct = ops["lct"]
+    r = b.add("roofline", "resample_t_to_v", grid, np.float32, lambda: lct.to_v(xg), None)
+    r["bytes_moved"] = 2 * xg.nbytes + lct.to_v.matrix.nnz * 8  # columns read, rows written
+
+
+def bench_end_to_end(b: Bench):
+    from ..config import ReconstructionConfig
+    from ..diffusion import Slab
+    from ..forward import ForwardModel
+    from ..io import Capture
+    from ..metrics import peak_depth_m
+    from ..reconstruct import reconstruct
+    from ..scene import Scene
+
+    grids = {"tiny": [(16, 64)], "quick": [(32, 128), (64, 256)],
+             "full": [(32, 128), (64, 256), (128, 512)]}[b.size]
+    for n, nt in grids:
+        d = {"scan": {"width_m": 0.6, "points": n},
+             "time": {"bin_width_s": 2.46 / (C0 * nt), "bins": nt, "start_s": 0.0},
+             "objects": [{"shape": "letters", "text": "UT", "height_m": 0.3, "stroke_m": 0.06,
+                          "translate_m": [0.0, 0.0, 0.5]}],
+             "slab": {"thickness_m": 0.0254, "mu_a": 0.53, "mu_s_prime": 262.0, "n": 1.12},
+             "sampling": {"density_per_m2": 4e4}}
+        scene = Scene.from_dict(d)
+        fm = ForwardModel(scene, queue=b.q)
+        cfg = ReconstructionConfig(max_path_m=2.0, bins=nt, slab=Slab(**d["slab"]),
+                                   snr=1e6, inversion_snr=1e3).validate()
+
+        def run(fm=fm, cfg=cfg, scene=scene):
+            tau = fm.run()
+            return reconstruct(Capture(tau, scene.bin_width_s, 0.0, scene.width_m), cfg,
+                               device=b.q).volume
+
+        vol = run()
+        depth = peak_depth_m(vol, 2.0 / nt / 2)
+        b.add("end_to_end", "grid", f"{n}x{n}x{nt}", np.float32, run, abs(depth - 0.5) / 0.5,
+              error_kind="relative depth error")
+
+
+def bench_roofline(b: Bench) -> float:
+    """Copy bandwidth (GB/s) of a trivial kernel; bandwidth-bound stages as a fraction of it."""
+    n = {"tiny": 1 << 22, "quick": 1 << 25, "full": 1 << 26}[b.size]
+    prg = cl.Program(b.q.context, """
+        __kernel void copy4(__global const float4 *a, __global float4 *b) {
+            b[get_global_id(0)] = a[get_global_id(0)]; }""").build()
+    k = prg.copy4
+    a = cla.zeros(b.q, n, np.float32)
+    c = cla.empty_like(a)
+    r = b.add("roofline", "copy", f"{n * 4 / 2**20:.0f} MiB", np.float32,
+              lambda: k(b.q, (n // 4,), None, a.data, c.data), None)
+    bw = 2 * n * 4 / r["median_s"]
+    r["bandwidth_gbs"] = bw / 1e9
+    for row in b.rows:
+        if row.get("bytes_moved"):
+            row["bandwidth_fraction"] = row["bytes_moved"] / row["median_s"] / bw
+            gbs = row["bytes_moved"] / row["median_s"] / 1e9
+            print(f"  {row['knob']} {row['value']}: {gbs:.2f} GB/s = "
+                  f"{row['bandwidth_fraction']:.2f} of copy bandwidth")
+    return bw
+
+
+def bench_iterative(b: Bench):
+    """Reconstruction quality against time: LCT, f-k and the iterative method at several
+    iteration counts, on a noisy and a noise-free capture of a 'T' of 4.5 cm bars 0.5 m behind
+    the CDT slab (seed Table 1 scan, 0.3 m). The error is 1 - IoU of the Otsu-thresholded
+    MIP with the true mask (extra fields: IoU, depth error, relative L2 error of the
+    normalised MIP against the true coverage)."""
+    from ..config import ReconstructionConfig
+    from ..forward import ForwardModel
+    from ..metrics import coverage_image, mip_iou, peak_depth_m
+    from ..reconstruct import reconstruct
+    from ..scene import Scene
+    from ..slab import CDT_SLAB
+
+    points, bins, bw = {"tiny": (12, 96, 64e-12), "quick": (24, 256, 32e-12),
+                        "full": (32, 512, 16e-12)}[b.size]
+    iters = {"tiny": (5, 20), "quick": (25, 50, 100, 200),
+             "full": (25, 50, 100, 200, 400)}[b.size]
+    for noise in (False, True):
+        d = {"seed": 0, "scan": {"width_m": 0.3, "points": points},
+             "time": {"bin_width_s": bw, "bins": bins, "start_s": 0.0},
+             "objects": [{"shape": "rectangle", "size_m": [0.16, 0.045],
+                          "translate_m": [0.0, 0.0575, 0.5]},
+                         {"shape": "rectangle", "size_m": [0.045, 0.115],
+                          "translate_m": [0.0, -0.0225, 0.5]}],
+             "slab": {"thickness_m": 0.0254, "mu_a": 0.53, "mu_s_prime": 262.0, "n": 1.12},
+             "laser": {"pulse_width_s": 35e-12}, "sampling": {"density_per_m2": 1e5}}
+        if noise:
+            d["detector"] = {"power_w": 0.4, "rep_rate_hz": 10e6, "exposure_s": 0.1,
+                             "efficiency": 0.3, "etendue_m2_sr": 1e-9,
+                             "dark_count_rate_hz": 1e3}
+        scene = Scene.from_dict(d)
+        fm = ForwardModel(scene, queue=b.q)
+        cap = fm.capture()
+        cover = np.clip(coverage_image(fm.samples.elements, scene.scan_centres()), 0, 1)
+        mask = cover >= 0.5
+        settings = [("lct", None), ("fk", None)] + [("iterative", k) for k in iters]
+        for method, k in settings:
+            cfg = ReconstructionConfig(max_path_m=1.6, slab=CDT_SLAB, method=method,
+                                       **({"iterations": k} if k else {})).validate()
+
+            def run(cfg=cfg, cap=cap):
+                return reconstruct(cap, cfg, device=b.q)
+
+            rec = run()
+            iou = mip_iou(rec.volume, mask)[0]
+            mip = rec.volume.max(axis=0)
+            mip = mip / mip.max() if mip.max() > 0 else mip
+            depth = peak_depth_m(rec.volume, rec.extents["voxel_depth_m"])
+            b.add("inversion_quality", f"method@{'photon-noise' if noise else 'noise-free'}",
+                  method if k is None else f"iterative@{k}", np.float32, run, 1.0 - iou,
+                  error_kind="1 - IoU", iou=iou, depth_error_m=abs(depth - 0.5),
+                  mip_rel_l2=_rel(mip, cover), iterations=k or 0,
+                  grid=f"{points}x{points}x{rec.volume.shape[0]}")
