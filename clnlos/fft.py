@@ -13,7 +13,6 @@ unnormalised, inverse divided by N.
 
 from __future__ import annotations
 
-import os
 from functools import lru_cache
 
 import numpy as np
@@ -22,6 +21,7 @@ import scipy.fft as sfft
 
 from .runtime import (
     download,
+    host_threads,
     get_queue,
     require_dtype,
     require_memory,
@@ -51,7 +51,8 @@ def _backend(queue) -> str:
 
 
 def _workers() -> int:
-    return os.cpu_count() or 1
+    """Threads of the host FFT: ``CLNLOS_THREADS`` (a study worker pins it), else every core."""
+    return host_threads()
 
 
 class RealFFT3:

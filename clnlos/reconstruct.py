@@ -132,6 +132,12 @@ class ReconstructionPipeline:
         self.scan_width_m = scan_width_m
         self.shape = (n_out, ny, nx)
         self.n_guard = A.shape[0] - n_out
+        # the raw bins inside the kept window [0, n_out * dt): the noise is estimated on them
+        # (resampling would turn counts into non-integers and change their statistics)
+        self.raw_bin_width_s, self.raw_start_s = float(bin_width_s), float(start_s)
+        t_keep = n_out * self.bin_width_s
+        self.raw_window = (max(0, int(np.floor(-start_s / bin_width_s))),
+                           min(nt_in, int(np.ceil((t_keep - start_s) / bin_width_s))))
         self.stages = ["preprocess"]
         self.pre = AxisResample(A, (ny, nx), dtype=self.dtype, queue=self.queue)
         self.pre.name = "preprocess"
@@ -181,7 +187,9 @@ class ReconstructionPipeline:
         if not float(cla.max(tau).get()) > 0:
             raise InputFileError("the capture holds no signal in the kept time window "
                                  "(all zero): nothing to reconstruct")
-        noise = estimate_noise(tau.get()[:self.shape[0]], self.bin_width_s)
+        k0, k1 = self.raw_window
+        noise = estimate_noise(np.asarray(transient)[k0:k1], self.raw_bin_width_s,
+                               self.raw_start_s + k0 * self.raw_bin_width_s)
         snr, inv_snr = auto_snrs(noise, self.config, model_snr)
         norm = self.config.normalize
         if norm != "none":
@@ -249,11 +257,12 @@ def resolve_geometry(capture: Capture, config: ReconstructionConfig) -> tuple[fl
     """(bin_width_s, start_s, scan_width_m): the config overrides the file."""
     bw = config.bin_width_s if config.bin_width_s is not None else capture.bin_width_s
     if bw is None:
-        raise ParameterError("capture.bin_width_s", None, "> 0: give --bin-width")
+        raise ParameterError("--bin-width", None, "> 0: the capture does not store its bin "
+                             "width; give --bin-width or [capture] bin_width_s")
     sw = config.scan_width_m if config.scan_width_m is not None else capture.scan_width_m
     if sw is None:
-        raise ParameterError("capture.scan_width_m", None,
-                             "> 0: the capture does not store it, give --scan-width")
+        raise ParameterError("--scan-width", None, "> 0: the capture does not store the scan "
+                             "width; give --scan-width or [capture] scan_width_m")
     start = config.start_s if config.start_s is not None else capture.start_s
     return float(bw), float(start), float(sw)
 
@@ -278,7 +287,7 @@ def reconstruct(capture: Capture, config: ReconstructionConfig, *, dtype=np.floa
     if pipe is None:
         pipe = ReconstructionPipeline(capture.transient.shape, bin_width_s=bw, start_s=start,
                                       scan_width_m=sw, config=config, dtype=dtype, queue=queue)
-        if len(_PIPELINES) >= 4:
+        if len(_PIPELINES) >= 8:
             _PIPELINES.pop(next(iter(_PIPELINES)))
         _PIPELINES[key] = pipe
     return pipe.run(capture.transient, keep_transient=keep_transient, progress=progress,

@@ -31,8 +31,27 @@ import pyopencl as cl
 from .errors import DeviceCapabilityError, DeviceError, KernelBuildError, ShapeError
 
 ENV_DEVICE = "CLNLOS_DEVICE"
+ENV_THREADS = "CLNLOS_THREADS"  # host threads (FFT) of this process; PoCL: POCL_MAX_PTHREAD_COUNT
 ENV_FFT = "CLNLOS_FFT"  # "auto" (default), "vkfft" or "host" ("numpy" is an alias)
 POCL_VKFFT_ISSUE = "https://github.com/pocl/pocl/issues/2069"
+
+
+def host_threads() -> int:
+    """Host threads this process may use: ``CLNLOS_THREADS`` if set (> 0), else the cores
+    available to it."""
+    raw = os.environ.get(ENV_THREADS, "").strip()
+    if raw:
+        try:
+            n = int(raw)
+        except ValueError:
+            raise DeviceError(f"invalid {ENV_THREADS}={raw!r}: a positive integer") from None
+        if n < 1:
+            raise DeviceError(f"invalid {ENV_THREADS}={raw!r}: a positive integer")
+        return n
+    try:
+        return len(os.sched_getaffinity(0)) or 1
+    except AttributeError:  # not Linux
+        return os.cpu_count() or 1
 
 
 # --------------------------------------------------------------------------- devices

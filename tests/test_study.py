@@ -1,7 +1,12 @@
-"""The material study: clarity metric, labels, a tiny end-to-end study, Dask = serial."""
+"""The material study: clarity and no-reference metrics, labels, the CNN, a tiny end-to-end
+study (serial = Dask), the report's layout in a real browser."""
 
 import json
+import shutil
+import subprocess
+import sys
 from dataclasses import replace
+from pathlib import Path
 
 import numpy as np
 import pytest
@@ -9,8 +14,22 @@ from scipy.ndimage import gaussian_filter
 
 from clnlos.geometry import letters_mask
 from clnlos.study.clarity import clarity_label, clarity_score, label_thresholds
-from clnlos.study.dataset import StudyGrid
-from clnlos.study.run import StudyOptions, run_study, specular_fraction
+from clnlos.study.classify import dihedral
+from clnlos.study.dataset import StudyGrid, dataset_samples, scene_dict, window_m
+from clnlos.study.quality import (
+    central_energy,
+    depth_coherence,
+    otsu_separability,
+    quality_metrics,
+    validate_metrics,
+)
+from clnlos.study.run import (
+    SEED_FIGURE9,
+    StudyOptions,
+    mean_interval,
+    run_study,
+    specular_fraction,
+)
 
 
 def _sharp_image(n=64):
@@ -38,6 +57,44 @@ def test_labels_reproduce_the_seed_split():
     assert [int((lab == k).sum()) for k in (1, 2, 3)] == pytest.approx([193, 514, 293], abs=2)
 
 
+def test_no_reference_metrics_on_known_images():
+    img = _sharp_image(32)
+    assert otsu_separability(img) == pytest.approx(1.0)  # two levels exactly
+    blurred = gaussian_filter(img, 2)
+    assert otsu_separability(blurred) < otsu_separability(img)
+    noise = np.random.default_rng(1).random((32, 32))
+    assert otsu_separability(noise) < otsu_separability(blurred)
+    corner = np.zeros((32, 32))
+    corner[:3, :3] = 1.0
+    assert central_energy(corner) == 0.0 and central_energy(img) > 0.95
+    flat = np.full((32, 32), 0.5)
+    assert depth_coherence(img, flat) == 1.0
+    rough = 0.5 + 0.02 * np.random.default_rng(2).standard_normal((32, 32))
+    assert depth_coherence(img, rough) < 0.5
+    vol = np.zeros((20, 32, 32))
+    vol[8] = img
+    q = quality_metrics(vol, 0.01)
+    assert q["nr_clarity"] == pytest.approx(q["otsu_separability"] * q["central_energy"])
+    assert q["depth_coherence"] == 1.0 and np.isfinite(q["fft_clarity"])
+
+
+def test_metric_validation_and_interval():
+    x = np.arange(10.0)
+    v = validate_metrics({"a": x, "b": -x}, {"iou": 2 * x + 1})
+    assert v["a"]["iou"] == pytest.approx(1.0) and v["b"]["iou"] == pytest.approx(-1.0)
+    m, (lo, hi) = mean_interval([0.5, 0.6, 0.7, 0.6, 0.6])
+    assert m == pytest.approx(0.6) and lo < 0.6 < hi and hi - lo < 0.2
+    assert mean_interval([0.3]) == (0.3, [0.3, 0.3])
+
+
+def test_dihedral_augmentation():
+    a = np.arange(2 * 9, dtype=float).reshape(2, 3, 3)
+    d = dihedral(a)
+    assert d.shape == (16, 3, 3)
+    assert {tuple(x.ravel()) for x in d[::2]} >= {tuple(np.rot90(a[0], k).ravel())
+                                                    for k in range(4)}
+
+
 def test_specular_fraction_orders_models():
     from clnlos.brdf.models import BRDFModel
 
@@ -47,33 +104,75 @@ def test_specular_fraction_orders_models():
     assert 0 < mixed < 1
 
 
-TINY = StudyOptions(n_dataset=24, epochs=3, materials=["standard white plate", "quartz glass",
-                                                        "painted steel plate"],
-                    grid=replace(StudyGrid(), points=12, bin_width_s=40e-12, bins=128,
-                                 recon_bins=32, max_path_m=1.5, density_per_m2=2e4),
-                    label="tiny")
+def test_dataset_design_and_scenes():
+    from clnlos.brdf.presets import preset_names
+    from clnlos.scene import Scene
+
+    s = dataset_samples(60, preset_names(), 3)
+    assert len({x["material"] for x in s}) >= 8
+    assert {x["object"] for x in s} == {"letters", "bars", "rectangle", "sphere"}
+    ex = np.array([x["exposure_s"] for x in s])
+    assert ex.min() >= 5e-3 and ex.max() <= 0.3 and ex.max() / ex.min() > 10
+    g = StudyGrid()
+    for x in s[:12]:
+        sc = Scene.from_dict(scene_dict(x, g))  # every sample is a valid scene
+        assert sc.slab is not None and sc.detector.exposure_s == x["exposure_s"]
+        assert sc.bins * sc.bin_width_s * 3e8 >= window_m(x, g)
+    bars = next(x for x in s if x["object"] == "bars")
+    assert len(scene_dict(bars, g)["objects"]) >= 2
+    no_slab = scene_dict({**s[0], "slab_thickness_m": 0.0}, g)
+    assert "slab" not in no_slab
+    assert set(SEED_FIGURE9) == set(preset_names())
+
+
+TINY = StudyOptions(
+    n_dataset=24, epochs=3, seeds=2, sweep_seeds=1,
+    materials=["standard white plate", "quartz glass", "painted steel plate"],
+    sweep_materials=("quartz glass", "standard white plate"),
+    sweeps={"scan_width_m": (0.3, 0.5), "depth_m": (0.4, 0.6),
+            "slab_thickness_m": (0.0, 0.0254)},
+    grid=replace(StudyGrid(), points=12, bin_width_s=64e-12, iterations=10,
+                 density_per_m2=2e4),
+    label="tiny")
 
 
 @pytest.mark.slow
 def test_tiny_study_serial_and_dask_agree(tmp_path):
     serial = run_study(tmp_path / "serial", TINY, workers=1)
     html = (tmp_path / "serial" / "report.html").read_text()
-    assert html.count("data:image/png;base64,") == 4 and "standard white plate" in html
+    assert html.count("data:image/png;base64,") == 6 and "standard white plate" in html
+    assert "dataset.overflow" in html and "max-width" in html
     res = json.loads((tmp_path / "serial" / "results.json").read_text())
     assert [m["name"] for m in res["materials"]] == TINY.materials
     for m in res["materials"]:
         for k in ("brdf_class", "clarity_score", "clarity_label", "cnn_label", "iou",
-                  "depth_error_m"):
+                  "iou_ci", "label", "seed_label", "depth_error_m"):
             assert k in m
-        assert m["clarity_label"] in (1, 2, 3) and m["cnn_label"] in (1, 2, 3)
-        assert 0 <= m["iou"] <= 1 and np.isfinite(m["depth_error_m"])
-    assert 0 <= res["cnn_validation_accuracy"] <= 1 and "timings_s" in res
-    assert sum(res["label_counts"].values()) == 24
+        assert m["label"] in (1, 2, 3) and m["cnn_label"] in (1, 2, 3)
+        assert 0 <= m["iou"] <= 1 and m["iou_ci"][0] <= m["iou"] <= m["iou_ci"][1]
+        assert m["seed_label"] == SEED_FIGURE9[m["name"]]
+    assert 0 <= res["cnn"]["val_accuracy"] <= 1 and 0 < res["cnn"]["majority_baseline"] <= 1
+    assert res["labels"]["metric"] == "nr_clarity" and "fft_clarity" in res["metrics"]
+    assert -1 <= res["labels"]["corr_with_iou"] <= 1
+    assert sum(res["label_counts"].values()) == 24 and 0 <= res["seed_figure9_agreement"] <= 3
+    assert {s["variable"] for s in res["sweeps"]} == {"scan_width_m", "depth_m",
+                                                       "slab_thickness_m"}
+    assert len(res["sweeps"]) == 3 * 2 * 2 and all(0 <= s["iou"] <= 1 for s in res["sweeps"])
+    assert len(res["cnn"]["train_loss"]) == 3 and len(res["cnn"]["val_loss"]) == 3
     # resume: a rerun reads every sample from the cache
-    cached = sorted((tmp_path / "serial" / "cache").glob("*.npz"))
-    assert len(cached) == 24 + 3
+    n = 3 * 2 + 12 + 24
+    assert len(sorted((tmp_path / "serial" / "cache").glob("*.npz"))) == n
+    fft = run_study(tmp_path / "serial", replace(TINY, labels="fft"), workers=1)
+    assert fft["labels"]["metric"] == "fft_clarity"
     pytest.importorskip("dask.distributed")
     dask = run_study(tmp_path / "dask", TINY, workers=2)
     for a, b in zip(serial["materials"], dask["materials"], strict=True):
-        assert a["clarity_score"] == b["clarity_score"] and a["iou"] == b["iou"]
-    assert serial["clarity_thresholds"] == dask["clarity_thresholds"]
+        assert a["iou"] == b["iou"] and a["label_metric_value"] == b["label_metric_value"]
+    assert serial["labels"]["thresholds"] == dask["labels"]["thresholds"]
+    report = tmp_path / "serial" / "report.html"
+    if shutil.which("chromium"):
+        tool = Path(__file__).resolve().parents[1] / "tools" / "check_report.py"
+        r = subprocess.run([sys.executable, str(tool), str(report), "-o",
+                            str(tmp_path / "r.png")], capture_output=True, text=True,
+                           timeout=300)
+        assert r.returncode == 0, r.stdout + r.stderr

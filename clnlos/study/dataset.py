@@ -1,87 +1,165 @@
 """Study samples: simulate a hidden object through the slab, reconstruct it, score it.
 
-A sample is a JSON-able dict (material, object, pose, depth, exposure, seed and the grid);
-its result is cached on disk as ``<cache>/<sha1 of the sample>.npz`` (written atomically), so
-reruns and interrupted runs resume. Samples run serially or through Dask (local processes,
-or an existing cluster): each worker process builds its own OpenCL context.
+A sample is a JSON-able dict (material, object and its size, pose, depth, exposure, seed, and
+optional overrides of the scan width and slab thickness for the sweeps); with the grid it
+defines one scene (:func:`scene_dict`). Its result is cached on disk as
+``<cache>/<sha1 of sample, grid and code version>.npz`` (written atomically), so reruns and
+interrupted runs resume and a changed clnlos never reuses an old result. Samples run serially
+or through Dask (local processes with pinned threads, or an existing cluster): each worker
+process builds its own OpenCL context.
+
+Ground truth per sample: the scan cells at least half covered by surfaces facing the scan
+plane (:func:`clnlos.metrics.truth_mask`), the mean depth of the surface elements, and the
+covered fraction per cell (for PSNR).
 """
 
 from __future__ import annotations
 
 import hashlib
 import json
+import math
 import os
 from dataclasses import asdict, dataclass
 from pathlib import Path
 
 import numpy as np
 
+from .. import C0
 from ..config import ReconstructionConfig
 from ..metrics import coverage_image, iou, otsu_threshold, peak_depth_m
-from .clarity import clarity_score
+from ..slab import CDT_SLAB
+from .quality import quality_metrics
 
 
 @dataclass(frozen=True)
 class StudyGrid:
-    """Scan, time and reconstruction grid shared by every sample (seed Table 1 defaults)."""
+    """Scan, time, photon budget and reconstruction shared by every sample (seed Table 1:
+    0.3 m x 0.3 m scan of 32 x 32 points, 2.54 cm slab, 35 ps pulse, 10 MHz, 0.4 W at 532 nm)."""
 
     scan_width_m: float = 0.3  # 0.09 m^2
     points: int = 32
-    bin_width_s: float = 16e-12
-    bins: int = 512
-    recon_bins: int = 128
-    max_path_m: float = 2.0
-    density_per_m2: float = 1e5
-    snr: float = 1e4
-    inversion_snr: float = 1e3
+    bin_width_s: float = 32e-12
+    max_path_m: float = 1.6  # reconstruction window (round-trip path), m
+    density_per_m2: float = 4e4
+    method: str = "iterative"
+    iterations: int = 100
     power_w: float = 0.4
     rep_rate_hz: float = 10e6
     pulse_width_s: float = 35e-12
     wavelength_m: float = 532e-9
     etendue_m2_sr: float = 1e-9
+    efficiency: float = 0.3
+    dark_count_rate_hz: float = 1000.0
 
 
-SLAB = {"thickness_m": 0.0254, "mu_a": 0.53, "mu_s_prime": 262.0, "n": 1.12}
+def code_version() -> str:
+    """clnlos version and a hash of what shapes a sample's result (every kernel source, the
+    package's stage modules, the BRDF package and presets, this module and the quality
+    metrics): part of each cache key, so results computed by other code are never reused."""
+    from importlib import resources
+
+    from .. import __version__
+
+    h = hashlib.sha256(__version__.encode())
+    files = []
+    for pkg, suffixes in (("clnlos.kernels", (".cl", ".h")), ("clnlos", (".py",)),
+                          ("clnlos.brdf", (".py", ".json"))):
+        files += [e for e in resources.files(pkg).iterdir()
+                  if e.is_file() and e.name.endswith(suffixes)]
+    study = resources.files("clnlos.study")
+    files += [study.joinpath("dataset.py"), study.joinpath("quality.py"),
+              study.joinpath("clarity.py")]
+    for entry in sorted(files, key=lambda e: str(e)):
+        h.update(entry.name.encode() + entry.read_bytes())
+    return f"{__version__}+{h.hexdigest()[:16]}"
 
 
-# Part of every cache key: bump it when a change to the simulation or the reconstruction
-# changes results (2: the forward model computes I past the scan border, as far as the slab's
-# blur reaches), so that a cache folder left by an older version is not reused.
-CACHE_REVISION = 2
+def sample_key(sample: dict, grid: StudyGrid, version: str) -> str:
+    blob = json.dumps({"sample": sample, "grid": asdict(grid), "code": version},
+                      sort_keys=True)
+    return hashlib.sha1(blob.encode()).hexdigest()
 
 
-def sample_key(sample: dict) -> str:
-    return hashlib.sha1(json.dumps(sample, sort_keys=True).encode()).hexdigest()
+# glyphs of 4-5 cm bars: (centre x, centre y, width, height) in units of the glyph size L and
+# bar width b, built into rectangles
+def _bars(glyph: str, L: float, b: float) -> list[tuple[float, float, float, float]]:
+    h = b / 2
+    return {
+        "T": [(0, L / 2 - h, L, b), (0, -b / 2, b, L - b)],
+        "L": [(-L / 2 + h, 0, b, L), (b / 2, -L / 2 + h, L - b, b)],
+        "H": [(-L / 2 + h, 0, b, L), (L / 2 - h, 0, b, L), (0, 0, L - 2 * b, b)],
+        "U": [(-L / 2 + h, 0, b, L), (L / 2 - h, 0, b, L), (0, -L / 2 + h, L - 2 * b, b)],
+        "plus": [(0, 0, L, b), (0, 0, b, L)],
+    }[glyph]
 
 
-def scene_dict(sample: dict, grid: StudyGrid) -> dict:
-    obj = {"shape": sample["object"], "translate_m": [0.0, 0.0, sample["depth_m"]],
-           "rotate_deg": sample.get("rotate_deg", [0.0, 0.0, 0.0]),
-           "material": sample["material"], "albedo": 1.0}
-    if sample["object"] == "letters":
-        obj.update(text=sample.get("text", "UT"), height_m=sample.get("height_m", 0.2),
+BAR_GLYPHS = ("T", "L", "H", "U", "plus")
+
+
+def _rotate_z(x: float, y: float, deg: float) -> tuple[float, float]:
+    c, s = math.cos(math.radians(deg)), math.sin(math.radians(deg))
+    return c * x - s * y, s * x + c * y
+
+
+def scene_objects(sample: dict) -> list[dict]:
+    """The [[objects]] of a sample (several rectangles for a bar glyph)."""
+    ox, oy = sample.get("offset_m", [0.0, 0.0])
+    z = sample["depth_m"]
+    rot = [float(v) for v in sample.get("rotate_deg", [0.0, 0.0, 0.0])]
+    base = {"rotate_deg": rot, "material": sample["material"], "albedo": 1.0}
+    kind = sample["object"]
+    if kind == "bars":
+        out = []
+        for cx, cy, w, h in _bars(sample["glyph"], sample["size_m"], sample["bar_m"]):
+            px, py = _rotate_z(cx, cy, rot[2])
+            out.append({**base, "shape": "rectangle", "size_m": [w, h],
+                        "translate_m": [ox + px, oy + py, z]})
+        return out
+    obj = {**base, "shape": kind, "translate_m": [ox, oy, z]}
+    if kind == "letters":
+        obj.update(text=sample.get("text", "UT"), height_m=sample.get("height_m", 0.15),
                    stroke_m=sample.get("stroke_m", 0.04))
-    elif sample["object"] == "rectangle":
+    elif kind == "rectangle":
         obj.update(size_m=sample.get("size_m", [0.15, 0.1]))
     else:
         obj.update(radius_m=sample.get("radius_m", 0.08))
-    return {"seed": int(sample["seed"]),
-            "scan": {"width_m": grid.scan_width_m, "points": grid.points},
-            "time": {"bin_width_s": grid.bin_width_s, "bins": grid.bins, "start_s": 0.0},
-            "objects": [obj], "slab": dict(SLAB),
-            "laser": {"pulse_width_s": grid.pulse_width_s},
-            "detector": {"power_w": grid.power_w, "rep_rate_hz": grid.rep_rate_hz,
-                         "exposure_s": sample["exposure_s"], "efficiency": 0.3,
-                         "wavelength_m": grid.wavelength_m,
-                         "etendue_m2_sr": grid.etendue_m2_sr, "dark_count_rate_hz": 1000.0},
-            "sampling": {"density_per_m2": grid.density_per_m2, "splat_order": 1}}
+    return [obj]
 
 
-def render_sample(sample: dict, grid: StudyGrid, keep_volume: bool = False,
-                  device: str | None = None) -> dict:
-    """Simulate, reconstruct (LCT) and score one sample; returns arrays and numbers."""
+WINDOW_STEP_M = 0.4
+
+
+def window_m(sample: dict, grid: StudyGrid) -> float:
+    """Reconstruction window (round-trip path, m): the grid's, or for deep targets
+    2 (depth + 0.3 m) rounded up to WINDOW_STEP_M (few distinct windows: each is a plan)."""
+    need = 2.0 * (sample["depth_m"] + 0.3)
+    return max(grid.max_path_m, math.ceil(need / WINDOW_STEP_M - 1e-9) * WINDOW_STEP_M)
+
+
+def scene_dict(sample: dict, grid: StudyGrid) -> dict:
+    width = sample.get("scan_width_m", grid.scan_width_m)
+    thickness = sample.get("slab_thickness_m", CDT_SLAB.thickness_m)
+    # the capture runs 30% past the reconstruction window: the deconvolution's guard bins
+    bins = int(math.ceil(1.3 * window_m(sample, grid) / (C0 * grid.bin_width_s)))
+    d = {"seed": int(sample["seed"]),
+         "scan": {"width_m": width, "points": grid.points},
+         "time": {"bin_width_s": grid.bin_width_s, "bins": bins, "start_s": 0.0},
+         "objects": scene_objects(sample),
+         "laser": {"pulse_width_s": grid.pulse_width_s},
+         "detector": {"power_w": grid.power_w, "rep_rate_hz": grid.rep_rate_hz,
+                      "exposure_s": sample["exposure_s"], "efficiency": grid.efficiency,
+                      "wavelength_m": grid.wavelength_m, "etendue_m2_sr": grid.etendue_m2_sr,
+                      "dark_count_rate_hz": grid.dark_count_rate_hz},
+         "sampling": {"density_per_m2": grid.density_per_m2, "splat_order": 1}}
+    if thickness > 0:
+        d["slab"] = {"thickness_m": thickness, "mu_a": CDT_SLAB.mu_a,
+                     "mu_s_prime": CDT_SLAB.mu_s_prime, "n": CDT_SLAB.n}
+    return d
+
+
+def render_sample(sample: dict, grid: StudyGrid, device: str | None = None) -> dict:
+    """Simulate, reconstruct and score one sample; returns arrays and numbers."""
     from ..forward import ForwardModel
-    from ..io import Capture
     from ..reconstruct import reconstruct
     from ..runtime import get_queue
     from ..scene import Scene
@@ -89,42 +167,36 @@ def render_sample(sample: dict, grid: StudyGrid, keep_volume: bool = False,
     queue = get_queue(device)
     scene = Scene.from_dict(scene_dict(sample, grid))
     fm = ForwardModel(scene, queue=queue)
-    tau = fm.run()
-    cfg = ReconstructionConfig(max_path_m=grid.max_path_m, bins=grid.recon_bins,
-                               slab=scene.slab, snr=grid.snr,
-                               inversion_snr=grid.inversion_snr).validate()
-    rec = reconstruct(Capture(tau, scene.bin_width_s, 0.0, scene.width_m), cfg, device=queue)
+    cap = fm.capture()
+    cfg = ReconstructionConfig(max_path_m=window_m(sample, grid), slab=scene.slab,
+                               method=grid.method, iterations=grid.iterations).validate()
+    rec = reconstruct(cap, cfg, device=queue)
     vol = rec.volume
     mip = vol.max(axis=0)
     mip = mip / mip.max() if mip.max() > 0 else mip
-    truth = coverage_image(fm.samples.elements, scene.scan_centres())
-    mask = truth >= 0.5
+    cover = np.clip(coverage_image(fm.samples.elements, scene.scan_centres()), 0.0, 1.0)
+    mask = cover >= 0.5
     pred = mip > otsu_threshold(mip)
-    depth = peak_depth_m(vol, rec.extents["voxel_depth_m"])
+    dz = rec.extents["voxel_depth_m"]
+    depth = peak_depth_m(vol, dz)
     true_depth = float(np.mean(fm.samples.elements.pos[:, 2]))
-    mse = float(np.mean((mip - np.clip(truth, 0, 1)) ** 2))
-    out = {"mip": mip.astype(np.float32), "truth": truth.astype(np.float32),
-           "clarity": clarity_score(mip), "iou": iou(pred, mask),
-           "depth_m": float(depth), "true_depth_m": true_depth,
-           "depth_error_m": abs(float(depth) - true_depth),
-           "psnr_db": float(10 * np.log10(1.0 / max(mse, 1e-12))),
-           "counts": float(tau.sum())}
-    if keep_volume:
-        ny = tau.shape[1]
-        out.update(volume=vol.astype(np.float32), xt=tau[:, ny // 2, :].astype(np.float32),
-                   yt=tau[:, :, ny // 2].astype(np.float32))
-    return out
+    mse = float(np.mean((mip - cover) ** 2))
+    depth_map = ((np.argmax(vol, axis=0) + 0.5) * dz).astype(np.float32)
+    return {"mip": mip.astype(np.float32), "truth": cover.astype(np.float32),
+            "depth_map": depth_map, "iou": iou(pred, mask), "depth_m": float(depth),
+            "true_depth_m": true_depth, "depth_error_m": abs(float(depth) - true_depth),
+            "psnr_db": float(10 * np.log10(1.0 / max(mse, 1e-12))),
+            "counts": float(cap.transient.sum()),
+            **{f"q_{k}": v for k, v in quality_metrics(vol, dz).items()}}
 
 
-def _cached(sample: dict, grid: StudyGrid, cache: Path, keep_volume: bool,
+def _cached(sample: dict, grid: StudyGrid, cache: Path, version: str,
             device: str | None) -> dict:
-    key = sample_key({**sample, "grid": asdict(grid), "vol": keep_volume,
-                      "revision": CACHE_REVISION})
-    path = cache / f"{key}.npz"
+    path = cache / f"{sample_key(sample, grid, version)}.npz"
     if path.is_file():
         with np.load(path, allow_pickle=False) as z:
             return {k: (z[k].item() if z[k].ndim == 0 else z[k]) for k in z.files}
-    res = render_sample(sample, grid, keep_volume, device)
+    res = render_sample(sample, grid, device)
     from ..io import atomic_path
 
     with atomic_path(path) as tmp:
@@ -133,27 +205,53 @@ def _cached(sample: dict, grid: StudyGrid, cache: Path, keep_volume: bool,
     return res
 
 
-def run_samples(samples: list[dict], grid: StudyGrid, cache: Path, *, keep_volume=False,
-                workers: int = 1, scheduler: str | None = None, device: str | None = None,
+def _pin_threads(threads: int) -> dict:
+    """Environment for worker processes: ``threads`` host threads each (PoCL and the FFT)."""
+    t = str(threads)
+    return {"POCL_MAX_PTHREAD_COUNT": t, "CLNLOS_THREADS": t, "OMP_NUM_THREADS": t,
+            "MKL_NUM_THREADS": t, "OPENBLAS_NUM_THREADS": t}
+
+
+def run_samples(samples: list[dict], grid: StudyGrid, cache: Path, *, workers: int = 1,
+                scheduler: str | None = None, device: str | None = None,
                 desc: str = "samples") -> list[dict]:
-    """Render every sample (cached), serially, on local Dask processes, or on a cluster."""
+    """Render every sample (cached), serially, on local Dask processes (workers x threads =
+    cores), or on an existing cluster."""
     from tqdm import tqdm
 
     cache.mkdir(parents=True, exist_ok=True)
+    version = code_version()
     if scheduler is None and workers <= 1:
-        return [_cached(s, grid, cache, keep_volume, device)
+        return [_cached(s, grid, cache, version, device)
                 for s in tqdm(samples, desc=desc, unit="sample")]
     from dask.distributed import Client, LocalCluster, as_completed
 
     cluster = None
     if scheduler is None:
-        cluster = LocalCluster(n_workers=workers, threads_per_worker=1, processes=True,
-                               dashboard_address=None)
+        threads = max(1, (os.cpu_count() or 1) // workers)
+        saved = {k: os.environ.get(k) for k in _pin_threads(threads)}
+        os.environ.update(_pin_threads(threads))  # inherited by the spawned workers
+        try:
+            import dask
+
+            # Dask's nanny sets MALLOC_TRIM_THRESHOLD_ in workers, which switches off glibc's
+            # dynamic mmap threshold: every large FFT buffer is then mmap-ed and page-faulted
+            # anew (a sample took 2.6x longer, most of it in the kernel). The workers get
+            # the thread pinning above instead, and glibc's defaults.
+            with dask.config.set({"distributed.nanny.pre-spawn-environ": {}}):
+                cluster = LocalCluster(n_workers=workers, threads_per_worker=1,
+                                       processes=True, dashboard_address=None)
+        finally:
+            for k, v in saved.items():
+                if v is None:
+                    os.environ.pop(k, None)
+                else:
+                    os.environ[k] = v
         client = Client(cluster)
     else:
         client = Client(scheduler)
     try:
-        futs = [client.submit(_cached, s, grid, cache, keep_volume, device, pure=False)
+        futs = [client.submit(_cached, s, grid, cache, version, device, pure=False)
                 for s in samples]
         index = {f.key: i for i, f in enumerate(futs)}
         out: list = [None] * len(samples)
@@ -166,21 +264,40 @@ def run_samples(samples: list[dict], grid: StudyGrid, cache: Path, *, keep_volum
             cluster.close()
 
 
+TEXTS = ("UT", "S", "T", "L", "H", "E", "F", "X", "O", "Z")
+
+
 def dataset_samples(n: int, materials: list[str], seed: int) -> list[dict]:
-    """n samples varying material, object, pose, depth and noise (exposure)."""
+    """n samples spread so that quality varies for physical reasons: every material; letters,
+    bar glyphs (4-5 cm bars), plates and spheres of several sizes; 0.35-0.75 m deep, up to
+    5 cm off the axis, tilted up to 20 degrees about x and y and turned about z; exposures
+    log-uniform over 5 ms - 0.3 s (photon counts over two decades)."""
     rng = np.random.default_rng(seed)
-    texts = ["UT", "S", "T", "L", "H", "E", "F", "X"]
+    kinds = ("letters", "bars", "rectangle", "sphere")
     out = []
     for k in range(n):
-        obj = ["letters", "letters", "rectangle", "sphere"][int(rng.integers(4))]
-        s = {"material": materials[int(rng.integers(len(materials)))], "object": obj,
-             "depth_m": round(float(rng.uniform(0.35, 0.7)), 4),
-             "rotate_deg": [round(float(rng.uniform(-25, 25)), 2),
-                            round(float(rng.uniform(-25, 25)), 2), 0.0],
-             "exposure_s": round(float(10 ** rng.uniform(-3, -0.5)), 6),
+        kind = kinds[int(rng.integers(len(kinds)))]
+        s = {"material": materials[int(rng.integers(len(materials)))], "object": kind,
+             "depth_m": round(float(rng.uniform(0.35, 0.75)), 3),
+             "offset_m": [round(float(v), 3) for v in rng.uniform(-0.05, 0.05, 2)],
+             "rotate_deg": [round(float(rng.uniform(-20, 20)), 1),
+                            round(float(rng.uniform(-20, 20)), 1),
+                            round(float(rng.uniform(-45, 45)), 1)],
+             "exposure_s": round(float(10 ** rng.uniform(math.log10(5e-3), math.log10(0.3))),
+                                 5),
              "seed": int(seed * 100_003 + k)}
-        if obj == "letters":
-            s["text"] = texts[int(rng.integers(len(texts)))]
+        if kind == "letters":
+            h = round(float(rng.uniform(0.12, 0.2)), 3)
+            s.update(text=TEXTS[int(rng.integers(len(TEXTS)))], height_m=h,
+                     stroke_m=round(float(rng.uniform(0.03, 0.05)), 3))
+        elif kind == "bars":
+            s.update(glyph=BAR_GLYPHS[int(rng.integers(len(BAR_GLYPHS)))],
+                     size_m=round(float(rng.uniform(0.14, 0.2)), 3),
+                     bar_m=round(float(rng.uniform(0.04, 0.05)), 3))
+        elif kind == "rectangle":
+            s["size_m"] = [round(float(v), 3) for v in rng.uniform(0.05, 0.2, 2)]
+        else:
+            s["radius_m"] = round(float(rng.uniform(0.04, 0.1)), 3)
         out.append(s)
     return out
 
