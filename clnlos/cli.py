@@ -48,10 +48,7 @@ def cmd_devices(args) -> int:
     from .runtime import list_devices, resolve_device_spec, select_device
 
     devs = list_devices()
-    try:
-        default = select_device(args.device)
-    except ClnlosError:
-        default = None
+    default = select_device(args.device)  # a spec that matches nothing: one-line error
     spec = resolve_device_spec(args.device)
     print(f"{'':2}{'P:D':5} {'platform':32} {'device':40} {'version':22} {'CUs':>4} "
           f"{'mem GiB':>8} {'fp64':>5} {'img':>4}")
@@ -67,8 +64,12 @@ def cmd_devices(args) -> int:
 
 
 def build_parser() -> argparse.ArgumentParser:
-    p = _Parser(prog="clnlos", description=__doc__.splitlines()[0])
-    sub = p.add_subparsers(dest="command", required=True, parser_class=_Parser)
+    from . import __version__
+
+    p = _Parser(prog="clnlos", description="GPU-portable OpenCL kernels for non-line-of-sight "
+                "imaging through scattering slabs: simulate, reconstruct, study materials.")
+    p.add_argument("--version", action="version", version=f"clnlos {__version__}")
+    sub = p.add_subparsers(dest="command", parser_class=_Parser, metavar="COMMAND")
 
     d = sub.add_parser("devices", help="list OpenCL platforms and devices")
     _add_device(d)
@@ -84,6 +85,9 @@ def main(argv: list[str] | None = None) -> int:
     parser = build_parser()
     try:
         args = parser.parse_args(argv)
+        if getattr(args, "func", None) is None:  # bare `clnlos` (or a bare group)
+            parser.print_help()
+            return 0
         return int(args.func(args) or 0)
     except SystemExit as exc:
         return int(exc.code) if isinstance(exc.code, int) else EXIT_USAGE
@@ -93,6 +97,9 @@ def main(argv: list[str] | None = None) -> int:
         return _fail("interrupted")
     except MemoryError:
         return _fail("out of host memory: use a smaller grid")
+    except OSError as exc:  # files a user named: permissions, full disk, ...
+        where = f"{exc.filename}: " if getattr(exc, "filename", None) else ""
+        return _fail(f"{where}{exc.strerror or exc}")
     except Exception as exc:  # OpenCL runtime errors a user can cause (device memory, ...)
         import pyopencl as cl
 

@@ -1,17 +1,36 @@
-"""Sub-commands of the clnlos CLI beyond ``devices`` (each one thin over a pipeline)."""
+"""Sub-commands of the clnlos CLI beyond ``devices``: each one parses, checks its inputs, its
+output paths and its optional dependencies before any work, calls one library function, and
+prints what it wrote."""
 
 from __future__ import annotations
 
-import json
+import argparse
 import sys
-import tomllib
 from pathlib import Path
 
 import numpy as np
 
-from .errors import ParameterError
+from .outputs import HDF5_SUFFIXES, check_outputs
 
 DTYPES = {"float32": np.float32, "float64": np.float64}
+
+# optional dependencies: import name -> (extra, what needs it)
+EXTRAS = {"torch": ("ml", "the torch CPU wheel: pip install torch==2.13.0"),
+          "dask": ("study", "dask[distributed]"),
+          "distributed": ("study", "dask[distributed]")}
+
+
+def require(module: str, what: str) -> None:
+    """One line naming the extra when an optional dependency is missing."""
+    import importlib.util
+
+    from .errors import MissingDependencyError
+
+    if importlib.util.find_spec(module) is None:
+        extra, hint = EXTRAS[module]
+        raise MissingDependencyError(
+            f"{what} needs {module!r}, which is not installed: pip install 'clnlos[{extra}]' "
+            f"({hint})")
 
 
 def _add_precision(p) -> None:
@@ -19,6 +38,7 @@ def _add_precision(p) -> None:
                    help="kernel precision (default float32)")
 
 
+# ------------------------------------------------------------------ reconstruct
 # CLI flag -> ReconstructionConfig field (error messages name the flag the user typed)
 RECON_FLAGS = {"scan_width": ("scan_width_m", "--scan-width"),
                "bin_width": ("bin_width_s", "--bin-width"),
@@ -40,8 +60,6 @@ def number_or_auto(text: str):
     try:
         return float(text)
     except ValueError:
-        import argparse
-
         raise argparse.ArgumentTypeError(f"expected a number or 'auto', got {text!r}") from None
 
 
@@ -76,42 +94,33 @@ def config_from_args(args, capture=None):
 
 
 def cmd_reconstruct(args) -> int:
-    from .io import read_capture, save_figure, write_h5
-    from .reconstruct import reconstruct, volume_figure
+    from .io import read_capture
+    from .reconstruct import reconstruct_to_files, resolve_geometry
     from .runtime import get_queue
 
-    from .reconstruct import resolve_geometry
-
-    cfg = config_from_args(args)  # parameter errors before reading the capture
+    out = Path(args.output)
+    cfg = config_from_args(args)  # parameter errors before reading anything
+    check_outputs({"-o": out, "figure": out.with_suffix(".png")},
+                  inputs=[args.capture, args.config], suffixes={"-o": HDF5_SUFFIXES})
+    queue = get_queue(args.device)
     capture = read_capture(args.capture)
     resolve_geometry(capture, cfg)  # missing geometry before the slab note
     cfg = config_from_args(args, capture)
-    queue = get_queue(args.device)
-    rec = reconstruct(capture, cfg, dtype=DTYPES[args.dtype], device=queue)
-    out = Path(args.output)
-    attrs = {**rec.extents, "bin_width_s": rec.bin_width_s, "scan_width_m": rec.scan_width_m,
-             "stages": json.dumps(rec.stages), "timings_s": json.dumps(rec.timings_s),
-             "params": json.dumps(rec.params), "capture": str(args.capture),
-             "noise": json.dumps(rec.noise), "solver": json.dumps(rec.solver),
-             "dtype": args.dtype, "device": queue.device.name.strip(),
-             "axes": "volume[z, y, x]; +x with column index, +y with row index",
-             "format": "clnlos-volume-1"}
-    write_h5(out, {"volume": rec.volume.astype(np.float32)}, attrs)
-    png = out.with_suffix(".png")
-    save_figure(volume_figure(rec, title=f"{Path(args.capture).name} ({cfg.method})"), png)
+    rec = reconstruct_to_files(capture, out, cfg, dtype=DTYPES[args.dtype], queue=queue)
     total = sum(rec.timings_s.values())
     print(f"wrote {out} volume {rec.volume.shape} [z, y, x], depth 0-"
           f"{rec.extents['depth_max_m']:.3f} m; stages {', '.join(rec.stages)}; "
           f"{total:.3f} s on {queue.device.name.strip()}")
-    print(f"wrote {png}")
+    print(f"wrote {out.with_suffix('.png')}")
     return 0
 
 
-def register(sub, add_device) -> None:
-    """Add the pipeline sub-commands to the parser ``sub``."""
+def register_reconstruct(sub, add_device) -> None:
     r = sub.add_parser("reconstruct", help="reconstruct a hidden volume from a capture")
-    r.add_argument("capture", help="clnlos HDF5 capture or CDT .mat file")
-    r.add_argument("-o", "--output", required=True, help="output HDF5 (a PNG is written beside)")
+    r.add_argument("capture", help="capture: clnlos or y-tal HDF5, MATLAB .mat (CDT, LCT, "
+                                   "f-k layouts), NumPy .npy [t, y, x]")
+    r.add_argument("-o", "--output", required=True,
+                   help="output volume (.h5; a PNG is written beside)")
     r.add_argument("--config", help="reconstruction parameters (TOML)")
     r.add_argument("--method", choices=["lct", "fk", "iterative"], default=None)
     r.add_argument("--scan-width", type=float, help="side of the scanned square (m)")
@@ -137,141 +146,87 @@ def register(sub, add_device) -> None:
     r.add_argument("--mu-a", type=float, help="slab absorption coefficient (1/m)")
     r.add_argument("--mu-s-prime", type=float, help="slab reduced scattering coefficient (1/m)")
     r.add_argument("--n", type=float, help="slab refractive index (relative)")
-    r.add_argument("--no-slab", action="store_true", help="plain NLOS: skip the deconvolution")
+    r.add_argument("--no-slab", action="store_true",
+                   help="skip the slab deconvolution (also of a slab the capture recorded)")
     _add_precision(r)
     add_device(r)
     r.set_defaults(func=cmd_reconstruct)
-    register_forward(sub, add_device)
-    register_brdf(sub, add_device)
-    register_study(sub, add_device)
-    register_bench(sub, add_device)
 
 
-def transient_figure(tau: np.ndarray, scene, title: str = ""):
-    """x-t and y-t slices through the centre and the time-integrated image."""
-    import matplotlib
+# ------------------------------------------------------------------ plot
+def cmd_plot(args) -> int:
+    from .figures import volume_figure
+    from .io import read_volume, save_figure
 
-    matplotlib.use("Agg")
-    import matplotlib.pyplot as plt
+    out = Path(args.output) if args.output else Path(args.volume).with_suffix(".png")
+    check_outputs({"-o": out}, inputs=[args.volume], suffixes={"-o": (".png",)})
+    if args.gamma is not None and not (np.isfinite(args.gamma) and 0 < args.gamma <= 10):
+        from .errors import ParameterError
 
-    nt, ny, nx = tau.shape
-    w = scene.width_m
-    t0, t1 = scene.start_s * 1e9, (scene.start_s + nt * scene.bin_width_s) * 1e9
-    fig, ax = plt.subplots(1, 3, figsize=(12, 4))
-    ax[0].imshow(tau[:, ny // 2, :], origin="lower", aspect="auto", cmap="magma",
-                 extent=(-w / 2, w / 2, t0, t1))
-    ax[0].set(xlabel="x (m)", ylabel="t (ns)", title="x-t slice (y = centre)")
-    ax[1].imshow(tau[:, :, nx // 2], origin="lower", aspect="auto", cmap="magma",
-                 extent=(-w / 2, w / 2, t0, t1))
-    ax[1].set(xlabel="y (m)", ylabel="t (ns)", title="y-t slice (x = centre)")
-    ax[2].imshow(tau.sum(axis=0), origin="lower", cmap="gray",
-                 extent=(-w / 2, w / 2, -w / 2, w / 2))
-    ax[2].set(xlabel="x (m)", ylabel="y (m)", title="time-integrated")
-    if title:
-        fig.suptitle(title)
-    fig.tight_layout()
-    return fig
+        raise ParameterError("--gamma", args.gamma, "a number > 0 and <= 10")
+    volume, extents, attrs = read_volume(args.volume)
+    save_figure(volume_figure(volume, extents, f"{Path(args.volume).name}",
+                              gamma=args.gamma, log=args.log), out)
+    print(f"wrote {out}")
+    return 0
 
 
-def simulate_to_file(scene, out: Path, *, dtype, queue) -> tuple[np.ndarray, list[str], float]:
-    import time
-
-    from .forward import ForwardModel
-    from .io import save_figure, write_capture
-
-    t0 = time.perf_counter()
-    fm = ForwardModel(scene, dtype=dtype, queue=queue)
-    tau = fm.run()
-    seconds = time.perf_counter() - t0
-    write_capture(out, tau, bin_width_s=scene.bin_width_s, start_s=scene.start_s,
-                  scan_width_m=scene.width_m,
-                  attrs={**fm.setup_attrs(), "seconds": seconds,
-                         "units": "photon counts" if scene.detector else
-                         "1/(m^2 sr) per bin (light-cone normalisation)"})
-    save_figure(transient_figure(tau, scene, f"{out.name}: {', '.join(fm.stages)}"),
-                out.with_suffix(".png"))
-    return tau, fm.stages, seconds
+def register_plot(sub) -> None:
+    p = sub.add_parser("plot", help="re-render the figure of a reconstructed volume")
+    p.add_argument("volume", help="volume HDF5 written by clnlos reconstruct")
+    p.add_argument("-o", "--output", help="PNG (default: beside the volume)")
+    g = p.add_mutually_exclusive_group()
+    g.add_argument("--gamma", type=float, help="display value^gamma (e.g. 0.5)")
+    g.add_argument("--log", action="store_true", help="display log10(value / max)")
+    p.set_defaults(func=cmd_plot)
 
 
+# ------------------------------------------------------------------ simulate, demo
 def cmd_simulate(args) -> int:
     from .runtime import get_queue
     from .scene import Scene
+    from .simulate import figure_path, simulate_to_file
 
-    scene = Scene.from_toml(args.scene)
-    queue = get_queue(args.device)
     out = Path(args.output)
-    tau, stages, secs = simulate_to_file(scene, out, dtype=DTYPES[args.dtype], queue=queue)
-    print(f"wrote {out} transient {tau.shape} [t, y, x]; stages {', '.join(stages)}; "
-          f"{secs:.2f} s on {queue.device.name.strip()}")
-    print(f"wrote {out.with_suffix('.png')}")
+    scene = Scene.from_toml(args.scene)
+    check_outputs({"-o": out, "figure": figure_path(out)}, inputs=[args.scene],
+                  suffixes={"-o": HDF5_SUFFIXES})
+    queue = get_queue(args.device)
+    sim = simulate_to_file(scene, out, fmt=args.format, dtype=DTYPES[args.dtype], queue=queue)
+    print(f"wrote {out} ({args.format}) transient {sim.transient.shape} [t, y, x]; stages "
+          f"{', '.join(sim.stages)}; {sim.seconds:.2f} s on {queue.device.name.strip()}")
+    print(f"wrote {sim.figure}")
     return 0
 
 
 def cmd_demo(args) -> int:
-    """Simulate a scene (default: the seed's Table 1 round trip), reconstruct it with LCT and
-    f-k, and score it against the true letters."""
-    import importlib.resources
-
-    from .config import ReconstructionConfig, load_toml
-    from .io import atomic_path, read_capture, save_figure, write_h5
-    from .metrics import letters_truth_mask, mip_iou, peak_depth_m
-    from .reconstruct import reconstruct, volume_figure
+    from .demo import DEMO_FILES, demo_inputs, run_demo
     from .runtime import get_queue
-    from .scene import Scene
 
-    queue = get_queue(args.device)
     out = Path(args.output)
-    data = importlib.resources.files("clnlos").joinpath("data")
-    if args.scene:
-        scene = Scene.from_toml(args.scene)
-    else:
-        text = data.joinpath("demo_scene.toml").read_text()
-        scene = Scene.from_dict(tomllib.loads(text), text=text)
-    cfg_dict = (load_toml(args.config) if args.config
-                else tomllib.loads(data.joinpath("demo_reconstruct.toml").read_text()))
-    base_cfg = ReconstructionConfig.from_dict(cfg_dict)
-    if base_cfg.slab is None:
-        base_cfg = base_cfg.replace(slab=scene.slab)
-    obj = scene.objects[0]
-    if obj.shape != "letters":
-        raise ParameterError("objects[0].shape", obj.shape, "'letters' (the demo scores letters)")
-    out.mkdir(parents=True, exist_ok=True)
-    cap_path = out / "capture.h5"
-    _, stages, t_sim = simulate_to_file(scene, cap_path, dtype=np.float32, queue=queue)
-    print(f"simulated {cap_path} ({', '.join(stages)}) in {t_sim:.2f} s")
-    summary = {"device": queue.device.name.strip(), "simulate_s": t_sim, "stages": stages,
-               "methods": {}}
-    truth = letters_truth_mask(obj.text, obj.height_m, obj.stroke_m, obj.translate_m[:2],
-                               scene.scan_centres())
-    for method in ("lct", "fk", "iterative"):
-        cfg = base_cfg.replace(method=method).validate()
-        rec = reconstruct(read_capture(cap_path), cfg, device=queue)
-        score, _ = mip_iou(rec.volume, truth)
-        depth = peak_depth_m(rec.volume, rec.extents["voxel_depth_m"])
-        vol_path = out / f"volume_{method}.h5"
-        write_h5(vol_path, {"volume": rec.volume}, {**rec.extents,
-                                                    "params": json.dumps(rec.params)})
-        save_figure(volume_figure(rec, f"demo: {obj.text} at {obj.translate_m[2]} m ({method}), "
-                                       f"IoU {score:.2f}"), vol_path.with_suffix(".png"))
-        summary["methods"][method] = {"iou": score, "depth_m": depth,
-                                      "reconstruct_s": sum(rec.timings_s.values())}
-        print(f"{method}: IoU of the thresholded MIP with the true letters {score:.3f}, "
-              f"depth {depth:.3f} m (true {obj.translate_m[2]} m), "
-              f"{sum(rec.timings_s.values()):.2f} s; wrote {vol_path} and .png")
-    with atomic_path(out / "summary.json") as tmp:
-        tmp.write_text(json.dumps(summary, indent=1))
-    print(f"wrote {out / 'summary.json'}")
+    if out.exists() and not out.is_dir():
+        from .errors import OutputFileError
+
+        raise OutputFileError(f"-o {out}: is a file; the demo writes a folder")
+    scene, cfg = demo_inputs(args.scene, args.config)
+    check_outputs({f"-o {name}": out / name for name in DEMO_FILES},
+                  inputs=[args.scene, args.config])
+    run_demo(out, scene, cfg, queue=get_queue(args.device))
     return 0
 
 
 def register_forward(sub, add_device) -> None:
     s = sub.add_parser("simulate", help="simulate a confocal capture from a scene TOML")
     s.add_argument("scene", help="scene description (TOML)")
-    s.add_argument("-o", "--output", required=True, help="output capture HDF5 (+ PNG beside)")
+    s.add_argument("-o", "--output", required=True,
+                   help="output capture (.h5; a PNG is written beside)")
+    s.add_argument("--format", choices=["clnlos", "tal"], default="clnlos",
+                   help="capture format: clnlos HDF5 (default) or y-tal HDF5")
     _add_precision(s)
     add_device(s)
     s.set_defaults(func=cmd_simulate)
-    d = sub.add_parser("demo", help="simulate 'UT' behind the slab, reconstruct, score (main job)")
+    d = sub.add_parser("demo", help="simulate 'UT' behind the slab, reconstruct with LCT, f-k "
+                                    "and the iterative method, score")
     d.add_argument("-o", "--output", default="out/demo", help="output folder")
     d.add_argument("--scene", help="scene TOML with letters as objects[0] (default: built-in)")
     d.add_argument("--config", help="reconstruction TOML (default: built-in; its slab "
@@ -280,38 +235,28 @@ def register_forward(sub, add_device) -> None:
     d.set_defaults(func=cmd_demo)
 
 
-def _read_samples(path):
-    from .brdf.data import read_gonio_csv, read_pbrt_brdf
-
-    p = str(path)
-    return read_pbrt_brdf(p) if p.endswith(".brdf") else read_gonio_csv(p)
+# ------------------------------------------------------------------ brdf
+BRDF_MODELS = ["mlp", "mlp-seed", "five-param", "torrance-sparrow", "phong", "minnaert",
+               "lambert"]
 
 
 def cmd_brdf_fit(args) -> int:
-    from .brdf.fit import fit_analytic, metrics_for
-    from .brdf.store import save_model
-    from .io import atomic_path
+    from .brdf.fit import fit_to_file
+    from .brdf.plot import read_samples
 
-    train = _read_samples(args.data)
-    test = _read_samples(args.test) if args.test else None
     if args.model in ("mlp", "mlp-seed"):
-        from .brdf.mlp import MLPConfig, train_mlp
-
-        model, log = train_mlp(train, MLPConfig(recipe="seed" if args.model == "mlp-seed"
-                                                else "improved", seed=args.seed))
-        metrics = {"model": args.model, "epochs_run": log["epochs_run"],
-                   **metrics_for(model, train, test)}
-    else:
-        r = fit_analytic(args.model, train, test, seed=args.seed)
-        model, metrics = r.model, r.metrics
-    prov = {"train": train.meta, "test": test.meta if test else None}
-    save_model(args.output, model, metrics, prov)
+        require("torch", f"brdf fit --model {args.model}")
+    outs = {"-o": Path(args.output)}
+    if args.metrics_json:
+        outs["--metrics-json"] = Path(args.metrics_json)
+    check_outputs(outs, inputs=[args.data, args.test], suffixes={"-o": HDF5_SUFFIXES})
+    train = read_samples(args.data)
+    test = read_samples(args.test) if args.test else None
+    metrics = fit_to_file(args.model, train, test, args.output, seed=args.seed,
+                          metrics_json=args.metrics_json)
     for k, v in metrics.items():
         if k != "loss_log":
             print(f"{k}: {v:.4g}" if isinstance(v, float) else f"{k}: {v}")
-    if args.metrics_json:
-        with atomic_path(args.metrics_json) as tmp:
-            tmp.write_text(json.dumps(metrics, indent=1))
     print(f"wrote {args.output}")
     return 0
 
@@ -320,6 +265,8 @@ def cmd_brdf_texture(args) -> int:
     from .brdf.store import load_model
     from .brdf.texture import tabulate, write_texture
 
+    check_outputs({"-o": Path(args.output)}, inputs=[args.model],
+                  suffixes={"-o": HDF5_SUFFIXES})
     model, meta = load_model(args.model)
     tex = tabulate(model, args.resolution, args.dphi or args.resolution, args.retro,
                    provenance={"model_file": str(args.model), **meta})
@@ -330,36 +277,16 @@ def cmd_brdf_texture(args) -> int:
 
 
 def cmd_brdf_plot(args) -> int:
-    import matplotlib
-
-    matplotlib.use("Agg")
-    import matplotlib.pyplot as plt
-
+    from .brdf.plot import brdf_figure, read_samples
     from .brdf.store import load_model
     from .io import save_figure
 
+    out = Path(args.output) if args.output else Path(args.model).with_suffix(".png")
+    check_outputs({"-o": out}, inputs=[args.model, args.data], suffixes={"-o": (".png",)})
     model, meta = load_model(args.model)
-    data = _read_samples(args.data) if args.data else None
-    fig, axes = plt.subplots(1, 3, figsize=(13, 4), sharey=True)
-    ts = np.radians(np.linspace(-89, 89, 357))
-    for ax, ti_deg in zip(axes, (30, 45, 60), strict=True):
-        ti = np.radians(ti_deg)
-        # in-plane: detector at phi = 180 (forward, positive angles) or 0 (backward)
-        f = model(np.full_like(ts, ti), np.zeros_like(ts), np.abs(ts),
-                  np.where(ts >= 0, np.pi, 0.0))
-        ax.semilogy(np.degrees(ts), np.maximum(f, 1e-6), label="model")
-        if data is not None:
-            sel = (np.abs(np.degrees(data.theta_i) - ti_deg) < 0.6) & (
-                np.abs(np.sin(data.phi_s - data.phi_i)) < 0.05)
-            sign = np.where(np.cos(data.phi_s[sel] - data.phi_i[sel]) < 0, 1, -1)
-            ax.semilogy(sign * np.degrees(data.theta_s[sel]), np.maximum(data.brdf[sel], 1e-6),
-                        ".", ms=3, label="data")
-        ax.set(title=f"theta_i = {ti_deg} deg (in plane)", xlabel="theta_s (deg, + = forward)")
-    axes[0].set_ylabel("BRDF (1/sr)")
-    axes[0].legend()
-    fig.suptitle(f"{args.model}: {meta['metrics'].get('model', '')}")
-    out = args.output or str(Path(args.model).with_suffix(".png"))
-    save_figure(fig, out)
+    data = read_samples(args.data) if args.data else None
+    save_figure(brdf_figure(model, f"{args.model}: {meta['metrics'].get('model', '')}", data),
+                out)
     print(f"wrote {out}")
     return 0
 
@@ -369,10 +296,8 @@ def register_brdf(sub, add_device) -> None:
     bs = b.add_subparsers(dest="brdf_command", required=True)
     f = bs.add_parser("fit", help="fit a model to measured data (CSV or pbrt .brdf)")
     f.add_argument("data")
-    f.add_argument("--model", required=True, choices=["mlp", "mlp-seed", "five-param",
-                                                      "torrance-sparrow", "phong", "minnaert",
-                                                      "lambert"])
-    f.add_argument("-o", "--output", required=True)
+    f.add_argument("--model", required=True, choices=BRDF_MODELS)
+    f.add_argument("-o", "--output", required=True, help="fitted model (.h5)")
     f.add_argument("--test", help="held-out data for the test metrics")
     f.add_argument("--metrics-json")
     f.add_argument("--seed", type=int, default=0)
@@ -391,19 +316,26 @@ def register_brdf(sub, add_device) -> None:
     p.set_defaults(func=cmd_brdf_plot)
 
 
+# ------------------------------------------------------------------ study
 def cmd_study(args) -> int:
     from dataclasses import replace
 
+    require("torch", "clnlos study (its CNN)")
+    if args.scheduler is not None or (args.workers or 2) > 1:
+        require("distributed", "clnlos study with worker processes")
     from .study.run import StudyOptions, run_study
 
+    out = Path(args.output)
+    check_outputs({"-o report.html": out / "report.html", "-o results.json":
+                   out / "results.json"})
     opts = StudyOptions() if args.full else StudyOptions.quick()
     if args.n_dataset is not None:
         opts.n_dataset = args.n_dataset
     if args.method is not None:
         opts.grid = replace(opts.grid, method=args.method)
     opts.labels = args.labels
-    res = run_study(Path(args.output), opts.validate(), workers=args.workers,
-                    scheduler=args.scheduler, device=args.device)
+    res = run_study(out, opts.validate(), workers=args.workers, scheduler=args.scheduler,
+                    device=args.device)
     for m in res["materials"]:
         print(f"{m['name']:36s} {m['brdf_class']:26s} IoU {m['iou']:.3f} "
               f"[{m['iou_ci'][0]:.2f}, {m['iou_ci'][1]:.2f}] label {m['label']} "
@@ -414,7 +346,7 @@ def cmd_study(args) -> int:
           f"{res['cnn']['majority_baseline']:.3f}); seed Figure 9 agreement "
           f"{res['seed_figure9_agreement']}/10")
     print(res["findings"]["statement"])
-    print(f"wrote {Path(args.output) / 'report.html'} and results.json")
+    print(f"wrote {out / 'report.html'} and results.json")
     return 0
 
 
@@ -423,8 +355,8 @@ def register_study(sub, add_device) -> None:
     g = s.add_mutually_exclusive_group()
     g.add_argument("--quick", action="store_true", help="built-in default: 200 dataset "
                    "samples, 48 ps bins, 50 iterations (under 3 minutes on 2 cores)")
-    g.add_argument("--full", action="store_true", help="1000 dataset samples, 32 ps bins, "
-                   "100 iterations, 2 noise seeds per sweep point")
+    g.add_argument("--full", action="store_true", help="1000 dataset samples, 2 noise seeds "
+                   "per sweep point (under 15 minutes on 2 cores)")
     s.add_argument("-o", "--output", default="out/study")
     s.add_argument("--method", choices=["lct", "fk", "iterative"], default=None,
                    help="reconstruction method (default iterative)")
@@ -435,21 +367,18 @@ def register_study(sub, add_device) -> None:
     w.add_argument("--workers", type=int, default=None,
                    help="local Dask worker processes (default: CPU count; 1 = serial)")
     w.add_argument("--scheduler", default=None, help="address of an existing Dask scheduler")
-    s.add_argument("--n-dataset", type=int, default=None, help=argparse_suppress())
+    s.add_argument("--n-dataset", type=int, default=None, help=argparse.SUPPRESS)
     add_device(s)
     s.set_defaults(func=cmd_study)
 
 
-def argparse_suppress():
-    import argparse
-
-    return argparse.SUPPRESS
-
-
+# ------------------------------------------------------------------ bench
 def cmd_bench(args) -> int:
     """Thin front of :func:`clnlos.bench.main` (runs from an installed package)."""
     from .bench import main as bench_main
 
+    out = Path(args.output)
+    check_outputs({"-o bench.json": out / "bench.json", "-o bench.html": out / "bench.html"})
     argv = ["-o", args.output] + (["--quick"] if args.quick else []) + (
         ["--tiny"] if args.tiny else []) + (["--only", args.only] if args.only else []) + (
         ["--device", args.device] if args.device else [])
@@ -462,9 +391,19 @@ def register_bench(sub, add_device) -> None:
                                      "bench.html)")
     g = b.add_mutually_exclusive_group()
     g.add_argument("--quick", action="store_true", help="under 5 minutes on 2 CPU cores")
-    g.add_argument("--tiny", action="store_true", help=argparse_suppress())
+    g.add_argument("--tiny", action="store_true", help=argparse.SUPPRESS)
     b.add_argument("-o", "--output", default="out/bench")
     b.add_argument("--only", default=None, help="comma-separated sections (diffusion, "
                    "lightcone, brdf, forward, reconstruction, iterative, end_to_end)")
     add_device(b)
     b.set_defaults(func=cmd_bench)
+
+
+def register(sub, add_device) -> None:
+    """Add the pipeline sub-commands to the parser ``sub``."""
+    register_reconstruct(sub, add_device)
+    register_plot(sub)
+    register_forward(sub, add_device)
+    register_brdf(sub, add_device)
+    register_study(sub, add_device)
+    register_bench(sub, add_device)

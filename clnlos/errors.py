@@ -27,6 +27,14 @@ class InputFileError(ClnlosError):
     """A capture, config or data file cannot be read or does not hold what it must."""
 
 
+class OutputFileError(ClnlosError):
+    """An output path cannot be used (a directory, an input, unwritable) or writing failed."""
+
+
+class MissingDependencyError(ClnlosError):
+    """An optional dependency a command needs is not installed; the message names the extra."""
+
+
 class DeviceError(ClnlosError, RuntimeError):
     """No device matches the request, or a device cannot be used."""
 

@@ -1,14 +1,9 @@
-"""Reading captures and writing results (HDF5, PNG), atomically.
+"""Captures in memory, and writing results (HDF5, PNG), atomically.
 
-Capture formats
----------------
-* clnlos HDF5 (written by ``clnlos simulate``): dataset ``transient`` float32 [t, y, x] with
-  x and y increasing with index; attributes ``bin_width_s``, ``start_s`` (time of the start
-  of bin 0, round trip from the scan plane), ``scan_width_m``.
-* CDT ``.mat`` (MATLAB v7.3 = HDF5; Lindell & Wetzstein 2020): dataset ``meas``, which h5py
-  returns as (x, y, t) with y running down; it is mapped to [t, y, x] with +y up, checked on
-  the published letters (they read "UT", U on the left). 16 ps bins, bin 0 at t = 0. The
-  scan width is not in the file and must come from the configuration.
+:class:`Capture` is the one in-memory contract every reader returns (:mod:`clnlos.formats`,
+one module per file format, chosen by content): transient [t, y, x], bin width, start of bin
+0 (round trip from the scan plane), scan width, and the file's attributes (a clnlos
+simulation records its scene and slab there).
 
 Every output is written to a temporary file in the target folder and renamed into place, so
 an interrupted or failed run leaves nothing half-written.
@@ -19,15 +14,13 @@ from __future__ import annotations
 import contextlib
 import json
 import os
-import tempfile
 from dataclasses import dataclass, field
 from pathlib import Path
 
 import numpy as np
 
-from .errors import ClnlosError, InputFileError
+from .errors import ClnlosError
 
-CDT_MAT_BIN_WIDTH_S = 16e-12  # the CDT capture format's histogram bin
 
 
 @dataclass
@@ -76,82 +69,15 @@ class Capture:
             return None
 
 
-def _validate_transient(arr, path) -> np.ndarray:
-    if arr.ndim != 3:
-        raise InputFileError(f"{path}: transient must be 3D [t, y, x], got shape {arr.shape}")
-    if min(arr.shape) < 1:
-        raise InputFileError(f"{path}: transient is empty, shape {arr.shape}")
-    if not np.issubdtype(arr.dtype, np.number) or np.iscomplexobj(arr):
-        raise InputFileError(f"{path}: transient must be real numbers, got dtype {arr.dtype}")
-    arr = np.asarray(arr, np.float32)
-    if not np.all(np.isfinite(arr)):
-        raise InputFileError(f"{path}: transient holds NaN or Inf values")
-    if np.any(arr < 0):
-        raise InputFileError(f"{path}: transient holds negative counts (min {arr.min():.3g})")
-    return arr
-
-
 def read_capture(path: str | os.PathLike) -> Capture:
-    """Read a clnlos HDF5 capture or a CDT ``.mat`` capture (see module docstring)."""
-    import h5py
+    """Read a capture of any supported format (:func:`clnlos.formats.read_capture`)."""
+    from .formats import read_capture as read
 
-    path = Path(path)
-    if not path.is_file():
-        raise InputFileError(f"{path}: no such file")
-    try:
-        f = h5py.File(path, "r")
-    except OSError as exc:
-        raise InputFileError(f"{path}: not a readable HDF5/MATLAB v7.3 file ({exc})") from None
-    try:
-        with f:
-            if "transient" in f:
-                ds = f["transient"]
-                try:
-                    arr = _validate_transient(ds[()], path)
-                except (OSError, ValueError) as exc:
-                    raise InputFileError(f"{path}: cannot read dataset 'transient' ({exc})"
-                                         ) from None
-                at = dict(ds.attrs) | dict(f.attrs)
-
-                def num(name, required):
-                    if name not in at:
-                        if required:
-                            raise InputFileError(f"{path}: attribute {name!r} missing")
-                        return None
-                    try:
-                        v = float(np.asarray(at[name]).reshape(()))
-                    except (TypeError, ValueError):
-                        raise InputFileError(f"{path}: attribute {name!r} is not a number"
-                                             ) from None
-                    if not np.isfinite(v):
-                        raise InputFileError(f"{path}: attribute {name!r} = {v} is not finite")
-                    return v
-
-                return Capture(arr, num("bin_width_s", True), num("start_s", False) or 0.0,
-                               num("scan_width_m", False), str(path),
-                               {k: _plain(v) for k, v in at.items()})
-            if "meas" in f:
-                try:
-                    raw = f["meas"][()]
-                except (OSError, ValueError) as exc:
-                    raise InputFileError(f"{path}: cannot read dataset 'meas' ({exc})") from None
-                if raw.ndim != 3:
-                    raise InputFileError(f"{path}: 'meas' must be 3D, got shape {raw.shape}")
-                # h5py axes (x, y, t) with y running downwards in the published figures
-                # -> ours [t, y, x] with +y up (the letters read correctly, seen from the
-                # scan side looking into the hidden volume).
-                arr = _validate_transient(np.transpose(raw, (2, 1, 0))[:, ::-1, :], path)
-                return Capture(np.ascontiguousarray(arr), CDT_MAT_BIN_WIDTH_S, 0.0, None,
-                               str(path), {"format": "cdt-mat"})
-            raise InputFileError(f"{path}: no dataset 'transient' (clnlos) or 'meas' (CDT .mat);"
-                                 f" found {sorted(f.keys())}")
-    except InputFileError:
-        raise
-    except (OSError, KeyError, ValueError) as exc:
-        raise InputFileError(f"{path}: unreadable ({exc})") from None
+    return read(path)
 
 
-def _plain(v):
+def plain_attr(v):
+    """An HDF5 attribute as a plain Python value."""
     if isinstance(v, bytes):
         return v.decode("utf-8", "replace")
     if isinstance(v, np.generic):
@@ -163,19 +89,12 @@ def _plain(v):
 
 @contextlib.contextmanager
 def atomic_path(path: str | os.PathLike):
-    """Yield a temporary path beside ``path``; rename it onto ``path`` only on success."""
-    path = Path(path)
-    if path.parent and not path.parent.exists():
-        path.parent.mkdir(parents=True, exist_ok=True)
-    fd, tmp = tempfile.mkstemp(dir=path.parent, prefix=f".{path.name}.", suffix=".tmp")
-    os.close(fd)
-    try:
-        yield Path(tmp)
-        os.replace(tmp, path)
-    except BaseException:
-        with contextlib.suppress(FileNotFoundError):
-            os.unlink(tmp)
-        raise
+    """Yield a temporary path beside ``path``; rename it onto ``path`` (with the mode the
+    umask gives a new file) only on success."""
+    from .outputs import write_group
+
+    with write_group([Path(path)]) as (tmp,):
+        yield tmp
 
 
 def _attr_value(v):
@@ -186,33 +105,79 @@ def _attr_value(v):
     return v
 
 
-def write_h5(path, datasets: dict[str, np.ndarray], attrs: dict) -> Path:
-    """Write datasets and file attributes to ``path`` atomically."""
+def write_h5_file(path, datasets: dict[str, np.ndarray], attrs: dict) -> Path:
+    """Write datasets and file attributes to ``path`` (not atomic: see write_h5)."""
     import h5py
 
-    with atomic_path(path) as tmp:
-        with h5py.File(tmp, "w") as f:
-            for name, arr in datasets.items():
-                f.create_dataset(name, data=arr, compression="gzip", compression_opts=4)
-            for k, v in attrs.items():
-                f.attrs[k] = _attr_value(v)
+    with h5py.File(path, "w") as f:
+        for name, arr in datasets.items():
+            f.create_dataset(name, data=arr, compression="gzip", compression_opts=4)
+        for k, v in attrs.items():
+            f.attrs[k] = _attr_value(v)
     return Path(path)
+
+
+def write_h5(path, datasets: dict[str, np.ndarray], attrs: dict) -> Path:
+    """Write datasets and file attributes to ``path`` atomically."""
+    with atomic_path(path) as tmp:
+        write_h5_file(tmp, datasets, attrs)
+    return Path(path)
+
+
+def capture_attrs(*, bin_width_s: float, start_s: float, scan_width_m: float,
+                  attrs: dict | None = None) -> dict:
+    """Attributes of the clnlos capture format (see clnlos.formats.clnlos_h5)."""
+    a = {"bin_width_s": float(bin_width_s), "start_s": float(start_s),
+         "scan_width_m": float(scan_width_m), "format": "clnlos-capture-1"}
+    a.update(attrs or {})
+    return a
 
 
 def write_capture(path, transient: np.ndarray, *, bin_width_s: float, start_s: float,
                   scan_width_m: float, attrs: dict | None = None) -> Path:
-    """Write the clnlos capture format (see module docstring)."""
-    a = {"bin_width_s": float(bin_width_s), "start_s": float(start_s),
-         "scan_width_m": float(scan_width_m), "format": "clnlos-capture-1"}
-    a.update(attrs or {})
-    return write_h5(path, {"transient": np.asarray(transient, np.float32)}, a)
+    """Write the clnlos capture format atomically."""
+    return write_h5(path, {"transient": np.asarray(transient, np.float32)},
+                    capture_attrs(bin_width_s=bin_width_s, start_s=start_s,
+                                  scan_width_m=scan_width_m, attrs=attrs))
+
+
+def save_figure_file(fig, path) -> Path:
+    """Save a matplotlib figure as PNG to ``path`` and close it (not atomic)."""
+    import matplotlib.pyplot as plt
+
+    fig.savefig(path, format="png", dpi=110, bbox_inches="tight")
+    plt.close(fig)
+    return Path(path)
 
 
 def save_figure(fig, path) -> Path:
     """Save a matplotlib figure to PNG atomically and close it."""
-    import matplotlib.pyplot as plt
-
     with atomic_path(path) as tmp:
-        fig.savefig(tmp, format="png", dpi=110, bbox_inches="tight")
-    plt.close(fig)
+        save_figure_file(fig, tmp)
     return Path(path)
+
+
+def read_volume(path) -> tuple[np.ndarray, dict, dict]:
+    """(volume [z, y, x], extents, attributes) of a volume file written by reconstruct."""
+    import h5py
+
+    from .errors import InputFileError
+
+    path = Path(path)
+    if not path.is_file():
+        raise InputFileError(f"{path}: no such file")
+    keys = ("depth_min_m", "depth_max_m", "voxel_depth_m", "x_min_m", "x_max_m", "y_min_m",
+            "y_max_m", "voxel_lateral_m")
+    try:
+        with h5py.File(path, "r") as f:
+            if "volume" not in f:
+                raise InputFileError(f"{path}: no dataset 'volume' (not a clnlos volume file)")
+            vol = np.asarray(f["volume"][()], np.float32)
+            attrs = {k: plain_attr(v) for k, v in f.attrs.items()}
+    except OSError as exc:
+        raise InputFileError(f"{path}: not a readable HDF5 file ({exc})") from None
+    missing = [k for k in keys if k not in attrs]
+    if vol.ndim != 3 or missing:
+        raise InputFileError(f"{path}: a volume [z, y, x] with its extents is needed "
+                             f"(missing {', '.join(missing) or 'a 3D volume'})")
+    return vol, {k: float(attrs[k]) for k in keys}, attrs

@@ -295,25 +295,58 @@ def reconstruct(capture: Capture, config: ReconstructionConfig, *, dtype=np.floa
 
 
 def volume_figure(rec: Reconstruction, title: str = ""):
-    """Max-intensity projection (x-y) and x-z / y-z projections (seed Fig. 8 layout)."""
-    import matplotlib
+    """The figure of a reconstruction (:func:`clnlos.figures.volume_figure`)."""
+    from .figures import volume_figure as figure
 
-    matplotlib.use("Agg")
-    import matplotlib.pyplot as plt
+    return figure(rec.volume, rec.extents, title)
 
-    v = rec.volume
-    e = rec.extents
-    fig, ax = plt.subplots(1, 3, figsize=(12, 4))
-    ax[0].imshow(v.max(axis=0), origin="lower", cmap="gray",
-                 extent=(e["x_min_m"], e["x_max_m"], e["y_min_m"], e["y_max_m"]))
-    ax[0].set(xlabel="x (m)", ylabel="y (m)", title="max over depth (x-y)")
-    ax[1].imshow(v.max(axis=1), origin="lower", cmap="gray", aspect="auto",
-                 extent=(e["x_min_m"], e["x_max_m"], e["depth_min_m"], e["depth_max_m"]))
-    ax[1].set(xlabel="x (m)", ylabel="depth z (m)", title="max over y (x-z)")
-    ax[2].imshow(v.max(axis=2), origin="lower", cmap="gray", aspect="auto",
-                 extent=(e["y_min_m"], e["y_max_m"], e["depth_min_m"], e["depth_max_m"]))
-    ax[2].set(xlabel="y (m)", ylabel="depth z (m)", title="max over x (y-z)")
-    if title:
-        fig.suptitle(title)
-    fig.tight_layout()
-    return fig
+
+def volume_attrs(rec: Reconstruction) -> dict:
+    """The HDF5 attributes of a volume file (format clnlos-volume-1)."""
+    import json
+
+    return {**rec.extents, "bin_width_s": rec.bin_width_s, "scan_width_m": rec.scan_width_m,
+            "stages": json.dumps(rec.stages), "timings_s": json.dumps(rec.timings_s),
+            "params": json.dumps(rec.params), "noise": json.dumps(rec.noise),
+            "solver": json.dumps(rec.solver),
+            "axes": "volume[z, y, x]; +x with column index, +y with row index",
+            "format": "clnlos-volume-1"}
+
+
+def reconstruct_to_files(capture: Capture, out, config: ReconstructionConfig, *,
+                         dtype=np.float32, queue=None, title_extra: str = "",
+                         show_progress: bool = True) -> Reconstruction:
+    """Reconstruct and write the volume (HDF5) and its figure (PNG beside it) together,
+    atomically, with the provenance of the result; the iterative method shows a progress
+    bar when it runs longer than two seconds."""
+    from pathlib import Path
+
+    from tqdm import tqdm
+
+    from .figures import volume_figure as figure
+    from .io import save_figure_file, write_h5_file
+    from .outputs import provenance, write_group
+
+    out = Path(out)
+    queue = get_queue(queue)
+    bar = None
+    if show_progress and config.method == "iterative":
+        bar = tqdm(total=config.iterations, desc="iterative", unit="it", delay=2.0,
+                   leave=False)
+    try:
+        rec = reconstruct(capture, config, dtype=dtype, device=queue,
+                          progress=None if bar is None else (lambda k, n: bar.update(1)))
+    finally:
+        if bar is not None:
+            bar.close()
+    attrs = {**volume_attrs(rec), "dtype": np.dtype(dtype).name,
+             **provenance(capture=capture.source if capture.source and
+                          Path(capture.source).exists() else None,
+                          device=queue.device.name.strip())}
+    name = Path(capture.source).name if capture.source else "capture"
+    title = f"{title_extra + ': ' if title_extra else ''}{name} ({config.method})"
+    fig = figure(rec.volume, rec.extents, title)
+    with write_group([out, out.with_suffix(".png")]) as (tmp_h5, tmp_png):
+        write_h5_file(tmp_h5, {"volume": rec.volume.astype(np.float32)}, attrs)
+        save_figure_file(fig, tmp_png)
+    return rec

@@ -126,8 +126,19 @@ def test_cli_devices_lists_and_marks_default(capsys):
     assert "fp64" in out and "*" in out and "0:0" in out
 
 
+@pytest.mark.parametrize("spec,env", [("9:9", None), ("nosuch:9", None), ("nosuch", None),
+                                      ("gpu:7", None), (None, "9:9"), (None, "nosuch")])
+def test_cli_devices_spec_matching_nothing_is_an_error(capsys, monkeypatch, spec, env):
+    if env is None:
+        monkeypatch.delenv(runtime.ENV_DEVICE, raising=False)
+    else:
+        monkeypatch.setenv(runtime.ENV_DEVICE, env)
+    assert main(["devices"] + (["--device", spec] if spec else [])) == 2
+    err = capsys.readouterr().err.strip().splitlines()
+    assert len(err) == 1 and err[0].startswith("clnlos: error: no OpenCL device")
+
+
 def test_cli_bad_device_one_line_exit_2(capsys):
-    assert main(["devices", "--device", "9:9"]) == 0  # listing still works, no default marked
     rc = subprocess.run([sys.executable, "-m", "clnlos", "devices", "--bogus-flag"],
                         capture_output=True, text=True)
     assert rc.returncode == 2 and "Traceback" not in rc.stderr

@@ -99,3 +99,29 @@ def fit_analytic(name: str, train: BRDFSamples, test: BRDFSamples | None = None,
                                                                     strict=True)},
              fixed=fixed, log_rms=float(np.sqrt(2 * best.cost / len(f))), starts=starts)
     return FitResult(model, m)
+
+
+def fit_to_file(model_name: str, train, test, out, *, seed: int = 0,
+                metrics_json=None) -> dict:
+    """Fit ``model_name`` (an analytic model, or ``mlp`` / ``mlp-seed``) to ``train`` and save it
+    (and its metrics as JSON when asked); returns the metrics."""
+    import json
+
+    from ..io import atomic_path
+    from .store import save_model
+
+    if model_name in ("mlp", "mlp-seed"):
+        from .mlp import MLPConfig, train_mlp
+
+        model, log = train_mlp(train, MLPConfig(recipe="seed" if model_name == "mlp-seed"
+                                                else "improved", seed=seed))
+        metrics = {"model": model_name, "epochs_run": log["epochs_run"],
+                   **metrics_for(model, train, test)}
+    else:
+        r = fit_analytic(model_name, train, test, seed=seed)
+        model, metrics = r.model, r.metrics
+    save_model(out, model, metrics, {"train": train.meta, "test": test.meta if test else None})
+    if metrics_json:
+        with atomic_path(metrics_json) as tmp:
+            tmp.write_text(json.dumps(metrics, indent=1))
+    return metrics
