@@ -63,16 +63,15 @@ def _grid_axes(grid: np.ndarray, path) -> tuple[np.ndarray, np.ndarray, float]:
     pitch = float(np.linalg.norm(a))
     i, j = np.meshgrid(np.arange(n0), np.arange(n1), indexing="ij")
     model = grid[0, 0] + i[..., None] * a + j[..., None] * b
+    if np.abs(grid[..., 2] - grid[0, 0, 2]).max() > GRID_TOL * max(pitch, 1e-12):
+        raise InputFileError(f"{path}: the scan grid is not in a plane z = const (the y-tal "
+                             "relay wall is the plane z = 0)")
     if (pitch == 0 or abs(np.linalg.norm(b) - pitch) > GRID_TOL * pitch
             or np.abs(model - grid).max() > GRID_TOL * pitch
             or abs(float(np.dot(a, b))) > GRID_TOL * pitch * pitch):
         raise InputFileError(f"{path}: the scan grid is not a regular square grid (constant "
                              "pitch along two perpendicular axes): clnlos reconstructs "
                              "confocal captures on such grids only")
-    if np.abs(grid[..., 2] - grid[0, 0, 2]).max() > GRID_TOL * pitch or \
-            abs(a[2]) + abs(b[2]) > GRID_TOL * pitch:
-        raise InputFileError(f"{path}: the scan grid is not in a plane z = const (the y-tal "
-                             "relay wall is the plane z = 0)")
     return a / pitch, b / pitch, pitch
 
 
@@ -153,18 +152,20 @@ def write_tal(path, transient: np.ndarray, *, bin_width_s: float, start_s: float
     xs = (np.arange(nx) + 0.5) * pitch - scan_width_m / 2
     ys = (np.arange(ny) + 0.5) * pitch - pitch * ny / 2
     X, Y = np.meshgrid(xs, ys, indexing="ij")  # (Sx, Sy)
-    grid = np.stack([X, Y, np.zeros_like(X)], axis=-1).astype(np.float32)
+    # float64 coordinates and times: y-tal reads any float; float32 would move the bin width
+    # by 1e-8 and the scan width by 1e-7, which a deep deconvolution amplifies
+    grid = np.stack([X, Y, np.zeros_like(X)], axis=-1)
     normals = np.zeros_like(grid)
     normals[..., 2] = 1.0
     h_enum = h5py.enum_dtype(H_FORMAT, basetype="i")
     g_enum = h5py.enum_dtype(GRID_FORMAT, basetype="i")
     fields = {
         "H": np.ascontiguousarray(np.transpose(transient, (0, 2, 1)), np.float32),
-        "sensor_xyz": np.zeros(3, np.float32), "sensor_grid_xyz": grid,
+        "sensor_xyz": np.zeros(3), "sensor_grid_xyz": grid,
         "sensor_grid_normals": normals,
-        "laser_xyz": np.zeros(3, np.float32), "laser_grid_xyz": grid,
+        "laser_xyz": np.zeros(3), "laser_grid_xyz": grid,
         "laser_grid_normals": normals,
-        "delta_t": np.float32(bin_width_s * C0), "t_start": np.float32(start_s * C0),
+        "delta_t": np.float64(bin_width_s * C0), "t_start": np.float64(start_s * C0),
         "t_accounts_first_and_last_bounces": np.bool_(False),
     }
     with h5py.File(path, "w") as f:
