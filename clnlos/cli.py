@@ -81,13 +81,24 @@ def build_parser() -> argparse.ArgumentParser:
     return p
 
 
+def _one_line_warning(message, category, filename, lineno, file=None, line=None):
+    """Warnings a user should see, as one line each (no source location)."""
+    print(f"clnlos: warning: {message}", file=sys.stderr)
+
+
 def main(argv: list[str] | None = None) -> int:
+    import warnings
+
+    warnings.showwarning = _one_line_warning
     parser = build_parser()
     try:
         args = parser.parse_args(argv)
         if getattr(args, "func", None) is None:  # bare `clnlos` (or a bare group)
             parser.print_help()
             return 0
+        from .runtime import check_environment
+
+        check_environment()
         return int(args.func(args) or 0)
     except SystemExit as exc:
         return int(exc.code) if isinstance(exc.code, int) else EXIT_USAGE

@@ -105,6 +105,11 @@ def cmd_reconstruct(args) -> int:
     queue = get_queue(args.device)
     capture = read_capture(args.capture)
     resolve_geometry(capture, cfg)  # missing geometry before the slab note
+    if not np.any(capture.transient):
+        from .errors import InputFileError
+
+        raise InputFileError(f"{args.capture}: the capture holds no signal (all zero): "
+                             "nothing to reconstruct")
     cfg = config_from_args(args, capture)
     rec = reconstruct_to_files(capture, out, cfg, dtype=DTYPES[args.dtype], queue=queue)
     total = sum(rec.timings_s.values())

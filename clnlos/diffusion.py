@@ -31,7 +31,14 @@ from .checks import positive
 from .errors import ParameterError
 from .grid import grid_offsets
 from .slab import Slab, effective_reflection  # noqa: F401 (re-exported)
-from .runtime import get_kernels, get_queue, real_defines, require_dtype, round_up
+from .runtime import (
+    get_kernels,
+    get_queue,
+    kernel_int,
+    real_defines,
+    require_dtype,
+    round_up,
+)
 
 # ln(1/tolerance) of the auto mode: terms below tol relative to the largest are dropped.
 LN_TOL = {np.dtype(np.float32): math.log(1e8), np.dtype(np.float64): math.log(1e17)}
@@ -81,7 +88,7 @@ class SlabTransmittance:
         if n:
             self.kernels.transmittance_pairs(
                 self.queue, (round_up(n, 64),), None, rho_g.data, t_g.data, out_g.data,
-                np.int32(n), *self._params)
+                kernel_int(n, "samples"), *self._params)
         return out_g
 
     def outer_device(self, rho_g: cla.Array, t_g: cla.Array, scale: float = 1.0) -> cla.Array:
@@ -91,10 +98,11 @@ class SlabTransmittance:
         if nr and nt:
             log_t0 = cla.empty(self.queue, nt, self.dtype)
             self.kernels.log_series(self.queue, (round_up(nt, 64),), None, t_g.data,
-                                    log_t0.data, np.int32(nt), *self._params)
+                                    log_t0.data, kernel_int(nt, "time bins"), *self._params)
             self.kernels.transmittance_outer(
                 self.queue, (round_up(nr, 16), round_up(nt, 4)), None, rho_g.data, t_g.data,
-                log_t0.data, out_g.data, np.int32(nr), np.int32(nt), self._params[0],
+                log_t0.data, out_g.data, kernel_int(nr, "radii"), kernel_int(nt, "time bins"),
+                self._params[0],
                 self.dtype.type(scale))
         return out_g
 

@@ -20,7 +20,14 @@ import pyopencl.array as cla
 from . import C0
 from .fft import ComplexFFT3
 from .lct import check_inversion_args
-from .runtime import get_kernels, get_queue, real_defines, require_dtype, round_up
+from .runtime import (
+    get_kernels,
+    get_queue,
+    kernel_int,
+    real_defines,
+    require_dtype,
+    round_up,
+)
 
 
 DEFAULT_FALLOFF = 2.0  # the square root of the (t/T)^p-weighted measurement is the wave
@@ -53,15 +60,15 @@ class FKMigration:
         pt, py, px = self.pad_shape
         q = self.queue
         self._k.fk_prepare(q, (round_up(px, 8), round_up(py, 8), pt), None, x.data,
-                           self._w.data, self._a.data, np.int32(nt), np.int32(ny),
-                           np.int32(nx))
+                           self._w.data, self._a.data, kernel_int(nt), kernel_int(ny),
+                           kernel_int(nx))
         self.fft.forward(self._a)
         r = self.dtype.type
         self._k.stolt(q, (round_up(px, 8), round_up(py, 8), pt), None, self._a.data,
-                      self._b.data, np.int32(pt), np.int32(py), np.int32(px),
+                      self._b.data, kernel_int(pt), kernel_int(py), kernel_int(px),
                       r(self.alpha_y), r(self.alpha_x))
         self.fft.inverse(self._b)
         vol = cla.empty(q, self.shape, self.dtype)
         self._k.fk_finish(q, (round_up(nx, 8), round_up(ny, 8), nt), None, self._b.data,
-                          vol.data, np.int32(nt), np.int32(ny), np.int32(nx))
+                          vol.data, kernel_int(nt), kernel_int(ny), kernel_int(nx))
         return vol if on_device else vol.get()

@@ -27,6 +27,7 @@ import numpy as np
 import pyopencl.array as cla
 import scipy.fft as sfft
 
+from . import C0
 from .blur import lateral_reach_m, slab_blur
 from .brdf.models import BRDFModel, make_model, retro_slice
 from .errors import ParameterError
@@ -41,6 +42,7 @@ from .geometry import (
     transform,
 )
 from .runtime import (
+    kernel_int,
     get_kernels,
     get_queue,
     real_defines,
@@ -83,10 +85,11 @@ def material_retro(obj: SceneObject, base_dir) -> np.ndarray | None:
     if key in preset_table():
         return retro_slice(preset_model(key), N_THETA)
     if key not in PRESETS:
-        raise ParameterError("objects.material", m, "lambertian, one of the seed presets ("
-                             + ", ".join(preset_table()) + "), " + ", ".join(
-                                 k for k in PRESETS if k != "lambertian")
-                             + ", a BRDF texture .h5 or a model table")
+        from .checks import did_you_mean
+
+        names = ["lambertian", *preset_table(), *(k for k in PRESETS if k != "lambertian")]
+        raise ParameterError("objects.material", m, ", ".join(names) + ", a BRDF texture "
+                             ".h5 or a model table" + did_you_mean(key, names))
     model = PRESETS[key]
     return None if model is None else retro_slice(model, N_THETA)
 
@@ -171,9 +174,10 @@ class LightCone:
         self._k.lightcone_accumulate(
             q, (round_up(self.points, 8), round_up(self.points, 8)), None,
             dev(el.pos).data, dev(el.normal).data, dev(el.area).data, dev(samples.albedo).data,
-            dev(samples.material, np.int32).data, dev(table).data, np.int32(len(el)),
-            np.int32(self.points), np.int32(self.points), r(x0), r(x0), r(pitch),
-            np.int32(self.bins), r(self.start_s), r(self.bin_width_s), out.data)
+            dev(samples.material, np.int32).data, dev(table).data,
+            kernel_int(len(el), "surface elements"),
+            kernel_int(self.points), kernel_int(self.points), r(x0), r(x0), r(pitch),
+            kernel_int(self.bins, "time bins"), r(self.start_s), r(self.bin_width_s), out.data)
         return out
 
 
@@ -211,6 +215,46 @@ def _forward_blur(slab, shape, bin_width_s, pitch_m, n_dipoles, periodic, dtype_
                      queue=queue)
 
 
+def check_scene_geometry(scene: Scene) -> list[str]:
+    """Objects must lie in front of the relay plane (z > 0) and return light inside the time
+    window: an object with no element in front, or whose every round trip falls outside
+    [start, start + bins dt), is an error; one partly outside gives a warning (returned)."""
+    import warnings
+
+    w = scene.width_m / 2
+    t0, t1 = scene.start_s, scene.start_s + scene.bins * scene.bin_width_s
+    notes = []
+    for i, obj in enumerate(scene.objects):
+        el = sample_object(obj, min(scene.density_per_m2, 1e4), scene.base_dir)
+        if len(el) == 0:
+            continue
+        z = el.pos[:, 2]
+        name = f"objects[{i}] ({obj.shape})"
+        if not np.any(z > 0):
+            raise ParameterError(f"objects[{i}].translate_m", list(obj.translate_m),
+                                 f"a position in front of the relay plane (z > 0): {name} "
+                                 "lies entirely behind it and returns no light")
+        if np.any(z <= 0):
+            notes.append(f"{name} is partly behind the relay plane (z <= 0); that part "
+                         "returns no light")
+        front = el.pos[z > 0]
+        dx = np.maximum(np.abs(front[:, 0]) - w, 0)
+        dy = np.maximum(np.abs(front[:, 1]) - w, 0)
+        t_near = 2 * np.sqrt(dx**2 + dy**2 + front[:, 2] ** 2) / C0
+        t_far = 2 * np.sqrt((np.abs(front[:, 0]) + w) ** 2 + (np.abs(front[:, 1]) + w) ** 2
+                            + front[:, 2] ** 2) / C0
+        if t_near.min() >= t1 or t_far.max() < t0:
+            raise ParameterError("time", f"[{t0:.3g}, {t1:.3g}) s",
+                                 f"a window that sees {name}: its light returns between "
+                                 f"{t_near.min():.3g} s and {t_far.max():.3g} s")
+        if t_far.max() >= t1 or t_near.min() < t0:
+            notes.append(f"{name} returns light partly outside the time window "
+                         f"[{t0:.3g}, {t1:.3g}) s")
+    for n in notes:
+        warnings.warn(n, UserWarning, stacklevel=3)
+    return notes
+
+
 class ForwardModel:
     """The stages a scene asks for, built once; ``run()`` returns the capture [t, y, x]."""
 
@@ -218,6 +262,7 @@ class ForwardModel:
         self.scene = scene
         self.queue = get_queue(queue)
         self.dtype = require_dtype(self.queue.device, dtype)
+        self.warnings = check_scene_geometry(scene)
         self.samples = sample_scene(scene)
         s = scene
         self.stages = ["lightcone:" + ("brdf-table" if self.samples.retro_tables is not None
@@ -279,12 +324,21 @@ class ForwardModel:
         return Capture(self.run(), s.bin_width_s, s.start_s, s.width_m, "simulated",
                        self.setup_attrs())
 
-    def run(self) -> np.ndarray:
+    def run(self, progress=None) -> np.ndarray:
+        """The capture [t, y, x]; ``progress(stage)`` is called as each stage finishes."""
+        def done(stage):
+            if progress is not None:
+                self.queue.finish()
+                progress(stage)
+
         x = self.lightcone(self.samples)
+        done(self.stages[0])
         if self.blur is not None:
             x = self.blur(x)
+            done("slab_blur")
         if self.pulse is not None:
             x = self.pulse(x)
+            done("pulse_blur")
         tau = x.get()
         if self.margin:
             m = self.margin
@@ -292,4 +346,5 @@ class ForwardModel:
         tau = np.maximum(tau, 0)  # FFT round-off can leave -1e-17 where tau is 0
         if self.scene.detector is not None:
             tau = photon_counts(tau, self.scene, np.random.default_rng(self.scene.seed))
+            done("photon_noise")
         return tau.astype(np.float32)

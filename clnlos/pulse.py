@@ -15,7 +15,14 @@ import numpy as np
 import pyopencl.array as cla
 
 from .operators import LinearOperator
-from .runtime import get_kernels, get_queue, real_defines, require_dtype, round_up
+from .runtime import (
+    get_kernels,
+    get_queue,
+    kernel_int,
+    real_defines,
+    require_dtype,
+    round_up,
+)
 
 
 def pulse_taps(pulse_width_s: float, bin_width_s: float) -> np.ndarray:
@@ -49,7 +56,8 @@ class PulseBlur(LinearOperator):
         n_scan = int(np.prod(self.shape[1:]))
         out = cla.empty_like(x)
         self._k.time_convolve(self.queue, (round_up(n_scan, 64), nt), None, x.data, out.data,
-                              taps.data, np.int32(self.K), np.int32(nt), np.int32(n_scan))
+                              taps.data, kernel_int(self.K), kernel_int(nt, "time bins"),
+                              kernel_int(n_scan, "scan points"))
         return out
 
     def _apply(self, x):

@@ -15,7 +15,15 @@ import scipy.sparse as sp
 
 from .errors import ShapeError
 from .operators import LinearOperator
-from .runtime import get_kernels, get_queue, real_defines, require_dtype, round_up, zeros
+from .runtime import (
+    get_kernels,
+    get_queue,
+    kernel_int,
+    real_defines,
+    require_dtype,
+    round_up,
+    zeros,
+)
 
 
 def overlap_matrix(src_edges, dst_edges) -> sp.csr_matrix:
@@ -104,7 +112,7 @@ class AxisResample(LinearOperator):
         n_rows, ptr, col, val = mats
         ny, nx = self.plane
         if n_rows and ny and nx:
-            i32 = np.int32
+            i32 = kernel_int
             self._k.csr_resample(
                 self.queue, (round_up(nx, 8), round_up(ny, 8), n_rows), None,
                 ptr.data, col.data, val.data,

@@ -220,6 +220,23 @@ def pocl_version(device: cl.Device) -> tuple[int, int] | None:
     return get_pocl_version(device.platform)
 
 
+def check_environment() -> None:
+    """Validate the CLNLOS_* environment variables up front (before any work): a bad value
+    is a one-line DeviceError naming the variable."""
+    choice = os.environ.get(ENV_FFT, "auto").strip().lower() or "auto"
+    if choice not in ("auto", "vkfft", "host", "numpy"):
+        raise DeviceError(f"invalid {ENV_FFT}={choice!r}: allowed auto, vkfft, host")
+    if choice == "vkfft":
+        try:
+            import pyvkfft.opencl  # noqa: F401
+        except Exception as exc:
+            raise DeviceError(f"{ENV_FFT}=vkfft but pyvkfft's OpenCL backend is not "
+                              f"importable ({type(exc).__name__}: {exc}); install the extra: "
+                              "pip install 'clnlos[vkfft]' (VKFFT_BACKEND=opencl), or unset "
+                              + ENV_FFT) from None
+    host_threads()
+
+
 @dataclass(frozen=True)
 class FFTChoice:
     """The FFT backend of a queue: ``"vkfft"`` (pyvkfft on the device) or ``"host"``
@@ -427,6 +444,19 @@ def zeros(queue: cl.CommandQueue, shape, dtype):
     a = cla.empty(queue, shape, dtype)
     fill_zero(queue, a)
     return a
+
+
+INT32_MAX = (1 << 31) - 1
+
+
+def kernel_int(value, what: str = "size") -> np.int32:
+    """A size or index for a kernel's ``int`` argument, checked against its range (kernels
+    index memory with size_t products; their per-axis sizes are 32-bit)."""
+    v = int(value)
+    if not 0 <= v <= INT32_MAX:
+        raise DeviceCapabilityError(f"{what} = {v} exceeds the kernels' 32-bit size range "
+                                    f"(at most {INT32_MAX}); use a smaller grid")
+    return np.int32(v)
 
 
 def round_up(n: int, m: int) -> int:

@@ -1,36 +1,56 @@
 """Scene description for ``clnlos simulate`` (TOML, typed, validated).
 
-Minimum contract (every error names the field, its value and the allowed range)::
+Every error names the field, its value and the allowed range; numbers must be TOML numbers
+(not strings), counts integers. A complete example (every section but [scan], [time] and
+[[objects]] optional)::
 
+    seed = 0
     [scan]                  # confocal scan points on the relay / slab exit plane z = 0
     width_m = 0.3           # side of the square scanned area (points at cell centres)
     points = 32             # points per side
     [time]
-    bin_width_s = 6.671e-12
+    bin_width_s = 16e-12
     bins = 512
-    start_s = 1.668e-9      # start of bin 0 (round trip from the scan point)
-    [[objects]]
+    start_s = 0.0           # start of bin 0 (round trip from the scan point); 0 with a slab
+    [[objects]]             # one table per object; objects must lie at z > 0
     shape = "letters"       # "letters" (text, height_m, stroke_m), "rectangle" (size_m = [w, h]),
                             # "sphere" (radius_m), "mesh" (path = ASCII PLY or OBJ)
+    text = "UT"
+    height_m = 0.15
+    stroke_m = 0.04
     translate_m = [0.0, 0.0, 0.5]
     rotate_deg = [0.0, 30.0, 0.0]   # about x, y, z: R = Rz Ry Rx
-    material = "lambertian"         # a preset name, or an analytic model table
-                                    # { model = "phong", kd = 0.2, ks = 0.8, shininess = 40 },
-                                    # or brdf_retro_csv = "f.csv" (theta_deg, brdf)
+    material = "lambertian"         # see below
     albedo = 1.0
-    [slab]                  # optional; absent = plain NLOS relay wall, no diffusion
-    thickness_m = 0.0254; mu_a = 0.53; mu_s_prime = 262.0; n = 1.12
-    [laser]                 # optional
+    [slab]                  # absent = plain NLOS relay wall, no diffusion
+    thickness_m = 0.0254
+    mu_a = 0.53
+    mu_s_prime = 262.0
+    n = 1.12
+    [laser]
     pulse_width_s = 35e-12  # FWHM of a Gaussian pulse -> temporal blur
-    [detector]              # optional: photon budget -> Poisson noise
-    power_w = 0.4; rep_rate_hz = 10e6; exposure_s = 1.0; efficiency = 0.3
-    wavelength_m = 532e-9; etendue_m2_sr = 1e-8; dark_count_rate_hz = 100.0
-    [sampling]              # optional accuracy knobs
+    [detector]              # a photon budget -> Poisson noise
+    power_w = 0.4
+    rep_rate_hz = 10e6
+    exposure_s = 1.0
+    efficiency = 0.3
+    wavelength_m = 532e-9
+    etendue_m2_sr = 1e-8
+    dark_count_rate_hz = 100.0
+    [sampling]              # accuracy knobs
     density_per_m2 = 4e5    # surface elements per square metre
     splat_order = 1         # 0: nearest bin, 1: linear between bin centres
     blur_reach_tol = 1e-3   # with a slab: I is computed past the scan border as far as the
                             # blur carries more than this fraction of its energy
-    seed = 0
+
+Materials (``material``, case-insensitive): "lambertian"; the analytic presets "matte-dark",
+"glossy-paint", "brushed-metal", "mirror-like"; the ten measured-data presets of the seed
+("gold-plated polyester film", "quartz glass", "aluminium alloy sample", "painted steel
+plate", "black anode plate", "fuchsia lacquer board", "aluminium diffuse reflection plate",
+"glass fibre", "standard white plate", "cement board"); a BRDF texture file
+(``material = "tex.h5"``, written by ``clnlos brdf texture``, path relative to the scene);
+an analytic model table (``material = { model = "phong", kd = 0.2, ks = 0.8, shininess = 40
+}``); or ``brdf_retro_csv = "f.csv"`` (columns theta_deg, brdf: the confocal slice).
 """
 
 from __future__ import annotations

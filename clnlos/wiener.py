@@ -22,7 +22,16 @@ from .errors import ParameterError, ShapeError
 from .fft import RealFFT3
 from .operators import LinearOperator
 from .resample import AxisResample
-from .runtime import fill_zero, get_kernels, get_queue, real_defines, require_dtype, round_up, zeros
+from .runtime import (
+    fill_zero,
+    get_kernels,
+    get_queue,
+    kernel_int,
+    real_defines,
+    require_dtype,
+    round_up,
+    zeros,
+)
 
 
 class SpectralFilter(LinearOperator):
@@ -114,8 +123,8 @@ class SpectralFilter(LinearOperator):
             n0, n1, n2 = self.in_shape
             p0, p1, p2 = self.pad_shape
             self._rk.pad_mirror_xy(self.queue, (round_up(p2, 8), round_up(p1, 8), p0), None,
-                                   x_g.data, self._buf.data, np.int32(n0), np.int32(n1),
-                                   np.int32(n2), np.int32(p0))
+                                   x_g.data, self._buf.data, kernel_int(n0), kernel_int(n1),
+                                   kernel_int(n2), kernel_int(p0))
         else:
             fill_zero(self.queue, self._buf)
             self._pad.apply_into(x_g, self._buf)

@@ -3,7 +3,8 @@
  * Texture f[i, j, k] at theta_i = i * pi/2 / (n_ti - 1), theta_s = j * pi/2 / (n_ts - 1),
  * delta_phi = k * pi / (n_dp - 1), delta_phi = |phi_s - phi_i| wrapped to [0, pi] (isotropy
  * and bilateral symmetry). Queries angles[q] = (theta_i, phi_i, theta_s, phi_s) in radians;
- * zenith angles are clamped to [0, pi/2].
+ * zenith angles are clamped to [0, pi/2]. Angles are finite (checked on the host,
+ * clnlos.brdf.texture.TextureLookup): a NaN would reach an (int) conversion.
  *
  * brdf_lookup_buffer: any precision, manual trilinear interpolation from a buffer.
  * brdf_lookup_image (built with -DUSE_IMAGE, float only): a 3D image with a linear sampler
@@ -24,7 +25,8 @@ inline real_t grid_pos(const real_t a, const real_t amax, const int n)
 }
 
 /* Fractional grid positions (theta_i, theta_s, delta_phi) of query q. */
-inline void query_grid_pos(__global const real_t *angles, const int q, const int n_ti,
+inline void query_grid_pos(__global const real_t *restrict angles, const size_t q,
+                           const int n_ti,
                            const int n_ts, const int n_dp, real_t *u, real_t *v, real_t *w)
 {
     *u = grid_pos(angles[4 * q], PI_R / 2, n_ti);
@@ -32,11 +34,12 @@ inline void query_grid_pos(__global const real_t *angles, const int q, const int
     *w = grid_pos(wrap_dphi(angles[4 * q + 1], angles[4 * q + 3]), PI_R, n_dp);
 }
 
-__kernel void brdf_lookup_buffer(__global const real_t *tex, const int n_ti, const int n_ts,
-                                 const int n_dp, __global const real_t *angles,
-                                 __global real_t *out, const int n)
+__kernel void brdf_lookup_buffer(__global const real_t *restrict tex, const int n_ti,
+                                 const int n_ts, const int n_dp,
+                                 __global const real_t *restrict angles,
+                                 __global real_t *restrict out, const ulong n)
 {
-    const int q = get_global_id(0);
+    const size_t q = get_global_id(0);
     if (q >= n)
         return;
     real_t u, v, w;
@@ -58,10 +61,10 @@ __constant sampler_t LINEAR = CLK_NORMALIZED_COORDS_FALSE | CLK_ADDRESS_CLAMP_TO
                               CLK_FILTER_LINEAR;
 
 __kernel void brdf_lookup_image(__read_only image3d_t tex, const int n_ti, const int n_ts,
-                                const int n_dp, __global const real_t *angles,
-                                __global real_t *out, const int n)
+                                const int n_dp, __global const real_t *restrict angles,
+                                __global real_t *restrict out, const ulong n)
 {
-    const int q = get_global_id(0);
+    const size_t q = get_global_id(0);
     if (q >= n)
         return;
     real_t u, v, w;

@@ -1,5 +1,6 @@
 """OpenCL runtime: device selection, program cache, build errors, capability checks."""
 
+import json
 import os
 import subprocess
 import sys
@@ -180,6 +181,17 @@ def test_wheel_ships_kernels_and_runs_them(tmp_path):
                        cwd=tmp_path, env=env)
     assert r.returncode == 0, r.stderr
     assert int(r.stdout.strip()) == len(list((ROOT / "kernels").glob("*.cl")))
+    # the installed package runs its benchmark harness and reports its version (no
+    # source checkout: the folder holds only the wheel's files)
+    r = subprocess.run([sys.executable, "-m", "clnlos", "bench", "--tiny", "--only",
+                        "diffusion,iterative", "-o", str(tmp_path / "bench")],
+                       capture_output=True, text=True, cwd=tmp_path, env=env, timeout=600)
+    assert r.returncode == 0, r.stderr[-2000:]
+    doc = json.loads((tmp_path / "bench" / "bench.json").read_text())
+    assert {row["kernel"] for row in doc["rows"]} >= {"diffusion", "inversion_quality"}
+    r = subprocess.run([sys.executable, "-m", "clnlos", "--version"], capture_output=True,
+                       text=True, cwd=tmp_path, env=env)
+    assert r.returncode == 0 and r.stdout.startswith("clnlos ")
 
 
 def test_host_copies_respect_offsets_and_keep_no_events(queue):

@@ -1,6 +1,7 @@
 """The material study: clarity and no-reference metrics, labels, the CNN, a tiny end-to-end
 study (serial = Dask), the report's layout in a real browser."""
 
+import contextlib
 import json
 import shutil
 import subprocess
@@ -176,3 +177,53 @@ def test_tiny_study_serial_and_dask_agree(tmp_path):
                             str(tmp_path / "r.png")], capture_output=True, text=True,
                            timeout=300)
         assert r.returncode == 0, r.stdout + r.stderr
+
+
+@pytest.mark.slow
+def test_study_on_a_separately_started_dask_cluster(tmp_path):
+    """`dask scheduler` and `dask worker` started as processes on 127.0.0.1 (bounded in time,
+    always stopped): run_study(scheduler=...) gives the results of the local serial run."""
+    import os
+    import signal
+    import time
+
+    pytest.importorskip("dask.distributed")
+    dask_cli = Path(sys.executable).with_name("dask")
+    if not dask_cli.exists():
+        pytest.skip("the dask command-line tool is not installed")
+    small = replace(TINY, n_dataset=12, materials=TINY.materials[:2], seeds=1,
+                    sweeps={"depth_m": (0.4, 0.6)}, sweep_materials=("quartz glass",))
+    sched_file = tmp_path / "scheduler.json"
+    env = dict(os.environ, CLNLOS_THREADS="1", POCL_MAX_PTHREAD_COUNT="1")
+    procs = []
+    try:
+        procs.append(subprocess.Popen(
+            [str(dask_cli), "scheduler", "--host", "127.0.0.1", "--port", "0",
+             "--no-dashboard", "--scheduler-file", str(sched_file)],
+            stdout=subprocess.DEVNULL, stderr=subprocess.DEVNULL, env=env,
+            start_new_session=True))
+        deadline = time.time() + 60
+        while not sched_file.exists() and time.time() < deadline:
+            time.sleep(0.2)
+        assert sched_file.exists(), "the scheduler did not start within 60 s"
+        address = json.loads(sched_file.read_text())["address"]
+        procs.append(subprocess.Popen(
+            [str(dask_cli), "worker", address, "--nworkers", "1", "--nthreads", "1",
+             "--no-dashboard", "--host", "127.0.0.1"],
+            stdout=subprocess.DEVNULL, stderr=subprocess.DEVNULL, env=env,
+            start_new_session=True))
+        remote = run_study(tmp_path / "remote", small, scheduler=address)
+    finally:
+        for p in reversed(procs):
+            with contextlib.suppress(ProcessLookupError):
+                os.killpg(p.pid, signal.SIGTERM)
+        for p in procs:
+            try:
+                p.wait(timeout=20)
+            except subprocess.TimeoutExpired:
+                os.killpg(p.pid, signal.SIGKILL)
+    local = run_study(tmp_path / "local", small, workers=1)
+    for a, b in zip(local["materials"], remote["materials"], strict=True):
+        assert a["iou"] == b["iou"] and a["label_metric_value"] == b["label_metric_value"]
+    assert local["labels"]["thresholds"] == remote["labels"]["thresholds"]
+    assert [s["iou"] for s in local["sweeps"]] == [s["iou"] for s in remote["sweeps"]]

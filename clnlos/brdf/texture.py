@@ -21,7 +21,14 @@ import pyopencl as cl
 import pyopencl.array as cla
 
 from ..errors import InputFileError, ParameterError
-from ..runtime import get_kernels, get_queue, real_defines, require_dtype, round_up
+from ..runtime import (
+    get_kernels,
+    get_queue,
+    kernel_int,
+    real_defines,
+    require_dtype,
+    round_up,
+)
 
 FORMAT, VERSION = "clnlos-brdf-texture", 1
 
@@ -141,15 +148,21 @@ class TextureLookup:
         self._k = get_kernels(self.queue, "brdf", defines)
 
     def __call__(self, angles) -> np.ndarray:
-        a = np.ascontiguousarray(np.asarray(angles, float).reshape(-1, 4), self.dtype)
+        """BRDF (1/sr) at ``angles`` (..., 4) = (theta_i, phi_i, theta_s, phi_s) in radians."""
+        a = np.asarray(angles, float).reshape(-1, 4)
+        if not np.all(np.isfinite(a)):
+            bad = a[~np.all(np.isfinite(a), axis=1)][0]
+            raise ParameterError("angles", bad.tolist(), "finite angles in radians (NaN or "
+                                 "Inf cannot be looked up)")
+        a = np.ascontiguousarray(a, self.dtype)
         n = len(a)
         out = cla.empty(self.queue, n, self.dtype)
         if n:
             a_g = cla.to_device(self.queue, a)
-            n_ti, n_ts, n_dp = (np.int32(s) for s in self.shape)
+            n_ti, n_ts, n_dp = (kernel_int(s) for s in self.shape)
             src = self.image if self.path == "image" else self.buf.data
             kern = self._k.brdf_lookup_image if self.path == "image" else \
                 self._k.brdf_lookup_buffer
             kern(self.queue, (round_up(n, 64),), None, src, n_ti, n_ts, n_dp, a_g.data,
-                 out.data, np.int32(n))
+                 out.data, np.uint64(n))
         return out.get()
