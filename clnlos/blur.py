@@ -18,9 +18,9 @@ import math
 
 import numpy as np
 import pyopencl.array as cla
-from scipy.signal import fftconvolve
 
-from .diffusion import diffusion_psf
+from .diffusion import (SlabTransmittance, diffusion_psf, diffusion_psf_device,
+                        temporal_support_lags)
 from .slab import Slab
 from .fft import RealFFT3
 from .runtime import (
@@ -31,10 +31,50 @@ from .runtime import (
     real_defines,
     require_dtype,
     round_up,
-    upload_into,
     zeros,
 )
 from .wiener import SpectralFilter
+
+
+def _phi_on_padded_grid(slab: Slab, shape, *, bin_width_s: float, pitch_m: float,
+                        n_dipoles, periodic_xy: bool, dtype, queue):
+    """(Phi on the padded grid, zero past its temporal support; its support in lags)."""
+    q = get_queue(queue)
+    dt = require_dtype(q.device, dtype)
+    nt, ny, nx = (int(s) for s in shape)
+    pad = (2 * nt, ny, nx) if periodic_xy else (2 * nt, 2 * ny, 2 * nx)
+    phi_g = zeros(q, pad, dt)  # lags past the support (and nt..2nt-1) stay 0
+    lags = temporal_support_lags(slab, nt=nt, bin_width_s=bin_width_s, queue=q)
+    diffusion_psf_device(SlabTransmittance(slab, n_dipoles=n_dipoles, dtype=dt, queue=q),
+                         nt=nt, bin_width_s=bin_width_s, ny=pad[1], nx=pad[2],
+                         pitch_m=pitch_m, lags=lags, out_g=phi_g)
+    return phi_g, lags
+
+
+def confocal_spectrum(slab: Slab, shape: tuple[int, int, int], *, bin_width_s: float,
+                      pitch_m: float, n_dipoles: int | None = None, periodic_xy: bool = False,
+                      dtype=np.float32, queue=None):
+    """(F[Phi * Phi] on the padded grid, the padded shape): the spectrum of
+    :func:`confocal_psf` without going back to the lag domain when it need not.
+
+    When Phi's temporal support L satisfies 2 L <= nt, Phi * Phi ends before lag nt and the
+    cut at nt is a no-op, so the spectrum is F[Phi]^2 (one forward FFT instead of a forward,
+    an inverse and a forward); otherwise it is F of :func:`confocal_psf`."""
+    q = get_queue(queue)
+    dt = require_dtype(q.device, dtype)
+    nt = int(shape[0])
+    phi_g, lags = _phi_on_padded_grid(slab, shape, bin_width_s=bin_width_s, pitch_m=pitch_m,
+                                      n_dipoles=n_dipoles, periodic_xy=periodic_xy,
+                                      dtype=dt, queue=q)
+    fft = RealFFT3(phi_g.shape, dt, q)
+    spec = fft.forward(phi_g)
+    k = get_kernels(q, "wiener", real_defines(dt))
+    k.spectral_square(q, (round_up(spec.size, 256),), None, spec.data, np.int64(spec.size))
+    if 2 * lags > nt:
+        phi2 = fft.inverse(spec, phi_g)
+        fill_zero(q, phi2, offset_bytes=nt * phi2.shape[1] * phi2.shape[2] * dt.itemsize)
+        spec = fft.forward(phi2, spec)
+    return spec, phi_g.shape
 
 
 def confocal_psf(slab: Slab, shape: tuple[int, int, int], *, bin_width_s: float,
@@ -46,26 +86,25 @@ def confocal_psf(slab: Slab, shape: tuple[int, int, int], *, bin_width_s: float,
     a forward model whose input already extends past the kept area by the blur's reach
     (:func:`lateral_reach_m`), where the wrapped border is cropped away.
 
-    Phi is computed with ``normalize="physical"`` (so the sum of Phi * Phi approximates the
-    squared total transmittance) for lags 0..nt-1; the self-convolution is exact on the
-    2 nt grid and is then cut to lags 0..nt-1, the only ones that reach the time window
-    from inside it -- longer lags would wrap around the padded FFT.
+    Phi is computed on the device with ``normalize="physical"`` (so the sum of Phi * Phi
+    approximates the squared total transmittance) for the lags of its temporal support
+    (:func:`~clnlos.diffusion.temporal_support_lags`, all but 1e-7 of its energy; zero
+    after); the self-convolution is exact on the 2 nt grid and is then cut to lags
+    0..nt-1, the only ones that reach the time window from inside it -- longer lags would
+    wrap around the padded FFT.
     """
     q = get_queue(queue)
     dt = require_dtype(q.device, dtype)
-    nt, ny, nx = (int(s) for s in shape)
-    pad = (2 * nt, ny, nx) if periodic_xy else (2 * nt, 2 * ny, 2 * nx)
-    phi_g = zeros(q, pad, dt)  # lags nt..2nt-1 stay 0
-    upload_into(phi_g[:nt], diffusion_psf(slab, nt=nt, bin_width_s=bin_width_s, ny=pad[1],
-                                          nx=pad[2], pitch_m=pitch_m, n_dipoles=n_dipoles,
-                                          dtype=dt, queue=q))
-    fft = RealFFT3(pad, dt, q)
+    nt = int(shape[0])
+    phi_g, _ = _phi_on_padded_grid(slab, shape, bin_width_s=bin_width_s, pitch_m=pitch_m,
+                                   n_dipoles=n_dipoles, periodic_xy=periodic_xy, dtype=dt,
+                                   queue=q)
+    fft = RealFFT3(phi_g.shape, dt, q)
     spec = fft.forward(phi_g)
-    del phi_g
     k = get_kernels(q, "wiener", real_defines(dt))
     k.spectral_square(q, (round_up(spec.size, 256),), None, spec.data, np.int64(spec.size))
-    phi2 = fft.inverse(spec)
-    fill_zero(q, phi2, offset_bytes=nt * pad[1] * pad[2] * dt.itemsize)
+    phi2 = fft.inverse(spec, phi_g)
+    fill_zero(q, phi2, offset_bytes=nt * phi2.shape[1] * phi2.shape[2] * dt.itemsize)
     return phi2
 
 
@@ -79,6 +118,8 @@ def lateral_reach_m(slab: Slab, *, window_s: float, pitch_m: float, tol: float =
     computed on a grid of at most 256 cells per side reaching 20 (d + 2 z_e), a bound well
     past the lateral decay length (d + 2 z_e) / pi of the slab's diffuse spot.
     """
+    from scipy.signal import fftconvolve
+
     r_max = 20.0 * (slab.thickness_m + 2.0 * slab.ze)
     pitch = max(float(pitch_m), 2.0 * r_max / 256)
     n = 2 * int(math.ceil(r_max / pitch))
@@ -108,7 +149,8 @@ def slab_blur(slab: Slab, shape, *, bin_width_s: float, pitch_m: float, mode: st
     gain is the squared slab transmittance). ``mode="wiener"``: the deconvolution
     conj(H)/(|H|^2 + 1/SNR) with H normalised to unit DC gain.
     """
-    psf = confocal_psf(slab, shape, bin_width_s=bin_width_s, pitch_m=pitch_m,
-                       n_dipoles=n_dipoles, periodic_xy=periodic_xy, dtype=dtype, queue=queue)
-    return SpectralFilter(psf, shape, mode=mode, snr=snr, normalize=(mode == "wiener"),
-                          lateral_pad=lateral_pad, dtype=dtype, queue=queue)
+    spec, pad = confocal_spectrum(slab, shape, bin_width_s=bin_width_s, pitch_m=pitch_m,
+                                  n_dipoles=n_dipoles, periodic_xy=periodic_xy, dtype=dtype,
+                                  queue=queue)
+    return SpectralFilter(pad, shape, mode=mode, snr=snr, normalize=(mode == "wiener"),
+                          lateral_pad=lateral_pad, dtype=dtype, queue=queue, spectrum=spec)

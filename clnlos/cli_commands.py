@@ -296,6 +296,26 @@ def cmd_brdf_plot(args) -> int:
     return 0
 
 
+def cmd_brdf_evaluate(args) -> int:
+    from tqdm import tqdm
+
+    from .brdf.evaluate import evaluate, measured_sets, summary_table, write_rows
+
+    if any(m in ("mlp", "mlp-seed") for m in args.models):
+        require("torch", "brdf evaluate with an MLP model")
+    out = Path(args.output)
+    outs = {"-o": out, "(json)": out.with_suffix(".json")}
+    check_outputs(outs, inputs=[args.directory], suffixes={"-o": (".csv",)})
+    measured_sets(args.directory)
+    rows = evaluate(args.directory, models=args.models, modes=args.modes,
+                    splits=tuple(range(args.splits)), materials=args.material,
+                    progress=lambda jobs: tqdm(jobs, desc="brdf evaluate", unit="fit"))
+    write_rows(rows, out, out.with_suffix(".json"))
+    print(summary_table(rows))
+    print(f"wrote {out} and {out.with_suffix('.json')}")
+    return 0
+
+
 def register_brdf(sub, add_device) -> None:
     b = sub.add_parser("brdf", help="fit, tabulate and plot BRDF models")
     bs = b.add_subparsers(dest="brdf_command", required=True)
@@ -319,6 +339,17 @@ def register_brdf(sub, add_device) -> None:
     p.add_argument("--data", help="measured CSV to overlay")
     p.add_argument("-o", "--output")
     p.set_defaults(func=cmd_brdf_plot)
+    e = bs.add_parser("evaluate", help="interpolation and extrapolation scores of models on "
+                      "every NAME_gonio.csv/NAME_test.csv pair in a directory")
+    e.add_argument("directory")
+    e.add_argument("-o", "--output", required=True, help="rows as CSV (JSON beside it)")
+    e.add_argument("--models", nargs="+", default=["mlp", "mlp-seed", "five-param",
+                                                  "torrance-sparrow"], choices=BRDF_MODELS)
+    e.add_argument("--modes", nargs="+", default=["interp", "extrap"],
+                   choices=["interp", "extrap"])
+    e.add_argument("--splits", type=int, default=1, help="random interpolation splits")
+    e.add_argument("--material", nargs="+", help="only sets whose name contains one of these")
+    e.set_defaults(func=cmd_brdf_evaluate)
 
 
 # ------------------------------------------------------------------ study

@@ -4,7 +4,8 @@ The backend is chosen once per plan by :func:`clnlos.runtime.fft_backend` (host 
 devices and on PoCL >= 7, which miscompiles VkFFT, pocl issue 2069; VkFFT on GPUs;
 ``CLNLOS_FFT=host|vkfft`` overrides, ``numpy`` is an alias of ``host``) and recorded in
 ``plan.backend``. The host FFT is scipy.fft (pocketfft,
-all cores) with a copy to and from the device. Conventions are numpy's: forward
+all cores) on mapped device buffers (no copy on a CPU device; see
+:func:`clnlos.runtime.host_view`). Conventions are numpy's: forward
 unnormalised, inverse divided by N.
 
 ``RealFFT3``: real (n0, n1, n2) <-> half spectrum (n0, n1, n2//2 + 1) (the spectral filters).
@@ -20,12 +21,11 @@ import pyopencl.array as cla
 import scipy.fft as sfft
 
 from .runtime import (
-    download,
     host_threads,
+    host_view,
     get_queue,
     require_dtype,
     require_memory,
-    upload_into,
     fft_backend,
     warn_once,
 )
@@ -80,7 +80,8 @@ class RealFFT3:
         if self._app is not None:
             self._app.fft(x_g, out_g)
         else:
-            upload_into(out_g, sfft.rfftn(download(x_g), workers=_workers()))
+            with host_view(x_g) as x, host_view(out_g, write=True, read=False) as out:
+                out[...] = sfft.rfftn(x, workers=_workers())
         return out_g
 
     def inverse(self, s_g: cla.Array, out_g: cla.Array | None = None) -> cla.Array:
@@ -89,8 +90,8 @@ class RealFFT3:
         if self._app is not None:
             self._app.ifft(s_g, out_g)
         else:
-            upload_into(out_g, sfft.irfftn(download(s_g), s=self.shape, axes=(0, 1, 2),
-                                           workers=_workers()))
+            with host_view(s_g) as s, host_view(out_g, write=True, read=False) as out:
+                out[...] = sfft.irfftn(s, s=self.shape, axes=(0, 1, 2), workers=_workers())
         return out_g
 
 
@@ -113,12 +114,14 @@ class ComplexFFT3:
         if self._app is not None:
             self._app.fft(a_g)
         else:
-            upload_into(a_g, sfft.fftn(download(a_g), workers=_workers(), overwrite_x=True))
+            with host_view(a_g, write=True) as a:
+                a[...] = sfft.fftn(a, workers=_workers())
         return a_g
 
     def inverse(self, a_g: cla.Array) -> cla.Array:
         if self._app is not None:
             self._app.ifft(a_g)
         else:
-            upload_into(a_g, sfft.ifftn(download(a_g), workers=_workers(), overwrite_x=True))
+            with host_view(a_g, write=True) as a:
+                a[...] = sfft.ifftn(a, workers=_workers())
         return a_g

@@ -69,6 +69,28 @@ def lightcone_psf(nt: int, ny: int, nx: int, *, bin_width_s: float, pitch_m: flo
     return psf / psf.sum()
 
 
+def lightcone_psf_device(nt: int, ny: int, nx: int, *, bin_width_s: float, pitch_m: float,
+                         dtype=np.float32, queue=None):
+    """:func:`lightcone_psf` built by ``kernels/lct.cl`` on the device (no host table);
+    the normalisation (sum of the kept weights) is computed on the host in float64."""
+    from .runtime import kernel_int, zeros
+
+    q = get_queue(queue)
+    dt = require_dtype(q.device, dtype)
+    R = nt * C0 * bin_width_s / 2
+    c = pitch_m**2 / R**2 * nt  # v-shift (bins) per squared cell offset
+    j_y, j_x = grid_offsets(2 * ny, 1.0), grid_offsets(2 * nx, 1.0)
+    s = (j_y[:, None] ** 2 + j_x[None, :] ** 2) * c
+    k0, f = np.floor(s), s - np.floor(s)
+    total = float(np.sum(np.where(k0 < 2 * nt, 1 - f, 0) + np.where(k0 + 1 < 2 * nt, f, 0)))
+    psf = zeros(q, (2 * nt, 2 * ny, 2 * nx), dt)
+    k = get_kernels(q, "lct", real_defines(dt))
+    k.lightcone_psf(q, (round_up(2 * nx, 16), round_up(2 * ny, 4)), None, psf.data,
+                    kernel_int(2 * nt), kernel_int(2 * ny), kernel_int(2 * nx), dt.type(c),
+                    dt.type(1.0 / total))
+    return psf
+
+
 def t_to_v_matrix(nt: int, falloff: float) -> sp.csr_matrix:
     """Radiometric weight (t/T)^p then mass-conserving resampling t -> v = t^2 (normalised)."""
     t_edges = np.linspace(0.0, 1.0, nt + 1)
@@ -102,7 +124,8 @@ class LCT:
         self.to_v = AxisResample(t_to_v_matrix(nt, falloff), (ny, nx), dtype=self.dtype,
                                  queue=self.queue)
         self.to_v.name = "lct_t_to_v"
-        psf = lightcone_psf(nt, ny, nx, bin_width_s=bin_width_s, pitch_m=pitch)
+        psf = lightcone_psf_device(nt, ny, nx, bin_width_s=bin_width_s, pitch_m=pitch,
+                                   dtype=self.dtype, queue=self.queue)
         self.cone = SpectralFilter(psf, self.shape, mode="convolve", dtype=self.dtype,
                                    queue=self.queue)
         self.cone.name = "lct_lightcone"

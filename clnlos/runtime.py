@@ -17,6 +17,8 @@ Spec forms:
 
 from __future__ import annotations
 
+import contextlib
+
 import hashlib
 import importlib.resources
 import os
@@ -417,6 +419,28 @@ def upload_into(a_g, host: np.ndarray) -> None:
         raise ShapeError(f"upload of {host.shape} into a device array of {a_g.shape}")
     cl.enqueue_copy(a_g.queue, a_g.base_data, host, dst_offset=a_g.offset,
                     wait_for=a_g.events, is_blocking=True)
+
+
+@contextlib.contextmanager
+def host_view(a_g, write: bool = False, read: bool = True):
+    """The device array ``a_g`` as a numpy array for the duration of a ``with`` block.
+
+    clEnqueueMapBuffer: on a CPU device (PoCL) the buffer's own memory, no copy; elsewhere
+    the driver copies. ``write`` and not ``read``: the old contents are not needed
+    (CL_MAP_WRITE_INVALIDATE_REGION). Unmapped, and the queue finished, on leaving.
+    """
+    flags = 0
+    if read:
+        flags |= cl.map_flags.READ
+    if write:
+        flags |= cl.map_flags.WRITE if read else cl.map_flags.WRITE_INVALIDATE_REGION
+    ary, _ = cl.enqueue_map_buffer(a_g.queue, a_g.base_data, flags, a_g.offset, a_g.shape,
+                                   a_g.dtype, wait_for=a_g.events, is_blocking=True)
+    try:
+        yield ary
+    finally:
+        ary.base.release(a_g.queue)
+        a_g.queue.finish()
 
 
 def fill_zero(queue: cl.CommandQueue, a_g, offset_bytes: int = 0, nbytes: int | None = None):

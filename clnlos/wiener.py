@@ -44,6 +44,9 @@ class SpectralFilter(LinearOperator):
     in_shape : (n0, n1, n2)
         Shape of the volumes filtered (placed at the low corner of the padded grid).
     snr : float, for ``mode="wiener"``: 1/SNR regularises the inverse.
+    spectrum : pyopencl Array, optional
+        F[psf] already computed on this grid (half spectrum, complex); ``psf`` is then the
+        padded shape (a tuple).
     lateral_pad : ``"zero"`` (default; the operator has an exact adjoint) or ``"mirror"``
         (even extension across the scan border, needs a (.., 2 ny, 2 nx) grid): for
         deconvolving data whose blur reached past the scanned area, where zero padding puts
@@ -54,7 +57,7 @@ class SpectralFilter(LinearOperator):
 
     def __init__(self, psf, in_shape, *, mode: str = "convolve", snr: float | None = None,
                  normalize: bool = True, lateral_pad: str = "zero", dtype=np.float32,
-                 queue=None):
+                 queue=None, spectrum: cla.Array | None = None):
         self.queue = get_queue(queue)
         self.dtype = require_dtype(self.queue.device, dtype)
         if mode not in ("convolve", "wiener"):
@@ -67,7 +70,7 @@ class SpectralFilter(LinearOperator):
         else:
             self.inv_snr = 0.0
         self.name = f"{mode}_filter"
-        pad_shape = tuple(int(s) for s in psf.shape)
+        pad_shape = tuple(int(s) for s in (psf.shape if hasattr(psf, "shape") else psf))
         self.in_shape = self.out_shape = tuple(int(s) for s in in_shape)
         if len(pad_shape) != 3 or any(p < n for p, n in zip(pad_shape, self.in_shape,
                                                              strict=True)):
@@ -86,11 +89,17 @@ class SpectralFilter(LinearOperator):
                                  out_rows=pad_shape[0])
         self.fft = RealFFT3(pad_shape, self.dtype, self.queue)
         self._k = get_kernels(self.queue, "wiener", real_defines(self.dtype))
-        psf_g = psf if isinstance(psf, cla.Array) else cla.to_device(
-            self.queue, np.ascontiguousarray(psf, self.dtype))
-        if psf_g.dtype != self.dtype:
-            psf_g = psf_g.astype(self.dtype)
-        self.H = self.fft.forward(psf_g)
+        if spectrum is not None:
+            if tuple(spectrum.shape) != self.fft.spec_shape:
+                raise ShapeError(f"spectrum of shape {tuple(spectrum.shape)}; the grid "
+                                 f"{pad_shape} needs {self.fft.spec_shape}")
+            self.H = spectrum
+        else:
+            psf_g = psf if isinstance(psf, cla.Array) else cla.to_device(
+                self.queue, np.ascontiguousarray(psf, self.dtype))
+            if psf_g.dtype != self.dtype:
+                psf_g = psf_g.astype(self.dtype)
+            self.H = self.fft.forward(psf_g)
         self.dc_gain = float(self.H[0, 0, 0].get().real) if self.H.size else 0.0
         if normalize:
             if not self.dc_gain > 0:

@@ -1,6 +1,7 @@
 """Slab diffusion kernel (kernels/diffusion.cl) against the float64 reference, and hard cases."""
 
 import numpy as np
+import pyopencl.array as cla
 import pytest
 from helpers import TOL_DIFFUSION, rel_l2
 from reference.diffusion_ref import (
@@ -179,3 +180,29 @@ def test_plan_reuses_program(queue):
     a = SlabTransmittance(Slab(**CDT), queue=queue)
     b = SlabTransmittance(Slab(**CDT), n_dipoles=3, queue=queue)
     assert a.kernels is b.kernels
+
+
+def test_temporal_support_holds_all_but_tol_of_the_psf(queue):
+    """The slab PSF is evaluated only over its temporal support: what is cut is below the
+    stated tolerance of the full table's energy, and a slab whose response outlasts the
+    window keeps every lag."""
+    from clnlos.diffusion import diffusion_psf, diffusion_psf_device, temporal_support_lags
+
+    slab = Slab(**CDT)
+    nt, dt = 512, 32e-12
+    lags = temporal_support_lags(slab, nt=nt, bin_width_s=dt, queue=queue)
+    assert 16 < lags < nt // 2  # about 5 ns of a 16 ns window
+    full = diffusion_psf(slab, nt=nt, bin_width_s=dt, ny=32, nx=32, pitch_m=0.005,
+                         dtype=np.float64 if queue.device.double_fp_config else np.float32,
+                         queue=queue).astype(np.float64)
+    assert full[lags:].sum() < 1e-6 * full.sum()
+    assert full[lags - 8:lags].sum() > 0  # the cut is not far past the support
+    plan = SlabTransmittance(slab, dtype=np.float32, queue=queue)
+    out = cla.zeros(queue, (nt, 32, 32), np.float32)
+    diffusion_psf_device(plan, nt=nt, bin_width_s=dt, ny=32, nx=32, pitch_m=0.005, lags=lags,
+                         out_g=out)
+    got = out.get()
+    assert not got[lags:].any()
+    np.testing.assert_allclose(got[:lags], full[:lags], rtol=1e-4, atol=1e-6 * full.max())
+    slow = Slab(thickness_m=0.3, mu_a=0.001, mu_s_prime=1000.0, n=1.4)
+    assert temporal_support_lags(slow, nt=64, bin_width_s=dt, queue=queue) == 64

@@ -402,3 +402,39 @@ def test_cli_bad_capture_files(tmp_path, capsys):
     errs = capsys.readouterr().err.strip().splitlines()
     assert len(errs) == 3 and "NaN" in errs[1] and "scan_width" in errs[2]
     assert not (tmp_path / "o.h5").exists()
+
+
+@pytest.mark.parametrize("nt,n,pitch", [(64, 8, 0.01), (32, 12, 0.08), (17, 5, 0.003)])
+def test_lightcone_psf_kernel_matches_numpy(queue, dtype, nt, n, pitch):
+    """kernels/lct.cl's light cone against the float64 numpy table, including cones that
+    leave the padded window (pitch 0.08 m: the outer cells' bins fall past 2 nt)."""
+    from clnlos.lct import lightcone_psf, lightcone_psf_device
+
+    ref = lightcone_psf(nt, n, n + 1, bin_width_s=32e-12, pitch_m=pitch)
+    got = lightcone_psf_device(nt, n, n + 1, bin_width_s=32e-12, pitch_m=pitch, dtype=dtype,
+                               queue=queue).get()
+    # float32: the split fraction f carries ~1e-7 * s absolute error
+    tol = 1e-12 if dtype == np.float64 else 2e-6 * nt
+    np.testing.assert_allclose(got, ref, atol=tol * ref.max(), rtol=0)
+    assert got.sum() == pytest.approx(1.0, rel=1e-5)
+
+
+@pytest.mark.parametrize("nt", [512, 96])
+def test_slab_blur_from_its_spectrum_equals_the_psf_route(queue, dtype, nt):
+    """slab_blur squares Phi's spectrum directly when Phi * Phi cannot reach lag nt
+    (nt = 512 at 32 ps: support 160 lags) and goes back to the lag domain to cut it otherwise
+    (nt = 96): both equal filtering by confocal_psf."""
+    from clnlos.diffusion import temporal_support_lags
+    from clnlos.wiener import SpectralFilter
+
+    slab = Slab(thickness_m=0.0254, mu_a=0.53, mu_s_prime=262.0, n=1.12)
+    lags = temporal_support_lags(slab, nt=nt, bin_width_s=32e-12, queue=queue)
+    assert (2 * lags <= nt) == (nt == 512)
+    shape = (nt, 6, 5)
+    x = np.random.default_rng(3).random(shape).astype(dtype)
+    kw = dict(bin_width_s=32e-12, pitch_m=0.01, dtype=dtype, queue=queue)
+    for mode, snr in (("convolve", None), ("wiener", 1e3)):
+        fast = slab_blur(slab, shape, mode=mode, snr=snr, **kw)(x)
+        ref = SpectralFilter(confocal_psf(slab, shape, **kw), shape, mode=mode, snr=snr,
+                             normalize=mode == "wiener", dtype=dtype, queue=queue)(x)
+        assert rel_l2(ref, fast) < (1e-10 if dtype == np.float64 else 1e-5), mode

@@ -57,9 +57,9 @@ def test_wiener_snr_and_inputs(queue, snr, kind):
     if kind == "zeros":
         assert not a64.any() and not a32.any()
     elif kind != "denormal":
-        # float32 amplifies rounding by up to ~sqrt(SNR) where |H| is small
-        tol = F32_TOL["wiener"] * max(1.0, np.sqrt(min(snr, 1e12)) / 100)
-        assert rel_l2(a64, a32) < tol, rel_l2(a64, a32)
+        # measured float32 vs float64: 1e-7..7e-6 up to SNR 1e4, 2.2e-5 at SNR 1e12 (the
+        # regularised inverse keeps its gain bounded); one tolerance for every SNR
+        assert rel_l2(a64, a32) < F32_TOL["wiener"], rel_l2(a64, a32)
 
 
 def test_wiener_psf_with_exact_spectral_zeros(queue, dtype):

@@ -83,6 +83,38 @@ def bench_brdf(b: Bench):
                   _rel(lk(a), truth))
     b.add("brdf", "model-eval", "analytic", np.float64, lambda: model(*a.T), 0.0,
           impl="numpy", sync=False)
+    _peak_rows(b, a)
+
+
+def mirror_angles(theta_i_deg=(10, 25, 40, 55, 70), offsets_deg=(-3, -1, -0.3, 0, 0.3, 1, 3)):
+    """In-plane directions at and around the mirror direction of each incidence (radians)."""
+    ti, off = np.meshgrid(np.radians(theta_i_deg), np.radians(offsets_deg), indexing="ij")
+    ts = np.clip(ti + off, 0, np.pi / 2 - 1e-3)
+    return np.column_stack([ti.ravel(), 0 * ti.ravel(), ts.ravel(), np.full(ti.size, np.pi)]), \
+        (off.ravel() == 0)
+
+
+def _peak_rows(b: Bench, a: np.ndarray):
+    """Does the texture keep a specular peak? For lobes of GGX roughness alpha (0.2 broad,
+    0.05 glossy, 0.01 near-mirror, about the Starlink panel's 0.3 degree lobe): error is the
+    worst relative error at the exact mirror directions (the peak value), with the L2 error over
+    +-3 degrees around them and the texture's size, against the time of a random lookup."""
+    from ..brdf.models import BRDFModel
+    from ..brdf.texture import TextureLookup, tabulate
+
+    peak_dirs, at_peak = mirror_angles()
+    sizes = (16, 32, 64) if b.size == "tiny" else (16, 32, 64, 128, 256)
+    for alpha in (0.2, 0.05, 0.01):
+        model = BRDFModel("microfacet", {"kd": 0.05, "ks": 1.0, "alpha": alpha, "f0": 0.9})
+        truth = model(*peak_dirs.T)
+        for res in sizes:
+            tex = tabulate(model, res, res, 16)
+            lk = TextureLookup(tex, path="buffer", queue=b.q)
+            got = lk(peak_dirs)
+            peak = float(np.max(np.abs(got[at_peak] / truth[at_peak] - 1)))
+            b.add("brdf-peak", f"resolution@alpha={alpha}", res, np.float32,
+                  lambda lk=lk: lk(a), peak, lobe_rel_error=_rel(got, truth),
+                  texture_mb=round(tex.texture.nbytes / 2**20, 2))
 
 
 def bench_model_level(b: Bench):

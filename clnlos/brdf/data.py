@@ -19,6 +19,34 @@ import numpy as np
 from ..errors import InputFileError
 
 CSV_COLUMNS = ["theta_i_deg", "phi_i_deg", "theta_s_deg", "phi_s_deg", "brdf"]
+# Values below this (1/sr) are not used to judge a fit, whatever a file's precision: relative
+# errors of near-zero values say nothing about the lobe.
+MIN_SIGNIFICANT = 0.01
+# A value printed with q as its last decimal place is known to about +-q/2; below 10 q its
+# relative error exceeds 5%, so 10 q is taken as the file's precision.
+PRECISION_QUANTA = 10
+
+
+def precision_from_text(values: list[str]) -> float:
+    """Precision (1/sr) implied by how the values are printed: PRECISION_QUANTA x the finest
+    last decimal place among them (0 when they are printed in exponent form)."""
+    places = 0
+    for v in values:
+        if "e" in v or "E" in v:
+            return 0.0
+        if "." in v:
+            places = max(places, len(v.split(".", 1)[1]))
+    return PRECISION_QUANTA * 10.0 ** (-places)
+
+
+def significance_floor(samples) -> float:
+    """The value (1/sr) above which samples judge a fit: max(precision, MIN_SIGNIFICANT)."""
+    return max(float(samples.meta.get("precision", 0.0)), MIN_SIGNIFICANT)
+
+
+def significant(samples):
+    """The samples at or above :func:`significance_floor`."""
+    return samples.subset(samples.brdf >= significance_floor(samples))
 
 
 @dataclass
@@ -62,11 +90,14 @@ def _validate(path, a: np.ndarray) -> None:
 
 
 def read_gonio_csv(path) -> BRDFSamples:
-    """Read ``theta_i_deg,phi_i_deg,theta_s_deg,phi_s_deg,brdf`` with ``#`` header lines."""
+    """Read ``theta_i_deg,phi_i_deg,theta_s_deg,phi_s_deg,brdf`` with ``#`` header lines.
+
+    ``meta["precision"]`` (1/sr) is a ``# precision:`` header when present, else derived from
+    the printed decimals of the brdf column (:func:`precision_from_text`)."""
     p = Path(path)
     if not p.is_file():
         raise InputFileError(f"{p}: no such file")
-    meta, rows, header = {}, [], None
+    meta, rows, header, printed = {}, [], None, []
     try:
         text = p.read_text(encoding="utf-8")
     except UnicodeDecodeError:
@@ -90,6 +121,7 @@ def read_gonio_csv(path) -> BRDFSamples:
             continue
         if len(cells) != 5:
             raise InputFileError(f"{p}: line {ln}: 5 values expected, got {len(cells)}")
+        printed.append(cells[4])
         try:
             rows.append([float(c) for c in cells])
         except ValueError:
@@ -100,7 +132,24 @@ def read_gonio_csv(path) -> BRDFSamples:
     _validate(p, a)
     r = np.radians(a[:, :4])
     meta["path"] = str(p)
+    _set_precision(p, meta, printed)
     return BRDFSamples(r[:, 0], r[:, 1], r[:, 2], r[:, 3], a[:, 4], meta)
+
+
+def _set_precision(path, meta: dict, printed: list[str]) -> None:
+    if "precision" in meta:
+        try:
+            meta["precision"] = float(str(meta["precision"]).split()[0])
+        except ValueError:
+            raise InputFileError(f"{path}: '# precision:' must be a number in 1/sr, got "
+                                 f"{meta['precision']!r}") from None
+        if not (np.isfinite(meta["precision"]) and meta["precision"] >= 0):
+            raise InputFileError(f"{path}: '# precision:' must be >= 0, got "
+                                 f"{meta['precision']}")
+        meta["precision_source"] = "file header"
+    else:
+        meta["precision"] = precision_from_text(printed)
+        meta["precision_source"] = f"{PRECISION_QUANTA} x the last printed decimal place"
 
 
 def read_pbrt_brdf(path, wavelength_nm: float = 550.0) -> BRDFSamples:
@@ -109,7 +158,7 @@ def read_pbrt_brdf(path, wavelength_nm: float = 550.0) -> BRDFSamples:
     p = Path(path)
     if not p.is_file():
         raise InputFileError(f"{p}: no such file")
-    toks = []
+    toks: list[str] = []
     for line in p.read_text(encoding="utf-8", errors="replace").splitlines():
         line = line.split("#", 1)[0]
         toks.extend(line.split())
@@ -132,8 +181,10 @@ def read_pbrt_brdf(path, wavelength_nm: float = 550.0) -> BRDFSamples:
     deg = np.degrees(rows[:, :4])
     a = np.column_stack([deg, f])
     _validate(p, a)
-    return BRDFSamples(rows[:, 0], rows[:, 1], rows[:, 2], rows[:, 3], f,
-                       {"path": str(p), "channel": f"{wavelength_nm} nm", "format": "pbrt-v2"})
+    meta = {"path": str(p), "channel": f"{wavelength_nm} nm", "format": "pbrt-v2"}
+    value_tokens = np.asarray(toks[1 + nw:], dtype=object).reshape(-1, 4 + nw)[:, 4:]
+    _set_precision(p, meta, list(value_tokens.ravel()))
+    return BRDFSamples(rows[:, 0], rows[:, 1], rows[:, 2], rows[:, 3], f, meta)
 
 
 # ------------------------------------------------------------------ MERL
@@ -172,7 +223,8 @@ class MerlBRDF:
             raise InputFileError(f"{p}: not a MERL .binary (dims {dims}, {len(raw)} bytes)")
         data = np.frombuffer(raw[12:], "<f8").reshape(3, *MERL_SHAPE)
         self.table = data[channel] * MERL_SCALE[channel]
-        self.meta = {"path": str(p), "channel": "RGB"[channel], "format": "MERL"}
+        self.meta = {"path": str(p), "channel": "RGB"[channel], "format": "MERL",
+                     "precision": 0.0, "precision_source": "float64 binary"}
 
     def __call__(self, ti, pi_, ts, ps) -> np.ndarray:
         th, td, pd = half_diff(ti, pi_, ts, ps)

@@ -14,7 +14,8 @@ import numpy as np
 from scipy.optimize import least_squares
 
 from ..errors import ParameterError
-from .data import BRDFSamples, agreement, relative_error
+from .data import (MIN_SIGNIFICANT, BRDFSamples, agreement, relative_error,
+                   significance_floor)
 from .models import BRDFModel
 
 # (parameter, lower, upper) per model; parameters not listed keep their defaults.
@@ -36,15 +37,35 @@ class FitResult:
 
 
 def metrics_for(predict, train: BRDFSamples, test: BRDFSamples | None) -> dict:
-    out = {}
+    """Agreement (%), relative L2 error and peak error of ``predict`` on each set, computed on
+    the samples at or above the set's significance floor (its precision, at least
+    MIN_SIGNIFICANT); the floor and how the precision was found are part of the result."""
+    out = {"metrics_on": f"samples with brdf >= max(precision, {MIN_SIGNIFICANT}) 1/sr"}
     for name, s in (("train", train), ("test", test)):
         if s is None:
             continue
-        p = predict(s.theta_i, s.phi_i, s.theta_s, s.phi_s)
-        out[f"{name}_relative_error"] = relative_error(p, s.brdf)
-        out[f"{name}_agreement_pct"] = agreement(p, s.brdf)
-        out[f"{name}_samples"] = len(s)
+        floor = significance_floor(s)
+        keep = s.brdf >= floor
+        p = predict(s.theta_i[keep], s.phi_i[keep], s.theta_s[keep], s.phi_s[keep])
+        f = s.brdf[keep]
+        out[f"{name}_relative_error"] = relative_error(p, f)
+        out[f"{name}_agreement_pct"] = agreement(p, f)
+        out[f"{name}_peak_error_pct"] = peak_error(p, f)
+        out[f"{name}_samples"] = int(keep.sum())
+        out[f"{name}_samples_below_floor"] = int((~keep).sum())
+        out[f"{name}_floor_per_sr"] = floor
+        out[f"{name}_precision_per_sr"] = float(s.meta.get("precision", 0.0))
+        out[f"{name}_precision_source"] = s.meta.get("precision_source", "not recorded")
     return out
+
+
+def peak_error(pred, truth) -> float:
+    """100 x (fhat - f) / f at the largest measured value (signed %, nan when empty)."""
+    pred, truth = np.asarray(pred, float), np.asarray(truth, float)
+    if truth.size == 0:
+        return float("nan")
+    k = int(np.argmax(truth))
+    return float(100.0 * (pred[k] - truth[k]) / truth[k])
 
 
 def fit_analytic(name: str, train: BRDFSamples, test: BRDFSamples | None = None, *,
@@ -53,6 +74,9 @@ def fit_analytic(name: str, train: BRDFSamples, test: BRDFSamples | None = None,
         name = "lambert"
     if name not in FIT_SPACE:
         raise ParameterError("model", name, " or ".join(sorted(FIT_SPACE)))
+    import time
+
+    t0 = time.perf_counter()
     space = FIT_SPACE[name]
     lo = np.array([s[1] for s in space])
     hi = np.array([s[2] for s in space])
@@ -94,7 +118,9 @@ def fit_analytic(name: str, train: BRDFSamples, test: BRDFSamples | None = None,
     if best is None:
         raise ParameterError("model", name, "a model that can be evaluated on this data")
     model = make(best.x)
+    fit_time = time.perf_counter() - t0
     m = metrics_for(model, train, test)
+    m["fit_time_s"] = fit_time
     m.update(model=name, params={k: float(v) for (k, _, _), v in zip(space, best.x,
                                                                     strict=True)},
              fixed=fixed, log_rms=float(np.sqrt(2 * best.cost / len(f))), starts=starts)
@@ -113,9 +139,14 @@ def fit_to_file(model_name: str, train, test, out, *, seed: int = 0,
     if model_name in ("mlp", "mlp-seed"):
         from .mlp import MLPConfig, train_mlp
 
+        import time
+
+        t0 = time.perf_counter()
         model, log = train_mlp(train, MLPConfig(recipe="seed" if model_name == "mlp-seed"
                                                 else "improved", seed=seed))
-        metrics = {"model": model_name, "epochs_run": log["epochs_run"],
+        metrics = {"model": model_name, "fit_time_s": time.perf_counter() - t0,
+                   "recipe": model.meta()["config"],
+                   **{k: v for k, v in log.items() if k != "loss_log"},
                    **metrics_for(model, train, test)}
     else:
         r = fit_analytic(model_name, train, test, seed=seed)
