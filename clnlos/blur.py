@@ -19,8 +19,8 @@ import math
 import numpy as np
 import pyopencl.array as cla
 
-from .diffusion import (SlabTransmittance, diffusion_psf, diffusion_psf_device,
-                        temporal_support_lags)
+from .diffusion import (SUPPORT_TOL, SlabTransmittance, diffusion_psf, diffusion_psf_device,
+                        lateral_integral_profile, support_of)
 from .slab import Slab
 from .fft import RealFFT3
 from .runtime import (
@@ -38,17 +38,27 @@ from .wiener import SpectralFilter
 
 def _phi_on_padded_grid(slab: Slab, shape, *, bin_width_s: float, pitch_m: float,
                         n_dipoles, periodic_xy: bool, dtype, queue):
-    """(Phi on the padded grid, zero past its temporal support; its support in lags)."""
+    """(Phi on the padded grid, zero past its temporal support; the energy fraction of
+    Phi * Phi at lags >= nt)."""
     q = get_queue(queue)
     dt = require_dtype(q.device, dtype)
     nt, ny, nx = (int(s) for s in shape)
     pad = (2 * nt, ny, nx) if periodic_xy else (2 * nt, 2 * ny, 2 * nx)
     phi_g = zeros(q, pad, dt)  # lags past the support (and nt..2nt-1) stay 0
-    lags = temporal_support_lags(slab, nt=nt, bin_width_s=bin_width_s, queue=q)
+    prof = lateral_integral_profile(slab, nt=nt, bin_width_s=bin_width_s, queue=q)
+    lags = support_of(prof)
     diffusion_psf_device(SlabTransmittance(slab, n_dipoles=n_dipoles, dtype=dt, queue=q),
                          nt=nt, bin_width_s=bin_width_s, ny=pad[1], nx=pad[2],
                          pitch_m=pitch_m, lags=lags, out_g=phi_g)
-    return phi_g, lags
+    return phi_g, confocal_tail_fraction(prof[:lags], nt)
+
+
+def confocal_tail_fraction(prof: np.ndarray, nt: int) -> float:
+    """Energy fraction of Phi * Phi at lags >= nt, from the laterally integrated profile
+    (lateral integration commutes with the convolution: it is prof * prof in time)."""
+    p2 = np.convolve(prof, prof)
+    total = p2.sum()
+    return float(p2[nt:].sum() / total) if total > 0 else 0.0
 
 
 def confocal_spectrum(slab: Slab, shape: tuple[int, int, int], *, bin_width_s: float,
@@ -57,20 +67,21 @@ def confocal_spectrum(slab: Slab, shape: tuple[int, int, int], *, bin_width_s: f
     """(F[Phi * Phi] on the padded grid, the padded shape): the spectrum of
     :func:`confocal_psf` without going back to the lag domain when it need not.
 
-    When Phi's temporal support L satisfies 2 L <= nt, Phi * Phi ends before lag nt and the
-    cut at nt is a no-op, so the spectrum is F[Phi]^2 (one forward FFT instead of a forward,
-    an inverse and a forward); otherwise it is F of :func:`confocal_psf`."""
+    When Phi * Phi holds less than SUPPORT_TOL of its energy at lags >= nt
+    (:func:`confocal_tail_fraction`), the cut at nt changes nothing that matters and the
+    spectrum is F[Phi]^2 (one forward FFT instead of a forward, an inverse and a forward);
+    otherwise it is F of :func:`confocal_psf`."""
     q = get_queue(queue)
     dt = require_dtype(q.device, dtype)
     nt = int(shape[0])
-    phi_g, lags = _phi_on_padded_grid(slab, shape, bin_width_s=bin_width_s, pitch_m=pitch_m,
+    phi_g, tail = _phi_on_padded_grid(slab, shape, bin_width_s=bin_width_s, pitch_m=pitch_m,
                                       n_dipoles=n_dipoles, periodic_xy=periodic_xy,
                                       dtype=dt, queue=q)
     fft = RealFFT3(phi_g.shape, dt, q)
     spec = fft.forward(phi_g)
     k = get_kernels(q, "wiener", real_defines(dt))
     k.spectral_square(q, (round_up(spec.size, 256),), None, spec.data, np.int64(spec.size))
-    if 2 * lags > nt:
+    if tail >= SUPPORT_TOL:
         phi2 = fft.inverse(spec, phi_g)
         fill_zero(q, phi2, offset_bytes=nt * phi2.shape[1] * phi2.shape[2] * dt.itemsize)
         spec = fft.forward(phi2, spec)

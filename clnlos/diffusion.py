@@ -40,6 +40,8 @@ from .runtime import (
     round_up,
 )
 
+# Energy fraction of the slab response left out where it is truncated to its support.
+SUPPORT_TOL = 1e-7
 # ln(1/tolerance) of the auto mode: terms below tol relative to the largest are dropped.
 LN_TOL = {np.dtype(np.float32): math.log(1e8), np.dtype(np.float64): math.log(1e17)}
 
@@ -72,12 +74,12 @@ class SlabTransmittance:
         self.slab = slab
         self.queue = get_queue(queue)
         self.dtype = require_dtype(self.queue.device, dtype)
-        self.n_pairs = _check_n_dipoles(n_dipoles)
+        self.n_dipoles = _check_n_dipoles(n_dipoles)
         self.kernels = get_kernels(self.queue, "diffusion", real_defines(self.dtype))
         r = self.dtype.type
         s = slab
         self._params = (r(s.D * s.v), r(s.mu_a * s.v), r(s.thickness_m), r(s.z0), r(s.ze),
-                        np.int32(self.n_pairs), r(LN_TOL[self.dtype]))
+                        np.int32(self.n_dipoles), r(LN_TOL[self.dtype]))
 
     def pairs_device(self, rho_g: cla.Array, t_g: cla.Array, out_g: cla.Array | None = None
                      ) -> cla.Array:
@@ -212,27 +214,39 @@ def diffusion_psf_device(plan: SlabTransmittance, *, nt: int, bin_width_s: float
     return out_g
 
 
-def temporal_support_lags(slab: Slab, *, nt: int, bin_width_s: float, tol: float = 1e-7,
-                          queue=None) -> int:
-    """Lags (<= nt) that hold all but ``tol`` of the slab's laterally integrated response.
+def lateral_integral_profile(slab: Slab, *, nt: int, bin_width_s: float,
+                             queue=None) -> np.ndarray:
+    """The slab response integrated over the lateral plane at lags (k + 1/2) dt, k < nt (1/s).
 
     Integrating the Gaussian exp(-rho^2 / (4 D v t)) over the plane gives 4 pi D v t, so the
-    response integrated over the lateral plane at lag t is 4 pi D v t T(0, t) (1/s); the
-    support ends at the first lag after which the remaining energy is below ``tol`` of the
-    total. Used to evaluate the slab PSF only where it is not negligible (about 5 ns for
-    the CDT slab at tol = 1e-7, against windows of 10-20 ns).
-    """
+    integral is 4 pi D v t T(0, t); float64 on the host from the float32 kernel."""
     t = (np.arange(nt) + 0.5) * float(bin_width_s)
     plan = SlabTransmittance(slab, dtype=np.float32, queue=queue)
-    prof = 4 * np.pi * slab.D * slab.v * t * plan(np.zeros(nt), t).astype(np.float64)
+    return 4 * np.pi * slab.D * slab.v * t * plan(np.zeros(nt), t).astype(np.float64)
+
+
+def temporal_support_lags(slab: Slab, *, nt: int, bin_width_s: float,
+                          tol: float = SUPPORT_TOL, queue=None) -> int:
+    """Lags (<= nt) that hold all but ``tol`` of the slab's laterally integrated response
+    (:func:`lateral_integral_profile`): the support ends at the first lag after which the
+    remaining energy is below ``tol`` of the total. Used to evaluate the slab PSF only where
+    it is not negligible (about 5 ns for the CDT slab at tol = 1e-7, against windows of
+    8-20 ns)."""
+    prof = lateral_integral_profile(slab, nt=nt, bin_width_s=bin_width_s, queue=queue)
+    return support_of(prof, tol)
+
+
+def support_of(prof: np.ndarray, tol: float = SUPPORT_TOL) -> int:
+    """Length of the leading part of a non-negative profile holding all but ``tol`` of it."""
     total = prof.sum()
     if not np.isfinite(total) or total <= 0:
-        return nt
+        return len(prof)
     tail = np.cumsum(prof[::-1])[::-1] / total  # energy at lags >= k
     beyond = np.nonzero(tail < tol)[0]
-    return int(min(nt, beyond[0] + 1)) if beyond.size else nt
+    return int(min(len(prof), beyond[0] + 1)) if beyond.size else len(prof)
 
 
 __all__ = ["Slab", "SlabTransmittance", "slab_transmittance", "diffusion_psf",
-           "diffusion_psf_device", "temporal_support_lags",
+           "diffusion_psf_device", "temporal_support_lags", "lateral_integral_profile",
+           "support_of", "SUPPORT_TOL",
            "effective_reflection", "grid_offsets"]

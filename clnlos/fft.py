@@ -55,6 +55,12 @@ def _workers() -> int:
     return host_threads()
 
 
+def _store(a: np.ndarray, result: np.ndarray) -> None:
+    """Put an in-place transform's result in ``a`` (pocketfft already did when it could)."""
+    if not np.shares_memory(a, result):
+        a[...] = result
+
+
 class RealFFT3:
     """Real-to-complex 3D FFT plan for a fixed shape and precision on one queue."""
 
@@ -115,7 +121,7 @@ class ComplexFFT3:
             self._app.fft(a_g)
         else:
             with host_view(a_g, write=True) as a:
-                a[...] = sfft.fftn(a, workers=_workers())
+                _store(a, sfft.fftn(a, workers=_workers(), overwrite_x=True))
         return a_g
 
     def inverse(self, a_g: cla.Array) -> cla.Array:
@@ -123,5 +129,5 @@ class ComplexFFT3:
             self._app.ifft(a_g)
         else:
             with host_view(a_g, write=True) as a:
-                a[...] = sfft.ifftn(a, workers=_workers())
+                _store(a, sfft.ifftn(a, workers=_workers(), overwrite_x=True))
         return a_g

@@ -24,12 +24,12 @@ from dataclasses import dataclass
 from functools import lru_cache
 
 import numpy as np
+import pyopencl as cl
 import pyopencl.array as cla
 import scipy.fft as sfft
 
 from . import C0
 from .blur import lateral_reach_m, slab_blur
-from .brdf.models import BRDFModel, make_model, retro_slice
 from .errors import ParameterError
 from .pulse import PulseBlur, pulse_taps  # noqa: F401 (re-exported)
 from .geometry import (
@@ -55,43 +55,15 @@ from .scene import Scene, SceneObject, read_retro_csv
 
 N_THETA = 256  # samples of the retro-reflection tables over [0, 90] degrees
 
-# Analytic presets beside the seed's ten measured-data presets of clnlos.brdf.presets
-# (names are case-insensitive).
-PRESETS: dict[str, BRDFModel | None] = {
-    "lambertian": None,
-    "matte-dark": BRDFModel("minnaert", {"kd": 0.3, "k": 1.5}),
-    "glossy-paint": BRDFModel("phong", {"kd": 0.3, "ks": 0.7, "shininess": 30.0}),
-    "brushed-metal": BRDFModel("microfacet", {"kd": 0.0, "ks": 1.0, "alpha": 0.15, "f0": 0.9}),
-    "mirror-like": BRDFModel("microfacet", {"kd": 0.0, "ks": 1.0, "alpha": 0.01, "f0": 0.95}),
-}
-
-
 def material_retro(obj: SceneObject, base_dir) -> np.ndarray | None:
-    """The object's retro slice f(theta) on N_THETA angles, or None for Lambertian."""
+    """The object's retro slice f(theta) on N_THETA angles, or None for Lambertian: from its
+    ``brdf_retro_csv`` table, else its material (:func:`clnlos.brdf.presets.material_retro`)."""
     if obj.brdf_retro_csv is not None:
         th, f = read_retro_csv(base_dir / obj.brdf_retro_csv)
         return np.interp(np.linspace(0, np.pi / 2, N_THETA), th, f)
-    m = obj.material
-    if isinstance(m, dict):
-        return retro_slice(make_model(m), N_THETA)
-    if str(m).endswith((".h5", ".hdf5")):  # a BRDF texture file: its retro slice
-        from .brdf.texture import read_texture
+    from .brdf.presets import material_retro as resolve
 
-        r = read_texture(base_dir / m).retro.astype(float)
-        return np.interp(np.linspace(0, 1, N_THETA), np.linspace(0, 1, len(r)), r)
-    key = str(m).lower()
-    from .brdf.presets import preset_model, preset_table
-
-    if key in preset_table():
-        return retro_slice(preset_model(key), N_THETA)
-    if key not in PRESETS:
-        from .checks import did_you_mean
-
-        names = ["lambertian", *preset_table(), *(k for k in PRESETS if k != "lambertian")]
-        raise ParameterError("objects.material", m, ", ".join(names) + ", a BRDF texture "
-                             ".h5 or a model table" + did_you_mean(key, names))
-    model = PRESETS[key]
-    return None if model is None else retro_slice(model, N_THETA)
+    return resolve(obj.material, base_dir, N_THETA)
 
 
 def sample_object(obj: SceneObject, density: float, base_dir) -> Elements:
@@ -143,7 +115,7 @@ class LightCone:
 
     def __init__(self, *, points: int, width_m: float, bins: int, bin_width_s: float,
                  start_s: float, retro: bool, splat_order: int = 1, dtype=np.float32,
-                 queue=None):
+                 queue=None, variant: str = "auto"):
         self.queue = get_queue(queue)
         self.dtype = require_dtype(self.queue.device, dtype)
         self.points, self.width_m, self.bins = points, width_m, bins
@@ -151,9 +123,13 @@ class LightCone:
         self.shape = (bins, points, points)
         require_memory(self.queue.device, int(np.prod(self.shape)) * self.dtype.itemsize,
                        f"transient {self.shape}")
-        defines = {**real_defines(self.dtype), "SPLAT_ORDER": int(splat_order)}
+        defines = {**real_defines(self.dtype), "SPLAT_ORDER": int(splat_order),
+                   "C0_LIGHT": repr(float(C0))}
         if retro:
             defines.update(RETRO_TABLE=True, N_THETA=N_THETA)
+        self.variant = choose_lightcone_variant(self.queue.device, variant, bins, self.dtype)
+        if self.variant == "group":
+            defines["GROUP_VARIANT"] = True
         self.defines = defines
         self._k = get_kernels(self.queue, "lightcone", defines)
 
@@ -171,14 +147,60 @@ class LightCone:
         pitch = self.width_m / self.points
         x0 = -self.width_m / 2 + pitch / 2
         r = dt.type
-        self._k.lightcone_accumulate(
-            q, (round_up(self.points, 8), round_up(self.points, 8)), None,
-            dev(el.pos).data, dev(el.normal).data, dev(el.area).data, dev(samples.albedo).data,
-            dev(samples.material, np.int32).data, dev(table).data,
-            kernel_int(len(el), "surface elements"),
-            kernel_int(self.points), kernel_int(self.points), r(x0), r(x0), r(pitch),
-            kernel_int(self.bins, "time bins"), r(self.start_s), r(self.bin_width_s), out.data)
+        args = (dev(el.pos).data, dev(el.normal).data, dev(el.area).data,
+                dev(samples.albedo).data, dev(samples.material, np.int32).data, dev(table).data,
+                kernel_int(len(el), "surface elements"),
+                kernel_int(self.points), kernel_int(self.points), r(x0), r(x0), r(pitch),
+                kernel_int(self.bins, "time bins"), r(self.start_s), r(self.bin_width_s),
+                out.data)
+        if self.variant == "group":
+            kern = self._k.lightcone_accumulate_group
+            lsz = group_size(kern, q.device)
+            kern(q, (self.points * self.points * lsz,), (lsz,), *args,
+                 cl.LocalMemory(self.bins * dt.itemsize))
+        else:
+            self._k.lightcone_accumulate(
+                q, (round_up(self.points, 8), round_up(self.points, 8)), None, *args)
         return out
+
+
+LIGHTCONE_VARIANTS = ("auto", "item", "group")
+
+
+def choose_lightcone_variant(device, variant: str, bins: int, dtype) -> str:
+    """``item`` (one work-item per scan point: CPUs) or ``group`` (one work-group per scan
+    point with a local histogram: GPUs). ``auto`` picks ``group`` on GPUs and accelerators
+    when the histogram fits local memory (and, in float64, the device has 64-bit local
+    atomics); an explicit ``group`` that cannot run is an error."""
+    from .errors import DeviceCapabilityError, ParameterError
+
+    if variant not in LIGHTCONE_VARIANTS:
+        raise ParameterError("variant", variant, " or ".join(LIGHTCONE_VARIANTS))
+    fits = bins * np.dtype(dtype).itemsize <= device.local_mem_size // 2
+    atomics = (np.dtype(dtype) == np.float32
+               or "cl_khr_int64_base_atomics" in device.extensions)
+    if variant == "group" and not (fits and atomics):
+        raise DeviceCapabilityError(
+            f"the work-group light cone needs {bins * np.dtype(dtype).itemsize} B of local "
+            f"memory (device: {device.local_mem_size} B) and, in float64, 64-bit local "
+            "atomics")
+    if variant != "auto":
+        return variant
+    on_gpu = not (device.type & cl.device_type.CPU)
+    return "group" if on_gpu and fits and atomics else "item"
+
+
+def group_size(kernel, device, cap: int = 256) -> int:
+    """A work-group size: the kernel's preferred multiple, grown while it fits ``cap`` and the
+    kernel's and device's maxima."""
+    wg = cl.kernel_work_group_info
+    mult = max(1, kernel.get_work_group_info(wg.PREFERRED_WORK_GROUP_SIZE_MULTIPLE, device))
+    most = min(cap, kernel.get_work_group_info(wg.WORK_GROUP_SIZE, device),
+               device.max_work_group_size)
+    size = mult
+    while size * 2 <= most:
+        size *= 2
+    return max(1, min(size, most))
 
 
 def photon_counts(tau: np.ndarray, scene: Scene, rng: np.random.Generator) -> np.ndarray:

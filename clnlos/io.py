@@ -143,10 +143,10 @@ def write_capture(path, transient: np.ndarray, *, bin_width_s: float, start_s: f
 
 def save_figure_file(fig, path) -> Path:
     """Save a matplotlib figure as PNG to ``path`` and close it (not atomic)."""
-    import matplotlib.pyplot as plt
+    from .figures import close_figure
 
     fig.savefig(path, format="png", dpi=110, bbox_inches="tight")
-    plt.close(fig)
+    close_figure(fig)
     return Path(path)
 
 

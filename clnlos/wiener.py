@@ -116,7 +116,7 @@ class SpectralFilter(LinearOperator):
         new.mode, new.name = mode, f"{mode}_filter"
         new.inv_snr = 0.0 if mode == "convolve" else 1.0 / float(snr)
         new.H = H
-        new._buf = zeros(base.queue, base.pad_shape, base.dtype)
+        new._buf = base._buf  # work buffer shared: calls are sequential on one queue
         return new
 
     def set_snr(self, snr: float) -> None:

@@ -11,8 +11,8 @@
  *   z1 e^{-z1^2/a} - z2 e^{-z2^2/a} = e^{-z1^2/a} [ (z1 - z2) - z2 expm1(-delta) ],
  *   z1 - z2 = -2 (ze + z0),  delta = (z2^2 - z1^2)/a = 2 (ze + z0)(z1 + z2)/a.
  *
- * n_pairs >= 0: exactly that M (the accuracy knob; truncation makes late times too small,
- * clamped at 0). n_pairs < 0 ("auto"): per sample, with x = D v t / L^2 and L = d + 2 ze,
+ * n_dipoles >= 0: exactly that M (the accuracy knob; truncation makes late times too small,
+ * clamped at 0). n_dipoles < 0 ("auto"): per sample, with x = D v t / L^2 and L = d + 2 ze,
  * the image series is used for x < X_SWITCH with M = ceil(sqrt(x ln(1/tol))) + 1, and the
  * equivalent eigenmode series (Poisson dual, converges fast at late times)
  *   T = D v (4 pi D v t)^-1 e^{-rho^2/a - mu_a v t} (2 pi / L^2)
@@ -43,7 +43,7 @@ inline real_t image_pair(const int m, const real_t d, const real_t z0, const rea
 /* log of T(0, t) exp(+mu_a v t ... ) -- everything but the lateral Gaussian:
  * T(rho, t) = exp(slab_log_T0(t) - rho^2 / (4 D v t)). -INFINITY where T is 0. */
 inline real_t slab_log_T0(const real_t t, const real_t Dv, const real_t muav, const real_t d,
-                          const real_t z0, const real_t ze, const int n_pairs,
+                          const real_t z0, const real_t ze, const int n_dipoles,
                           const real_t ln_tol)
 {
     if (!(t > 0))
@@ -52,8 +52,8 @@ inline real_t slab_log_T0(const real_t t, const real_t Dv, const real_t muav, co
     const real_t L = d + (real_t)2 * ze;
     const real_t x = Dv * t / (L * L);
 
-    if (n_pairs >= 0 || x < X_SWITCH) {
-        const int M = n_pairs >= 0 ? n_pairs : (int)ceil(sqrt(x * ln_tol)) + 1;
+    if (n_dipoles >= 0 || x < X_SWITCH) {
+        const int M = n_dipoles >= 0 ? n_dipoles : (int)ceil(sqrt(x * ln_tol)) + 1;
         real_t zmin2 = INFINITY;
         for (int m = -M; m <= M; ++m) {
             const real_t z1 = (real_t)(1 - 2 * m) * d - (real_t)(4 * m) * ze - z0;
@@ -83,43 +83,44 @@ inline real_t slab_log_T0(const real_t t, const real_t Dv, const real_t muav, co
 }
 
 inline real_t slab_T(const real_t rho, const real_t t, const real_t Dv, const real_t muav,
-                     const real_t d, const real_t z0, const real_t ze, const int n_pairs,
+                     const real_t d, const real_t z0, const real_t ze, const int n_dipoles,
                      const real_t ln_tol)
 {
-    const real_t lf = slab_log_T0(t, Dv, muav, d, z0, ze, n_pairs, ln_tol);
+    const real_t lf = slab_log_T0(t, Dv, muav, d, z0, ze, n_dipoles, ln_tol);
     if (lf == -INFINITY)
         return 0;
     return exp(lf - rho * rho / ((real_t)4 * Dv * t));
 }
 
 /* out[i] = T(rho[i], t[i]) for n samples. */
-__kernel void transmittance_pairs(__global const real_t *rho, __global const real_t *t,
-                                  __global real_t *out, const int n,
+__kernel void transmittance_pairs(__global const real_t *restrict rho,
+                                  __global const real_t *restrict t,
+                                  __global real_t *restrict out, const int n,
                                   const real_t Dv, const real_t muav, const real_t d,
-                                  const real_t z0, const real_t ze, const int n_pairs,
+                                  const real_t z0, const real_t ze, const int n_dipoles,
                                   const real_t ln_tol)
 {
-    const int i = get_global_id(0);
-    if (i >= n)
+    const size_t i = get_global_id(0);
+    if (i >= (size_t)n)
         return;
-    out[i] = slab_T(rho[i], t[i], Dv, muav, d, z0, ze, n_pairs, ln_tol);
+    out[i] = slab_T(rho[i], t[i], Dv, muav, d, z0, ze, n_dipoles, ln_tol);
 }
 
 /* log_t0[it] = slab_log_T0(t[it]): the series, once per time sample. */
-__kernel void log_series(__global const real_t *t, __global real_t *log_t0, const int n_t,
+__kernel void log_series(__global const real_t *restrict t, __global real_t *restrict log_t0, const int n_t,
                          const real_t Dv, const real_t muav, const real_t d, const real_t z0,
-                         const real_t ze, const int n_pairs, const real_t ln_tol)
+                         const real_t ze, const int n_dipoles, const real_t ln_tol)
 {
     const int it = get_global_id(0);
     if (it >= n_t)
         return;
-    log_t0[it] = slab_log_T0(t[it], Dv, muav, d, z0, ze, n_pairs, ln_tol);
+    log_t0[it] = slab_log_T0(t[it], Dv, muav, d, z0, ze, n_dipoles, ln_tol);
 }
 
 /* out[it * n_rho + ir] = scale * T(rho[ir], t[it]) from the per-time series log_t0: the
  * (t, rho) table used for PSF grids; the series is not recomputed per radius. */
-__kernel void transmittance_outer(__global const real_t *rho, __global const real_t *t,
-                                  __global const real_t *log_t0, __global real_t *out,
+__kernel void transmittance_outer(__global const real_t *restrict rho, __global const real_t *restrict t,
+                                  __global const real_t *restrict log_t0, __global real_t *restrict out,
                                   const int n_rho, const int n_t, const real_t Dv,
                                   const real_t scale)
 {

@@ -11,25 +11,10 @@
  *   fk_finish:  vol[z, y, x] = |psi'[z, y, x]|^2 on the unpadded block
  */
 #include "common.h"
-#ifdef USE_FP64
-#define PYOPENCL_DEFINE_CDOUBLE
-#endif
-#include <pyopencl-complex.h>
+#include "complex.h"
 
-#ifdef USE_FP64
-typedef cdouble_t cplx_t;
-#define CNEW cdouble_new
-#define CRMUL cdouble_mulr
-#define CADD cdouble_add
-#else
-typedef cfloat_t cplx_t;
-#define CNEW cfloat_new
-#define CRMUL cfloat_mulr
-#define CADD cfloat_add
-#endif
-
-__kernel void fk_prepare(__global const real_t *tau, __global const real_t *w_t,
-                         __global cplx_t *psi, const int nt, const int ny, const int nx)
+__kernel void fk_prepare(__global const real_t *restrict tau, __global const real_t *restrict w_t,
+                         __global cplx_t *restrict psi, const int nt, const int ny, const int nx)
 {
     const int x = get_global_id(0), y = get_global_id(1), t = get_global_id(2);
     const int py = 2 * ny, px = 2 * nx;
@@ -43,7 +28,7 @@ __kernel void fk_prepare(__global const real_t *tau, __global const real_t *w_t,
 
 inline int signed_freq(const int i, const int n) { return i < n / 2 ? i : i - n; }
 
-__kernel void stolt(__global const cplx_t *src, __global cplx_t *dst, const int nt2,
+__kernel void stolt(__global const cplx_t *restrict src, __global cplx_t *restrict dst, const int nt2,
                     const int ny2, const int nx2, const real_t alpha_y, const real_t alpha_x)
 {
     const int ix = get_global_id(0), iy = get_global_id(1), iz = get_global_id(2);
@@ -68,7 +53,7 @@ __kernel void stolt(__global const cplx_t *src, __global cplx_t *dst, const int 
     dst[o] = CRMUL(v, (real_t)fz / fmax(k, (real_t)1e-6));
 }
 
-__kernel void fk_finish(__global const cplx_t *psi, __global real_t *vol, const int nt,
+__kernel void fk_finish(__global const cplx_t *restrict psi, __global real_t *restrict vol, const int nt,
                         const int ny, const int nx)
 {
     const int x = get_global_id(0), y = get_global_id(1), z = get_global_id(2);

@@ -32,7 +32,7 @@ __kernel void csr_resample(__global const int *restrict row_ptr, __global const 
 }
 
 /* out[i] = max(in[i], 0): the albedo volume is non-negative. */
-__kernel void clamp_nonnegative(__global real_t *a, const long n)
+__kernel void clamp_nonnegative(__global real_t *restrict a, const long n)
 {
     const long i = get_global_id(0);
     if (i < n)
@@ -43,7 +43,7 @@ __kernel void clamp_nonnegative(__global real_t *a, const long n)
  *   out[t, y, x] = in[t, m(y, ny), m(x, nx)] for t < nt, else 0,  m(j, n) = j < n ? j : 2n-1-j
  * Over the wrap-around half of a 2n grid this is the even (mirror) extension across both
  * edges at once, so a circular deconvolution sees no step at the scan border. */
-__kernel void pad_mirror_xy(__global const real_t *in, __global real_t *out, const int nt,
+__kernel void pad_mirror_xy(__global const real_t *restrict in, __global real_t *restrict out, const int nt,
                             const int ny, const int nx, const int pt)
 {
     const int x = get_global_id(0), y = get_global_id(1), t = get_global_id(2);

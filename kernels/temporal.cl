@@ -6,8 +6,8 @@
  */
 #include "common.h"
 
-__kernel void time_convolve(__global const real_t *in, __global real_t *out,
-                            __global const real_t *taps, const int K, const int nt,
+__kernel void time_convolve(__global const real_t *restrict in, __global real_t *restrict out,
+                            __global const real_t *restrict taps, const int K, const int nt,
                             const int n_scan)
 {
     const int p = get_global_id(0);

@@ -8,26 +8,9 @@
  * to the imaginary part, which biases the phase).
  */
 #include "common.h"
-#ifdef USE_FP64
-#define PYOPENCL_DEFINE_CDOUBLE
-#endif
-#include <pyopencl-complex.h>
+#include "complex.h"
 
-#ifdef USE_FP64
-typedef cdouble_t cplx_t;
-#define CMUL cdouble_mul
-#define CCONJ cdouble_conj
-#define CABS2(z) ((z).real * (z).real + (z).imag * (z).imag)
-#define CRMUL cdouble_mulr
-#else
-typedef cfloat_t cplx_t;
-#define CMUL cfloat_mul
-#define CCONJ cfloat_conj
-#define CABS2(z) ((z).real * (z).real + (z).imag * (z).imag)
-#define CRMUL cfloat_mulr
-#endif
-
-__kernel void wiener_apply(__global const cplx_t *H, __global cplx_t *X, const real_t inv_snr,
+__kernel void wiener_apply(__global const cplx_t *restrict H, __global cplx_t *restrict X, const real_t inv_snr,
                            const int adjoint, const long n)
 {
     const long i = get_global_id(0);
@@ -42,7 +25,7 @@ __kernel void wiener_apply(__global const cplx_t *H, __global cplx_t *X, const r
     X[i] = CMUL(w, X[i]);
 }
 
-__kernel void spectral_multiply(__global const cplx_t *H, __global cplx_t *X, const int conjugate,
+__kernel void spectral_multiply(__global const cplx_t *restrict H, __global cplx_t *restrict X, const int conjugate,
                                 const long n)
 {
     const long i = get_global_id(0);
@@ -52,7 +35,7 @@ __kernel void spectral_multiply(__global const cplx_t *H, __global cplx_t *X, co
     X[i] = CMUL(conjugate ? CCONJ(h) : h, X[i]);
 }
 
-__kernel void spectral_square(__global cplx_t *H, const long n)
+__kernel void spectral_square(__global cplx_t *restrict H, const long n)
 {
     const long i = get_global_id(0);
     if (i >= n)

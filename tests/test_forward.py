@@ -38,9 +38,19 @@ def _samples(el, albedo=None, tables=None, material=None):
                           np.zeros(n, np.int32) if material is None else material, tables)
 
 
+@pytest.mark.parametrize("variant", ["item", "group"])
 @pytest.mark.parametrize("splat", [0, 1])
 @pytest.mark.parametrize("brdf", [False, True])
-def test_kernel_vs_reference(queue, dtype, splat, brdf):
+def test_kernel_vs_reference(queue, dtype, splat, brdf, variant):
+    """Both kernel shapes (work-item per scan point for CPUs, work-group per scan point with
+    a local histogram for GPUs) against the float64 reference."""
+    from clnlos.forward import choose_lightcone_variant
+
+    if variant == "group":
+        try:
+            choose_lightcone_variant(queue.device, "group", 128, dtype)
+        except Exception as exc:  # noqa: BLE001 -- DeviceCapabilityError: skip with the reason
+            pytest.skip(str(exc))
     rng = np.random.default_rng(0)
     n = 300
     pos = np.column_stack([rng.uniform(-0.2, 0.2, n), rng.uniform(-0.2, 0.2, n),
@@ -62,7 +72,8 @@ def test_kernel_vs_reference(queue, dtype, splat, brdf):
     ref = lightcone_ref(pos, nrm, area, alb, mat if brdf else np.zeros(n, int), tables,
                         splat_order=splat, **kw)
     lc = LightCone(points=6, width_m=0.3, bins=128, bin_width_s=16e-12, start_s=1.5e-9,
-                   retro=brdf, splat_order=splat, dtype=dtype, queue=queue)
+                   retro=brdf, splat_order=splat, dtype=dtype, queue=queue, variant=variant)
+    assert lc.variant == variant
     out = lc(_samples(Elements(pos, nrm, area), alb, tables, mat)).get()
     assert ref.sum() > 0
     assert rel_l2(ref, out) < TOL[np.dtype(dtype).type] * (20 if splat == 0 else 1)

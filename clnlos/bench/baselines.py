@@ -15,13 +15,13 @@ from ..scene import Scene
 from ..slab import Slab
 
 
-def numpy_transmittance(slab: Slab, rho, t, M: int) -> np.ndarray:
+def numpy_transmittance(slab: Slab, rho, t, n_dipoles: int) -> np.ndarray:
     """Vectorised float64 numpy image sum (the baseline)."""
     D, v, d, z0, ze = slab.D, slab.v, slab.thickness_m, slab.z0, slab.ze
     t = np.maximum(t, 1e-300)  # T(t=0) = 0: the exp underflows to exactly 0 here
     a = 4 * D * v * t
     s = np.zeros_like(a)
-    for m in range(-M, M + 1):
+    for m in range(-n_dipoles, n_dipoles + 1):
         z1 = (1 - 2 * m) * d - 4 * m * ze - z0
         z2 = (1 - 2 * m) * d - (4 * m - 2) * ze + z0
         s += z1 * np.exp(-z1 * z1 / a) - z2 * np.exp(-z2 * z2 / a)

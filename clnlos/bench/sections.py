@@ -25,10 +25,10 @@ def bench_diffusion(b: Bench):
         cla.to_device(b.q, rho.astype(ref_dt)), cla.to_device(b.q, t.astype(ref_dt))).get()
     for dt in b.dtypes:
         rg, tg = cla.to_device(b.q, rho.astype(dt)), cla.to_device(b.q, t.astype(dt))
-        for M in (1, 2, 3, 5, 10, 20, None):
-            p = SlabTransmittance(slab, n_dipoles=M, dtype=dt, queue=b.q)
+        for n_dip in (1, 2, 3, 5, 10, 20, None):
+            p = SlabTransmittance(slab, n_dipoles=n_dip, dtype=dt, queue=b.q)
             err = _rel(p.outer_device(rg, tg).get(), ref)
-            b.add("diffusion", "n_dipoles", "auto" if M is None else M, dt,
+            b.add("diffusion", "n_dipoles", "auto" if n_dip is None else n_dip, dt,
                   lambda p=p, rg=rg, tg=tg: p.outer_device(rg, tg), err)
     R, T = rho[None, :], t[:, None]
     b.add("diffusion", "n_dipoles", 20, np.float64, lambda: numpy_transmittance(slab, R, T, 20),

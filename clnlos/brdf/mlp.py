@@ -59,9 +59,10 @@ class MLPConfig:
     floor_fraction: float = 0.1   # p = floor_fraction x significance floor (1/sr)
     val_fraction: float = 0.15
     check_every: int = 10         # epochs between validation checks
+    weight_decay: float = 0.0     # AdamW decoupled weight decay
     albedo_weight: float = 1.0
     albedo_cap: bool = True
-    members: int = 3
+    members: int = 5
 
     @property
     def improved(self) -> bool:
@@ -288,7 +289,7 @@ def _train_improved(train: BRDFSamples, cfg: MLPConfig, seed: int):
     n_val = int(round(cfg.val_fraction * len(T)))
     val, fit = torch.from_numpy(idx[:n_val]), torch.from_numpy(idx[n_val:])
     net = build_net(cfg)
-    opt = torch.optim.AdamW(net.parameters(), lr=cfg.lr, weight_decay=0.0)
+    opt = torch.optim.AdamW(net.parameters(), lr=cfg.lr, weight_decay=cfg.weight_decay)
     sched = torch.optim.lr_scheduler.CosineAnnealingLR(opt, cfg.epochs)
 
     def log_f_plus_p(x):

@@ -12,7 +12,22 @@ import importlib.resources
 import json
 from functools import lru_cache
 
-from .models import BRDFModel, make_model
+from pathlib import Path
+
+import numpy as np
+
+from ..errors import ParameterError
+from .models import BRDFModel, make_model, retro_slice
+
+# Analytic presets beside the seed's ten measured-data presets (names are case-insensitive);
+# None is the Lambertian (no BRDF table).
+ANALYTIC_PRESETS: dict[str, BRDFModel | None] = {
+    "lambertian": None,
+    "matte-dark": BRDFModel("minnaert", {"kd": 0.3, "k": 1.5}),
+    "glossy-paint": BRDFModel("phong", {"kd": 0.3, "ks": 0.7, "shininess": 30.0}),
+    "brushed-metal": BRDFModel("microfacet", {"kd": 0.0, "ks": 1.0, "alpha": 0.15, "f0": 0.9}),
+    "mirror-like": BRDFModel("microfacet", {"kd": 0.0, "ks": 1.0, "alpha": 0.01, "f0": 0.95}),
+}
 
 CLASSES = ("strong specular", "strong specular + diffuse", "strong diffuse", "Lambertian")
 
@@ -29,3 +44,31 @@ def preset_model(name: str) -> BRDFModel:
 
 def preset_names() -> list[str]:
     return list(preset_table())
+
+
+def material_names() -> list[str]:
+    return ["lambertian", *preset_table(), *(k for k in ANALYTIC_PRESETS if k != "lambertian")]
+
+
+def material_retro(material, base_dir, n_theta: int) -> np.ndarray | None:
+    """The confocal retro slice f(theta) (1/sr) on ``n_theta`` angles over [0, pi/2] of a
+    scene material, or None for Lambertian. ``material``: a model table (dict), a BRDF
+    texture file (.h5/.hdf5, its retro slice), a seed preset or an analytic preset name."""
+    if isinstance(material, dict):
+        return retro_slice(make_model(material), n_theta)
+    if str(material).endswith((".h5", ".hdf5")):
+        from .texture import read_texture
+
+        r = read_texture(Path(base_dir) / material).retro.astype(float)
+        return np.interp(np.linspace(0, 1, n_theta), np.linspace(0, 1, len(r)), r)
+    key = str(material).lower()
+    if key in preset_table():
+        return retro_slice(preset_model(key), n_theta)
+    if key not in ANALYTIC_PRESETS:
+        from ..checks import did_you_mean
+
+        names = material_names()
+        raise ParameterError("objects.material", material, ", ".join(names) + ", a BRDF "
+                             "texture .h5 or a model table" + did_you_mean(key, names))
+    model = ANALYTIC_PRESETS[key]
+    return None if model is None else retro_slice(model, n_theta)
