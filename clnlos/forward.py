@@ -123,8 +123,7 @@ class LightCone:
         self.shape = (bins, points, points)
         require_memory(self.queue.device, int(np.prod(self.shape)) * self.dtype.itemsize,
                        f"transient {self.shape}")
-        defines = {**real_defines(self.dtype), "SPLAT_ORDER": int(splat_order),
-                   "C0_LIGHT": repr(float(C0))}
+        defines = {**real_defines(self.dtype), "SPLAT_ORDER": int(splat_order)}
         if retro:
             defines.update(RETRO_TABLE=True, N_THETA=N_THETA)
         self.variant = choose_lightcone_variant(self.queue.device, variant, bins, self.dtype)

@@ -362,6 +362,13 @@ def format_defines(defines: dict | None) -> tuple[str, ...]:
     return tuple(out)
 
 
+def physical_defines() -> dict:
+    """Constants every kernel may use, from their one Python statement (``clnlos.C0``)."""
+    from . import C0
+
+    return {"C0_LIGHT": repr(float(C0))}
+
+
 def get_kernels(ctx_or_queue, family: str, defines: dict | None = None) -> KernelSet:
     """Build (once) ``kernels/<family>.cl`` with ``-D`` defines and return its kernels.
 
@@ -369,7 +376,8 @@ def get_kernels(ctx_or_queue, family: str, defines: dict | None = None) -> Kerne
     """
     ctx = ctx_or_queue.context if isinstance(ctx_or_queue, cl.CommandQueue) else ctx_or_queue
     src, digest = _source_with_headers(family)
-    options = format_defines(defines) + tuple(_include_options())
+    options = format_defines({**physical_defines(), **(defines or {})}) + tuple(
+        _include_options())
     key = (ctx, digest, options)
     hit = _program_cache.get(key)
     if hit is not None:

@@ -33,7 +33,7 @@
 #endif
 
 #ifndef C0_LIGHT
-#error "build with -DC0_LIGHT=<speed of light in m/s> (clnlos.C0, stated once)"
+#error "C0_LIGHT (m/s) comes from clnlos.runtime.physical_defines (clnlos.C0)"
 #endif
 #define INV_PI ((real_t)0.31830988618379067154)
 
