@@ -224,16 +224,20 @@ def _blur_margin(slab, window_s, pitch_m, points, tol, n_dipoles, queue) -> tupl
     return m, m >= need
 
 
-@lru_cache(maxsize=4)
 def _forward_blur(slab, shape, bin_width_s, pitch_m, n_dipoles, periodic, dtype_str, queue):
-    """The physical Phi * Phi operator, shared by every scene of one geometry (a study).
+    """The physical Phi * Phi operator, shared by every scene of one geometry (a study;
+    cached in :data:`clnlos.plans.FORWARD_BLURS`).
 
     ``periodic``: the input carries the blur's reach as a margin that is cropped after the
     blur, so the lateral convolution may wrap (no lateral padding: 4x fewer FFT cells).
     """
-    return slab_blur(slab, shape, bin_width_s=bin_width_s, pitch_m=pitch_m, mode="convolve",
-                     n_dipoles=n_dipoles, periodic_xy=periodic, dtype=np.dtype(dtype_str),
-                     queue=queue)
+    from .plans import FORWARD_BLURS
+
+    key = (slab, shape, bin_width_s, pitch_m, n_dipoles, periodic, dtype_str, queue)
+    return FORWARD_BLURS.get(key, lambda: slab_blur(
+        slab, shape, bin_width_s=bin_width_s, pitch_m=pitch_m, mode="convolve",
+        n_dipoles=n_dipoles, periodic_xy=periodic, dtype=np.dtype(dtype_str), queue=queue),
+        queue)
 
 
 def check_scene_geometry(scene: Scene) -> list[str]:

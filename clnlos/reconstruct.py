@@ -267,29 +267,24 @@ def resolve_geometry(capture: Capture, config: ReconstructionConfig) -> tuple[fl
     return float(bw), float(start), float(sw)
 
 
-_PIPELINES: dict = {}
-
-
 def reconstruct(capture: Capture, config: ReconstructionConfig, *, dtype=np.float32,
                 device=None, keep_transient: bool = False, progress=None) -> Reconstruction:
     """Reconstruct an albedo volume from a capture with the given configuration.
 
-    Pipelines (PSFs, spectra, FFT plans) are kept for the last few geometries, so many
-    captures of one geometry (a study) pay the set-up once.
+    Pipelines (PSFs, spectra, FFT plans) are kept in :data:`clnlos.plans.PIPELINES` (LRU
+    under a byte budget), so many captures of one geometry (a study) pay the set-up once.
     """
+    from .plans import PIPELINES
+
     import json
 
     bw, start, sw = resolve_geometry(capture, config)
     queue = get_queue(device)
     key = (capture.transient.shape, bw, start, sw, json.dumps(config.as_attrs(), sort_keys=True),
            np.dtype(dtype).str, queue)
-    pipe = _PIPELINES.get(key)
-    if pipe is None:
-        pipe = ReconstructionPipeline(capture.transient.shape, bin_width_s=bw, start_s=start,
-                                      scan_width_m=sw, config=config, dtype=dtype, queue=queue)
-        if len(_PIPELINES) >= 8:
-            _PIPELINES.pop(next(iter(_PIPELINES)))
-        _PIPELINES[key] = pipe
+    pipe = PIPELINES.get(key, lambda: ReconstructionPipeline(
+        capture.transient.shape, bin_width_s=bw, start_s=start, scan_width_m=sw,
+        config=config, dtype=dtype, queue=queue), queue)
     return pipe.run(capture.transient, keep_transient=keep_transient, progress=progress,
                     model_snr=model_snr_for(capture, config))
 

@@ -237,12 +237,15 @@ def check_environment() -> None:
                               "pip install 'clnlos[vkfft]' (VKFFT_BACKEND=opencl), or unset "
                               + ENV_FFT) from None
     host_threads()
+    from .plans import PIPELINES
+
+    PIPELINES.budget()  # CLNLOS_PLAN_CACHE_MB
 
 
 @dataclass(frozen=True)
 class FFTChoice:
     """The FFT backend of a queue: ``"vkfft"`` (pyvkfft on the device) or ``"host"``
-    (scipy.fft on the host, with copies), why, and whether the reason deserves a warning."""
+    (scipy.fft on the host, on mapped buffers), why, and whether the reason deserves a warning."""
 
     backend: str
     reason: str

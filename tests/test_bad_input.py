@@ -342,7 +342,7 @@ translate_m = [0.0, 0.0, {z}]
 @SETTINGS
 @given(env=st.sampled_from([("CLNLOS_DEVICE", "9:9"), ("CLNLOS_DEVICE", "nosuch"),
                             ("CLNLOS_FFT", "bogus"), ("CLNLOS_THREADS", "zero"),
-                            ("CLNLOS_THREADS", "-2")]))
+                            ("CLNLOS_THREADS", "-2"), ("CLNLOS_PLAN_CACHE_MB", "lots")]))
 def test_bad_environment(tmp_path_factory, env):
     import os
 

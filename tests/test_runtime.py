@@ -215,3 +215,50 @@ def test_host_copies_respect_offsets_and_keep_no_events(queue):
     assert not a.events and not tail.events
     with pytest.raises(ShapeError):
         upload_into(a, np.zeros((3, 6)))
+
+
+def test_plan_cache_budget_clear_and_threads(queue, monkeypatch):
+    """Plans are reused per key and thread, evicted least-recently-used past the byte budget,
+    and freed by clear()."""
+    import threading
+
+    import pyopencl.array as cla
+
+    from clnlos.errors import ParameterError
+    from clnlos.plans import ENV_BUDGET, PlanCache, device_bytes
+
+    class Plan:
+        def __init__(self, n):
+            self.buf = cla.zeros(queue, n, np.float32)
+            self.inner = {"spec": cla.zeros(queue, n, np.complex64)}
+
+    assert device_bytes(Plan(100)) == 100 * 4 + 100 * 8
+    built = []
+
+    def build(n):
+        built.append(n)
+        return Plan(n)
+
+    cache = PlanCache("test", budget_bytes=3 * 1200 * 10)
+    a = cache.get("a", lambda: build(1000))
+    assert cache.get("a", lambda: build(1000)) is a and built == [1000]
+    cache.get("b", lambda: build(1000))
+    cache.get("a", lambda: build(1000))  # a becomes the most recently used
+    cache.get("c", lambda: build(1000))  # 3 x 12000 B: exactly the budget
+    assert len(cache) == 3 and cache.nbytes == 36000
+    cache.get("d", lambda: build(1000))  # evicts b, the least recently used
+    assert len(cache) == 3 and cache.get("a", lambda: build(1)) is a
+    cache.get("b", lambda: build(1000))
+    assert built == [1000] * 5
+    other = []
+    t = threading.Thread(target=lambda: other.append(cache.get("a", lambda: build(1000))))
+    t.start()
+    t.join()
+    assert other[0] is not a  # plans own scratch buffers: one per thread
+    cache.clear()
+    assert len(cache) == 0 and cache.nbytes == 0
+    monkeypatch.setenv(ENV_BUDGET, "0.5")
+    assert PlanCache("env").budget() == 2**19
+    monkeypatch.setenv(ENV_BUDGET, "lots")
+    with pytest.raises(ParameterError, match=ENV_BUDGET):
+        PlanCache("env").budget()

@@ -8,7 +8,7 @@ import pyopencl.array as cla
 
 from .. import C0
 from .baselines import numpy_lightcone, numpy_transmittance, ut_scene
-from .harness import Bench, rel_error as _rel
+from .harness import Bench, rel_error as _rel, timeit
 
 
 # ------------------------------------------------------------------ kernels
@@ -228,8 +228,72 @@ def bench_end_to_end(b: Bench):
 
         vol = run()
         depth = peak_depth_m(vol, 2.0 / nt / 2)
-        b.add("end_to_end", "grid", f"{n}x{n}x{nt}", np.float32, run, abs(depth - 0.5) / 0.5,
+        err = abs(depth - 0.5) / 0.5
+        b.add("end_to_end", "grid", f"{n}x{n}x{nt}", np.float32, run, err,
               error_kind="relative depth error")
+        _cold_warm_rows(b, Capture(fm.run(), scene.bin_width_s, 0.0, scene.width_m), cfg, err,
+                        f"{n}x{n}x{nt}")
+
+
+def _device_spec(device) -> str:
+    """``P:D`` of a device, for a command run in another process."""
+    for pi, plat in enumerate(cl.get_platforms()):
+        for di, dev in enumerate(plat.get_devices()):
+            if dev == device:
+                return f"{pi}:{di}"
+    return "0:0"
+
+
+def _cold_warm_rows(b: Bench, cap, cfg, err, grid: str):
+    """Reconstruction alone: cold (plans built: caches cleared first), warm (plans reused),
+    and the CLI in a fresh process (start-up, plans, run, HDF5 + PNG), each beside one
+    r2c + c2r FFT pair of the padded grid timed in the same run."""
+    import subprocess
+    import sys
+    import tempfile
+    import time
+    from pathlib import Path
+
+    from ..fft import RealFFT3
+    from ..io import write_capture
+    from ..plans import PIPELINES
+    from ..reconstruct import reconstruct
+
+    nt, ny, nx = cap.transient.shape
+    pad = (2 * cfg.bins, 2 * ny, 2 * nx)
+    fft = RealFFT3(pad, np.float32, b.q)
+    xg = cla.zeros(b.q, pad, np.float32)
+    pair = timeit(lambda xg=xg: fft.inverse(fft.forward(xg)), b.q,
+                  repeat=b.repeat)["median_s"]
+
+    def cold():
+        PIPELINES.clear()
+        return reconstruct(cap, cfg, device=b.q).volume
+
+    for mode, fn in (("cold", cold), ("warm", lambda: reconstruct(cap, cfg, device=b.q).volume)):
+        r = b.add("end_to_end", f"reconstruct@{mode}", grid, np.float32, fn, err,
+                  error_kind="relative depth error", fft_pair_s=pair)
+        r["fft_pairs"] = r["median_s"] / pair
+    with tempfile.TemporaryDirectory() as d:
+        path = Path(d) / "c.h5"
+        write_capture(path, cap.transient, bin_width_s=cap.bin_width_s, start_s=0.0,
+                      scan_width_m=cap.scan_width_m)
+        s = cfg.slab
+        cmd = [sys.executable, "-m", "clnlos", "reconstruct", str(path), "-o",
+               str(Path(d) / "v.h5"), "--bins", str(cfg.bins), "--max-path",
+               str(cfg.max_path_m), "--slab-thickness", str(s.thickness_m), "--mu-a",
+               str(s.mu_a), "--mu-s-prime", str(s.mu_s_prime), "--n", str(s.n)]
+        cmd += ["--device", _device_spec(b.q.device)]
+
+        def cli():
+            subprocess.run(cmd, check=True, capture_output=True)
+
+        t0 = time.perf_counter()
+        cli()
+        wall = time.perf_counter() - t0
+    r = b.add("end_to_end", "cli@cold", grid, np.float32, lambda: None, err,
+              impl="cli", sync=False, error_kind="relative depth error", fft_pair_s=pair)
+    r.update(median_s=wall, min_s=wall, fft_pairs=wall / pair)
 
 
 def bench_roofline(b: Bench) -> float:
