@@ -390,7 +390,7 @@ def register_study(sub, add_device) -> None:
     s = sub.add_parser("study", help="the material study (main job)")
     g = s.add_mutually_exclusive_group()
     g.add_argument("--quick", action="store_true", help="built-in default: 200 dataset "
-                   "samples, 48 ps bins, 50 iterations (under 3 minutes on 2 cores)")
+                   "samples, 1 noise seed per sweep point (under 3 minutes on 2 cores)")
     g.add_argument("--full", action="store_true", help="1000 dataset samples, 2 noise seeds "
                    "per sweep point (under 15 minutes on 2 cores)")
     s.add_argument("-o", "--output", default="out/study")

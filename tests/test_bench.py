@@ -34,7 +34,9 @@ def _series(doc, kernel, knob, dtype):
 
 def test_errors_fall_as_accuracy_rises(bench_doc):
     doc, _ = bench_doc
-    dip = [r["error"] for r in _series(doc, "diffusion", "n_dipoles", "float64")
+    # float64 rows exist only on fp64 devices; the truncation error dominates either way
+    best = "float64" if _series(doc, "diffusion", "n_dipoles", "float64") else "float32"
+    dip = [r["error"] for r in _series(doc, "diffusion", "n_dipoles", best)
            if r["value"] in (1, 2, 3)]
     assert dip[0] > dip[1] > dip[2]
     den = [r["error"] for r in _series(doc, "lightcone", "density_per_m2", "float32")]

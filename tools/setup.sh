@@ -1,7 +1,8 @@
 #!/usr/bin/env bash
 # Install everything clnlos needs on a fresh Debian machine (Python >= 3.11, root or sudo):
 #   Debian: PoCL (CPU OpenCL), opencl-headers and ocl-icd-opencl-dev (to build pyvkfft),
-#   oclgrind (the kernel memory-safety test);
+#   oclgrind (the kernel memory-safety test), mesa-opencl-icd (rusticl on llvmpipe: the second
+#   driver stack the stage tests also run on, fp64-less like many GPUs);
 #   a virtual environment .venv with the CPU torch wheel first (torch==2.13.0: an unpinned
 #   torch would pull a multi-GB CUDA build), pyvkfft built for OpenCL, then clnlos itself.
 # Idempotent: what is already there is kept.
@@ -9,7 +10,7 @@ set -euo pipefail
 cd "$(dirname "$0")/.."
 
 need=()
-for pkg in pocl-opencl-icd opencl-headers ocl-icd-opencl-dev oclgrind; do
+for pkg in pocl-opencl-icd opencl-headers ocl-icd-opencl-dev oclgrind mesa-opencl-icd; do
   dpkg -s "$pkg" >/dev/null 2>&1 || need+=("$pkg")
 done
 if [ ${#need[@]} -gt 0 ]; then
