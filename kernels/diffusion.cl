@@ -23,11 +23,19 @@
 
 #define X_SWITCH ((real_t)0.25)
 
+/* Depths of the m-th image pair (the header's z1_m, z2_m), stated once. */
+inline void image_depths(const int m, const real_t d, const real_t z0, const real_t ze,
+                         real_t *z1, real_t *z2)
+{
+    *z1 = (real_t)(1 - 2 * m) * d - (real_t)(4 * m) * ze - z0;
+    *z2 = (real_t)(1 - 2 * m) * d - (real_t)(4 * m - 2) * ze + z0;
+}
+
 inline real_t image_pair(const int m, const real_t d, const real_t z0, const real_t ze,
                          const real_t a, const real_t zmin2)
 {
-    const real_t z1 = (real_t)(1 - 2 * m) * d - (real_t)(4 * m) * ze - z0;
-    const real_t z2 = (real_t)(1 - 2 * m) * d - (real_t)(4 * m - 2) * ze + z0;
+    real_t z1, z2;
+    image_depths(m, d, z0, ze, &z1, &z2);
     const real_t h = ze + z0;
     const real_t delta = (real_t)2 * h * (z1 + z2) / a;
     /* expm1 of huge arguments is not reliable on every OpenCL library (PoCL returns -inf
@@ -56,8 +64,8 @@ inline real_t slab_log_T0(const real_t t, const real_t Dv, const real_t muav, co
         const int M = n_dipoles >= 0 ? n_dipoles : (int)ceil(sqrt(x * ln_tol)) + 1;
         real_t zmin2 = INFINITY;
         for (int m = -M; m <= M; ++m) {
-            const real_t z1 = (real_t)(1 - 2 * m) * d - (real_t)(4 * m) * ze - z0;
-            const real_t z2 = (real_t)(1 - 2 * m) * d - (real_t)(4 * m - 2) * ze + z0;
+            real_t z1, z2;
+            image_depths(m, d, z0, ze, &z1, &z2);
             zmin2 = fmin(zmin2, fmin(z1 * z1, z2 * z2));
         }
         real_t s = 0;

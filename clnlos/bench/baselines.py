@@ -5,6 +5,8 @@ from the same matrices and PSFs as the OpenCL plans so only the execution engine
 
 from __future__ import annotations
 
+import warnings
+
 import numpy as np
 import scipy.sparse as sp
 
@@ -145,9 +147,14 @@ class TorchReconstruction(_Setup):
 
         def csr(m):
             m = sp.csr_matrix(m, dtype=np.float32)
-            return torch.sparse_csr_tensor(torch.from_numpy(m.indptr.astype(np.int64)),
-                                           torch.from_numpy(m.indices.astype(np.int64)),
-                                           torch.from_numpy(m.data), size=m.shape)
+            # the matrices are built here from a valid scipy CSR: skip torch's invariant
+            # checks (and their beta-feature warnings)
+            with torch.sparse.check_sparse_tensor_invariants(enable=False), \
+                    warnings.catch_warnings():
+                warnings.simplefilter("ignore", UserWarning)
+                return torch.sparse_csr_tensor(torch.from_numpy(m.indptr.astype(np.int64)),
+                                               torch.from_numpy(m.indices.astype(np.int64)),
+                                               torch.from_numpy(m.data), size=m.shape)
 
         self.tA, self.tB = csr(self.A), csr(self.B)
         self.tw = torch.from_numpy(self.w_fk.astype(np.float32))
