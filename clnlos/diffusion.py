@@ -111,6 +111,27 @@ class SlabTransmittance:
                 self.dtype.type(scale))
         return out_g
 
+    def outer_avg_device(self, rho_g: cla.Array, t_nodes: np.ndarray, weights: np.ndarray,
+                         scale: float, out_g: cla.Array) -> cla.Array:
+        """``out[it, ir] = scale * sum_k weights[k] T(rho[ir], t_nodes[it, k])`` on the device
+        (one pass: the node sum stays in registers); ``out_g`` contiguous (n_t, n_rho)."""
+        n_t, n_nodes = t_nodes.shape
+        nr = rho_g.size
+        if not (nr and n_t):
+            return out_g
+        t_g = cla.to_device(self.queue, np.ascontiguousarray(t_nodes, self.dtype).ravel())
+        w_g = cla.to_device(self.queue, np.asarray(weights, self.dtype))
+        log_t0 = cla.empty(self.queue, t_g.size, self.dtype)
+        n_all = kernel_int(t_g.size, "time samples")
+        self.kernels.log_series(self.queue, (round_up(t_g.size, 64),), None, t_g.data,
+                                log_t0.data, n_all, *self._params)
+        self.kernels.transmittance_outer_avg(
+            self.queue, (round_up(nr, 16), round_up(n_t, 4)), None, rho_g.data, t_g.data,
+            log_t0.data, w_g.data, out_g.data, kernel_int(nr, "radii"),
+            kernel_int(n_t, "time bins"), kernel_int(n_nodes, "time nodes"), self._params[0],
+            self.dtype.type(scale))
+        return out_g
+
     def __call__(self, rho_m, t_s) -> np.ndarray:
         rho = np.asarray(rho_m, dtype=np.float64)
         t = np.asarray(t_s, dtype=np.float64)
@@ -185,8 +206,8 @@ def diffusion_psf_device(plan: SlabTransmittance, *, nt: int, bin_width_s: float
     Only lags 0..``lags``-1 are evaluated (default: all ``nt``); the rest of ``out_g`` (a
     contiguous (>= lags, ny, nx) device array, allocated when not given) is left untouched,
     so a caller that zeroed it gets the PSF truncated to its support
-    (:func:`temporal_support_lags`). Time nodes are accumulated on the device in the plan's
-    precision (Gauss-Legendre weights are positive and sum to 1: no cancellation).
+    (:func:`temporal_support_lags`). The time nodes are summed inside the kernel in the
+    plan's precision (Gauss-Legendre weights are positive and sum to 1: no cancellation).
     """
     q, dtype = plan.queue, plan.dtype
     lags = nt if lags is None else int(lags)
@@ -202,15 +223,8 @@ def diffusion_psf_device(plan: SlabTransmittance, *, nt: int, bin_width_s: float
         u, w = np.polynomial.legendre.leggauss(int(time_nodes))
         u, w = u / 2, w / 2  # nodes in (-1/2, 1/2) of a bin, weights summing to 1
     scale = bin_width_s * pitch_m * pitch_m if physical else 1.0
-    acc = out_g[:lags].reshape(lags, ny * nx)
-    tmp = None
-    for k, (node, weight) in enumerate(zip(u, w, strict=True)):
-        t_g = cla.to_device(q, ((np.arange(lags) + node) * bin_width_s).astype(dtype))
-        if k == 0:
-            plan.outer_device(rho_g, t_g, weight * scale, out_g=acc)
-        else:
-            tmp = plan.outer_device(rho_g, t_g, weight * scale, out_g=tmp)
-            acc += tmp
+    t_nodes = (np.arange(lags)[:, None] + u[None, :]) * bin_width_s  # [lag, node]
+    plan.outer_avg_device(rho_g, t_nodes, w, scale, out_g=out_g[:lags].reshape(lags, ny * nx))
     return out_g
 
 

@@ -141,3 +141,29 @@ __kernel void transmittance_outer(__global const real_t *restrict rho, __global 
     out[(size_t)it * n_rho + ir] =
         lf == -INFINITY ? (real_t)0 : scale * exp(lf - r * r / ((real_t)4 * Dv * t[it]));
 }
+
+/* out[it * n_rho + ir] = scale * sum_k w[k] T(rho[ir], t[it * n_nodes + k]): the bin-averaged
+ * table of diffusion_psf (Gauss-Legendre nodes k within bin it), summed in registers so the
+ * table is written once (a pass per node plus an accumulation pass cost 5x the memory
+ * traffic). log_t0 has the layout of t. */
+__kernel void transmittance_outer_avg(__global const real_t *restrict rho,
+                                      __global const real_t *restrict t,
+                                      __global const real_t *restrict log_t0,
+                                      __constant real_t *w, __global real_t *restrict out,
+                                      const int n_rho, const int n_t, const int n_nodes,
+                                      const real_t Dv, const real_t scale)
+{
+    const size_t ir = get_global_id(0);
+    const size_t it = get_global_id(1);
+    if (ir >= (size_t)n_rho || it >= (size_t)n_t)
+        return;
+    const real_t r2 = rho[ir] * rho[ir];
+    real_t acc = 0;
+    for (int k = 0; k < n_nodes; ++k) {
+        const size_t j = it * (size_t)n_nodes + (size_t)k;
+        const real_t lf = log_t0[j];
+        if (lf != -INFINITY)
+            acc += w[k] * exp(lf - r2 / ((real_t)4 * Dv * t[j]));
+    }
+    out[it * (size_t)n_rho + ir] = scale * acc;
+}
