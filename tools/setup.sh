@@ -10,14 +10,21 @@ set -euo pipefail
 cd "$(dirname "$0")/.."
 
 need=()
-for pkg in pocl-opencl-icd opencl-headers ocl-icd-opencl-dev oclgrind mesa-opencl-icd; do
+for pkg in pocl-opencl-icd opencl-headers ocl-icd-opencl-dev oclgrind; do
   dpkg -s "$pkg" >/dev/null 2>&1 || need+=("$pkg")
 done
+SUDO=""; [ "$(id -u)" = 0 ] || SUDO="sudo"
 if [ ${#need[@]} -gt 0 ]; then
-  SUDO=""; [ "$(id -u)" = 0 ] || SUDO="sudo"
   echo "setup: installing Debian packages: ${need[*]}"
   $SUDO apt-get update -q
   DEBIAN_FRONTEND=noninteractive $SUDO apt-get install -y -q --no-install-recommends "${need[@]}"
+fi
+# optional: the second driver stack (tests/test_second_driver.py skips without it)
+if ! dpkg -s mesa-opencl-icd >/dev/null 2>&1; then
+  echo "setup: installing mesa-opencl-icd (rusticl, optional)"
+  { $SUDO apt-get update -q && DEBIAN_FRONTEND=noninteractive $SUDO apt-get install -y -q \
+      --no-install-recommends mesa-opencl-icd; } \
+    || echo "setup: warning: mesa-opencl-icd not installed; the rusticl test will skip"
 fi
 
 PY="${PYTHON:-python3}"
