@@ -64,8 +64,9 @@ def confocal_tail_fraction(prof: np.ndarray, nt: int) -> float:
 def confocal_spectrum(slab: Slab, shape: tuple[int, int, int], *, bin_width_s: float,
                       pitch_m: float, n_dipoles: int | None = None, periodic_xy: bool = False,
                       dtype=np.float32, queue=None):
-    """(F[Phi * Phi] on the padded grid, the padded shape): the spectrum of
-    :func:`confocal_psf` without going back to the lag domain when it need not.
+    """(F[Phi * Phi] on the padded grid, the padded-grid buffer that held Phi -- free for
+    reuse as scratch): the spectrum of :func:`confocal_psf` without going back to the lag
+    domain when it need not.
 
     When Phi * Phi holds less than SUPPORT_TOL of its energy at lags >= nt
     (:func:`confocal_tail_fraction`), the cut at nt changes nothing that matters and the
@@ -85,7 +86,7 @@ def confocal_spectrum(slab: Slab, shape: tuple[int, int, int], *, bin_width_s: f
         phi2 = fft.inverse(spec, phi_g)
         fill_zero(q, phi2, offset_bytes=nt * phi2.shape[1] * phi2.shape[2] * dt.itemsize)
         spec = fft.forward(phi2, spec)
-    return spec, phi_g.shape
+    return spec, phi_g
 
 
 def confocal_psf(slab: Slab, shape: tuple[int, int, int], *, bin_width_s: float,
@@ -160,8 +161,9 @@ def slab_blur(slab: Slab, shape, *, bin_width_s: float, pitch_m: float, mode: st
     gain is the squared slab transmittance). ``mode="wiener"``: the deconvolution
     conj(H)/(|H|^2 + 1/SNR) with H normalised to unit DC gain.
     """
-    spec, pad = confocal_spectrum(slab, shape, bin_width_s=bin_width_s, pitch_m=pitch_m,
-                                  n_dipoles=n_dipoles, periodic_xy=periodic_xy, dtype=dtype,
-                                  queue=queue)
-    return SpectralFilter(pad, shape, mode=mode, snr=snr, normalize=(mode == "wiener"),
-                          lateral_pad=lateral_pad, dtype=dtype, queue=queue, spectrum=spec)
+    spec, scratch = confocal_spectrum(slab, shape, bin_width_s=bin_width_s, pitch_m=pitch_m,
+                                      n_dipoles=n_dipoles, periodic_xy=periodic_xy,
+                                      dtype=dtype, queue=queue)
+    return SpectralFilter(tuple(scratch.shape), shape, mode=mode, snr=snr,
+                          normalize=(mode == "wiener"), lateral_pad=lateral_pad, dtype=dtype,
+                          queue=queue, spectrum=spec, work_buffer=scratch)

@@ -127,7 +127,8 @@ class LCT:
         psf = lightcone_psf_device(nt, ny, nx, bin_width_s=bin_width_s, pitch_m=pitch,
                                    dtype=self.dtype, queue=self.queue)
         self.cone = SpectralFilter(psf, self.shape, mode="convolve", dtype=self.dtype,
-                                   queue=self.queue)
+                                   queue=self.queue, work_buffer=psf)
+        del psf
         self.cone.name = "lct_lightcone"
         self.inverse_filter = SpectralFilter.from_spectrum(self.cone, self.cone.H,
                                                            mode="wiener", snr=snr)

@@ -44,6 +44,10 @@ class SpectralFilter(LinearOperator):
     in_shape : (n0, n1, n2)
         Shape of the volumes filtered (placed at the low corner of the padded grid).
     snr : float, for ``mode="wiener"``: 1/SNR regularises the inverse.
+    work_buffer : pyopencl Array of ``pad_shape``, optional
+        A device buffer the caller no longer needs (typically the PSF itself once its
+        spectrum is taken), used as this filter's scratch instead of a new allocation; its
+        contents are overwritten on every call.
     spectrum : pyopencl Array, optional
         F[psf] already computed on this grid (half spectrum, complex); ``psf`` is then the
         padded shape (a tuple).
@@ -57,7 +61,8 @@ class SpectralFilter(LinearOperator):
 
     def __init__(self, psf, in_shape, *, mode: str = "convolve", snr: float | None = None,
                  normalize: bool = True, lateral_pad: str = "zero", dtype=np.float32,
-                 queue=None, spectrum: cla.Array | None = None):
+                 queue=None, spectrum: cla.Array | None = None,
+                 work_buffer: cla.Array | None = None):
         self.queue = get_queue(queue)
         self.dtype = require_dtype(self.queue.device, dtype)
         if mode not in ("convolve", "wiener"):
@@ -105,7 +110,11 @@ class SpectralFilter(LinearOperator):
             if not self.dc_gain > 0:
                 raise ParameterError("psf", f"sum {self.dc_gain}", "> 0 (a non-negative PSF)")
             self.H *= self.dtype.type(1.0 / self.dc_gain)
-        self._buf = zeros(self.queue, pad_shape, self.dtype)
+        if (work_buffer is not None and tuple(work_buffer.shape) == pad_shape
+                and work_buffer.dtype == self.dtype):
+            self._buf = work_buffer  # the caller hands over a buffer it no longer needs
+        else:
+            self._buf = zeros(self.queue, pad_shape, self.dtype)
 
     @classmethod
     def from_spectrum(cls, base: SpectralFilter, H: cla.Array, *, mode: str,
