@@ -55,6 +55,41 @@ def _workers() -> int:
     return host_threads()
 
 
+def _pocketfft():
+    """scipy's pocketfft binding, whose r2c/c2r write into a given array (scipy.fft's public
+    functions do not take ``out=``: their result is a 270 MB temporary at 128 x 128 x 512,
+    then copied); None when this scipy does not have it (the public functions are used)."""
+    try:
+        from scipy.fft._pocketfft import pypocketfft as pp
+    except ImportError:
+        return None
+    return pp if hasattr(pp, "r2c") and hasattr(pp, "c2r") else None
+
+
+def host_rfftn(x: np.ndarray, out: np.ndarray) -> None:
+    """out <- rfftn(x) (unnormalised), written in place when the binding allows."""
+    pp = _pocketfft()
+    if pp is not None:
+        try:
+            pp.r2c(x, (0, 1, 2), True, 0, out, _workers())
+            return
+        except TypeError:
+            pass
+    out[...] = sfft.rfftn(x, workers=_workers())
+
+
+def host_irfftn(s: np.ndarray, shape, out: np.ndarray) -> None:
+    """out <- irfftn(s, shape) (divided by N), written in place when the binding allows."""
+    pp = _pocketfft()
+    if pp is not None:
+        try:
+            pp.c2r(s, (0, 1, 2), int(shape[-1]), False, 2, out, _workers())
+            return
+        except TypeError:
+            pass
+    out[...] = sfft.irfftn(s, s=shape, axes=(0, 1, 2), workers=_workers())
+
+
 def _store(a: np.ndarray, result: np.ndarray) -> None:
     """Put an in-place transform's result in ``a`` (pocketfft already did when it could)."""
     if not np.shares_memory(a, result):
@@ -87,7 +122,7 @@ class RealFFT3:
             self._app.fft(x_g, out_g)
         else:
             with host_view(x_g) as x, host_view(out_g, write=True, read=False) as out:
-                out[...] = sfft.rfftn(x, workers=_workers())
+                host_rfftn(x, out)
         return out_g
 
     def inverse(self, s_g: cla.Array, out_g: cla.Array | None = None) -> cla.Array:
@@ -97,7 +132,7 @@ class RealFFT3:
             self._app.ifft(s_g, out_g)
         else:
             with host_view(s_g) as s, host_view(out_g, write=True, read=False) as out:
-                out[...] = sfft.irfftn(s, s=self.shape, axes=(0, 1, 2), workers=_workers())
+                host_irfftn(s, self.shape, out)
         return out_g
 
 

@@ -37,9 +37,16 @@ def tol(kind, dtype):
 
 
 # ------------------------------------------------------------------ FFT
-@pytest.mark.parametrize("backend", ["vkfft", "host"])
+@pytest.mark.parametrize("backend", ["vkfft", "host", "host-public-api"])
 @pytest.mark.parametrize("shape", [(16, 8, 8), (34, 10, 14), (7, 5, 9), (1, 4, 6)])
 def test_fft_round_trip_vs_numpy(queue, dtype, backend, shape, monkeypatch):
+    """Every FFT path against numpy float64; ``host`` writes through pocketfft's ``out=``
+    binding, ``host-public-api`` through scipy.fft's public functions (the fallback)."""
+    if backend == "host-public-api":
+        import clnlos.fft
+
+        monkeypatch.setattr(clnlos.fft, "_pocketfft", lambda: None)
+        backend = "host"
     if backend == "vkfft":
         from clnlos.runtime import pocl_version
 
