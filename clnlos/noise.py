@@ -90,7 +90,11 @@ def is_counts(y: np.ndarray) -> bool:
         return False
     if np.issubdtype(a.dtype, np.integer):
         return True
-    return bool(np.all(a == np.round(a)) and a.min() >= 0)
+    flat = a.reshape(-1)
+    probe = flat[:: max(1, flat.size // 4096)]  # fast rejection of non-count data
+    if not np.array_equal(probe, np.rint(probe)):
+        return False
+    return bool(np.array_equal(flat, np.rint(flat)) and flat.min() >= 0)
 
 
 def _mad_sigma(y: np.ndarray) -> float:
@@ -106,11 +110,13 @@ def _mad_sigma(y: np.ndarray) -> float:
 def estimate_noise(y: np.ndarray, bin_width_s: float, start_s: float = 0.0) -> NoiseEstimate:
     """Noise statistics of a capture ``y`` [t, y, x] with bins of ``bin_width_s`` from
     ``start_s`` (see module docstring)."""
-    a = np.asarray(y, np.float64)
+    a = np.asarray(y)
+    if not np.issubdtype(a.dtype, np.floating):
+        a = a.astype(np.float64)
     nt = a.shape[0]
     n_scan = int(np.prod(a.shape[1:])) or 1
     counts = is_counts(a)
-    profile = a.reshape(nt, -1).sum(axis=1)
+    profile = a.reshape(nt, -1).sum(axis=1, dtype=np.float64)
     lead = max(1, int(round(LEAD_FRACTION * nt)))
     background = float(np.median(profile[:lead])) / n_scan
     total = float(profile.sum())
@@ -120,7 +126,7 @@ def estimate_noise(y: np.ndarray, bin_width_s: float, start_s: float = 0.0) -> N
         n_eq = signal
         prof_std = math.sqrt(max(background * n_scan, 1.0))
     else:
-        sigma = _mad_sigma(a.reshape(nt, -1))
+        sigma = _mad_sigma(a.reshape(nt, -1).astype(np.float64))
         n_eq = math.inf if sigma == 0 else total * total / (a.size * sigma * sigma)
         prof_std = sigma * math.sqrt(n_scan)
     snr = float(np.clip(n_eq / K_SNR, SNR_MIN, SNR_MAX)) if n_eq > 0 else SNR_MIN
