@@ -9,10 +9,11 @@ import os
 import numpy as np
 import pyopencl.array as cla
 
+from clnlos.slab import CDT_SLAB
 from clnlos.blur import slab_blur
 from clnlos.brdf.models import BRDFModel
 from clnlos.brdf.texture import TextureLookup, tabulate
-from clnlos.diffusion import Slab, SlabTransmittance, diffusion_psf
+from clnlos.diffusion import SlabTransmittance, diffusion_psf
 from clnlos.fk import FKMigration
 from clnlos.forward import N_THETA, LightCone, PulseBlur, SurfaceSamples
 from clnlos.geometry import Elements
@@ -42,7 +43,7 @@ q = get_queue("oclgrind")
 # uninitialised-value plugin cannot follow (fatal error in Uninitialized.cpp): test_memcheck
 # runs it in a second pass with that plugin off (bounds and data-race checks stay on).
 VARIANTS = ("group",) if os.environ.get("CLNLOS_MEMCHECK_GROUP") == "1" else ("item",)
-slab = Slab(thickness_m=0.0254, mu_a=0.53, mu_s_prime=262.0, n=1.12)
+slab = CDT_SLAB
 dtypes = [np.float32] + ([np.float64] if has_fp64(q.device) else [])
 for dt in dtypes:
     # diffusion: element-wise, series table, PSF table (odd sizes on purpose)

@@ -11,6 +11,8 @@ from reference.diffusion_ref import (
     slab_transmittance_ref,
 )
 
+from clnlos.config import slab_table
+from clnlos.slab import CDT_SLAB
 from clnlos.diffusion import (
     Slab,
     SlabTransmittance,
@@ -20,7 +22,7 @@ from clnlos.diffusion import (
 )
 from clnlos.errors import ParameterError
 
-CDT = dict(thickness_m=0.0254, mu_a=0.53, mu_s_prime=262.0, n=1.12)
+CDT = slab_table(CDT_SLAB)
 
 
 def test_effective_reflection_matches_bruteforce():

@@ -7,10 +7,11 @@ import pytest
 from helpers import rel_l2
 from reference.lightcone_ref import lightcone_ref
 
+from clnlos.slab import CDT_SLAB
 from clnlos import C0
 from clnlos.brdf.models import BRDFModel, retro_slice
 from clnlos.cli import main
-from clnlos.config import ReconstructionConfig
+from clnlos.config import ReconstructionConfig, slab_table
 from clnlos.errors import ParameterError
 from clnlos.forward import N_THETA, ForwardModel, LightCone, SurfaceSamples, pulse_taps
 from clnlos.geometry import Elements, read_mesh, sample_mesh, sample_rectangle, sample_sphere
@@ -274,7 +275,7 @@ def test_forward_blur_sees_light_from_outside_the_scan(queue):
             "time": {"bin_width_s": 32e-12, "bins": 160, "start_s": 0.0},
             "objects": [{"shape": "rectangle", "size_m": [0.04, 0.04],
                          "translate_m": [0.16, 0.0, 0.3]}],
-            "slab": {"thickness_m": 0.0254, "mu_a": 0.53, "mu_s_prime": 262.0, "n": 1.12}}
+            "slab": slab_table(CDT_SLAB)}
     fm = ForwardModel(Scene.from_dict(base), queue=queue)
     assert fm.margin >= 4 and fm.run().sum() > 0
     no_slab = dict(base)

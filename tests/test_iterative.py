@@ -10,7 +10,7 @@ import scipy.sparse as sp
 from helpers import rel_l2
 
 from clnlos import C0
-from clnlos.config import ReconstructionConfig
+from clnlos.config import ReconstructionConfig, slab_table
 from clnlos.forward import ForwardModel, LightCone, SurfaceSamples
 from clnlos.geometry import Elements
 from clnlos.iterative import IterativeInversion
@@ -221,7 +221,7 @@ def _rect_scene(noise: bool, depth=0.5, seed=0) -> Scene:
              "translate_m": [0.0, -0.0225, depth]}]
     d = {"seed": seed, "scan": {"width_m": 0.3, "points": 24},
          "time": {"bin_width_s": 32e-12, "bins": 256, "start_s": 0.0}, "objects": objs,
-         "slab": {"thickness_m": 0.0254, "mu_a": 0.53, "mu_s_prime": 262.0, "n": 1.12},
+         "slab": slab_table(CDT_SLAB),
          "laser": {"pulse_width_s": 35e-12}, "sampling": {"density_per_m2": 1e5}}
     if noise:
         d["detector"] = {"power_w": 0.4, "rep_rate_hz": 10e6, "exposure_s": 0.1,

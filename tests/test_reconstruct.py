@@ -10,10 +10,11 @@ from helpers import rel_l2
 from reference.recon_ref import confocal_psf_ref, fk_ref, lct_ref, pad_filter, resample_cumsum
 from reference.scene_ref import patch_points, points_transient, scan_centres
 
+from clnlos.slab import CDT_SLAB
 from clnlos import C0
 from clnlos.blur import confocal_psf, slab_blur
 from clnlos.cli import main
-from clnlos.config import ReconstructionConfig
+from clnlos.config import ReconstructionConfig, slab_table
 from clnlos.diffusion import Slab
 from clnlos.fft import ComplexFFT3, RealFFT3
 from clnlos.fk import FKMigration
@@ -25,7 +26,7 @@ from clnlos.pulse import PulseBlur
 from clnlos.resample import AxisResample, overlap_matrix, rebin_matrix
 from clnlos.transport import LightConeTransport
 
-CDT = dict(thickness_m=0.0254, mu_a=0.53, mu_s_prime=262.0, n=1.12)
+CDT = slab_table(CDT_SLAB)
 # Stated tolerances (relative L2 against the float64 numpy reference)
 TOL = {"fft": {np.float32: 2e-6, np.float64: 1e-13},
        "stage": {np.float32: 1e-4, np.float64: 1e-9},
@@ -435,7 +436,7 @@ def test_slab_blur_from_its_spectrum_equals_the_psf_route(queue, dtype, nt):
     from clnlos.diffusion import SUPPORT_TOL, lateral_integral_profile, support_of
     from clnlos.wiener import SpectralFilter
 
-    slab = Slab(thickness_m=0.0254, mu_a=0.53, mu_s_prime=262.0, n=1.12)
+    slab = CDT_SLAB
     prof = lateral_integral_profile(slab, nt=nt, bin_width_s=32e-12, queue=queue)
     tail = confocal_tail_fraction(prof[:support_of(prof)], nt)
     assert (tail < SUPPORT_TOL) == (nt == 512)

@@ -11,16 +11,16 @@ import pytest
 from helpers import rel_l2
 from reference.lightcone_ref import lightcone_ref
 
+from clnlos.slab import CDT_SLAB
 from clnlos.blur import slab_blur
 from clnlos.brdf.models import BRDFModel, retro_slice
-from clnlos.diffusion import Slab
 from clnlos.fk import FKMigration
 from clnlos.forward import N_THETA, LightCone, SurfaceSamples
 from clnlos.geometry import Elements
 from clnlos.lct import LCT
 from clnlos.wiener import SpectralFilter
 
-CDT = Slab(thickness_m=0.0254, mu_a=0.53, mu_s_prime=262.0, n=1.12)
+CDT = CDT_SLAB
 # float32 tolerance relative to the float64 result of the same plan
 F32_TOL = {"wiener": 1e-3, "lightcone": 1e-4, "inversion": 1e-3}
 

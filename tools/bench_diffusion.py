@@ -18,8 +18,9 @@ import numpy as np
 from benchlib import device_meta, print_table, timeit, write_rows
 
 from clnlos.bench.baselines import numpy_transmittance
+from clnlos.slab import CDT_SLAB
 
-from clnlos.diffusion import Slab, SlabTransmittance, grid_offsets
+from clnlos.diffusion import SlabTransmittance, grid_offsets
 from clnlos.runtime import get_queue, has_fp64
 
 
@@ -31,7 +32,7 @@ def main(argv=None) -> list[dict]:
     args = ap.parse_args(argv)
 
     q = get_queue(args.device)
-    slab = Slab(thickness_m=0.0254, mu_a=0.53, mu_s_prime=262.0, n=1.12)
+    slab = CDT_SLAB
     n, nt = (32, 256) if args.quick else (64, 512)
     off = grid_offsets(n, 0.01)
     rho = np.sqrt(off[:, None] ** 2 + off[None, :] ** 2).ravel()

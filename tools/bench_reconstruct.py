@@ -26,9 +26,11 @@ sys.path.insert(0, str(Path(__file__).resolve().parent))
 from benchlib import device_meta, print_table, timeit, write_rows  # noqa: E402
 
 from clnlos import C0  # noqa: E402
+from clnlos.config import slab_table  # noqa: E402
+from clnlos.slab import CDT_SLAB  # noqa: E402
 
 SIZES = {32: (128, 32, 32), 64: (256, 64, 64), 128: (512, 128, 128)}
-SLAB = dict(thickness_m=0.0254, mu_a=0.53, mu_s_prime=262.0, n=1.12)
+SLAB = slab_table(CDT_SLAB)
 
 
 def _geometry(shape):

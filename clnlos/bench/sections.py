@@ -7,15 +7,17 @@ import pyopencl as cl
 import pyopencl.array as cla
 
 from .. import C0
+from ..config import slab_table
+from ..slab import CDT_SLAB
 from .baselines import numpy_lightcone, numpy_transmittance, ut_scene
 from .harness import Bench, rel_error as _rel, timeit
 
 
 # ------------------------------------------------------------------ kernels
 def bench_diffusion(b: Bench):
-    from ..diffusion import Slab, SlabTransmittance, grid_offsets
+    from ..diffusion import SlabTransmittance, grid_offsets
 
-    slab = Slab(thickness_m=0.0254, mu_a=0.53, mu_s_prime=262.0, n=1.12)
+    slab = CDT_SLAB
     n, nt = {"tiny": (8, 64), "quick": (32, 256), "full": (64, 512)}[b.size]
     off = grid_offsets(n, 0.01)
     rho = np.sqrt(off[:, None] ** 2 + off[None, :] ** 2).ravel()
@@ -134,12 +136,11 @@ def bench_model_level(b: Bench):
 
 def bench_reconstruction(b: Bench):
     from ..blur import slab_blur
-    from ..diffusion import Slab
     from ..fk import FKMigration
     from ..lct import LCT
 
     sizes = {"tiny": [16], "quick": [32, 64], "full": [32, 64, 128]}[b.size]
-    slab = Slab(thickness_m=0.0254, mu_a=0.53, mu_s_prime=262.0, n=1.12)
+    slab = CDT_SLAB
     for n in sizes:
         shape = (4 * n, n, n)
         dt_s = 2.0 / (C0 * shape[0])
@@ -200,7 +201,6 @@ def _bandwidth_rows(b: Bench, ops, xg, grid: str) -> None:
 
 def bench_end_to_end(b: Bench):
     from ..config import ReconstructionConfig
-    from ..diffusion import Slab
     from ..forward import ForwardModel
     from ..io import Capture
     from ..metrics import peak_depth_m
@@ -214,11 +214,11 @@ def bench_end_to_end(b: Bench):
              "time": {"bin_width_s": 2.46 / (C0 * nt), "bins": nt, "start_s": 0.0},
              "objects": [{"shape": "letters", "text": "UT", "height_m": 0.3, "stroke_m": 0.06,
                           "translate_m": [0.0, 0.0, 0.5]}],
-             "slab": {"thickness_m": 0.0254, "mu_a": 0.53, "mu_s_prime": 262.0, "n": 1.12},
+             "slab": slab_table(CDT_SLAB),
              "sampling": {"density_per_m2": 4e4}}
         scene = Scene.from_dict(d)
         fm = ForwardModel(scene, queue=b.q)
-        cfg = ReconstructionConfig(max_path_m=2.0, bins=nt, slab=Slab(**d["slab"]),
+        cfg = ReconstructionConfig(max_path_m=2.0, bins=nt, slab=CDT_SLAB,
                                    snr=1e6, inversion_snr=1e3).validate()
 
         def run(fm=fm, cfg=cfg, scene=scene):
@@ -329,7 +329,6 @@ def bench_iterative(b: Bench):
     from ..metrics import coverage_image, mip_iou, peak_depth_m
     from ..reconstruct import reconstruct
     from ..scene import Scene
-    from ..slab import CDT_SLAB
 
     points, bins, bw = {"tiny": (12, 96, 64e-12), "quick": (24, 256, 32e-12),
                         "full": (32, 512, 16e-12)}[b.size]
@@ -342,7 +341,7 @@ def bench_iterative(b: Bench):
                           "translate_m": [0.0, 0.0575, 0.5]},
                          {"shape": "rectangle", "size_m": [0.045, 0.115],
                           "translate_m": [0.0, -0.0225, 0.5]}],
-             "slab": {"thickness_m": 0.0254, "mu_a": 0.53, "mu_s_prime": 262.0, "n": 1.12},
+             "slab": slab_table(CDT_SLAB),
              "laser": {"pulse_width_s": 35e-12}, "sampling": {"density_per_m2": 1e5}}
         if noise:
             d["detector"] = {"power_w": 0.4, "rep_rate_hz": 10e6, "exposure_s": 0.1,
