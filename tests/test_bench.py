@@ -8,6 +8,8 @@ import pytest
 from clnlos import bench
 from clnlos.cli import main as cli_main
 
+pytestmark = pytest.mark.slow  # runs the benchmark harness
+
 
 @pytest.fixture(scope="module")
 def bench_doc(tmp_path_factory):
@@ -38,7 +40,10 @@ def test_errors_fall_as_accuracy_rises(bench_doc):
     best = "float64" if _series(doc, "diffusion", "n_dipoles", "float64") else "float32"
     dip = [r["error"] for r in _series(doc, "diffusion", "n_dipoles", best)
            if r["value"] in (1, 2, 3)]
-    assert dip[0] > dip[1] > dip[2]
+    if best == "float64":
+        assert dip[0] > dip[1] > dip[2]
+    else:  # float32 reference: the error falls to float32 rounding (~1e-7), then stays
+        assert dip[0] > 100 * dip[1] and max(dip[1:]) < 1e-6, dip
     den = [r["error"] for r in _series(doc, "lightcone", "density_per_m2", "float32")]
     assert all(b < a for a, b in zip(den, den[1:], strict=False)), den
     tex = [r["error"] for r in _series(doc, "brdf", "resolution@buffer", "float32")]

@@ -163,6 +163,7 @@ def test_albedo_quadrature_integrates_broad_and_narrow_lobes():
     np.testing.assert_allclose(an, ab, rtol=0.03)
 
 
+@pytest.mark.slow
 def test_mlp_albedo_never_exceeds_one_even_when_the_data_do(tmp_path):
     """Data with albedo 1.3 (a miscalibrated measurement): the fit keeps a <= 1."""
     truth = BRDFModel("lambert", {"kd": 1.3})
@@ -173,6 +174,7 @@ def test_mlp_albedo_never_exceeds_one_even_when_the_data_do(tmp_path):
         assert _hemisphere_albedo(model, t) <= 1.0 + 5e-3
 
 
+@pytest.mark.slow
 def test_mlp_keeps_a_specular_peak_that_the_seed_recipe_flattens(tmp_path):
     truth = BRDFModel("microfacet", {"alpha": 0.08, "f0": 0.9, "kd": 0.05})
     rng = np.random.default_rng(4)

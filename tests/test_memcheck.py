@@ -49,6 +49,7 @@ def test_report_parser_keeps_real_errors():
     assert len(found) == 2 and "transmittance_outer" in found[0] and "csr_resample" in found[1]
 
 
+@pytest.mark.slow
 @pytest.mark.oclgrind
 @pytest.mark.parametrize("group_pass", [False, True])
 def test_all_kernels_clean_under_oclgrind(tmp_path, group_pass):

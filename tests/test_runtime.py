@@ -146,6 +146,7 @@ def test_cli_bad_device_one_line_exit_2(capsys):
     assert len(rc.stderr.strip().splitlines()) == 1
 
 
+@pytest.mark.slow
 def test_wheel_ships_kernels_and_runs_them(tmp_path):
     """Build a wheel, install it into an empty target dir and run a kernel from there only."""
     wheel_dir = tmp_path / "wheel"
