@@ -317,6 +317,8 @@ def cmd_brdf_evaluate(args) -> int:
 
 
 def register_brdf(sub, add_device) -> None:
+    from .brdf.evaluate import MODELS as EVAL_MODELS, MODES as EVAL_MODES
+
     b = sub.add_parser("brdf", help="fit, tabulate and plot BRDF models")
     bs = b.add_subparsers(dest="brdf_command", required=True)
     f = bs.add_parser("fit", help="fit a model to measured data (CSV or pbrt .brdf)")
@@ -343,10 +345,8 @@ def register_brdf(sub, add_device) -> None:
                       "every NAME_gonio.csv/NAME_test.csv pair in a directory")
     e.add_argument("directory")
     e.add_argument("-o", "--output", required=True, help="rows as CSV (JSON beside it)")
-    e.add_argument("--models", nargs="+", default=["mlp", "mlp-seed", "five-param",
-                                                  "torrance-sparrow"], choices=BRDF_MODELS)
-    e.add_argument("--modes", nargs="+", default=["interp", "extrap"],
-                   choices=["interp", "extrap"])
+    e.add_argument("--models", nargs="+", default=list(EVAL_MODELS), choices=BRDF_MODELS)
+    e.add_argument("--modes", nargs="+", default=list(EVAL_MODES), choices=list(EVAL_MODES))
     e.add_argument("--splits", type=int, default=1, help="random interpolation splits")
     e.add_argument("--material", nargs="+", help="only sets whose name contains one of these")
     e.set_defaults(func=cmd_brdf_evaluate)
