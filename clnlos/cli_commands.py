@@ -303,6 +303,10 @@ def cmd_brdf_evaluate(args) -> int:
 
     if any(m in ("mlp", "mlp-seed") for m in args.models):
         require("torch", "brdf evaluate with an MLP model")
+    if args.splits < 1 or args.splits > 100:
+        from .errors import ParameterError
+
+        raise ParameterError("--splits", args.splits, "an integer from 1 to 100")
     out = Path(args.output)
     outs = {"-o": out, "(json)": out.with_suffix(".json")}
     check_outputs(outs, inputs=[args.directory], suffixes={"-o": (".csv",)})
