@@ -61,6 +61,24 @@ def confocal_tail_fraction(prof: np.ndarray, nt: int) -> float:
     return float(p2[nt:].sum() / total) if total > 0 else 0.0
 
 
+def _squared_spectrum(phi_g: cla.Array) -> tuple[RealFFT3, cla.Array]:
+    """(the FFT plan of phi_g's grid, F[phi_g]^2): the spectrum of Phi * Phi, uncut."""
+    q = phi_g.queue
+    fft = RealFFT3(phi_g.shape, phi_g.dtype, q)
+    spec = fft.forward(phi_g)
+    k = get_kernels(q, "wiener", real_defines(phi_g.dtype))
+    k.spectral_square(q, (round_up(spec.size, 256),), None, spec.data, np.int64(spec.size))
+    return fft, spec
+
+
+def _cut_at_window(fft: RealFFT3, spec: cla.Array, out_g: cla.Array, nt: int) -> cla.Array:
+    """Phi * Phi in the lag domain (into ``out_g``), zero at lags >= nt."""
+    phi2 = fft.inverse(spec, out_g)
+    fill_zero(phi2.queue, phi2,
+              offset_bytes=nt * phi2.shape[1] * phi2.shape[2] * phi2.dtype.itemsize)
+    return phi2
+
+
 def confocal_spectrum(slab: Slab, shape: tuple[int, int, int], *, bin_width_s: float,
                       pitch_m: float, n_dipoles: int | None = None, periodic_xy: bool = False,
                       dtype=np.float32, queue=None):
@@ -78,14 +96,9 @@ def confocal_spectrum(slab: Slab, shape: tuple[int, int, int], *, bin_width_s: f
     phi_g, tail = _phi_on_padded_grid(slab, shape, bin_width_s=bin_width_s, pitch_m=pitch_m,
                                       n_dipoles=n_dipoles, periodic_xy=periodic_xy,
                                       dtype=dt, queue=q)
-    fft = RealFFT3(phi_g.shape, dt, q)
-    spec = fft.forward(phi_g)
-    k = get_kernels(q, "wiener", real_defines(dt))
-    k.spectral_square(q, (round_up(spec.size, 256),), None, spec.data, np.int64(spec.size))
+    fft, spec = _squared_spectrum(phi_g)
     if tail >= SUPPORT_TOL:
-        phi2 = fft.inverse(spec, phi_g)
-        fill_zero(q, phi2, offset_bytes=nt * phi2.shape[1] * phi2.shape[2] * dt.itemsize)
-        spec = fft.forward(phi2, spec)
+        spec = fft.forward(_cut_at_window(fft, spec, phi_g, nt), spec)
     return spec, phi_g
 
 
@@ -111,13 +124,8 @@ def confocal_psf(slab: Slab, shape: tuple[int, int, int], *, bin_width_s: float,
     phi_g, _ = _phi_on_padded_grid(slab, shape, bin_width_s=bin_width_s, pitch_m=pitch_m,
                                    n_dipoles=n_dipoles, periodic_xy=periodic_xy, dtype=dt,
                                    queue=q)
-    fft = RealFFT3(phi_g.shape, dt, q)
-    spec = fft.forward(phi_g)
-    k = get_kernels(q, "wiener", real_defines(dt))
-    k.spectral_square(q, (round_up(spec.size, 256),), None, spec.data, np.int64(spec.size))
-    phi2 = fft.inverse(spec, phi_g)
-    fill_zero(q, phi2, offset_bytes=nt * phi2.shape[1] * phi2.shape[2] * dt.itemsize)
-    return phi2
+    fft, spec = _squared_spectrum(phi_g)
+    return _cut_at_window(fft, spec, phi_g, nt)
 
 
 def lateral_reach_m(slab: Slab, *, window_s: float, pitch_m: float, tol: float = 1e-3,
