@@ -227,3 +227,11 @@ def test_study_on_a_separately_started_dask_cluster(tmp_path):
         assert a["iou"] == b["iou"] and a["label_metric_value"] == b["label_metric_value"]
     assert local["labels"]["thresholds"] == remote["labels"]["thresholds"]
     assert [s["iou"] for s in local["sweeps"]] == [s["iou"] for s in remote["sweeps"]]
+
+
+def test_findings_name_the_sweep_condition_in_words():
+    from clnlos.study.report import sweep_condition
+
+    assert sweep_condition("slab_thickness_m", 0.0) == "without the slab"
+    assert sweep_condition("slab_thickness_m", 0.0254) == "behind a 2.54 cm slab"
+    assert sweep_condition("depth_m", 0.9) == "at a target depth of 0.9 m"

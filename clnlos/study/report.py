@@ -165,6 +165,14 @@ SWEEP_AXES = {"scan_width_m": "scan width (m)", "depth_m": "target depth (m)",
               "slab_thickness_m": "slab thickness (m; 0 = no slab)"}
 
 
+def sweep_condition(variable: str, value: float) -> str:
+    """'without the slab', 'at a target depth of 0.9 m', ... for a sweep point."""
+    if variable == "slab_thickness_m":
+        return "without the slab" if value == 0 else f"behind a {value * 100:g} cm slab"
+    name = SWEEP_AXES.get(variable, variable).split(" (")[0]
+    return f"at a {name} of {value:g} m"
+
+
 def fig_sweeps(results):
     import matplotlib.pyplot as plt
 
@@ -227,8 +235,8 @@ def findings_html(results) -> str:
     ]
     lm = f.get("largest_material_spread")
     if lm:
-        axis = SWEEP_AXES.get(lm["variable"], lm["variable"])
-        items.append(f"The material matters most at {axis} = {lm['value']:g}: IoU differs "
+        items.append(f"The material matters most {sweep_condition(lm['variable'], lm['value'])}"
+                     f": IoU differs "
                      f"by {lm['iou_spread']:.2f} between the swept materials (at the seed "
                      f"geometry: {f['iou_spread_materials']:.2f} over all ten).")
     for var, e in f["sweeps"].items():
