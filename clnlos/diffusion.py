@@ -111,6 +111,18 @@ class SlabTransmittance:
                 self.dtype.type(scale))
         return out_g
 
+    def log_series(self, t_s: np.ndarray) -> np.ndarray:
+        """log T(0, t) at the times ``t_s`` (host float64 from the kernel's precision; -inf
+        where T is 0): with it T(rho, t) = exp(log T(0, t) - rho^2 / (4 D v t))."""
+        t = np.ascontiguousarray(np.asarray(t_s, np.float64).ravel(), self.dtype)
+        if not t.size:
+            return np.zeros(np.shape(t_s))
+        t_g = cla.to_device(self.queue, t)
+        out_g = cla.empty(self.queue, t.size, self.dtype)
+        self.kernels.log_series(self.queue, (round_up(t.size, 64),), None, t_g.data,
+                                out_g.data, kernel_int(t.size, "time samples"), *self._params)
+        return out_g.get().astype(np.float64).reshape(np.shape(t_s))
+
     def outer_avg_device(self, rho_g: cla.Array, t_nodes: np.ndarray, weights: np.ndarray,
                          scale: float, out_g: cla.Array) -> cla.Array:
         """``out[it, ir] = scale * sum_k weights[k] T(rho[ir], t_nodes[it, k])`` on the device
@@ -217,15 +229,23 @@ def diffusion_psf_device(plan: SlabTransmittance, *, nt: int, bin_width_s: float
         return out_g
     yo, xo = grid_offsets(ny, pitch_m), grid_offsets(nx, pitch_m)
     rho_g = cla.to_device(q, np.sqrt(yo[:, None] ** 2 + xo[None, :] ** 2).ravel().astype(dtype))
+    t_nodes, w = bin_time_nodes(lags, bin_width_s, time_nodes)
+    scale = bin_width_s * pitch_m * pitch_m if physical else 1.0
+    plan.outer_avg_device(rho_g, t_nodes, w, scale, out_g=out_g[:lags].reshape(lags, ny * nx))
+    return out_g
+
+
+def bin_time_nodes(lags: int, bin_width_s: float, time_nodes: int = 4
+                   ) -> tuple[np.ndarray, np.ndarray]:
+    """(t [lag, node] in s, weights [node] summing to 1): Gauss-Legendre nodes averaging a
+    response over each lag bin [(k - 1/2) dt, (k + 1/2) dt] (:func:`diffusion_psf`'s
+    convention; 1 node = the point sample at k dt)."""
     if time_nodes == 1:
         u, w = np.zeros(1), np.ones(1)
     else:
         u, w = np.polynomial.legendre.leggauss(int(time_nodes))
         u, w = u / 2, w / 2  # nodes in (-1/2, 1/2) of a bin, weights summing to 1
-    scale = bin_width_s * pitch_m * pitch_m if physical else 1.0
-    t_nodes = (np.arange(lags)[:, None] + u[None, :]) * bin_width_s  # [lag, node]
-    plan.outer_avg_device(rho_g, t_nodes, w, scale, out_g=out_g[:lags].reshape(lags, ny * nx))
-    return out_g
+    return (np.arange(int(lags))[:, None] + u[None, :]) * float(bin_width_s), w
 
 
 def lateral_integral_profile(slab: Slab, *, nt: int, bin_width_s: float,

@@ -21,6 +21,7 @@ from . import C0
 from .fft import ComplexFFT3
 from .lct import check_inversion_args
 from .runtime import (
+    Scratch,
     get_kernels,
     get_queue,
     kernel_int,
@@ -36,7 +37,7 @@ DEFAULT_FALLOFF = 2.0  # the square root of the (t/T)^p-weighted measurement is 
 class FKMigration:
     def __init__(self, shape, *, bin_width_s: float, scan_width_m: float,
                  falloff: float = DEFAULT_FALLOFF,
-                 dtype=np.float32, queue=None):
+                 dtype=np.float32, queue=None, scratch: Scratch | None = None):
         self.queue = get_queue(queue)
         self.dtype = require_dtype(self.queue.device, dtype)
         nt, ny, nx = self.shape = check_inversion_args(shape, falloff)
@@ -49,8 +50,10 @@ class FKMigration:
         self._k = get_kernels(self.queue, "fk", real_defines(self.dtype))
         w = ((np.arange(nt) + 0.5) / nt) ** falloff
         self._w = cla.to_device(self.queue, w.astype(self.dtype))
-        self._a = cla.empty(self.queue, self.pad_shape, self.fft.cdtype)
-        self._b = cla.empty(self.queue, self.pad_shape, self.fft.cdtype)
+        # the padded wavefield and its Stolt-mapped copy: scratch slots "a" and "b"
+        self.scratch = Scratch(self.queue) if scratch is None else scratch
+        for slot in ("a", "b"):
+            self.scratch.reserve(slot, self.pad_shape, self.fft.cdtype)
 
     def __call__(self, tau):
         on_device = isinstance(tau, cla.Array)
@@ -59,16 +62,18 @@ class FKMigration:
         nt, ny, nx = self.shape
         pt, py, px = self.pad_shape
         q = self.queue
+        a = self.scratch.array("a", self.pad_shape, self.fft.cdtype)
+        b = self.scratch.array("b", self.pad_shape, self.fft.cdtype)
         self._k.fk_prepare(q, (round_up(px, 8), round_up(py, 8), pt), None, x.data,
-                           self._w.data, self._a.data, kernel_int(nt), kernel_int(ny),
+                           self._w.data, a.data, kernel_int(nt), kernel_int(ny),
                            kernel_int(nx))
-        self.fft.forward(self._a)
+        self.fft.forward(a)
         r = self.dtype.type
-        self._k.stolt(q, (round_up(px, 8), round_up(py, 8), pt), None, self._a.data,
-                      self._b.data, kernel_int(pt), kernel_int(py), kernel_int(px),
+        self._k.stolt(q, (round_up(px, 8), round_up(py, 8), pt), None, a.data,
+                      b.data, kernel_int(pt), kernel_int(py), kernel_int(px),
                       r(self.alpha_y), r(self.alpha_x))
-        self.fft.inverse(self._b)
+        self.fft.inverse(b)
         vol = cla.empty(q, self.shape, self.dtype)
-        self._k.fk_finish(q, (round_up(nx, 8), round_up(ny, 8), nt), None, self._b.data,
+        self._k.fk_finish(q, (round_up(nx, 8), round_up(ny, 8), nt), None, b.data,
                           vol.data, kernel_int(nt), kernel_int(ny), kernel_int(nx))
         return vol if on_device else vol.get()

@@ -62,13 +62,14 @@ class IterativeInversion:
     tv_weight (relative, see module docstring; their defaults are those of
     :class:`clnlos.config.ReconstructionConfig`); tv_depth_scale (weight of the depth
     difference in TV; 0 = lateral TV only); warm_snr (Wiener SNR of the LCT warm start);
-    tol (relative change that stops the solver, :mod:`clnlos.solvers`).
+    tol (relative change that stops the solver, :mod:`clnlos.solvers`); scratch (work
+    buffers shared with a plan's other stages, :class:`clnlos.runtime.Scratch`).
     """
 
     def __init__(self, shape, *, bin_width_s: float, scan_width_m: float,
                  iterations: int, l1_weight: float, tv_weight: float,
                  tv_depth_scale: float = 1.0, warm_snr: float = 1e4, tol: float = 1e-4,
-                 dtype=np.float32, queue=None):
+                 dtype=np.float32, queue=None, scratch=None):
         self.queue = get_queue(queue)
         self.dtype = require_dtype(self.queue.device, dtype)
         self.shape = tuple(int(s) for s in shape)
@@ -87,7 +88,7 @@ class IterativeInversion:
         self.depth_m = (np.arange(nt) + 0.5) * dz
         self.scale = (self.depth_m / (nt * dz)) ** 4  # rho = xi * scale
         self.warm = LCT(self.shape, bin_width_s=bin_width_s, scan_width_m=scan_width_m,
-                        snr=warm_snr, dtype=self.dtype, queue=self.queue)
+                        snr=warm_snr, dtype=self.dtype, queue=self.queue, scratch=scratch)
         self._ops: dict[int, tuple[LightConeTransport, float]] = {}
         self.report: SolveReport | None = None
 

@@ -23,6 +23,7 @@ Left out: surface normals and BRDF (assumed isotropic scatterers), occlusions.
 from __future__ import annotations
 
 import numpy as np
+import pyopencl.array as cla
 import scipy.sparse as sp
 
 from . import C0
@@ -30,7 +31,7 @@ from .grid import grid_offsets
 from .errors import ParameterError
 from .operators import LinearOperator
 from .resample import AxisResample, overlap_matrix
-from .runtime import get_kernels, get_queue, real_defines, require_dtype, round_up
+from .runtime import Scratch, get_kernels, get_queue, real_defines, require_dtype, round_up
 from .wiener import SpectralFilter
 
 
@@ -70,10 +71,11 @@ def lightcone_psf(nt: int, ny: int, nx: int, *, bin_width_s: float, pitch_m: flo
 
 
 def lightcone_psf_device(nt: int, ny: int, nx: int, *, bin_width_s: float, pitch_m: float,
-                         dtype=np.float32, queue=None):
-    """:func:`lightcone_psf` built by ``kernels/lct.cl`` on the device (no host table);
-    the normalisation (sum of the kept weights) is computed on the host in float64."""
-    from .runtime import kernel_int, zeros
+                         dtype=np.float32, queue=None, out_g=None):
+    """:func:`lightcone_psf` built by ``kernels/lct.cl`` on the device (no host table),
+    into ``out_g`` (a (2 nt, 2 ny, 2 nx) array) when given; the normalisation (sum of the
+    kept weights) is computed on the host in float64."""
+    from .runtime import fill_zero, kernel_int
 
     q = get_queue(queue)
     dt = require_dtype(q.device, dtype)
@@ -83,7 +85,8 @@ def lightcone_psf_device(nt: int, ny: int, nx: int, *, bin_width_s: float, pitch
     s = (j_y[:, None] ** 2 + j_x[None, :] ** 2) * c
     k0, f = np.floor(s), s - np.floor(s)
     total = float(np.sum(np.where(k0 < 2 * nt, 1 - f, 0) + np.where(k0 + 1 < 2 * nt, f, 0)))
-    psf = zeros(q, (2 * nt, 2 * ny, 2 * nx), dt)
+    psf = cla.empty(q, (2 * nt, 2 * ny, 2 * nx), dt) if out_g is None else out_g
+    fill_zero(q, psf)
     k = get_kernels(q, "lct", real_defines(dt))
     k.lightcone_psf(q, (round_up(2 * nx, 16), round_up(2 * ny, 4)), None, psf.data,
                     kernel_int(2 * nt), kernel_int(2 * ny), kernel_int(2 * nx), dt.type(c),
@@ -110,12 +113,13 @@ class LCT:
 
     Parameters: shape (nt, ny, nx); bin_width_s; scan_width_m (side of the scanned square,
     so the lateral pitch is scan_width_m / nx); snr of the light-cone Wiener filter;
-    falloff exponent p.
+    falloff exponent p; scratch: work buffers shared with a plan's other stages
+    (:class:`clnlos.runtime.Scratch`).
     """
 
     def __init__(self, shape, *, bin_width_s: float, scan_width_m: float,
                  snr: float = DEFAULT_SNR, falloff: float = DEFAULT_FALLOFF, dtype=np.float32,
-                 queue=None):
+                 queue=None, scratch: Scratch | None = None):
         self.queue = get_queue(queue)
         self.dtype = require_dtype(self.queue.device, dtype)
         nt, ny, nx = self.shape = check_inversion_args(shape, falloff)
@@ -124,11 +128,14 @@ class LCT:
         self.to_v = AxisResample(t_to_v_matrix(nt, falloff), (ny, nx), dtype=self.dtype,
                                  queue=self.queue)
         self.to_v.name = "lct_t_to_v"
+        scratch = Scratch(self.queue) if scratch is None else scratch
+        pad = (2 * nt, 2 * ny, 2 * nx)
         psf = lightcone_psf_device(nt, ny, nx, bin_width_s=bin_width_s, pitch_m=pitch,
-                                   dtype=self.dtype, queue=self.queue)
+                                   dtype=self.dtype, queue=self.queue,
+                                   out_g=scratch.array("a", pad, self.dtype))
         self.cone = SpectralFilter(psf, self.shape, mode="convolve", dtype=self.dtype,
-                                   queue=self.queue, work_buffer=psf)
-        del psf
+                                   queue=self.queue, scratch=scratch)
+        del psf  # slot "a" is the filter's work buffer from now on
         self.cone.name = "lct_lightcone"
         self.inverse_filter = SpectralFilter.from_spectrum(self.cone, self.cone.H,
                                                            mode="wiener", snr=snr)

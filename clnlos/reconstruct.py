@@ -43,7 +43,7 @@ from .noise import (
     lightcone_snr,
 )
 from .resample import AxisResample, overlap_matrix
-from .runtime import get_queue, require_dtype
+from .runtime import Scratch, get_queue, require_dtype
 
 
 @dataclass
@@ -145,18 +145,19 @@ class ReconstructionPipeline:
         snr0 = 1.0 if config.snr == "auto" else float(config.snr)  # set per capture if auto
         isnr0 = 1.0 if config.inversion_snr == "auto" else float(config.inversion_snr)
         self.deconv = self.crop = None
+        self.scratch = Scratch(self.queue)  # work buffers shared by the stages below
         if config.slab is not None:
             self.deconv = slab_blur(config.slab, (A.shape[0], ny, nx),
                                     bin_width_s=self.bin_width_s, pitch_m=pitch, mode="wiener",
                                     snr=snr0, n_dipoles=config.n_dipoles,
                                     lateral_pad=config.lateral_pad, dtype=self.dtype,
-                                    queue=self.queue)
+                                    queue=self.queue, scratch=self.scratch)
             self.stages.append(f"deconvolve:slab({describe_slab(config.slab)})")
         if self.n_guard:
             self.crop = AxisResample(sp.identity(A.shape[0], format="csr")[:n_out], (ny, nx),
                                      dtype=self.dtype, queue=self.queue)
         geo = dict(bin_width_s=self.bin_width_s, scan_width_m=scan_width_m, dtype=self.dtype,
-                   queue=self.queue)
+                   queue=self.queue, scratch=self.scratch)
         falloff = {} if config.falloff is None else {"falloff": config.falloff}
         if config.method == "lct":
             self.invert = LCT(self.shape, snr=isnr0, **falloff, **geo)

@@ -145,7 +145,8 @@ class LightConeTransport(LinearOperator):
     def _convolve(self, conjugate: bool) -> None:
         spec = self.fft.forward(self._buf)
         self._k.spectral_multiply(self.queue, (round_up(spec.size, 256),), None, self.H.data,
-                                  spec.data, np.int32(conjugate), np.int64(spec.size))
+                                  spec.data, self.dtype.type(1.0), np.int32(conjugate),
+                                  np.int64(spec.size))
         self.fft.inverse(spec, self._buf)
 
     def _apply(self, x_g):

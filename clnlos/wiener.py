@@ -7,8 +7,10 @@ zero lag/offset at index [0, 0, 0], see :func:`clnlos.diffusion.grid_offsets`)::
     wiener:    y = crop(F^-1[ conj(H) / (|H|^2 + 1/SNR) . F[pad(x)] ])
 
 H = F[h] / H(0) (unit DC gain: 1/SNR is relative to |H(0)|^2 = 1) unless
-``normalize=False``. The multiply runs in ``kernels/wiener.cl``; FFTs from
-:mod:`clnlos.fft` (pyvkfft, host fallback) on the same queue. Padding the time axis to at
+``normalize=False``; the factor 1/H(0) is passed to the multiply kernels (``h_scale``), the
+stored spectrum F[h] is never rescaled in a pass of its own. The multiply runs in
+``kernels/wiener.cl``; FFTs from :mod:`clnlos.fft` (pyvkfft, host fallback) on the same
+queue; the work buffers come from a :class:`clnlos.runtime.Scratch`. Padding the time axis to at
 least twice the causal PSF support keeps the circular convolution from wrapping.
 """
 
@@ -28,9 +30,9 @@ from .runtime import (
     get_queue,
     kernel_int,
     real_defines,
+    Scratch,
     require_dtype,
     round_up,
-    zeros,
 )
 
 
@@ -44,10 +46,9 @@ class SpectralFilter(LinearOperator):
     in_shape : (n0, n1, n2)
         Shape of the volumes filtered (placed at the low corner of the padded grid).
     snr : float, for ``mode="wiener"``: 1/SNR regularises the inverse.
-    work_buffer : pyopencl Array of ``pad_shape``, optional
-        A device buffer the caller no longer needs (typically the PSF itself once its
-        spectrum is taken), used as this filter's scratch instead of a new allocation; its
-        contents are overwritten on every call.
+    scratch : :class:`clnlos.runtime.Scratch`, optional
+        Work buffers shared with the other stages of a plan (slots ``"a"``: the padded
+        real grid, ``"b"``: its spectrum); a private one by default.
     spectrum : pyopencl Array, optional
         F[psf] already computed on this grid (half spectrum, complex); ``psf`` is then the
         padded shape (a tuple).
@@ -62,7 +63,7 @@ class SpectralFilter(LinearOperator):
     def __init__(self, psf, in_shape, *, mode: str = "convolve", snr: float | None = None,
                  normalize: bool = True, lateral_pad: str = "zero", dtype=np.float32,
                  queue=None, spectrum: cla.Array | None = None,
-                 work_buffer: cla.Array | None = None):
+                 scratch: Scratch | None = None):
         self.queue = get_queue(queue)
         self.dtype = require_dtype(self.queue.device, dtype)
         if mode not in ("convolve", "wiener"):
@@ -106,26 +107,32 @@ class SpectralFilter(LinearOperator):
                 psf_g = psf_g.astype(self.dtype)
             self.H = self.fft.forward(psf_g)
         self.dc_gain = float(self.H[0, 0, 0].get().real) if self.H.size else 0.0
+        self.h_scale = 1.0  # the kernels multiply by h_scale * H
         if normalize:
             if not self.dc_gain > 0:
                 raise ParameterError("psf", f"sum {self.dc_gain}", "> 0 (a non-negative PSF)")
-            self.H *= self.dtype.type(1.0 / self.dc_gain)
-        if (work_buffer is not None and tuple(work_buffer.shape) == pad_shape
-                and work_buffer.dtype == self.dtype):
-            self._buf = work_buffer  # the caller hands over a buffer it no longer needs
-        else:
-            self._buf = zeros(self.queue, pad_shape, self.dtype)
+            self.h_scale = 1.0 / self.dc_gain
+        self.scratch = Scratch(self.queue) if scratch is None else scratch
+        self.scratch.reserve("a", pad_shape, self.dtype)
+        self.scratch.reserve("b", self.fft.spec_shape, self.fft.cdtype)
+
+    @property
+    def _buf(self) -> cla.Array:
+        """The padded real grid (scratch slot "a"; every call overwrites all of it)."""
+        return self.scratch.array("a", self.pad_shape, self.dtype)
 
     @classmethod
     def from_spectrum(cls, base: SpectralFilter, H: cla.Array, *, mode: str,
-                      snr: float | None = None) -> SpectralFilter:
-        """A filter sharing ``base``'s grid and plans with another (normalised) spectrum."""
+                      snr: float | None = None, h_scale: float | None = None
+                      ) -> SpectralFilter:
+        """A filter sharing ``base``'s grid and plans with another spectrum, applied as
+        ``h_scale * H`` (default: ``base``'s normalisation when H is ``base.H``, else 1)."""
         new = object.__new__(cls)
         new.__dict__.update(base.__dict__)
         new.mode, new.name = mode, f"{mode}_filter"
         new.inv_snr = 0.0 if mode == "convolve" else 1.0 / float(snr)
         new.H = H
-        new._buf = base._buf  # work buffer shared: calls are sequential on one queue
+        new.h_scale = (base.h_scale if H is base.H else 1.0) if h_scale is None else h_scale
         return new
 
     def set_snr(self, snr: float) -> None:
@@ -137,26 +144,30 @@ class SpectralFilter(LinearOperator):
         self.inv_snr = 1.0 / float(snr)
 
     def _filter(self, x_g: cla.Array, adjoint: bool) -> cla.Array:
+        buf = self._buf
         if self.lateral_pad == "mirror" and not adjoint:
             n0, n1, n2 = self.in_shape
             p0, p1, p2 = self.pad_shape
             self._rk.pad_mirror_xy(self.queue, (round_up(p2, 8), round_up(p1, 8), p0), None,
-                                   x_g.data, self._buf.data, kernel_int(n0), kernel_int(n1),
+                                   x_g.data, buf.data, kernel_int(n0), kernel_int(n1),
                                    kernel_int(n2), kernel_int(p0))
         else:
-            fill_zero(self.queue, self._buf)
-            self._pad.apply_into(x_g, self._buf)
-        spec = self.fft.forward(self._buf)
+            fill_zero(self.queue, buf)
+            self._pad.apply_into(x_g, buf)
+        spec = self.fft.forward(buf, self.scratch.array("b", self.fft.spec_shape,
+                                                        self.fft.cdtype))
         n = spec.size
         gsize = (round_up(n, 256),)
         if self.mode == "wiener":
             self._k.wiener_apply(self.queue, gsize, None, self.H.data, spec.data,
-                                 self.dtype.type(self.inv_snr), np.int32(adjoint), np.int64(n))
+                                 self.dtype.type(self.h_scale), self.dtype.type(self.inv_snr),
+                                 np.int32(adjoint), np.int64(n))
         else:
             self._k.spectral_multiply(self.queue, gsize, None, self.H.data, spec.data,
-                                      np.int32(adjoint), np.int64(n))
-        self.fft.inverse(spec, self._buf)
-        return self._pad._adjoint(self._buf)
+                                      self.dtype.type(self.h_scale), np.int32(adjoint),
+                                      np.int64(n))
+        self.fft.inverse(spec, buf)
+        return self._pad._adjoint(buf)
 
     def _apply(self, x_g):
         return self._filter(x_g, adjoint=False)
@@ -165,8 +176,3 @@ class SpectralFilter(LinearOperator):
         if self.lateral_pad != "zero":
             raise NotImplementedError("the adjoint is defined for zero padding only")
         return self._filter(y_g, adjoint=True)
-
-    def square_spectrum(self) -> None:
-        """H <- H . H: the PSF convolved with itself (the slab crossed twice)."""
-        self._k.spectral_square(self.queue, (round_up(self.H.size, 256),), None, self.H.data,
-                                np.int64(self.H.size))

@@ -427,6 +427,36 @@ def test_lightcone_psf_kernel_matches_numpy(queue, dtype, nt, n, pitch):
     assert got.sum() == pytest.approx(1.0, rel=1e-5)
 
 
+@pytest.mark.parametrize("shape,periodic", [((40, 6, 5), False), ((33, 7, 8), True),
+                                            ((24, 1, 9), False)])
+def test_phi_spectrum_is_the_3d_dft_of_the_psf_table(queue, dtype, shape, periodic):
+    """The slab spectrum built from the separable lateral Gaussians (no PSF table) equals
+    numpy's float64 rfftn of the diffusion_psf table on the padded grid, zero past its
+    temporal support -- odd and even sizes, one-row grids, periodic and padded laterally;
+    squared too."""
+    from clnlos.blur import phi_spectrum
+    from clnlos.diffusion import diffusion_psf, lateral_integral_profile, support_of
+
+    slab, dt, pitch = CDT_SLAB, 48e-12, 0.02
+    nt, ny, nx = shape
+    pad = (2 * nt, ny, nx) if periodic else (2 * nt, 2 * ny, 2 * nx)
+    lags = support_of(lateral_integral_profile(slab, nt=nt, bin_width_s=dt, queue=queue))
+    assert lags < 2 * nt
+    table = diffusion_psf(slab, nt=pad[0], bin_width_s=dt, ny=pad[1], nx=pad[2], pitch_m=pitch,
+                          dtype=np.float64 if queue.device.double_fp_config else np.float32,
+                          queue=queue).astype(np.float64)
+    table[lags:] = 0
+    ref = np.fft.rfftn(table)
+    for square in (False, True):
+        _, spec, _ = phi_spectrum(slab, shape, bin_width_s=dt, pitch_m=pitch, n_dipoles=None,
+                                  periodic_xy=periodic, square=square, dtype=dtype,
+                                  queue=queue)
+        want = ref * ref if square else ref
+        got = spec.get()
+        assert got.shape == want.shape
+        assert rel_l2(want, got) < (1e-9 if dtype == np.float64 else 1e-5), square
+
+
 @pytest.mark.parametrize("nt", [512, 96])
 def test_slab_blur_from_its_spectrum_equals_the_psf_route(queue, dtype, nt):
     """slab_blur squares Phi's spectrum directly when Phi * Phi holds nothing that matters at

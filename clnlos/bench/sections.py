@@ -188,7 +188,8 @@ def _bandwidth_rows(b: Bench, ops, xg, grid: str) -> None:
     n = spec.size
     k = w._k.wiener_apply
     r = b.add("roofline", "wiener_multiply", grid, np.float32,
-              lambda: k(b.q, (round_up(n, 256),), None, w.H.data, spec.data, np.float32(1e-4),
+              lambda: k(b.q, (round_up(n, 256),), None, w.H.data, spec.data, np.float32(w.h_scale),
+                        np.float32(1e-4),
                         np.int32(0), np.int64(n)), None)
     r["bytes_moved"] = 3 * n * spec.dtype.itemsize  # read H and X, write X
     r = b.add("roofline", "fft_r2c_pass", grid, np.float32, lambda: w.fft.forward(w._buf, spec),
