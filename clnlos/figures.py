@@ -8,14 +8,24 @@ from __future__ import annotations
 import numpy as np
 
 DEPTH_MAP_FLOOR = 0.1  # the depth map shows columns whose MIP is at least this of its max
+# the volume figure's panels and colour bars, placed by hand (fractions of the figure)
+VOLUME_FIGURE_MARGINS = {"left": 0.04, "right": 0.97, "bottom": 0.13, "top": 0.85,
+                         "wspace": 0.45}
 
 
-def new_figure(rows: int, cols: int, figsize):
+def new_figure(rows: int, cols: int, figsize, margins: dict | None = None):
     """(figure, axes) without pyplot: a plain ``matplotlib.figure.Figure`` rendered by Agg
-    when saved (importing pyplot costs about 0.4 s of a cold reconstruct)."""
+    when saved (importing pyplot costs about 0.4 s of a cold reconstruct).
+
+    Laid out by matplotlib's constrained layout, unless ``margins``
+    (``Figure.subplots_adjust`` arguments) fix the layout by hand: such a figure can be
+    saved as drawn (``trim=False`` of :func:`clnlos.io.save_figure_file`), in one pass
+    (0.2 s instead of 0.45 s for the 4-panel volume figure)."""
     from matplotlib.figure import Figure
 
-    fig = Figure(figsize=figsize, layout="constrained")
+    fig = Figure(figsize=figsize, layout=None if margins else "constrained")
+    if margins:
+        fig.subplots_adjust(**margins)
     return fig, fig.subplots(rows, cols)
 
 
@@ -52,7 +62,7 @@ def volume_figure(volume: np.ndarray, extents: dict, title: str = "", *,
     raw_mip = volume.max(axis=0)
     depth = (np.argmax(volume, axis=0) + 0.5) * e["voxel_depth_m"]
     depth = np.ma.masked_where(raw_mip < DEPTH_MAP_FLOOR * max(raw_mip.max(), 1e-300), depth)
-    fig, ax = new_figure(1, 4, (16.5, 4))
+    fig, ax = new_figure(1, 4, (16.5, 4), margins=VOLUME_FIGURE_MARGINS)
     im = ax[0].imshow(mip, origin="lower", cmap="gray", extent=xy)
     ax[0].set(xlabel="x (m)", ylabel="y (m)", title="max over depth (x-y)")
     fig.colorbar(im, ax=ax[0], label=label, shrink=0.85)

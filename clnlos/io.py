@@ -111,7 +111,8 @@ def write_h5_file(path, datasets: dict[str, np.ndarray], attrs: dict) -> Path:
 
     with h5py.File(path, "w") as f:
         for name, arr in datasets.items():
-            f.create_dataset(name, data=arr, compression="gzip", compression_opts=4)
+            f.create_dataset(name, data=arr, compression="gzip", compression_opts=1,
+                             shuffle=True)
         for k, v in attrs.items():
             f.attrs[k] = _attr_value(v)
     return Path(path)
@@ -141,11 +142,13 @@ def write_capture(path, transient: np.ndarray, *, bin_width_s: float, start_s: f
                                   scan_width_m=scan_width_m, attrs=attrs))
 
 
-def save_figure_file(fig, path) -> Path:
-    """Save a matplotlib figure as PNG to ``path`` and close it (not atomic)."""
+def save_figure_file(fig, path, *, trim: bool = True) -> Path:
+    """Save a matplotlib figure as PNG to ``path`` and close it (not atomic); ``trim``: cut
+    to the drawn content (a second layout pass; not needed for a figure laid out by hand,
+    :func:`clnlos.figures.new_figure`)."""
     from .figures import close_figure
 
-    fig.savefig(path, format="png", dpi=110, bbox_inches="tight")
+    fig.savefig(path, format="png", dpi=110, **({"bbox_inches": "tight"} if trim else {}))
     close_figure(fig)
     return Path(path)
 

@@ -33,7 +33,7 @@ from . import C0
 from .errors import ParameterError
 from .lct import LCT
 from .operators import LinearOperator
-from .runtime import get_queue, require_dtype
+from .runtime import Scratch, get_queue, require_dtype
 from .solvers import fista, lipschitz
 from .transport import LightConeTransport
 
@@ -87,8 +87,10 @@ class IterativeInversion:
         dz = C0 * self.bin_width_s / 2
         self.depth_m = (np.arange(nt) + 0.5) * dz
         self.scale = (self.depth_m / (nt * dz)) ** 4  # rho = xi * scale
+        self.scratch = Scratch(self.queue) if scratch is None else scratch
         self.warm = LCT(self.shape, bin_width_s=bin_width_s, scan_width_m=scan_width_m,
-                        snr=warm_snr, dtype=self.dtype, queue=self.queue, scratch=scratch)
+                        snr=warm_snr, dtype=self.dtype, queue=self.queue,
+                        scratch=self.scratch)
         self._ops: dict[int, tuple[LightConeTransport, float]] = {}
         self.report: SolveReport | None = None
 
@@ -102,7 +104,7 @@ class IterativeInversion:
                                     scan_width_m=self.scan_width_m, margin=0,
                                     depth_min_m=key * DEPTH_QUANTUM_M,
                                     depth_weight=self.scale, dtype=self.dtype,
-                                    queue=self.queue)
+                                    queue=self.queue, scratch=self.scratch)
             hit = (lc, lc.k_min, lipschitz(lc))
             self._ops[key] = hit
         return hit

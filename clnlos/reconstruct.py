@@ -344,5 +344,5 @@ def reconstruct_to_files(capture: Capture, out, config: ReconstructionConfig, *,
     fig = figure(rec.volume, rec.extents, title)
     with write_group([out, out.with_suffix(".png")]) as (tmp_h5, tmp_png):
         write_h5_file(tmp_h5, {"volume": rec.volume.astype(np.float32)}, attrs)
-        save_figure_file(fig, tmp_png)
+        save_figure_file(fig, tmp_png, trim=False)  # the volume figure is laid out by hand
     return rec

@@ -42,7 +42,15 @@ from .errors import ParameterError
 from .fft import RealFFT3
 from .operators import LinearOperator
 from .resample import AxisResample, overlap_matrix
-from .runtime import fill_zero, get_kernels, get_queue, real_defines, require_dtype, round_up
+from .runtime import (
+    Scratch,
+    fill_zero,
+    get_kernels,
+    get_queue,
+    real_defines,
+    require_dtype,
+    round_up,
+)
 
 
 def signed_offsets(n: int, shift: int = 0) -> np.ndarray:
@@ -89,12 +97,15 @@ class LightConeTransport(LinearOperator):
         Shallowest depth of the volume's support (m).
     depth_weight : array (nz,) or None
         Extra factor per depth bin on the input (a column scaling for solvers).
+    scratch : :class:`clnlos.runtime.Scratch`, optional
+        Work buffers shared with a plan's other stages (a private one by default).
     """
 
     name = "lightcone_transport"
 
     def __init__(self, shape, *, bin_width_s: float, scan_width_m: float, margin: int = 0,
-                 depth_min_m: float = 0.0, depth_weight=None, dtype=np.float32, queue=None):
+                 depth_min_m: float = 0.0, depth_weight=None, dtype=np.float32, queue=None,
+                 scratch: Scratch | None = None):
         self.queue = get_queue(queue)
         self.dtype = require_dtype(self.queue.device, dtype)
         nt, ny, nx = (int(v) for v in shape)
@@ -139,24 +150,32 @@ class LightConeTransport(LinearOperator):
         self.fft = RealFFT3(self.pad_shape, self.dtype, self.queue)
         h = lightcone_kernel(nv, pad_t, py, px, dv_m2=dv, pitch_m=pitch, shift=m)
         self.H = self.fft.forward(cla.to_device(self.queue, h.astype(self.dtype)))
-        self._buf = cla.empty(self.queue, self.pad_shape, self.dtype)
+        self.scratch = Scratch(self.queue) if scratch is None else scratch
+        self.scratch.reserve("a", self.pad_shape, self.dtype)
+        self.scratch.reserve("b", self.fft.spec_shape, self.fft.cdtype)
         self._k = get_kernels(self.queue, "wiener", real_defines(self.dtype))
+        # blocks of the padded grid that hold data: what the model writes and reads
+        self._in_block = (nv, ny, nx)
+        self._out_block = (nv,) + self.out_shape[1:]
 
-    def _convolve(self, conjugate: bool) -> None:
-        spec = self.fft.forward(self._buf)
+    def _convolve(self, buf, conjugate: bool, nonzero, needed) -> None:
+        spec = self.fft.forward(buf, self.scratch.array("b", self.fft.spec_shape,
+                                                        self.fft.cdtype), nonzero=nonzero)
         self._k.spectral_multiply(self.queue, (round_up(spec.size, 256),), None, self.H.data,
                                   spec.data, self.dtype.type(1.0), np.int32(conjugate),
                                   np.int64(spec.size))
-        self.fft.inverse(spec, self._buf)
+        self.fft.inverse(spec, buf, needed=needed)
 
     def _apply(self, x_g):
-        fill_zero(self.queue, self._buf)
-        self._pre.apply_into(x_g, self._buf)
-        self._convolve(False)
-        return self._post._apply(self._buf)
+        buf = self.scratch.array("a", self.pad_shape, self.dtype)
+        fill_zero(self.queue, buf)
+        self._pre.apply_into(x_g, buf)
+        self._convolve(buf, False, self._in_block, self._out_block)
+        return self._post._apply(buf)
 
     def _adjoint(self, y_g):
-        fill_zero(self.queue, self._buf)
-        self._post.adjoint_into(y_g, self._buf)
-        self._convolve(True)
-        return self._pre._adjoint(self._buf)
+        buf = self.scratch.array("a", self.pad_shape, self.dtype)
+        fill_zero(self.queue, buf)
+        self._post.adjoint_into(y_g, buf)
+        self._convolve(buf, True, self._out_block, self._in_block)
+        return self._pre._adjoint(buf)

@@ -145,17 +145,19 @@ class SpectralFilter(LinearOperator):
 
     def _filter(self, x_g: cla.Array, adjoint: bool) -> cla.Array:
         buf = self._buf
+        n0, n1, n2 = self.in_shape
         if self.lateral_pad == "mirror" and not adjoint:
-            n0, n1, n2 = self.in_shape
             p0, p1, p2 = self.pad_shape
             self._rk.pad_mirror_xy(self.queue, (round_up(p2, 8), round_up(p1, 8), p0), None,
                                    x_g.data, buf.data, kernel_int(n0), kernel_int(n1),
                                    kernel_int(n2), kernel_int(p0))
+            nonzero = (n0, p1, p2)
         else:
             fill_zero(self.queue, buf)
             self._pad.apply_into(x_g, buf)
+            nonzero = self.in_shape
         spec = self.fft.forward(buf, self.scratch.array("b", self.fft.spec_shape,
-                                                        self.fft.cdtype))
+                                                        self.fft.cdtype), nonzero=nonzero)
         n = spec.size
         gsize = (round_up(n, 256),)
         if self.mode == "wiener":
@@ -166,7 +168,7 @@ class SpectralFilter(LinearOperator):
             self._k.spectral_multiply(self.queue, gsize, None, self.H.data, spec.data,
                                       self.dtype.type(self.h_scale), np.int32(adjoint),
                                       np.int64(n))
-        self.fft.inverse(spec, buf)
+        self.fft.inverse(spec, buf, needed=self.in_shape)  # the crop below reads only that
         return self._pad._adjoint(buf)
 
     def _apply(self, x_g):

@@ -72,6 +72,46 @@ def test_fft_round_trip_vs_numpy(queue, dtype, backend, shape, monkeypatch):
     assert rel_l2(z, c.inverse(zg).get()) < tol("fft", dtype)
 
 
+@pytest.mark.parametrize("backend", ["vkfft", "host", "host-public-api"])
+@pytest.mark.parametrize("shape,block", [((16, 8, 8), (8, 4, 4)), ((34, 10, 14), (17, 5, 7)),
+                                         ((9, 5, 7), (4, 5, 3)), ((6, 4, 6), (6, 1, 6))])
+def test_pruned_fft_vs_numpy(queue, dtype, backend, shape, block, monkeypatch):
+    """Transforms told that the input is zero outside a low-corner block (``nonzero``) give
+    the full spectrum; inverses told that only a block is used (``needed``) give that block
+    exactly -- on every path (VkFFT ignores the hint)."""
+    if backend == "host-public-api":
+        import clnlos.fft
+
+        monkeypatch.setattr(clnlos.fft, "_pocketfft", lambda: None)
+        backend = "host"
+    if backend == "vkfft":
+        from clnlos.runtime import pocl_version
+
+        pytest.importorskip("pyvkfft.opencl")
+        ver = pocl_version(queue.device)
+        if ver is not None and ver >= (7, 0):
+            pytest.skip("PoCL >= 7 miscompiles VkFFT (pocl issue 2069)")
+    monkeypatch.setenv("CLNLOS_FFT", backend)
+    rng = np.random.default_rng(2)
+    b = tuple(slice(0, n) for n in block)
+    x = np.zeros(shape)
+    x[b] = rng.standard_normal(block)
+    p = RealFFT3(shape, dtype, queue)
+    spec = p.forward(cla.to_device(queue, x.astype(dtype)), nonzero=block)
+    want = np.fft.rfftn(x)
+    assert rel_l2(want, spec.get()) < tol("fft", dtype)
+    out = cla.to_device(queue, np.full(shape, 7.0, dtype))  # stale contents outside the block
+    spec_in = cla.to_device(queue, want.astype(p.cdtype))
+    got = p.inverse(spec_in, out, needed=block).get()
+    assert rel_l2(x[b], got[b]) < tol("fft", dtype)
+    c = ComplexFFT3(shape, dtype, queue)
+    z = np.zeros(shape, np.complex128)
+    z[b] = rng.standard_normal(block) + 1j * rng.standard_normal(block)
+    zg = cla.to_device(queue, z.astype(c.cdtype))
+    assert rel_l2(np.fft.fftn(z), c.forward(zg, nonzero=block).get()) < tol("fft", dtype)
+    assert rel_l2(z[b], c.inverse(zg, needed=block).get()[b]) < tol("fft", dtype)
+
+
 def test_fft_backend_per_device(queue, monkeypatch):
     """auto: host FFT on CPU devices, VkFFT on others; CLNLOS_FFT=vkfft forces VkFFT (where
     PoCL does not miscompile it)."""
