@@ -43,7 +43,15 @@ from .noise import (
     lightcone_snr,
 )
 from .resample import AxisResample, overlap_matrix
-from .runtime import Scratch, get_queue, require_dtype
+from .runtime import (
+    Scratch,
+    get_kernels,
+    get_queue,
+    host_view,
+    real_defines,
+    require_dtype,
+    round_up,
+)
 
 
 @dataclass
@@ -141,6 +149,7 @@ class ReconstructionPipeline:
         self.stages = ["preprocess"]
         self.pre = AxisResample(A, (ny, nx), dtype=self.dtype, queue=self.queue)
         self.pre.name = "preprocess"
+        self._rk = get_kernels(self.queue, "resample", real_defines(self.dtype))
         pitch = scan_width_m / nx
         snr0 = 1.0 if config.snr == "auto" else float(config.snr)  # set per capture if auto
         isnr0 = 1.0 if config.inversion_snr == "auto" else float(config.inversion_snr)
@@ -185,7 +194,9 @@ class ReconstructionPipeline:
         timings: dict[str, float] = {}
         x = cla.to_device(self.queue, np.ascontiguousarray(transient, self.dtype))
         tau = self._timed(timings, "preprocess", self.pre, x)
-        if not float(cla.max(tau).get()) > 0:
+        with host_view(tau) as t_host:  # small reductions on the host: no kernel builds
+            peak, total = float(t_host.max()), float(t_host.sum(dtype=np.float64))
+        if not peak > 0:
             raise InputFileError("the capture holds no signal in the kept time window "
                                  "(all zero): nothing to reconstruct")
         k0, k1 = self.raw_window
@@ -194,9 +205,10 @@ class ReconstructionPipeline:
         snr, inv_snr = auto_snrs(noise, self.config, model_snr)
         norm = self.config.normalize
         if norm != "none":
-            s = float((cla.max(tau) if norm == "max" else cla.sum(tau)).get())
+            s = peak if norm == "max" else total
             if s > 0:
-                tau *= self.dtype.type(1.0 / s)
+                self._rk.scale_inplace(self.queue, (round_up(tau.size, 256),), None, tau.data,
+                                       self.dtype.type(1.0 / s), np.int64(tau.size))
         params = self.config.as_attrs()
         if self.deconv is not None:
             self.deconv.set_snr(snr)

@@ -31,6 +31,14 @@ __kernel void csr_resample(__global const int *restrict row_ptr, __global const 
     out[(size_t)r * out_ny * out_nx + (size_t)(y + out_y0) * out_nx + (size_t)(x + out_x0)] = acc;
 }
 
+/* a[i] *= s: normalisation in place (one pass, in a program already built). */
+__kernel void scale_inplace(__global real_t *restrict a, const real_t s, const long n)
+{
+    const long i = get_global_id(0);
+    if (i < n)
+        a[i] *= s;
+}
+
 /* out[i] = max(in[i], 0): the albedo volume is non-negative. */
 __kernel void clamp_nonnegative(__global real_t *restrict a, const long n)
 {
