@@ -105,14 +105,17 @@ def _attr_value(v):
     return v
 
 
-def write_h5_file(path, datasets: dict[str, np.ndarray], attrs: dict) -> Path:
-    """Write datasets and file attributes to ``path`` (not atomic: see write_h5)."""
+def write_h5_file(path, datasets: dict, attrs: dict) -> Path:
+    """Write datasets (arrays, or :class:`clnlos.deflate.DeflatedArray` already being
+    compressed) and file attributes to ``path`` (not atomic: see write_h5); gzip + shuffle,
+    large arrays compressed in parallel (:mod:`clnlos.deflate`)."""
     import h5py
+
+    from .deflate import write_dataset
 
     with h5py.File(path, "w") as f:
         for name, arr in datasets.items():
-            f.create_dataset(name, data=arr, compression="gzip", compression_opts=1,
-                             shuffle=True)
+            write_dataset(f, name, arr)
         for k, v in attrs.items():
             f.attrs[k] = _attr_value(v)
     return Path(path)
@@ -142,13 +145,12 @@ def write_capture(path, transient: np.ndarray, *, bin_width_s: float, start_s: f
                                   scan_width_m=scan_width_m, attrs=attrs))
 
 
-def save_figure_file(fig, path, *, trim: bool = True) -> Path:
-    """Save a matplotlib figure as PNG to ``path`` and close it (not atomic); ``trim``: cut
-    to the drawn content (a second layout pass; not needed for a figure laid out by hand,
-    :func:`clnlos.figures.new_figure`)."""
+def save_figure_file(fig, path) -> Path:
+    """Save a figure (matplotlib, or :class:`clnlos.raster.RasterFigure`) as PNG to
+    ``path`` and close it (not atomic)."""
     from .figures import close_figure
 
-    fig.savefig(path, format="png", dpi=110, **({"bbox_inches": "tight"} if trim else {}))
+    fig.savefig(path, format="png", dpi=110, bbox_inches="tight")
     close_figure(fig)
     return Path(path)
 

@@ -331,6 +331,7 @@ def reconstruct_to_files(capture: Capture, out, config: ReconstructionConfig, *,
 
     from tqdm import tqdm
 
+    from .deflate import DeflatedArray
     from .figures import volume_figure as figure
     from .io import save_figure_file, write_h5_file
     from .outputs import provenance, write_group
@@ -353,8 +354,9 @@ def reconstruct_to_files(capture: Capture, out, config: ReconstructionConfig, *,
                           device=queue.device.name.strip())}
     name = Path(capture.source).name if capture.source else "capture"
     title = f"{title_extra + ': ' if title_extra else ''}{name} ({config.method})"
+    volume = DeflatedArray(rec.volume.astype(np.float32))  # compressed while the figure draws
     fig = figure(rec.volume, rec.extents, title)
     with write_group([out, out.with_suffix(".png")]) as (tmp_h5, tmp_png):
-        write_h5_file(tmp_h5, {"volume": rec.volume.astype(np.float32)}, attrs)
-        save_figure_file(fig, tmp_png, trim=False)  # the volume figure is laid out by hand
+        write_h5_file(tmp_h5, {"volume": volume}, attrs)
+        save_figure_file(fig, tmp_png)
     return rec
