@@ -457,16 +457,19 @@ def host_view(a_g, write: bool = False, read: bool = True):
 def fill_zero(queue: cl.CommandQueue, a_g, offset_bytes: int = 0, nbytes: int | None = None):
     """Set (part of) a device array to zero with a memset (clEnqueueFillBuffer).
 
-    pyopencl's ``Array.fill`` runs a kernel and was 9x slower on PoCL. Oclgrind does not mark
-    fill-buffer contents as initialised, so there the zeros are copied from the host instead,
-    which keeps its uninitialised-read checks meaningful.
+    pyopencl's ``Array.fill`` runs a kernel and was 9x slower on PoCL. Oclgrind does not
+    mark fill-buffer contents as initialised (nor, after a read-write map, copied ones), so
+    there a kernel writes the zeros (``kernels/fill.cl``), which keeps its
+    uninitialised-read checks meaningful.
     """
     nbytes = a_g.nbytes - offset_bytes if nbytes is None else nbytes
     if nbytes <= 0:
         return
     if is_oclgrind(queue.device):
-        cl.enqueue_copy(queue, a_g.base_data, np.zeros(nbytes, np.uint8),
-                        dst_offset=a_g.offset + offset_bytes)
+        get_kernels(queue, "fill").zero_bytes(queue, (round_up(nbytes, 64),), None,
+                                              a_g.base_data,
+                                              np.uint64(a_g.offset + offset_bytes),
+                                              np.uint64(nbytes))
     else:
         cl.enqueue_fill_buffer(queue, a_g.base_data, np.uint8(0), a_g.offset + offset_bytes,
                                nbytes)

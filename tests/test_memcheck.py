@@ -3,7 +3,8 @@ races and uninitialised reads fail the test. Runs where Oclgrind is installed
 (tools/setup.sh installs Debian's oclgrind, so CI runs it); skipped elsewhere.
 
 Two Oclgrind 21.10 limitations are handled, not hidden: (1) memory from
-clEnqueueFillBuffer reads as uninitialised, so runtime.fill_zero writes zeros another way;
+clEnqueueFillBuffer reads as uninitialised (and so does memory from clEnqueueWriteBuffer after
+a read-write map of its buffer), so runtime.fill_zero writes zeros with a kernel there;
 (2) a freed buffer's address reused by a larger buffer reads as uninitialised past the old
 size, so the driver keeps its (tiny) arrays alive. One report is exempt: the result of
 ``read_imagef`` is never marked initialised (Oclgrind does not track image memory), which
