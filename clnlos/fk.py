@@ -78,11 +78,14 @@ class FKMigration:
         row = py * px * out.dtype.itemsize
         fill_zero(q, out, 0, row)
         fill_zero(q, out, (kmax + 1) * row)
-        if kmax >= 1:
-            r = self.dtype.type
-            self._k.stolt(q, (round_up(px, 8), round_up(py, 8), kmax), None, half.data,
-                          out.data, kernel_int(pt), kernel_int(py), kernel_int(px),
-                          r(self.alpha_y), r(self.alpha_x))
+        nh = px // 2 + 1  # columns kx >= 0 are stored in the half spectrum
+        for x0, n, mirrored in ((0, nh, 0), (nh, px - nh, 1)):
+            if kmax >= 1 and n > 0:
+                r = self.dtype.type
+                self._k.stolt(q, (round_up(n, 8), round_up(py, 8), kmax), None, half.data,
+                              out.data, kernel_int(pt), kernel_int(py), kernel_int(px),
+                              r(self.alpha_y), r(self.alpha_x), kernel_int(x0),
+                              np.int32(mirrored))
         self.fft.inverse(out, needed=self.shape)  # fk_finish reads only that block
         vol = cla.empty(q, self.shape, self.dtype)
         self._k.fk_finish(q, (round_up(nx, 8), round_up(ny, 8), nt), None, out.data,

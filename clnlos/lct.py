@@ -72,9 +72,11 @@ def lightcone_psf(nt: int, ny: int, nx: int, *, bin_width_s: float, pitch_m: flo
 
 def lightcone_psf_device(nt: int, ny: int, nx: int, *, bin_width_s: float, pitch_m: float,
                          dtype=np.float32, queue=None, out_g=None):
-    """:func:`lightcone_psf` built by ``kernels/lct.cl`` on the device (no host table),
-    into ``out_g`` (a (2 nt, 2 ny, 2 nx) array) when given; the normalisation (sum of the
-    kept weights) is computed on the host in float64."""
+    """(:func:`lightcone_psf` built by ``kernels/lct.cl`` on the device (no host table), the
+    number of leading v rows that hold it): into ``out_g`` (a (2 nt, 2 ny, 2 nx) array)
+    when given; the normalisation (sum of the kept weights) is computed on the host in
+    float64. The cone reaches v = (largest lateral offset / R)^2 nt: about half the padded
+    rows stay zero, which the FFT of the plan skips."""
     from .runtime import fill_zero, kernel_int
 
     q = get_queue(queue)
@@ -91,7 +93,8 @@ def lightcone_psf_device(nt: int, ny: int, nx: int, *, bin_width_s: float, pitch
     k.lightcone_psf(q, (round_up(2 * nx, 16), round_up(2 * ny, 4)), None, psf.data,
                     kernel_int(2 * nt), kernel_int(2 * ny), kernel_int(2 * nx), dt.type(c),
                     dt.type(1.0 / total))
-    return psf
+    rows = int(min(2 * nt, k0.max() + 2))  # bins floor(s) and floor(s) + 1
+    return psf, rows
 
 
 def t_to_v_matrix(nt: int, falloff: float) -> sp.csr_matrix:
@@ -130,11 +133,12 @@ class LCT:
         self.to_v.name = "lct_t_to_v"
         scratch = Scratch(self.queue) if scratch is None else scratch
         pad = (2 * nt, 2 * ny, 2 * nx)
-        psf = lightcone_psf_device(nt, ny, nx, bin_width_s=bin_width_s, pitch_m=pitch,
-                                   dtype=self.dtype, queue=self.queue,
-                                   out_g=scratch.array("a", pad, self.dtype))
+        psf, rows = lightcone_psf_device(nt, ny, nx, bin_width_s=bin_width_s, pitch_m=pitch,
+                                         dtype=self.dtype, queue=self.queue,
+                                         out_g=scratch.array("a", pad, self.dtype))
         self.cone = SpectralFilter(psf, self.shape, mode="convolve", dtype=self.dtype,
-                                   queue=self.queue, scratch=scratch)
+                                   queue=self.queue, scratch=scratch,
+                                   psf_support=(rows,) + pad[1:])
         del psf  # slot "a" is the filter's work buffer from now on
         self.cone.name = "lct_lightcone"
         self.inverse_filter = SpectralFilter.from_spectrum(self.cone, self.cone.H,

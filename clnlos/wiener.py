@@ -46,6 +46,8 @@ class SpectralFilter(LinearOperator):
     in_shape : (n0, n1, n2)
         Shape of the volumes filtered (placed at the low corner of the padded grid).
     snr : float, for ``mode="wiener"``: 1/SNR regularises the inverse.
+    psf_support : (n0, n1, n2), optional
+        The PSF is zero outside its low-corner block of this shape (the FFT skips the rest).
     scratch : :class:`clnlos.runtime.Scratch`, optional
         Work buffers shared with the other stages of a plan (slots ``"a"``: the padded
         real grid, ``"b"``: its spectrum); a private one by default.
@@ -63,7 +65,7 @@ class SpectralFilter(LinearOperator):
     def __init__(self, psf, in_shape, *, mode: str = "convolve", snr: float | None = None,
                  normalize: bool = True, lateral_pad: str = "zero", dtype=np.float32,
                  queue=None, spectrum: cla.Array | None = None,
-                 scratch: Scratch | None = None):
+                 scratch: Scratch | None = None, psf_support=None):
         self.queue = get_queue(queue)
         self.dtype = require_dtype(self.queue.device, dtype)
         if mode not in ("convolve", "wiener"):
@@ -105,7 +107,7 @@ class SpectralFilter(LinearOperator):
                 self.queue, np.ascontiguousarray(psf, self.dtype))
             if psf_g.dtype != self.dtype:
                 psf_g = psf_g.astype(self.dtype)
-            self.H = self.fft.forward(psf_g)
+            self.H = self.fft.forward(psf_g, nonzero=psf_support)
         self.dc_gain = float(self.H[0, 0, 0].get().real) if self.H.size else 0.0
         self.h_scale = 1.0  # the kernels multiply by h_scale * H
         if normalize:

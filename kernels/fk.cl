@@ -34,9 +34,11 @@ inline int signed_freq(const int i, const int n) { return i < n / 2 ? i : i - n;
 
 __kernel void stolt(__global const cplx_t *restrict spec_h, __global cplx_t *restrict dst,
                     const int nt2, const int ny2, const int nx2, const real_t alpha_y,
-                    const real_t alpha_x)
+                    const real_t alpha_x, const int x0, const int mirrored)
 {
-    const int ix = get_global_id(0), iy = get_global_id(1), fz = get_global_id(2) + 1;
+    /* columns x0 + gid(0); one launch for kx >= 0 (mirrored = 0, read as stored) and one for
+     * kx < 0 (mirrored = 1, read through conjugate symmetry): uniform control flow in each */
+    const int ix = get_global_id(0) + x0, iy = get_global_id(1), fz = get_global_id(2) + 1;
     const int kmax = nt2 / 2 - 1; /* highest positive t-frequency index below Nyquist */
     if (ix >= nx2 || iy >= ny2 || fz > kmax)
         return;
@@ -53,7 +55,6 @@ __kernel void stolt(__global const cplx_t *restrict spec_h, __global cplx_t *res
     /* PSI(i, iy, ix) from the half spectrum (nt2, ny2, nh): stored for ix < nh, else
      * conj(PSI(-i, -iy, -ix)) with -i = nt2 - i (1 <= i < nt2) */
     const int nh = nx2 / 2 + 1;
-    const int mirrored = ix >= nh;
     const size_t col = mirrored ? (size_t)(iy == 0 ? 0 : ny2 - iy) * nh + (size_t)(nx2 - ix)
                                 : (size_t)iy * nh + (size_t)ix;
     const size_t plane = (size_t)ny2 * nh;

@@ -459,12 +459,15 @@ def test_lightcone_psf_kernel_matches_numpy(queue, dtype, nt, n, pitch):
     from clnlos.lct import lightcone_psf, lightcone_psf_device
 
     ref = lightcone_psf(nt, n, n + 1, bin_width_s=32e-12, pitch_m=pitch)
-    got = lightcone_psf_device(nt, n, n + 1, bin_width_s=32e-12, pitch_m=pitch, dtype=dtype,
-                               queue=queue).get()
+    got, rows = lightcone_psf_device(nt, n, n + 1, bin_width_s=32e-12, pitch_m=pitch,
+                                     dtype=dtype, queue=queue)
+    got = got.get()
     # float32: the split fraction f carries ~1e-7 * s absolute error
     tol = 1e-12 if dtype == np.float64 else 2e-6 * nt
     np.testing.assert_allclose(got, ref, atol=tol * ref.max(), rtol=0)
     assert got.sum() == pytest.approx(1.0, rel=1e-5)
+    # the support it reports holds the whole cone, and is tight
+    assert not ref[rows:].any() and (rows == 2 * nt or ref[rows - 2:rows].any())
 
 
 @pytest.mark.parametrize("shape,periodic", [((40, 6, 5), False), ((33, 7, 8), True),
