@@ -14,6 +14,7 @@ the hidden-side transient I on a grid that extends that far past the scan area.
 
 from __future__ import annotations
 
+import dataclasses
 import math
 
 import numpy as np
@@ -133,20 +134,35 @@ def _cut_at_window(fft: RealFFT3, spec: cla.Array, out_g: cla.Array, nt: int) ->
 
 def confocal_spectrum(slab: Slab, shape: tuple[int, int, int], *, bin_width_s: float,
                       pitch_m: float, n_dipoles: int | None = None, periodic_xy: bool = False,
-                      dtype=np.float32, queue=None) -> cla.Array:
+                      dtype=np.float32, queue=None, cache=None) -> cla.Array:
     """F[Phi * Phi] on the padded grid: the spectrum of :func:`confocal_psf` without going
     to the lag domain when it need not.
 
     When Phi * Phi holds less than SUPPORT_TOL of its energy at lags >= nt
     (:func:`confocal_tail_fraction`), the cut at nt changes nothing that matters and the
     spectrum is F[Phi]^2; otherwise it is F of :func:`confocal_psf` (an inverse and a
-    forward FFT more)."""
+    forward FFT more). ``cache``: a :class:`clnlos.spectrum_cache.SpectrumCache` to read
+    the spectrum from, or store it in."""
+    key = None
+    if cache is not None:
+        q = get_queue(queue)
+        dt = require_dtype(q.device, dtype)
+        key = cache.key("slab-confocal", slab=dataclasses.asdict(slab), n_dipoles=n_dipoles,
+                        shape=[int(v) for v in shape], bin_width_s=float(bin_width_s),
+                        pitch_m=float(pitch_m), periodic_xy=bool(periodic_xy),
+                        dtype=dt.name)
+        fft = RealFFT3(_padded_grid(shape, periodic_xy), dt, q)
+        spec = fft.empty_spectrum()
+        if cache.load(key, spec):
+            return spec
     fft, spec, tail = phi_spectrum(slab, shape, bin_width_s=bin_width_s, pitch_m=pitch_m,
                                    n_dipoles=n_dipoles, periodic_xy=periodic_xy, square=True,
                                    dtype=dtype, queue=queue)
     if tail >= SUPPORT_TOL:
         lag_g = cla.empty(fft.queue, fft.shape, fft.dtype)
         spec = fft.forward(_cut_at_window(fft, spec, lag_g, int(shape[0])), spec)
+    if cache is not None:
+        cache.store(key, spec)
     return spec
 
 
@@ -207,17 +223,18 @@ def lateral_reach_m(slab: Slab, *, window_s: float, pitch_m: float, tol: float =
 def slab_blur(slab: Slab, shape, *, bin_width_s: float, pitch_m: float, mode: str = "convolve",
               snr: float | None = None, n_dipoles: int | None = None,
               lateral_pad: str = "zero", periodic_xy: bool = False, dtype=np.float32,
-              queue=None, scratch=None) -> SpectralFilter:
+              queue=None, scratch=None, cache=None) -> SpectralFilter:
     """The confocal blur as an operator on transients of ``shape`` [t, y, x].
 
     ``mode="convolve"``: the forward model tau = (Phi * Phi) * I in physical units (the DC
     gain is the squared slab transmittance). ``mode="wiener"``: the deconvolution
     conj(H)/(|H|^2 + 1/SNR) with H normalised to unit DC gain. ``scratch``: work buffers
-    shared with a plan's other stages (:class:`clnlos.runtime.Scratch`).
+    shared with a plan's other stages (:class:`clnlos.runtime.Scratch`); ``cache``: an
+    on-disk :class:`clnlos.spectrum_cache.SpectrumCache` for the spectrum.
     """
     spec = confocal_spectrum(slab, shape, bin_width_s=bin_width_s, pitch_m=pitch_m,
                              n_dipoles=n_dipoles, periodic_xy=periodic_xy, dtype=dtype,
-                             queue=queue)
+                             queue=queue, cache=cache)
     return SpectralFilter(_padded_grid(shape, periodic_xy), shape, mode=mode, snr=snr,
                           normalize=(mode == "wiener"), lateral_pad=lateral_pad, dtype=dtype,
                           queue=queue, spectrum=spec, scratch=scratch)

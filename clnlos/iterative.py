@@ -63,13 +63,14 @@ class IterativeInversion:
     :class:`clnlos.config.ReconstructionConfig`); tv_depth_scale (weight of the depth
     difference in TV; 0 = lateral TV only); warm_snr (Wiener SNR of the LCT warm start);
     tol (relative change that stops the solver, :mod:`clnlos.solvers`); scratch (work
-    buffers shared with a plan's other stages, :class:`clnlos.runtime.Scratch`).
+    buffers shared with a plan's other stages, :class:`clnlos.runtime.Scratch`); cache
+    (on-disk spectra of the warm start, :class:`clnlos.spectrum_cache.SpectrumCache`).
     """
 
     def __init__(self, shape, *, bin_width_s: float, scan_width_m: float,
                  iterations: int, l1_weight: float, tv_weight: float,
                  tv_depth_scale: float = 1.0, warm_snr: float = 1e4, tol: float = 1e-4,
-                 dtype=np.float32, queue=None, scratch=None):
+                 dtype=np.float32, queue=None, scratch=None, cache=None):
         self.queue = get_queue(queue)
         self.dtype = require_dtype(self.queue.device, dtype)
         self.shape = tuple(int(s) for s in shape)
@@ -90,7 +91,7 @@ class IterativeInversion:
         self.scratch = Scratch(self.queue) if scratch is None else scratch
         self.warm = LCT(self.shape, bin_width_s=bin_width_s, scan_width_m=scan_width_m,
                         snr=warm_snr, dtype=self.dtype, queue=self.queue,
-                        scratch=self.scratch)
+                        scratch=self.scratch, cache=cache)
         self._ops: dict[int, tuple[LightConeTransport, float]] = {}
         self.report: SolveReport | None = None
 

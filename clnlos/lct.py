@@ -29,6 +29,7 @@ import scipy.sparse as sp
 from . import C0
 from .grid import grid_offsets
 from .errors import ParameterError
+from .fft import RealFFT3
 from .operators import LinearOperator
 from .resample import AxisResample, overlap_matrix
 from .runtime import Scratch, get_kernels, get_queue, real_defines, require_dtype, round_up
@@ -117,12 +118,13 @@ class LCT:
     Parameters: shape (nt, ny, nx); bin_width_s; scan_width_m (side of the scanned square,
     so the lateral pitch is scan_width_m / nx); snr of the light-cone Wiener filter;
     falloff exponent p; scratch: work buffers shared with a plan's other stages
-    (:class:`clnlos.runtime.Scratch`).
+    (:class:`clnlos.runtime.Scratch`); cache: an on-disk
+    :class:`clnlos.spectrum_cache.SpectrumCache` for the light cone's spectrum.
     """
 
     def __init__(self, shape, *, bin_width_s: float, scan_width_m: float,
                  snr: float = DEFAULT_SNR, falloff: float = DEFAULT_FALLOFF, dtype=np.float32,
-                 queue=None, scratch: Scratch | None = None):
+                 queue=None, scratch: Scratch | None = None, cache=None):
         self.queue = get_queue(queue)
         self.dtype = require_dtype(self.queue.device, dtype)
         nt, ny, nx = self.shape = check_inversion_args(shape, falloff)
@@ -132,14 +134,8 @@ class LCT:
                                  queue=self.queue)
         self.to_v.name = "lct_t_to_v"
         scratch = Scratch(self.queue) if scratch is None else scratch
-        pad = (2 * nt, 2 * ny, 2 * nx)
-        psf, rows = lightcone_psf_device(nt, ny, nx, bin_width_s=bin_width_s, pitch_m=pitch,
-                                         dtype=self.dtype, queue=self.queue,
-                                         out_g=scratch.array("a", pad, self.dtype))
-        self.cone = SpectralFilter(psf, self.shape, mode="convolve", dtype=self.dtype,
-                                   queue=self.queue, scratch=scratch,
-                                   psf_support=(rows,) + pad[1:])
-        del psf  # slot "a" is the filter's work buffer from now on
+        self.cone = self._cone_filter(pitch, scratch, cache)
+
         self.cone.name = "lct_lightcone"
         self.inverse_filter = SpectralFilter.from_spectrum(self.cone, self.cone.H,
                                                            mode="wiener", snr=snr)
@@ -147,6 +143,29 @@ class LCT:
                                  queue=self.queue)
         self.to_z.name = "lct_u_to_z"
         self._k = get_kernels(self.queue, "resample", real_defines(self.dtype))
+
+    def _cone_filter(self, pitch: float, scratch: Scratch, cache) -> SpectralFilter:
+        """The light-cone convolution on the (2 nt, 2 ny, 2 nx) grid: its spectrum from the
+        on-disk cache, else from :func:`lightcone_psf_device` (stored when a cache is
+        given)."""
+        nt, ny, nx = self.shape
+        pad = (2 * nt, 2 * ny, 2 * nx)
+        kw = dict(mode="convolve", dtype=self.dtype, queue=self.queue, scratch=scratch)
+        key = None
+        if cache is not None:
+            key = cache.key("lightcone", shape=[nt, ny, nx], bin_width_s=self.bin_width_s,
+                            pitch_m=pitch, dtype=self.dtype.name)
+            spec = RealFFT3(pad, self.dtype, self.queue).empty_spectrum()
+            if cache.load(key, spec):
+                return SpectralFilter(pad, self.shape, spectrum=spec, **kw)
+        psf, rows = lightcone_psf_device(nt, ny, nx, bin_width_s=self.bin_width_s,
+                                         pitch_m=pitch, dtype=self.dtype, queue=self.queue,
+                                         out_g=scratch.array("a", pad, self.dtype))
+        cone = SpectralFilter(psf, self.shape, psf_support=(rows,) + pad[1:], **kw)
+        del psf  # slot "a" is the filter's work buffer from now on
+        if cache is not None:
+            cache.store(key, cone.H)
+        return cone
 
     def set_snr(self, snr: float) -> None:
         """Change the SNR of the light-cone Wiener filter (no rebuild)."""

@@ -43,6 +43,7 @@ from .noise import (
     lightcone_snr,
 )
 from .resample import AxisResample, overlap_matrix
+from .spectrum_cache import SpectrumCache
 from .runtime import (
     Scratch,
     get_kernels,
@@ -155,12 +156,13 @@ class ReconstructionPipeline:
         isnr0 = 1.0 if config.inversion_snr == "auto" else float(config.inversion_snr)
         self.deconv = self.crop = None
         self.scratch = Scratch(self.queue)  # work buffers shared by the stages below
+        cache = SpectrumCache.from_env()  # CLNLOS_SPECTRUM_CACHE: spectra kept on disk
         if config.slab is not None:
             self.deconv = slab_blur(config.slab, (A.shape[0], ny, nx),
                                     bin_width_s=self.bin_width_s, pitch_m=pitch, mode="wiener",
                                     snr=snr0, n_dipoles=config.n_dipoles,
                                     lateral_pad=config.lateral_pad, dtype=self.dtype,
-                                    queue=self.queue, scratch=self.scratch)
+                                    queue=self.queue, scratch=self.scratch, cache=cache)
             self.stages.append(f"deconvolve:slab({describe_slab(config.slab)})")
         if self.n_guard:
             self.crop = AxisResample(sp.identity(A.shape[0], format="csr")[:n_out], (ny, nx),
@@ -169,13 +171,14 @@ class ReconstructionPipeline:
                    queue=self.queue, scratch=self.scratch)
         falloff = {} if config.falloff is None else {"falloff": config.falloff}
         if config.method == "lct":
-            self.invert = LCT(self.shape, snr=isnr0, **falloff, **geo)
+            self.invert = LCT(self.shape, snr=isnr0, **falloff, **geo, cache=cache)
         elif config.method == "fk":
             self.invert = FKMigration(self.shape, **falloff, **geo)
         else:
             self.invert = IterativeInversion(self.shape, iterations=config.iterations,
                                              l1_weight=config.l1_weight,
-                                             tv_weight=config.tv_weight, warm_snr=isnr0, **geo)
+                                             tv_weight=config.tv_weight, warm_snr=isnr0,
+                                             cache=cache, **geo)
         self.stages.append(f"invert:{config.method}")
 
     def _timed(self, timings, name, fn, *a, **kw):

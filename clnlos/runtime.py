@@ -240,6 +240,12 @@ def check_environment() -> None:
     from .plans import PIPELINES
 
     PIPELINES.budget()  # CLNLOS_PLAN_CACHE_MB
+    from .spectrum_cache import SpectrumCache, budget_bytes
+
+    budget_bytes()  # CLNLOS_SPECTRUM_CACHE_MB
+    cache = SpectrumCache.from_env()  # CLNLOS_SPECTRUM_CACHE: a writable folder
+    if cache is not None:
+        cache.check()
 
 
 @dataclass(frozen=True)

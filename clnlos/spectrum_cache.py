@@ -1,0 +1,152 @@
+"""Optional on-disk cache of PSF spectra: ``CLNLOS_SPECTRUM_CACHE=DIR``.
+
+A cold reconstruction builds one or two spectra on its padded grid: the slab's F[Phi * Phi]
+(:mod:`clnlos.blur`) and, for LCT, the light cone's (:mod:`clnlos.lct`), 270 MB each at
+128 x 128 x 512. With the cache set, each is stored as a raw file named by a SHA-256 of
+everything that shapes it -- its kind, grid, precision and physical parameters, the kernel
+sources and Python modules that compute it, and the clnlos version -- and a later process
+with the same geometry reads it instead of recomputing it. Off by default (it spends disk);
+the folder is kept under ``CLNLOS_SPECTRUM_CACHE_MB`` (default 4096 MiB) by deleting the
+least recently used files. Files are written atomically; a file of the wrong size is
+ignored, recomputed and replaced.
+"""
+
+from __future__ import annotations
+
+import hashlib
+import json
+import os
+import tempfile
+from pathlib import Path
+
+import numpy as np
+
+ENV_DIR = "CLNLOS_SPECTRUM_CACHE"
+ENV_BUDGET = "CLNLOS_SPECTRUM_CACHE_MB"
+DEFAULT_BUDGET_MB = 4096.0
+SUFFIX = ".spectrum"
+# what computes the spectra: a change to any of these invalidates every entry
+SOURCE_MODULES = ("blur.py", "diffusion.py", "grid.py", "lct.py", "slab.py", "fft.py")
+SOURCE_KERNELS = ("diffusion", "lct")
+
+
+def _code_digest() -> str:
+    from . import __version__
+    from .runtime import _source_with_headers
+
+    h = hashlib.sha256(__version__.encode())
+    here = Path(__file__).resolve().parent
+    for name in SOURCE_MODULES:
+        h.update((here / name).read_bytes())
+    for family in SOURCE_KERNELS:
+        h.update(_source_with_headers(family)[1].encode())
+    return h.hexdigest()
+
+
+def budget_bytes() -> int:
+    """The folder's byte budget from ``CLNLOS_SPECTRUM_CACHE_MB`` (a ParameterError naming
+    the variable when it is not a number >= 0)."""
+    from .errors import ParameterError
+
+    raw = os.environ.get(ENV_BUDGET, "").strip()
+    if not raw:
+        return int(DEFAULT_BUDGET_MB * 2**20)
+    try:
+        mb = float(raw)
+    except ValueError:
+        raise ParameterError(ENV_BUDGET, raw, "a number of MiB >= 0") from None
+    if not np.isfinite(mb) or mb < 0:
+        raise ParameterError(ENV_BUDGET, raw, "a number of MiB >= 0")
+    return int(mb * 2**20)
+
+
+class SpectrumCache:
+    """A folder of spectra (see the module docstring); :meth:`from_env` gives None when
+    ``CLNLOS_SPECTRUM_CACHE`` is unset."""
+
+    def __init__(self, root, budget: int | None = None):
+        self.root = Path(root)
+        self.budget = budget_bytes() if budget is None else int(budget)
+        self._code = None
+
+    @classmethod
+    def from_env(cls) -> SpectrumCache | None:
+        raw = os.environ.get(ENV_DIR, "").strip()
+        return cls(raw) if raw else None
+
+    def check(self) -> None:
+        """The folder exists (or is created) and is writable: else one ParameterError."""
+        from .errors import ParameterError
+
+        try:
+            self.root.mkdir(parents=True, exist_ok=True)
+        except OSError as exc:
+            raise ParameterError(ENV_DIR, str(self.root), f"a folder that can be created "
+                                 f"({exc.strerror or exc})") from None
+        if not os.access(self.root, os.W_OK | os.X_OK):
+            raise ParameterError(ENV_DIR, str(self.root), "a writable folder")
+
+    def key(self, kind: str, **params) -> str:
+        """The entry name of a spectrum of ``kind`` with these parameters (JSON-able)."""
+        if self._code is None:
+            self._code = _code_digest()
+        text = json.dumps({"kind": kind, "code": self._code, **params}, sort_keys=True,
+                          default=str)
+        return hashlib.sha256(text.encode()).hexdigest()[:40]
+
+    def _path(self, key: str) -> Path:
+        return self.root / f"{key}{SUFFIX}"
+
+    def load(self, key: str, out_g) -> bool:
+        """Read entry ``key`` into the device array ``out_g``; False (and nothing read)
+        when it is missing or of the wrong size."""
+        from .runtime import host_view
+
+        path = self._path(key)
+        try:
+            if path.stat().st_size != out_g.nbytes:
+                return False
+            with open(path, "rb") as f, host_view(out_g, write=True, read=False) as a:
+                n = f.readinto(memoryview(a).cast("B"))
+            os.utime(path)  # least recently used = oldest access
+        except OSError:
+            return False
+        return n == out_g.nbytes
+
+    def store(self, key: str, spec_g) -> None:
+        """Write ``spec_g`` as entry ``key`` (atomically), then prune to the budget. A
+        failure to write (disk full) leaves no file and is not an error of the
+        reconstruction."""
+        from .runtime import host_view
+
+        if spec_g.nbytes > self.budget:
+            return
+        try:
+            self.root.mkdir(parents=True, exist_ok=True)
+            fd, tmp = tempfile.mkstemp(dir=self.root, prefix=".", suffix=".tmp")
+            try:
+                with os.fdopen(fd, "wb") as f, host_view(spec_g) as a:
+                    f.write(memoryview(np.ascontiguousarray(a)).cast("B"))
+                os.replace(tmp, self._path(key))
+            except BaseException:
+                Path(tmp).unlink(missing_ok=True)
+                raise
+        except OSError:
+            return
+        self.prune()
+
+    def prune(self) -> None:
+        """Delete the least recently used entries until the folder fits the budget."""
+        entries = []
+        for p in self.root.glob(f"*{SUFFIX}"):
+            try:
+                st = p.stat()
+            except OSError:
+                continue
+            entries.append((st.st_mtime, st.st_size, p))
+        total = sum(e[1] for e in entries)
+        for _, size, p in sorted(entries):
+            if total <= self.budget:
+                break
+            p.unlink(missing_ok=True)
+            total -= size
