@@ -38,11 +38,10 @@ def tol(kind, dtype):
 
 
 # ------------------------------------------------------------------ FFT
-@pytest.mark.parametrize("backend", ["vkfft", "host", "host-public-api"])
-@pytest.mark.parametrize("shape", [(16, 8, 8), (34, 10, 14), (7, 5, 9), (1, 4, 6)])
-def test_fft_round_trip_vs_numpy(queue, dtype, backend, shape, monkeypatch):
-    """Every FFT path against numpy float64; ``host`` writes through pocketfft's ``out=``
-    binding, ``host-public-api`` through scipy.fft's public functions (the fallback)."""
+def _use_fft_backend(queue, backend: str, monkeypatch) -> str:
+    """Select an FFT path for a test: ``vkfft``, ``host`` (pocketfft's ``out=`` binding) or
+    ``host-public-api`` (the host path through scipy.fft's public functions, the fallback);
+    returns the backend name the plans report."""
     if backend == "host-public-api":
         import clnlos.fft
 
@@ -56,6 +55,15 @@ def test_fft_round_trip_vs_numpy(queue, dtype, backend, shape, monkeypatch):
         if ver is not None and ver >= (7, 0):
             pytest.skip("PoCL >= 7 miscompiles VkFFT (pocl issue 2069)")
     monkeypatch.setenv("CLNLOS_FFT", backend)
+    return backend
+
+
+@pytest.mark.parametrize("backend", ["vkfft", "host", "host-public-api"])
+@pytest.mark.parametrize("shape", [(16, 8, 8), (34, 10, 14), (7, 5, 9), (1, 4, 6)])
+def test_fft_round_trip_vs_numpy(queue, dtype, backend, shape, monkeypatch):
+    """Every FFT path against numpy float64; ``host`` writes through pocketfft's ``out=``
+    binding, ``host-public-api`` through scipy.fft's public functions (the fallback)."""
+    backend = _use_fft_backend(queue, backend, monkeypatch)
     rng = np.random.default_rng(1)
     x = rng.standard_normal(shape).astype(dtype)
     p = RealFFT3(shape, dtype, queue)
@@ -79,19 +87,7 @@ def test_pruned_fft_vs_numpy(queue, dtype, backend, shape, block, monkeypatch):
     """Transforms told that the input is zero outside a low-corner block (``nonzero``) give
     the full spectrum; inverses told that only a block is used (``needed``) give that block
     exactly -- on every path (VkFFT ignores the hint)."""
-    if backend == "host-public-api":
-        import clnlos.fft
-
-        monkeypatch.setattr(clnlos.fft, "_pocketfft", lambda: None)
-        backend = "host"
-    if backend == "vkfft":
-        from clnlos.runtime import pocl_version
-
-        pytest.importorskip("pyvkfft.opencl")
-        ver = pocl_version(queue.device)
-        if ver is not None and ver >= (7, 0):
-            pytest.skip("PoCL >= 7 miscompiles VkFFT (pocl issue 2069)")
-    monkeypatch.setenv("CLNLOS_FFT", backend)
+    backend = _use_fft_backend(queue, backend, monkeypatch)
     rng = np.random.default_rng(2)
     b = tuple(slice(0, n) for n in block)
     x = np.zeros(shape)
