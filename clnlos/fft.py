@@ -143,11 +143,9 @@ def host_fftn_inplace(a: np.ndarray, forward: bool, block=None) -> None:
     if pp is not None and b is not None:
         try:
             w, norm = _workers(), 0 if forward else 2
-            order = ((2, slice(None, b[0]), slice(None, b[1])), (1, slice(None, b[0]),
-                                                                 slice(None)),
-                     (0, slice(None), slice(None)))
-            for axis, s0, s1 in (order if forward else order[::-1]):
-                v = a[s0, s1]
+            n0, n1 = b
+            passes = [(2, a[:n0, :n1]), (1, a[:n0]), (0, a)]  # the forward order
+            for axis, v in (passes if forward else passes[::-1]):
                 pp.c2c(v, (axis,), forward, norm, v, w)
             return
         except TypeError:
