@@ -19,7 +19,6 @@ import math
 
 import numpy as np
 import pyopencl.array as cla
-
 import scipy.fft as sfft
 
 from .diffusion import (SUPPORT_TOL, SlabTransmittance, bin_time_nodes, diffusion_psf,

@@ -21,12 +21,16 @@ def device_bytes(obj, _depth: int = 0, _seen=None) -> int:
     """Bytes of OpenCL device arrays reachable from ``obj``'s attributes (a few levels)."""
     import pyopencl.array as cla
 
+    from .runtime import Scratch
+
     seen = set() if _seen is None else _seen
     if id(obj) in seen or _depth > 4:
         return 0
     seen.add(id(obj))
     if isinstance(obj, cla.Array):
         return int(obj.nbytes)
+    if isinstance(obj, Scratch):
+        return obj.nbytes  # its reserved work buffers (allocated at first use)
     if isinstance(obj, dict):
         items = obj.values()
     elif isinstance(obj, (list, tuple)):

@@ -524,7 +524,9 @@ class Scratch:
 
     @property
     def nbytes(self) -> int:
-        return sum(b.size for b in self._bufs.values())
+        """Bytes of the work buffers: reserved, allocated or not yet."""
+        return sum(max(need, self._bufs[s].size if s in self._bufs else 0)
+                   for s, need in self._need.items())
 
 
 INT32_MAX = (1 << 31) - 1

@@ -234,6 +234,16 @@ def test_plan_cache_budget_clear_and_threads(queue, monkeypatch):
             self.inner = {"spec": cla.zeros(queue, n, np.complex64)}
 
     assert device_bytes(Plan(100)) == 100 * 4 + 100 * 8
+    # shared work buffers count with their reserved size, before and after allocation
+    from clnlos.runtime import Scratch
+
+    plan = Plan(100)
+    plan.scratch = Scratch(queue)
+    plan.scratch.reserve("a", (10, 10), np.float32)
+    plan.scratch.reserve("a", (50,), np.complex64)  # the slot takes the larger need
+    assert device_bytes(plan) == 1200 + 400
+    plan.scratch.array("b", (25,), np.float32)
+    assert device_bytes(plan) == 1200 + 400 + 100 == 1200 + plan.scratch.nbytes
     built = []
 
     def build(n):
@@ -263,3 +273,22 @@ def test_plan_cache_budget_clear_and_threads(queue, monkeypatch):
     monkeypatch.setenv(ENV_BUDGET, "lots")
     with pytest.raises(ParameterError, match=ENV_BUDGET):
         PlanCache("env").budget()
+
+
+def test_scratch_slots_are_shared_views_that_grow_to_the_largest_need(queue):
+    """Stages that reserve the same slot get views of one buffer (a write through one view
+    is seen through another of another dtype); a need larger than the buffer gives a new,
+    larger buffer."""
+    from clnlos.runtime import Scratch
+
+    s = Scratch(queue)
+    s.reserve("a", (4, 8), np.float32)
+    s.reserve("a", (16,), np.complex64)
+    r = s.array("a", (4, 8), np.float32)
+    c = s.array("a", (16,), np.complex64)
+    assert r.data.int_ptr == c.data.int_ptr and r.data.size == 128
+    r.set(np.arange(32, dtype=np.float32).reshape(4, 8))
+    np.testing.assert_array_equal(c.get().view(np.float32), np.arange(32))
+    big = s.array("a", (64,), np.float32)
+    assert big.data.size == 256 and s.nbytes == 256
+    assert s.array("b", (3,), np.float64).shape == (3,)
