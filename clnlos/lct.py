@@ -28,7 +28,7 @@ import scipy.sparse as sp
 
 from . import C0
 from .grid import grid_offsets
-from .errors import ParameterError
+from .errors import ParameterError, ShapeError
 from .fft import RealFFT3
 from .operators import LinearOperator
 from .resample import AxisResample, overlap_matrix
@@ -133,6 +133,11 @@ class LCT:
         self.to_v = AxisResample(t_to_v_matrix(nt, falloff), (ny, nx), dtype=self.dtype,
                                  queue=self.queue)
         self.to_v.name = "lct_t_to_v"
+        # the same resamplings writing into / reading from the padded (2 nt, 2 ny, 2 nx)
+        # grid of the Wiener filter: no separate pad and crop passes
+        self._to_v_padded = AxisResample(self.to_v.matrix, (ny, nx), dtype=self.dtype,
+                                         queue=self.queue, out_plane=(2 * ny, 2 * nx),
+                                         out_rows=2 * nt)
         scratch = Scratch(self.queue) if scratch is None else scratch
         self.cone = self._cone_filter(pitch, scratch, cache)
 
@@ -142,6 +147,8 @@ class LCT:
         self.to_z = AxisResample(u_to_z_matrix(nt), (ny, nx), dtype=self.dtype,
                                  queue=self.queue)
         self.to_z.name = "lct_u_to_z"
+        self._to_z_padded = AxisResample(self.to_z.matrix, (ny, nx), dtype=self.dtype,
+                                         queue=self.queue, in_plane=(2 * ny, 2 * nx))
         self._k = get_kernels(self.queue, "resample", real_defines(self.dtype))
 
     def _cone_filter(self, pitch: float, scratch: Scratch, cache) -> SpectralFilter:
@@ -178,12 +185,15 @@ class LCT:
 
     def __call__(self, tau):
         """Albedo volume [z, y, x] (clamped at 0) from a transient [t, y, x]."""
-        import pyopencl.array as cla
-
         on_device = isinstance(tau, cla.Array)
         x = tau if on_device else cla.to_device(self.queue,
                                                 np.ascontiguousarray(tau, self.dtype))
-        vol = self.to_z(self.inverse_filter(self.to_v(x)))
+        if tuple(x.shape) != self.shape:
+            raise ShapeError(f"LCT input: expected shape {self.shape}, got {tuple(x.shape)}")
+        vol = cla.empty(self.queue, self.shape, self.dtype)
+        self.inverse_filter.filter_padded(
+            lambda buf: self._to_v_padded.apply_into(x, buf),
+            lambda buf: self._to_z_padded.apply_into(buf, vol))
         self._k.clamp_nonnegative(self.queue, (round_up(vol.size, 256),), None, vol.data,
                                   np.int64(vol.size))
         return vol if on_device else vol.get()

@@ -25,7 +25,6 @@ from dataclasses import dataclass, field
 
 import numpy as np
 import pyopencl.array as cla
-import scipy.sparse as sp
 
 from . import C0
 from .blur import slab_blur
@@ -154,7 +153,7 @@ class ReconstructionPipeline:
         pitch = scan_width_m / nx
         snr0 = 1.0 if config.snr == "auto" else float(config.snr)  # set per capture if auto
         isnr0 = 1.0 if config.inversion_snr == "auto" else float(config.inversion_snr)
-        self.deconv = self.crop = None
+        self.deconv = None
         self.scratch = Scratch(self.queue)  # work buffers shared by the stages below
         cache = SpectrumCache.from_env()  # CLNLOS_SPECTRUM_CACHE: spectra kept on disk
         if config.slab is not None:
@@ -164,9 +163,6 @@ class ReconstructionPipeline:
                                     lateral_pad=config.lateral_pad, dtype=self.dtype,
                                     queue=self.queue, scratch=self.scratch, cache=cache)
             self.stages.append(f"deconvolve:slab({describe_slab(config.slab)})")
-        if self.n_guard:
-            self.crop = AxisResample(sp.identity(A.shape[0], format="csr")[:n_out], (ny, nx),
-                                     dtype=self.dtype, queue=self.queue)
         geo = dict(bin_width_s=self.bin_width_s, scan_width_m=scan_width_m, dtype=self.dtype,
                    queue=self.queue, scratch=self.scratch)
         falloff = {} if config.falloff is None else {"falloff": config.falloff}
@@ -218,8 +214,8 @@ class ReconstructionPipeline:
             params["snr_used"] = snr
             params["model_snr_used"] = model_snr
             tau = self._timed(timings, "deconvolve", self.deconv, tau)
-        if self.crop is not None:
-            tau = self.crop(tau)
+        if self.n_guard:
+            tau = tau[:self.shape[0]]  # the guard bins dropped: a view of the leading rows
         method = self.config.method
         solve = None
         if method == "lct":

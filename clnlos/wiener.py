@@ -146,20 +146,34 @@ class SpectralFilter(LinearOperator):
         self.inv_snr = 1.0 / float(snr)
 
     def _filter(self, x_g: cla.Array, adjoint: bool) -> cla.Array:
-        buf = self._buf
         n0, n1, n2 = self.in_shape
         if self.lateral_pad == "mirror" and not adjoint:
             p0, p1, p2 = self.pad_shape
-            self._rk.pad_mirror_xy(self.queue, (round_up(p2, 8), round_up(p1, 8), p0), None,
-                                   x_g.data, buf.data, kernel_int(n0), kernel_int(n1),
-                                   kernel_int(n2), kernel_int(p0))
-            nonzero = (n0, p1, p2)
-        else:
+
+            def write(buf):
+                self._rk.pad_mirror_xy(self.queue, (round_up(p2, 8), round_up(p1, 8), p0),
+                                       None, x_g.data, buf.data, kernel_int(n0),
+                                       kernel_int(n1), kernel_int(n2), kernel_int(p0))
+            return self.filter_padded(write, self._pad._adjoint, adjoint=False,
+                                      nonzero=(n0, p1, p2), zeroed=False)
+        return self.filter_padded(lambda buf: self._pad.apply_into(x_g, buf),
+                                  self._pad._adjoint, adjoint=adjoint)
+
+    def filter_padded(self, write_input, read_output, *, adjoint: bool = False,
+                      nonzero=None, zeroed: bool = True):
+        """The filter with the padding and the crop done by the caller's own passes:
+        ``write_input(buf)`` writes the input into the padded grid ``buf`` (zeroed first
+        unless ``zeroed=False``; data only in its low-corner ``nonzero`` block, default
+        ``in_shape``), ``read_output(buf)`` reads the result from its ``in_shape`` block
+        (the rest of ``buf`` is not computed). A resampling that writes straight into the
+        padded grid saves the separate pad and crop passes (LCT's t -> v and u -> z)."""
+        buf = self._buf
+        if zeroed:
             fill_zero(self.queue, buf)
-            self._pad.apply_into(x_g, buf)
-            nonzero = self.in_shape
+        write_input(buf)
         spec = self.fft.forward(buf, self.scratch.array("b", self.fft.spec_shape,
-                                                        self.fft.cdtype), nonzero=nonzero)
+                                                        self.fft.cdtype),
+                                nonzero=self.in_shape if nonzero is None else nonzero)
         n = spec.size
         gsize = (round_up(n, 256),)
         if self.mode == "wiener":
@@ -170,8 +184,8 @@ class SpectralFilter(LinearOperator):
             self._k.spectral_multiply(self.queue, gsize, None, self.H.data, spec.data,
                                       self.dtype.type(self.h_scale), np.int32(adjoint),
                                       np.int64(n))
-        self.fft.inverse(spec, buf, needed=self.in_shape)  # the crop below reads only that
-        return self._pad._adjoint(buf)
+        self.fft.inverse(spec, buf, needed=self.in_shape)
+        return read_output(buf)
 
     def _apply(self, x_g):
         return self._filter(x_g, adjoint=False)

@@ -229,6 +229,31 @@ def test_pipeline_vs_reference(queue, dtype):
     assert rel_l2(ref, out) < tol("pipeline", dtype)
 
 
+def test_guard_bins_are_deconvolved_then_dropped(queue, dtype):
+    """With capture bins past max_path the slab deconvolution runs on n_out + n_guard bins
+    and only the first n_out reach the inversion: the pipeline equals its stages run by
+    hand (preprocess with the guard rows, normalise, deconvolve, keep n_out rows, LCT)."""
+    from clnlos.reconstruct import ReconstructionPipeline
+
+    nt_in, n, width, dt_in = 96, 8, 0.4, 32e-12
+    pts = points_transient([(0.05, 0.0, 0.25), (-0.1, 0.05, 0.4)], [1, 1], nt_in, n, width,
+                           dt_in).astype(np.float32)
+    cfg = ReconstructionConfig(scan_width_m=width, max_path_m=48 * dt_in * C0,
+                               slab=Slab(**CDT), snr=1e3, inversion_snr=1e3,
+                               lateral_pad="zero").validate()
+    pipe = ReconstructionPipeline(pts.shape, bin_width_s=dt_in, start_s=0.0,
+                                  scan_width_m=width, config=cfg, dtype=dtype, queue=queue)
+    assert pipe.shape[0] == 48 and pipe.n_guard == 12
+    out = pipe.run(pts).volume
+    tau = pipe.pre(pts.astype(dtype))
+    tau = tau / tau.max()
+    pipe.deconv.set_snr(1e3)
+    kept = pipe.deconv(tau.astype(dtype))[:48]
+    lct = LCT(pipe.shape, bin_width_s=pipe.bin_width_s, scan_width_m=width, snr=1e3,
+              dtype=dtype, queue=queue)
+    assert rel_l2(lct(np.ascontiguousarray(kept)), out) < tol("stage", dtype)
+
+
 # ------------------------------------------------------------------ adjoints
 _OPS = {}
 
