@@ -40,4 +40,7 @@ pip() { .venv/bin/python -m pip -q --disable-pip-version-check "$@"; }
 }
 echo "setup: clnlos"
 VKFFT_BACKEND=opencl pip install -e ".[test,ml,vkfft,study]"
+# byte-compile the editable sources once: with PYTHONDONTWRITEBYTECODE set (CI images) every
+# command would otherwise recompile them (about 0.05 s of each cold start)
+.venv/bin/python -m compileall -q clnlos kernels >/dev/null
 .venv/bin/clnlos devices
