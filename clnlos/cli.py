@@ -26,7 +26,10 @@ class _Parser(argparse.ArgumentParser):
             r"^-(\d+\.?\d*|\.\d+)([eE][-+]?\d+)?$|^-(inf|nan)$", re.IGNORECASE)
 
     def error(self, message):
-        raise SystemExit(_fail(f"{self.prog}: {message}"))
+        # a sub-command's parser names itself ("clnlos reconstruct: argument --method ...");
+        # the top-level one needs no second "clnlos:"
+        where = self.prog.split(" ", 1)[1] + ": " if " " in self.prog else ""
+        raise SystemExit(_fail(f"{where}{message}"))
 
 
 def _fail(msg: str) -> int:
