@@ -25,7 +25,7 @@ from .diffusion import (SUPPORT_TOL, SlabTransmittance, bin_time_nodes, diffusio
                         lateral_integral_profile, support_of)
 from .grid import grid_offsets
 from .slab import Slab
-from .fft import RealFFT3
+from .fft import COMPLEX_OF, RealFFT3
 from .runtime import (
     fill_zero,
     get_queue,
@@ -34,7 +34,7 @@ from .runtime import (
     host_view,
     require_dtype,
 )
-from .wiener import SpectralFilter
+from .wiener import SpectralFilter, folded_shape
 
 
 def _padded_grid(shape, periodic_xy: bool) -> tuple[int, int, int]:
@@ -71,27 +71,37 @@ def phi_lateral_factors(plan: SlabTransmittance, *, lags: int, bin_width_s: floa
 def _write_phi_spectrum(out: np.ndarray, factors, *, square: bool, rows: int = 16) -> None:
     """out[w, ky, kx] <- F[Phi] (or F[Phi]^2), the 3D half spectrum of Phi zero past its
     lags, from :func:`phi_lateral_factors`: the lateral spectra are built ``rows`` ky-rows
-    at a time and transformed along t (a real sequence per (ky, kx), so the frequencies past
-    n0 / 2 are the conjugates of those below)."""
+    at a time and transformed along t. Each (ky, kx) column is a real sequence, so the
+    frequencies past n0 / 2 are the conjugates of those below; ``out`` is either the whole
+    (n0, n1, n2h) spectrum or its folded (n0 / 2 + 1, n1 / 2 + 1, n2h) quarter
+    (:func:`clnlos.wiener.folded_shape`: Phi is even in y too), told apart by its shape
+    given n1 = Gy's length."""
     c, gy, gx = factors
-    n0 = out.shape[0]
-    nh = n0 // 2 + 1
+    n1 = gy.shape[-1]
+    folded = out.shape[1] != n1
+    nh = out.shape[0] if folded else out.shape[0] // 2 + 1
+    n0 = 2 * (nh - 1) if folded else out.shape[0]
     mirror = n0 - np.arange(nh, n0)  # F[n0 - w] = conj(F[w]) along t
     real = np.float32 if out.dtype == np.complex64 else np.float64
     for y0 in range(0, out.shape[1], rows):
         lat = np.matmul((gy[:, :, y0:y0 + rows] * c[:, :, None]).transpose(0, 2, 1), gx)
+        if folded:
+            lat = lat[:, :out.shape[1] - y0]
         spec = sfft.rfft(lat.astype(real, copy=False), n=n0, axis=0, workers=host_threads())
         if square:
             spec *= spec
         out[:nh, y0:y0 + rows] = spec
-        out[nh:, y0:y0 + rows] = np.conj(spec[mirror])
+        if not folded:
+            out[nh:, y0:y0 + rows] = np.conj(spec[mirror])
 
 
 def phi_spectrum(slab: Slab, shape, *, bin_width_s: float, pitch_m: float, n_dipoles,
-                 periodic_xy: bool, square: bool, dtype, queue
-                 ) -> tuple[RealFFT3, cla.Array, float]:
-    """(FFT plan of the padded grid, F[Phi] or F[Phi]^2 on it, the energy fraction of
-    Phi * Phi at lags >= nt).
+                 periodic_xy: bool, square: bool, dtype, queue, folded: bool = False,
+                 profile: np.ndarray | None = None) -> tuple[RealFFT3, cla.Array, float]:
+    """(FFT plan of the padded grid, F[Phi] or F[Phi]^2 on it -- whole, or ``folded`` to
+    the quarter :func:`clnlos.wiener.folded_shape` keeps --, the energy fraction of
+    Phi * Phi at lags >= nt). ``profile``: :func:`~clnlos.diffusion.lateral_integral_profile`
+    for these nt and bin width when the caller has it.
 
     Phi is taken over its temporal support only (:func:`~clnlos.diffusion.support_of`, all
     but SUPPORT_TOL of its energy; zero after) and transformed without a PSF table: its
@@ -103,13 +113,15 @@ def phi_spectrum(slab: Slab, shape, *, bin_width_s: float, pitch_m: float, n_dip
     dt = require_dtype(q.device, dtype)
     nt = int(shape[0])
     pad = _padded_grid(shape, periodic_xy)
-    prof = lateral_integral_profile(slab, nt=nt, bin_width_s=bin_width_s, queue=q)
+    prof = (lateral_integral_profile(slab, nt=nt, bin_width_s=bin_width_s, queue=q)
+            if profile is None else profile)
     lags = support_of(prof)
     plan = SlabTransmittance(slab, n_dipoles=n_dipoles, dtype=dt, queue=q)
     factors = phi_lateral_factors(plan, lags=lags, bin_width_s=bin_width_s, pitch_m=pitch_m,
                                   ny=pad[1], nx=pad[2])
     fft = RealFFT3(pad, dt, q)
-    spec = fft.empty_spectrum()
+    spec = (cla.empty(q, folded_shape(fft.spec_shape), fft.cdtype) if folded
+            else fft.empty_spectrum())
     with host_view(spec, write=True, read=False) as out:
         _write_phi_spectrum(out, factors, square=square)
     return fft, spec, confocal_tail_fraction(prof[:lags], nt)
@@ -133,36 +145,40 @@ def _cut_at_window(fft: RealFFT3, spec: cla.Array, out_g: cla.Array, nt: int) ->
 
 def confocal_spectrum(slab: Slab, shape: tuple[int, int, int], *, bin_width_s: float,
                       pitch_m: float, n_dipoles: int | None = None, periodic_xy: bool = False,
-                      dtype=np.float32, queue=None, cache=None) -> cla.Array:
-    """F[Phi * Phi] on the padded grid: the spectrum of :func:`confocal_psf` without going
-    to the lag domain when it need not.
+                      dtype=np.float32, queue=None, cache=None) -> tuple[cla.Array, bool]:
+    """(F[Phi * Phi] on the padded grid, whether it is stored folded): the spectrum of
+    :func:`confocal_psf` without going to the lag domain when it need not.
 
     When Phi * Phi holds less than SUPPORT_TOL of its energy at lags >= nt
     (:func:`confocal_tail_fraction`), the cut at nt changes nothing that matters and the
-    spectrum is F[Phi]^2; otherwise it is F of :func:`confocal_psf` (an inverse and a
-    forward FFT more). ``cache``: a :class:`clnlos.spectrum_cache.SpectrumCache` to read
-    the spectrum from, or store it in."""
+    spectrum is F[Phi]^2, stored folded (a quarter: :func:`clnlos.wiener.folded_shape`);
+    otherwise it is F of :func:`confocal_psf` (an inverse and a forward FFT more), whole.
+    ``cache``: a :class:`clnlos.spectrum_cache.SpectrumCache` to read the spectrum from, or
+    store it in."""
+    q = get_queue(queue)
+    dt = require_dtype(q.device, dtype)
+    nt = int(shape[0])
+    prof = lateral_integral_profile(slab, nt=nt, bin_width_s=bin_width_s, queue=q)
+    folded = confocal_tail_fraction(prof[:support_of(prof)], nt) < SUPPORT_TOL
     key = None
     if cache is not None:
-        q = get_queue(queue)
-        dt = require_dtype(q.device, dtype)
         key = cache.key("slab-confocal", slab=dataclasses.asdict(slab), n_dipoles=n_dipoles,
                         shape=[int(v) for v in shape], bin_width_s=float(bin_width_s),
                         pitch_m=float(pitch_m), periodic_xy=bool(periodic_xy),
-                        dtype=dt.name)
-        fft = RealFFT3(_padded_grid(shape, periodic_xy), dt, q)
-        spec = fft.empty_spectrum()
+                        dtype=dt.name, folded=folded)
+        full = RealFFT3(_padded_grid(shape, periodic_xy), dt, q).spec_shape
+        spec = cla.empty(q, folded_shape(full) if folded else full, COMPLEX_OF[dt])
         if cache.load(key, spec):
-            return spec
-    fft, spec, tail = phi_spectrum(slab, shape, bin_width_s=bin_width_s, pitch_m=pitch_m,
-                                   n_dipoles=n_dipoles, periodic_xy=periodic_xy, square=True,
-                                   dtype=dtype, queue=queue)
-    if tail >= SUPPORT_TOL:
+            return spec, folded
+    fft, spec, _ = phi_spectrum(slab, shape, bin_width_s=bin_width_s, pitch_m=pitch_m,
+                                n_dipoles=n_dipoles, periodic_xy=periodic_xy, square=True,
+                                dtype=dt, queue=q, folded=folded, profile=prof)
+    if not folded:
         lag_g = cla.empty(fft.queue, fft.shape, fft.dtype)
-        spec = fft.forward(_cut_at_window(fft, spec, lag_g, int(shape[0])), spec)
+        spec = fft.forward(_cut_at_window(fft, spec, lag_g, nt), spec)
     if cache is not None:
         cache.store(key, spec)
-    return spec
+    return spec, folded
 
 
 def confocal_psf(slab: Slab, shape: tuple[int, int, int], *, bin_width_s: float,
@@ -231,9 +247,9 @@ def slab_blur(slab: Slab, shape, *, bin_width_s: float, pitch_m: float, mode: st
     shared with a plan's other stages (:class:`clnlos.runtime.Scratch`); ``cache``: an
     on-disk :class:`clnlos.spectrum_cache.SpectrumCache` for the spectrum.
     """
-    spec = confocal_spectrum(slab, shape, bin_width_s=bin_width_s, pitch_m=pitch_m,
-                             n_dipoles=n_dipoles, periodic_xy=periodic_xy, dtype=dtype,
-                             queue=queue, cache=cache)
+    spec, folded = confocal_spectrum(slab, shape, bin_width_s=bin_width_s, pitch_m=pitch_m,
+                                     n_dipoles=n_dipoles, periodic_xy=periodic_xy,
+                                     dtype=dtype, queue=queue, cache=cache)
     return SpectralFilter(_padded_grid(shape, periodic_xy), shape, mode=mode, snr=snr,
                           normalize=(mode == "wiener"), lateral_pad=lateral_pad, dtype=dtype,
-                          queue=queue, spectrum=spec, scratch=scratch)
+                          queue=queue, spectrum=spec, spectrum_folded=folded, scratch=scratch)

@@ -42,6 +42,7 @@ from .errors import ParameterError
 from .fft import RealFFT3
 from .operators import LinearOperator
 from .resample import AxisResample, overlap_matrix
+from .wiener import multiply_spectrum
 from .runtime import (
     Scratch,
     fill_zero,
@@ -49,7 +50,6 @@ from .runtime import (
     get_queue,
     real_defines,
     require_dtype,
-    round_up,
 )
 
 
@@ -161,9 +161,7 @@ class LightConeTransport(LinearOperator):
     def _convolve(self, buf, conjugate: bool, nonzero, needed) -> None:
         spec = self.fft.forward(buf, self.scratch.array("b", self.fft.spec_shape,
                                                         self.fft.cdtype), nonzero=nonzero)
-        self._k.spectral_multiply(self.queue, (round_up(spec.size, 256),), None, self.H.data,
-                                  spec.data, self.dtype.type(1.0), np.int32(conjugate),
-                                  np.int64(spec.size))
+        multiply_spectrum(self._k, self.H, spec, h_scale=1.0, adjoint=conjugate)
         self.fft.inverse(spec, buf, needed=needed)
 
     def _apply(self, x_g):

@@ -36,6 +36,30 @@ from .runtime import (
 )
 
 
+def folded_shape(spec_shape) -> tuple[int, int, int]:
+    """Shape of a folded half spectrum (``kernels/wiener.cl``): w <= n0 / 2, ky <= n1 / 2."""
+    n0, n1, n2h = (int(v) for v in spec_shape)
+    return (n0 // 2 + 1, n1 // 2 + 1, n2h)
+
+
+def multiply_spectrum(kernels, H: cla.Array, X: cla.Array, *, h_scale: float,
+                      adjoint: bool, folded: bool = False, inv_snr: float | None = None):
+    """X <- (h_scale H) X, its conjugate (``adjoint``), or the Wiener filter of it when
+    ``inv_snr`` is given (``kernels/wiener.cl``; H whole or ``folded``), on X's
+    (n0, n1, n2h) half-spectrum grid."""
+    n0, n1, n2h = X.shape
+    real = np.float32 if X.dtype == np.complex64 else np.float64
+    gsize = (round_up(n2h, 8), n1, n0)
+    tail = (np.int32(folded), kernel_int(n0), kernel_int(n1), kernel_int(n2h))
+    if inv_snr is None:
+        kernels.spectral_multiply(X.queue, gsize, None, H.data, X.data, real(h_scale),
+                                  np.int32(adjoint), *tail)
+    else:
+        kernels.wiener_apply(X.queue, gsize, None, H.data, X.data, real(h_scale),
+                             real(inv_snr), np.int32(adjoint), *tail)
+    return X
+
+
 class SpectralFilter(LinearOperator):
     """Padded convolution (``mode="convolve"``) or Wiener deconvolution (``mode="wiener"``).
 
@@ -54,6 +78,8 @@ class SpectralFilter(LinearOperator):
     spectrum : pyopencl Array, optional
         F[psf] already computed on this grid (half spectrum, complex); ``psf`` is then the
         padded shape (a tuple).
+    spectrum_folded : bool
+        ``spectrum`` is stored folded (:func:`folded_shape`: a PSF real and even in y).
     lateral_pad : ``"zero"`` (default; the operator has an exact adjoint) or ``"mirror"``
         (even extension across the scan border, needs a (.., 2 ny, 2 nx) grid): for
         deconvolving data whose blur reached past the scanned area, where zero padding puts
@@ -65,7 +91,8 @@ class SpectralFilter(LinearOperator):
     def __init__(self, psf, in_shape, *, mode: str = "convolve", snr: float | None = None,
                  normalize: bool = True, lateral_pad: str = "zero", dtype=np.float32,
                  queue=None, spectrum: cla.Array | None = None,
-                 scratch: Scratch | None = None, psf_support=None):
+                 scratch: Scratch | None = None, psf_support=None,
+                 spectrum_folded: bool = False):
         self.queue = get_queue(queue)
         self.dtype = require_dtype(self.queue.device, dtype)
         if mode not in ("convolve", "wiener"):
@@ -97,10 +124,12 @@ class SpectralFilter(LinearOperator):
                                  out_rows=pad_shape[0])
         self.fft = RealFFT3(pad_shape, self.dtype, self.queue)
         self._k = get_kernels(self.queue, "wiener", real_defines(self.dtype))
+        self.folded = bool(spectrum is not None and spectrum_folded)
         if spectrum is not None:
-            if tuple(spectrum.shape) != self.fft.spec_shape:
+            want = folded_shape(self.fft.spec_shape) if self.folded else self.fft.spec_shape
+            if tuple(spectrum.shape) != want:
                 raise ShapeError(f"spectrum of shape {tuple(spectrum.shape)}; the grid "
-                                 f"{pad_shape} needs {self.fft.spec_shape}")
+                                 f"{pad_shape} needs {want}")
             self.H = spectrum
         else:
             psf_g = psf if isinstance(psf, cla.Array) else cla.to_device(
@@ -135,6 +164,7 @@ class SpectralFilter(LinearOperator):
         new.inv_snr = 0.0 if mode == "convolve" else 1.0 / float(snr)
         new.H = H
         new.h_scale = (base.h_scale if H is base.H else 1.0) if h_scale is None else h_scale
+        new.folded = base.folded if H is base.H else False
         return new
 
     def set_snr(self, snr: float) -> None:
@@ -174,16 +204,9 @@ class SpectralFilter(LinearOperator):
         spec = self.fft.forward(buf, self.scratch.array("b", self.fft.spec_shape,
                                                         self.fft.cdtype),
                                 nonzero=self.in_shape if nonzero is None else nonzero)
-        n = spec.size
-        gsize = (round_up(n, 256),)
-        if self.mode == "wiener":
-            self._k.wiener_apply(self.queue, gsize, None, self.H.data, spec.data,
-                                 self.dtype.type(self.h_scale), self.dtype.type(self.inv_snr),
-                                 np.int32(adjoint), np.int64(n))
-        else:
-            self._k.spectral_multiply(self.queue, gsize, None, self.H.data, spec.data,
-                                      self.dtype.type(self.h_scale), np.int32(adjoint),
-                                      np.int64(n))
+        multiply_spectrum(self._k, self.H, spec, h_scale=self.h_scale, adjoint=adjoint,
+                          folded=self.folded,
+                          inv_snr=self.inv_snr if self.mode == "wiener" else None)
         self.fft.inverse(spec, buf, needed=self.in_shape)
         return read_output(buf)
 

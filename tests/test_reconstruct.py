@@ -521,6 +521,32 @@ def test_phi_spectrum_is_the_3d_dft_of_the_psf_table(queue, dtype, shape, period
         assert rel_l2(want, got) < (1e-9 if dtype == np.float64 else 1e-5), square
 
 
+@pytest.mark.parametrize("shape,periodic", [((40, 6, 5), False), ((33, 7, 9), True)])
+def test_folded_slab_spectrum_filters_like_the_whole_one(queue, dtype, shape, periodic):
+    """The slab spectrum stored folded (w <= n0/2, ky <= n1/2) is that quarter of the whole
+    one, and filtering with it (convolve, adjoint, Wiener) equals filtering with the whole
+    spectrum -- odd and even lateral sizes."""
+    from clnlos.blur import phi_spectrum
+    from clnlos.wiener import SpectralFilter, folded_shape
+
+    kw = dict(bin_width_s=48e-12, pitch_m=0.02, n_dipoles=None, periodic_xy=periodic,
+              square=True, dtype=dtype, queue=queue)
+    fft, whole, _ = phi_spectrum(CDT_SLAB, shape, **kw)
+    _, quarter, _ = phi_spectrum(CDT_SLAB, shape, folded=True, **kw)
+    q0, q1, _ = folded_shape(fft.spec_shape)
+    assert quarter.shape == (q0, q1, fft.spec_shape[2])
+    np.testing.assert_allclose(quarter.get(), whole.get()[:q0, :q1], rtol=0,
+                               atol=1e-6 * abs(whole.get()).max())
+    x = np.random.default_rng(4).random(shape).astype(dtype)
+    for mode, snr in (("convolve", None), ("wiener", 1e3)):
+        a, b = (SpectralFilter(fft.shape, shape, mode=mode, snr=snr, dtype=dtype, queue=queue,
+                               spectrum=h, spectrum_folded=f)
+                for h, f in ((whole, False), (quarter, True)))
+        assert b.folded and rel_l2(a(x), b(x)) < tol("fft", dtype) * 10, mode
+        if mode == "convolve":
+            assert rel_l2(a.apply_adjoint(x), b.apply_adjoint(x)) < tol("fft", dtype) * 10
+
+
 @pytest.mark.parametrize("nt", [512, 96])
 def test_slab_blur_from_its_spectrum_equals_the_psf_route(queue, dtype, nt):
     """slab_blur squares Phi's spectrum directly when Phi * Phi holds nothing that matters at
