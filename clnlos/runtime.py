@@ -273,6 +273,13 @@ def fft_backend(queue: cl.CommandQueue) -> FFTChoice:
         raise DeviceError(f"invalid {ENV_FFT}={choice!r}: allowed auto, vkfft, host")
     if choice in ("host", "numpy"):
         return FFTChoice("host", f"{ENV_FFT}={choice}")
+    if choice == "auto":  # decided before importing pyvkfft (0.09 s) where it is not used
+        ver = pocl_version(queue.device)
+        if ver is not None and ver >= (7, 0):
+            return FFTChoice("host", f"PoCL {ver[0]}.{ver[1]} miscompiles VkFFT "
+                                     f"({POCL_VKFFT_ISSUE})", warn=True)
+        if queue.device.type & cl.device_type.CPU:
+            return FFTChoice("host", "CPU device: the host FFT is faster than VkFFT there")
     try:
         import pyvkfft.opencl  # noqa: F401
 
@@ -285,12 +292,6 @@ def fft_backend(queue: cl.CommandQueue) -> FFTChoice:
                               f"({vk_error}); install the extra: pip install "
                               "'clnlos[vkfft]' (VKFFT_BACKEND=opencl), or unset " + ENV_FFT)
         return FFTChoice("vkfft", f"{ENV_FFT}=vkfft")
-    ver = pocl_version(queue.device)
-    if ver is not None and ver >= (7, 0):
-        return FFTChoice("host", f"PoCL {ver[0]}.{ver[1]} miscompiles VkFFT "
-                                 f"({POCL_VKFFT_ISSUE})", warn=True)
-    if queue.device.type & cl.device_type.CPU:
-        return FFTChoice("host", "CPU device: the host FFT is faster than VkFFT there")
     if vk_error is not None:
         return FFTChoice("host", f"pyvkfft (OpenCL backend) not importable: {vk_error}",
                          warn=True)
