@@ -14,7 +14,7 @@ uncompressed instead.
 from __future__ import annotations
 
 import zlib
-from concurrent.futures import ThreadPoolExecutor
+from concurrent.futures import Future, ThreadPoolExecutor
 
 import numpy as np
 
@@ -61,8 +61,10 @@ class DeflatedArray:
         self._parts = []
         if self.compressed:
             pool = ThreadPoolExecutor(max_workers=threads or host_threads())
-            self._parts = [(r0, pool.submit(self._chunk, r0, rows)) for r0 in starts
-                           if r0 != probe_at] + [(probe_at, _Done(probe))]
+            done = Future()
+            done.set_result(probe)
+            self._parts = [(r0, done if r0 == probe_at else pool.submit(self._chunk, r0, rows))
+                           for r0 in starts]
             pool.shutdown(wait=False)
 
     def _chunk(self, r0: int, rows: int) -> bytes:
@@ -85,16 +87,6 @@ class DeflatedArray:
         for r0, fut in self._parts:
             dset.id.write_direct_chunk((r0,) + zeros, fut.result())
         return dset
-
-
-class _Done:
-    """A finished result with the ``result()`` of a future."""
-
-    def __init__(self, value):
-        self._value = value
-
-    def result(self):
-        return self._value
 
 
 def write_dataset(f, name: str, data) -> None:

@@ -101,9 +101,7 @@ class SlabTransmittance:
         if out_g is None:
             out_g = cla.empty(self.queue, (nt, nr), self.dtype)
         if nr and nt:
-            log_t0 = cla.empty(self.queue, nt, self.dtype)
-            self.kernels.log_series(self.queue, (round_up(nt, 64),), None, t_g.data,
-                                    log_t0.data, kernel_int(nt, "time bins"), *self._params)
+            log_t0 = self.log_series_device(t_g)
             self.kernels.transmittance_outer(
                 self.queue, (round_up(nr, 16), round_up(nt, 4)), None, rho_g.data, t_g.data,
                 log_t0.data, out_g.data, kernel_int(nr, "radii"), kernel_int(nt, "time bins"),
@@ -117,11 +115,18 @@ class SlabTransmittance:
         t = np.ascontiguousarray(np.asarray(t_s, np.float64).ravel(), self.dtype)
         if not t.size:
             return np.zeros(np.shape(t_s))
-        t_g = cla.to_device(self.queue, t)
-        out_g = cla.empty(self.queue, t.size, self.dtype)
-        self.kernels.log_series(self.queue, (round_up(t.size, 64),), None, t_g.data,
-                                out_g.data, kernel_int(t.size, "time samples"), *self._params)
-        return out_g.get().astype(np.float64).reshape(np.shape(t_s))
+        log_t0 = self.log_series_device(cla.to_device(self.queue, t))
+        return log_t0.get().astype(np.float64).reshape(np.shape(t_s))
+
+    def log_series_device(self, t_g: cla.Array) -> cla.Array:
+        """log T(0, t) for the times of the device array ``t_g`` (the series once per time
+        sample, ``kernels/diffusion.cl`` log_series), on the device."""
+        out_g = cla.empty(self.queue, t_g.size, self.dtype)
+        if t_g.size:
+            self.kernels.log_series(self.queue, (round_up(t_g.size, 64),), None, t_g.data,
+                                    out_g.data, kernel_int(t_g.size, "time samples"),
+                                    *self._params)
+        return out_g
 
     def outer_avg_device(self, rho_g: cla.Array, t_nodes: np.ndarray, weights: np.ndarray,
                          scale: float, out_g: cla.Array) -> cla.Array:
@@ -133,10 +138,7 @@ class SlabTransmittance:
             return out_g
         t_g = cla.to_device(self.queue, np.ascontiguousarray(t_nodes, self.dtype).ravel())
         w_g = cla.to_device(self.queue, np.asarray(weights, self.dtype))
-        log_t0 = cla.empty(self.queue, t_g.size, self.dtype)
-        n_all = kernel_int(t_g.size, "time samples")
-        self.kernels.log_series(self.queue, (round_up(t_g.size, 64),), None, t_g.data,
-                                log_t0.data, n_all, *self._params)
+        log_t0 = self.log_series_device(t_g)
         self.kernels.transmittance_outer_avg(
             self.queue, (round_up(nr, 16), round_up(n_t, 4)), None, rho_g.data, t_g.data,
             log_t0.data, w_g.data, out_g.data, kernel_int(nr, "radii"),
