@@ -112,6 +112,8 @@ def cmd_reconstruct(args) -> int:
                              "nothing to reconstruct")
     cfg = config_from_args(args, capture)
     rec = reconstruct_to_files(capture, out, cfg, dtype=DTYPES[args.dtype], queue=queue)
+    for note in rec.notes:
+        print(f"clnlos: note: {note}", file=sys.stderr)
     total = sum(rec.timings_s.values())
     print(f"wrote {out} volume {rec.volume.shape} [z, y, x], depth 0-"
           f"{rec.extents['depth_max_m']:.3f} m; stages {', '.join(rec.stages)}; "

@@ -27,7 +27,7 @@ import numpy as np
 import pyopencl.array as cla
 
 from . import C0
-from .blur import slab_blur
+from .blur import TailFilledDeconvolution, blur_time_scales, slab_blur
 from .config import DEPTH_GUARD_M, ReconstructionConfig
 from .errors import InputFileError, ParameterError
 from .fk import FKMigration
@@ -35,6 +35,7 @@ from .io import Capture
 from .iterative import IterativeInversion
 from .lct import LCT
 from .noise import (
+    ARRIVAL_SIGMAS,
     MEASURED_MODEL_SNR,
     NoiseEstimate,
     combined_snr,
@@ -66,6 +67,7 @@ class Reconstruction:
     extents: dict = field(default_factory=dict)
     noise: dict = field(default_factory=dict)      # clnlos.noise.NoiseEstimate of the capture
     solver: dict | None = None                     # iterative: the solver's report
+    notes: list[str] = field(default_factory=list)  # one line each, for the user
 
 
 def preprocess_matrix(nt_in: int, bin_width_s: float, start_s: float, max_path_m: float | None,
@@ -92,6 +94,29 @@ def preprocess_matrix(nt_in: int, bin_width_s: float, start_s: float, max_path_m
     n_guard = max(0, min(n_avail, int(np.ceil(guard_fraction * n_out))))
     dst_edges = np.linspace(0.0, t_keep + n_guard * dt_out, n_out + n_guard + 1)
     return overlap_matrix(src_edges, dst_edges), dt_out, n_out
+
+
+TRUNCATION_TOL = 1e-2  # the window ends "before the blur has decayed": its last bins hold more
+#                       than this fraction of the peak (above the background)
+GUARD_PEAKS = 2.0      # ... unless the deconvolved bins past the volume (guard) span this many
+#                       blur peak lags: the inverse filter's ringing at the cut stays in them
+
+
+def window_end_level(profile: np.ndarray, *, background: float, end_bins: int,
+                     photon_counts: bool, sigma: float, n_scan: int) -> float:
+    """How much light still arrives at the end of the time window: the mean of the scan-summed
+    transient ``profile`` over its last ``end_bins`` bins above ``background`` (per bin of
+    the profile), as a fraction of its peak above the background; 0 where that excess is
+    within ARRIVAL_SIGMAS standard deviations of the mean's noise (Poisson for counts,
+    ``sigma`` per bin and scan point otherwise)."""
+    m = max(1, min(int(end_bins), profile.size))
+    excess = float(profile[-m:].mean()) - background
+    top = float(profile.max()) - background
+    if not top > 0:
+        return 0.0
+    std = (math.sqrt(max(float(profile[-m:].mean()), 1.0) / m) if photon_counts
+           else sigma * math.sqrt(n_scan / m))
+    return max(0.0, excess / top) if excess > ARRIVAL_SIGMAS * std else 0.0
 
 
 def model_snr_for(capture: Capture, config: ReconstructionConfig) -> float:
@@ -163,6 +188,13 @@ class ReconstructionPipeline:
                                     lateral_pad=config.lateral_pad, dtype=self.dtype,
                                     queue=self.queue, scratch=self.scratch, cache=cache)
             self.stages.append(f"deconvolve:slab({describe_slab(config.slab)})")
+            self.blur_scales = blur_time_scales(config.slab, bin_width_s=self.bin_width_s,
+                                                queue=self.queue)
+            self._deconv_args = dict(bin_width_s=self.bin_width_s, pitch_m=pitch,
+                                     n_dipoles=config.n_dipoles, scales=self.blur_scales,
+                                     lateral_pad=config.lateral_pad, dtype=self.dtype,
+                                     queue=self.queue, scratch=self.scratch, cache=cache)
+            self._tail_deconv = None
         geo = dict(bin_width_s=self.bin_width_s, scan_width_m=scan_width_m, dtype=self.dtype,
                    queue=self.queue, scratch=self.scratch)
         falloff = {} if config.falloff is None else {"falloff": config.falloff}
@@ -194,7 +226,8 @@ class ReconstructionPipeline:
         x = cla.to_device(self.queue, np.ascontiguousarray(transient, self.dtype))
         tau = self._timed(timings, "preprocess", self.pre, x)
         with host_view(tau) as t_host:  # small reductions on the host: no kernel builds
-            peak, total = float(t_host.max()), float(t_host.sum(dtype=np.float64))
+            profile = t_host.reshape(t_host.shape[0], -1).sum(axis=1, dtype=np.float64)
+            peak, total = float(t_host.max()), float(profile.sum())
         if not peak > 0:
             raise InputFileError("the capture holds no signal in the kept time window "
                                  "(all zero): nothing to reconstruct")
@@ -209,11 +242,13 @@ class ReconstructionPipeline:
                 self._rk.scale_inplace(self.queue, (round_up(tau.size, 256),), None, tau.data,
                                        self.dtype.type(1.0 / s), np.int64(tau.size))
         params = self.config.as_attrs()
+        notes: list[str] = []
         if self.deconv is not None:
-            self.deconv.set_snr(snr)
+            deconv = self._deconvolution_for(profile, noise, params, notes)
+            deconv.set_snr(snr)
             params["snr_used"] = snr
             params["model_snr_used"] = model_snr
-            tau = self._timed(timings, "deconvolve", self.deconv, tau)
+            tau = self._timed(timings, "deconvolve", deconv, tau)
         if self.n_guard:
             tau = tau[:self.shape[0]]  # the guard bins dropped: a view of the leading rows
         method = self.config.method
@@ -243,7 +278,43 @@ class ReconstructionPipeline:
         return Reconstruction(volume=volume, bin_width_s=self.bin_width_s, scan_width_m=w,
                               stages=list(self.stages), timings_s=timings, params=params,
                               transient=tau.get() if keep_transient else None, extents=extents,
-                              noise=noise.as_dict(), solver=solve)
+                              noise=noise.as_dict(), solver=solve, notes=notes)
+
+    def _deconvolution_for(self, profile, noise: NoiseEstimate, params: dict,
+                           notes: list[str]):
+        """The slab deconvolution for this capture: the plain Wiener filter, or where the
+        time window ends before the blur of its latest arrivals has decayed (more than
+        TRUNCATION_TOL of the peak still arriving in its last ``peak`` bins, and fewer
+        than GUARD_PEAKS peak lags of guard bins between the volume's end and the cut) the
+        :class:`~clnlos.blur.TailFilledDeconvolution` on the window padded by the blur's
+        reach (built on first use), with a note saying which depths rest on the rise of
+        their response only."""
+        scales = self.blur_scales
+        n_scan = self.shape[1] * self.shape[2]
+        background = noise.background_per_bin * n_scan * self.bin_width_s / self.raw_bin_width_s
+        level = window_end_level(profile, background=background, end_bins=scales.peak_lags,
+                                 photon_counts=noise.photon_counts, sigma=noise.sigma,
+                                 n_scan=n_scan)
+        params["window_end_level"] = level
+        if level <= TRUNCATION_TOL or self.n_guard >= GUARD_PEAKS * scales.peak_lags:
+            return self.deconv
+        if self._tail_deconv is None:
+            self._tail_deconv = TailFilledDeconvolution(self.config.slab, (profile.size,)
+                                                        + self.shape[1:], **self._deconv_args)
+        dt, dz = self.bin_width_s, C0 * self.bin_width_s / 2
+        n_data, n_out = profile.size, self.shape[0]
+        params["tail_fill_bins"] = scales.reach_lags
+        trusted = min(n_out, n_data - scales.peak_lags)
+        msg = (f"the time window ends {n_data * dt * 1e9:.3g} ns after t = 0 with "
+               f"{100 * level:.2g}% of the peak still arriving: the slab blur's unseen tail "
+               f"({scales.reach_lags * dt * 1e9:.3g} ns) is predicted from the model")
+        if trusted < n_out:
+            msg += (f"; depths past {max(trusted, 0) * dz:.3g} m (of {n_out * dz:.3g} m) are "
+                    f"left empty: only the rise of their response is inside the window (a "
+                    f"longer capture, or --max-path {2 * max(trusted, 1) * dz:.3g} to stop "
+                    f"the volume there)")
+        notes.append(msg)
+        return self._tail_deconv
 
 
 def setup_slab(config: ReconstructionConfig, capture: Capture
@@ -315,7 +386,7 @@ def volume_attrs(rec: Reconstruction) -> dict:
     return {**rec.extents, "bin_width_s": rec.bin_width_s, "scan_width_m": rec.scan_width_m,
             "stages": json.dumps(rec.stages), "timings_s": json.dumps(rec.timings_s),
             "params": json.dumps(rec.params), "noise": json.dumps(rec.noise),
-            "solver": json.dumps(rec.solver),
+            "solver": json.dumps(rec.solver), "notes": json.dumps(rec.notes),
             "axes": "volume[z, y, x]; +x with column index, +y with row index",
             "format": "clnlos-volume-1"}
 

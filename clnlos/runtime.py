@@ -482,6 +482,21 @@ def fill_zero(queue: cl.CommandQueue, a_g, offset_bytes: int = 0, nbytes: int | 
                                nbytes)
 
 
+def copy_rows(queue: cl.CommandQueue, src_g, dst_g, *, rows: int, src_row: int = 0,
+              dst_row: int = 0) -> None:
+    """dst[dst_row:dst_row + rows] <- src[src_row:src_row + rows] along the first axis of two
+    C-contiguous device arrays with the same trailing shape and dtype (one buffer copy)."""
+    if src_g.shape[1:] != dst_g.shape[1:] or src_g.dtype != dst_g.dtype:
+        raise ValueError(f"copy_rows: {src_g.shape} {src_g.dtype} -> {dst_g.shape} "
+                         f"{dst_g.dtype}: trailing shapes and dtypes differ")
+    row = int(np.prod(src_g.shape[1:], dtype=np.int64)) * src_g.dtype.itemsize
+    if rows <= 0 or row == 0:
+        return
+    cl.enqueue_copy(queue, dst_g.base_data, src_g.base_data, byte_count=rows * row,
+                    src_offset=src_g.offset + src_row * row,
+                    dst_offset=dst_g.offset + dst_row * row)
+
+
 def zeros(queue: cl.CommandQueue, shape, dtype):
     """A zeroed device array (see :func:`fill_zero`)."""
     import pyopencl.array as cla
