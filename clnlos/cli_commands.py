@@ -35,7 +35,7 @@ def require(module: str, what: str) -> None:
 
 def _add_precision(p) -> None:
     p.add_argument("--dtype", choices=sorted(DTYPES), default="float32",
-                   help="kernel precision (default float32)")
+                   help="kernel precision (default %(default)s)")
 
 
 # ------------------------------------------------------------------ reconstruct
@@ -123,36 +123,60 @@ def cmd_reconstruct(args) -> int:
 
 
 def register_reconstruct(sub, add_device) -> None:
+    from .config import DEPTH_GUARD_M, METHOD_FALLOFF, METHODS, ReconstructionConfig as C
+
     r = sub.add_parser("reconstruct", help="reconstruct a hidden volume from a capture")
     r.add_argument("capture", help="capture: clnlos or y-tal HDF5, MATLAB .mat (CDT, LCT, "
                                    "f-k layouts), NumPy .npy [t, y, x]")
     r.add_argument("-o", "--output", required=True,
                    help="output volume (.h5; a PNG is written beside)")
-    r.add_argument("--config", help="reconstruction parameters (TOML)")
-    r.add_argument("--method", choices=["lct", "fk", "iterative"], default=None)
-    r.add_argument("--scan-width", type=float, help="side of the scanned square (m)")
-    r.add_argument("--bin-width", type=float, help="histogram bin width (s)")
+    r.add_argument("--config", help="reconstruction parameters (TOML, see clnlos/config.py); "
+                   "flags override its values (default: none, the built-in defaults)")
+    r.add_argument("--method", choices=["lct", "fk", "iterative"], default=None,
+                   help="inversion: lct (light-cone transform), fk (f-k migration) or "
+                        "iterative (regularised, warm-started from LCT) (default: the "
+                        f"config's [inversion] method, else {C.method})")
+    from_file = "(default: from the capture file, else the config's [capture])"
+    r.add_argument("--scan-width", type=float,
+                   help=f"side of the scanned square (m) {from_file}")
+    r.add_argument("--bin-width", type=float, help=f"histogram bin width (s) {from_file}")
     r.add_argument("--snr", type=number_or_auto,
-                   help="Wiener SNR of the slab deconvolution, or auto (default: from the "
-                        "capture's photon count)")
+                   help="Wiener SNR of the slab deconvolution (dimensionless), or auto: from "
+                        f"the capture's photon count and the slab model (default {C.snr})")
     r.add_argument("--inversion-snr", type=number_or_auto,
                    help="Wiener SNR of the LCT filter (and of the iterative warm start), or "
-                        "auto (default)")
-    r.add_argument("--falloff", type=float, help="radiometric exponent of the inversion")
-    r.add_argument("--max-path", type=float, help="keep round-trip paths below this (m)")
-    r.add_argument("--bins", type=int, help="rebin the kept window to this many bins")
-    r.add_argument("--iterations", type=int, help="iterative: iterations at most (default 200)")
+                        "auto: from the deconvolution SNR, clnlos.noise.lightcone_snr "
+                        f"(default {C.inversion_snr})")
+    r.add_argument("--falloff", type=float,
+                   help="radiometric exponent p (dimensionless) of the (t/T)^p weighting "
+                        "before the inversion (default: the method's own, " + ", ".join(
+                            f"{m} {p:g}" for m, p in METHOD_FALLOFF.items()) + "; "
+                        + ", ".join(m for m in METHODS if m not in METHOD_FALLOFF)
+                        + " models the falloff itself and ignores it)")
+    r.add_argument("--max-path", type=float,
+                   help="keep round-trip path lengths c t below this (m) (default: the "
+                        "capture's whole time window)")
+    r.add_argument("--bins", type=int, help="rebin the kept window to this many bins, "
+                   "mass-conserving (default: keep the capture's bin width)")
+    r.add_argument("--iterations", type=int,
+                   help=f"iterative: iterations at most (default {C.iterations})")
     r.add_argument("--tv-weight", type=float,
-                   help="iterative: total-variation weight, relative (default 0)")
+                   help="iterative: total-variation weight, relative to max(L^T I) "
+                        f"(default {C.tv_weight:g})")
     r.add_argument("--l1-weight", type=float,
-                   help="iterative: L1 (sparsity) weight, relative (default 0.1)")
+                   help="iterative: L1 (sparsity) weight, relative to max(L^T I) "
+                        f"(default {C.l1_weight:g})")
     r.add_argument("--depth-min", type=number_or_auto,
-                   help="iterative: shallowest depth of the volume (m), or auto (default: "
-                        "from the capture's first arrival)")
-    r.add_argument("--slab-thickness", type=float, help="slab thickness (m)")
-    r.add_argument("--mu-a", type=float, help="slab absorption coefficient (1/m)")
-    r.add_argument("--mu-s-prime", type=float, help="slab reduced scattering coefficient (1/m)")
-    r.add_argument("--n", type=float, help="slab refractive index (relative)")
+                   help="iterative: shallowest depth of the volume (m), or auto: the "
+                        f"capture's first arrival less {DEPTH_GUARD_M:g} m "
+                        f"(default {C.depth_min_m})")
+    slab = ("(default: the config's [slab]; with no slab flag and no [slab], the slab a "
+            "clnlos capture recorded)")
+    r.add_argument("--slab-thickness", type=float, help=f"slab thickness (m) {slab}")
+    r.add_argument("--mu-a", type=float, help=f"slab absorption coefficient (1/m) {slab}")
+    r.add_argument("--mu-s-prime", type=float,
+                   help=f"slab reduced scattering coefficient (1/m) {slab}")
+    r.add_argument("--n", type=float, help=f"slab refractive index (relative) {slab}")
     r.add_argument("--no-slab", action="store_true",
                    help="skip the slab deconvolution (also of a slab the capture recorded)")
     _add_precision(r)
@@ -183,7 +207,8 @@ def register_plot(sub) -> None:
     p.add_argument("volume", help="volume HDF5 written by clnlos reconstruct")
     p.add_argument("-o", "--output", help="PNG (default: beside the volume)")
     g = p.add_mutually_exclusive_group()
-    g.add_argument("--gamma", type=float, help="display value^gamma (e.g. 0.5)")
+    g.add_argument("--gamma", type=float, help="display (value / max)^gamma, e.g. 0.5 to "
+                   "lift faint parts (default: linear)")
     g.add_argument("--log", action="store_true", help="display log10(value / max)")
     p.set_defaults(func=cmd_plot)
 
@@ -228,13 +253,15 @@ def register_forward(sub, add_device) -> None:
     s.add_argument("-o", "--output", required=True,
                    help="output capture (.h5; a PNG is written beside)")
     s.add_argument("--format", choices=["clnlos", "tal"], default="clnlos",
-                   help="capture format: clnlos HDF5 (default) or y-tal HDF5")
+                   help="capture format: clnlos (clnlos HDF5) or tal (y-tal HDF5) "
+                        "(default %(default)s)")
     _add_precision(s)
     add_device(s)
     s.set_defaults(func=cmd_simulate)
     d = sub.add_parser("demo", help="simulate 'UT' behind the slab, reconstruct with LCT, f-k "
                                     "and the iterative method, score")
-    d.add_argument("-o", "--output", default="out/demo", help="output folder")
+    d.add_argument("-o", "--output", default="out/demo",
+                   help="output folder (default %(default)s)")
     d.add_argument("--scene", help="scene TOML with letters as objects[0] (default: built-in)")
     d.add_argument("--config", help="reconstruction TOML (default: built-in; its slab "
                    "defaults to the scene's)")
@@ -257,10 +284,14 @@ def cmd_brdf_fit(args) -> int:
     if args.metrics_json:
         outs["--metrics-json"] = Path(args.metrics_json)
     check_outputs(outs, inputs=[args.data, args.test], suffixes={"-o": HDF5_SUFFIXES})
+    from .progress import counter, progress_bar
+
     train = read_samples(args.data)
     test = read_samples(args.test) if args.test else None
-    metrics = fit_to_file(args.model, train, test, args.output, seed=args.seed,
-                          metrics_json=args.metrics_json)
+    unit = "epoch" if args.model in ("mlp", "mlp-seed") else "start"
+    with progress_bar(None, f"brdf fit {args.model}", unit) as bar:
+        metrics = fit_to_file(args.model, train, test, args.output, seed=args.seed,
+                              metrics_json=args.metrics_json, progress=counter(bar))
     for k, v in metrics.items():
         if k != "loss_log":
             print(f"{k}: {v:.4g}" if isinstance(v, float) else f"{k}: {v}")
@@ -323,38 +354,62 @@ def cmd_brdf_evaluate(args) -> int:
 
 
 def register_brdf(sub, add_device) -> None:
-    from .brdf.evaluate import MODELS as EVAL_MODELS, MODES as EVAL_MODES
+    from .brdf.data import CSV_COLUMNS
+    from .brdf.evaluate import MODELS as EVAL_MODELS, MODES as EVAL_MODES, TRAIN_FRACTION
 
     b = sub.add_parser("brdf", help="fit, tabulate and plot BRDF models")
     bs = b.add_subparsers(dest="brdf_command", required=True)
     f = bs.add_parser("fit", help="fit a model to measured data (CSV or pbrt .brdf)")
-    f.add_argument("data")
-    f.add_argument("--model", required=True, choices=BRDF_MODELS)
+    data = (f"measured samples: CSV with columns {','.join(CSV_COLUMNS)} (angles in degrees, "
+            "BRDF in 1/sr; # comment lines) or pbrt-v2 .brdf")
+    f.add_argument("data", help=data)
+    f.add_argument("--model", required=True, choices=BRDF_MODELS,
+                   help="mlp: the peak-keeping neural BRDF; mlp-seed: the seed's MLP recipe "
+                        "(both need torch); five-param, torrance-sparrow, phong, minnaert, "
+                        "lambert: analytic models fitted by least squares in log space")
     f.add_argument("-o", "--output", required=True, help="fitted model (.h5)")
-    f.add_argument("--test", help="held-out data for the test metrics")
-    f.add_argument("--metrics-json")
-    f.add_argument("--seed", type=int, default=0)
+    f.add_argument("--test", help="held-out data (same formats) for the test metrics "
+                   "(default: none, training metrics only)")
+    f.add_argument("--metrics-json", help="also write the metrics to this JSON file "
+                   "(default: printed only)")
+    f.add_argument("--seed", type=int, default=0,
+                   help="random seed: the networks' initialisation and validation split, or "
+                        "the analytic fits' random starts (default %(default)s)")
     f.set_defaults(func=cmd_brdf_fit)
     t = bs.add_parser("texture", help="tabulate a model to a BRDF texture (HDF5)")
-    t.add_argument("model")
-    t.add_argument("-o", "--output", required=True)
-    t.add_argument("--resolution", type=int, default=64, help="theta_i and theta_s nodes")
-    t.add_argument("--dphi", type=int, default=None, help="delta-phi nodes (default: same)")
-    t.add_argument("--retro", type=int, default=256, help="nodes of the retro slice")
+    t.add_argument("model", help="fitted model (.h5) written by clnlos brdf fit")
+    t.add_argument("-o", "--output", required=True,
+                   help="output texture (.h5): the [theta_i, theta_s, delta-phi] table and "
+                        "the retro slice")
+    t.add_argument("--resolution", type=int, default=64,
+                   help="theta_i and theta_s nodes over 0-90 deg (default %(default)s)")
+    t.add_argument("--dphi", type=int, default=None,
+                   help="delta-phi nodes over 0-180 deg (default: --resolution)")
+    t.add_argument("--retro", type=int, default=256,
+                   help="nodes of the retro slice f(w, w) over 0-90 deg, what the light-cone "
+                        "kernel reads (default %(default)s)")
     t.set_defaults(func=cmd_brdf_texture)
     p = bs.add_parser("plot", help="in-plane curves at theta_i 30/45/60 with the data")
-    p.add_argument("model")
-    p.add_argument("--data", help="measured CSV to overlay")
-    p.add_argument("-o", "--output")
+    p.add_argument("model", help="fitted model (.h5) written by clnlos brdf fit")
+    p.add_argument("--data", help="measured CSV or .brdf to overlay (default: none)")
+    p.add_argument("-o", "--output", help="PNG (default: beside the model)")
     p.set_defaults(func=cmd_brdf_plot)
     e = bs.add_parser("evaluate", help="interpolation and extrapolation scores of models on "
                       "every NAME_gonio.csv/NAME_test.csv pair in a directory")
-    e.add_argument("directory")
+    e.add_argument("directory", help="folder of NAME_gonio.csv / NAME_test.csv pairs")
     e.add_argument("-o", "--output", required=True, help="rows as CSV (JSON beside it)")
-    e.add_argument("--models", nargs="+", default=list(EVAL_MODELS), choices=BRDF_MODELS)
-    e.add_argument("--modes", nargs="+", default=list(EVAL_MODES), choices=list(EVAL_MODES))
-    e.add_argument("--splits", type=int, default=1, help="random interpolation splits")
-    e.add_argument("--material", nargs="+", help="only sets whose name contains one of these")
+    e.add_argument("--models", nargs="+", default=list(EVAL_MODELS), choices=BRDF_MODELS,
+                   metavar="MODEL", help="models to score, of " + ", ".join(BRDF_MODELS)
+                   + " (default " + " ".join(EVAL_MODELS) + ")")
+    split = f"{TRAIN_FRACTION * 100:g}/{(1 - TRAIN_FRACTION) * 100:g}"
+    e.add_argument("--modes", nargs="+", default=list(EVAL_MODES), choices=list(EVAL_MODES),
+                   help=f"interp: fit and score a random {split} split of all directions; "
+                        "extrap: fit NAME_gonio.csv, score NAME_test.csv (default "
+                        + " ".join(EVAL_MODES) + ")")
+    e.add_argument("--splits", type=int, default=1,
+                   help="random interpolation splits, seeds 0 to N-1 (default %(default)s)")
+    e.add_argument("--material", nargs="+", help="only sets whose name contains one of these "
+                   "(default: every set)")
     e.set_defaults(func=cmd_brdf_evaluate)
 
 
@@ -393,22 +448,32 @@ def cmd_study(args) -> int:
 
 
 def register_study(sub, add_device) -> None:
+    from .study.dataset import StudyGrid
+    from .study.run import LABEL_METRICS, StudyOptions
+
+    quick, full = StudyOptions.quick(), StudyOptions()
     s = sub.add_parser("study", help="the material study (main job)")
     g = s.add_mutually_exclusive_group()
-    g.add_argument("--quick", action="store_true", help="built-in default: 200 dataset "
-                   "samples, 1 noise seed per sweep point (under 3 minutes on 2 cores)")
-    g.add_argument("--full", action="store_true", help="1000 dataset samples, 2 noise seeds "
-                   "per sweep point (under 15 minutes on 2 cores)")
-    s.add_argument("-o", "--output", default="out/study")
+    g.add_argument("--quick", action="store_true", help=f"built-in default: "
+                   f"{quick.n_dataset} dataset samples, {quick.sweep_seeds} noise seed(s) per "
+                   "sweep point (under 3 minutes on 2 cores)")
+    g.add_argument("--full", action="store_true", help=f"{full.n_dataset} dataset samples, "
+                   f"{full.sweep_seeds} noise seeds per sweep point (under 15 minutes on 2 "
+                   "cores)")
+    s.add_argument("-o", "--output", default="out/study",
+                   help="output folder: report.html, results.json and the sample cache "
+                        "(default %(default)s)")
     s.add_argument("--method", choices=["lct", "fk", "iterative"], default=None,
-                   help="reconstruction method (default iterative)")
-    s.add_argument("--labels", choices=["nr", "fft"], default="nr",
-                   help="label source: the no-reference metric nr_clarity (default) or the "
-                        "seed's FFT clarity")
+                   help=f"reconstruction method (default {StudyGrid.method})")
+    s.add_argument("--labels", choices=list(LABEL_METRICS), default="nr",
+                   help=f"label source: nr, the no-reference metric {LABEL_METRICS['nr']}, "
+                        f"or fft, the seed's FFT clarity {LABEL_METRICS['fft']} "
+                        "(default %(default)s)")
     w = s.add_mutually_exclusive_group()
     w.add_argument("--workers", type=int, default=None,
                    help="local Dask worker processes (default: CPU count; 1 = serial)")
-    w.add_argument("--scheduler", default=None, help="address of an existing Dask scheduler")
+    w.add_argument("--scheduler", default=None, help="address of an existing Dask scheduler, "
+                   "e.g. tcp://HOST:8786 (default: none, local workers)")
     s.add_argument("--n-dataset", type=int, default=None, help=argparse.SUPPRESS)
     add_device(s)
     s.set_defaults(func=cmd_study)
@@ -434,9 +499,11 @@ def register_bench(sub, add_device) -> None:
     g = b.add_mutually_exclusive_group()
     g.add_argument("--quick", action="store_true", help="under 5 minutes on 2 CPU cores")
     g.add_argument("--tiny", action="store_true", help=argparse.SUPPRESS)
-    b.add_argument("-o", "--output", default="out/bench")
+    b.add_argument("-o", "--output", default="out/bench",
+                   help="output folder: bench.json and bench.html (default %(default)s)")
     b.add_argument("--only", default=None, help="comma-separated sections (diffusion, "
-                   "lightcone, brdf, forward, reconstruction, iterative, end_to_end)")
+                   "lightcone, brdf, forward, reconstruction, iterative, end_to_end) "
+                   "(default: all)")
     add_device(b)
     b.set_defaults(func=cmd_bench)
 

@@ -52,6 +52,10 @@ from .errors import InputFileError, ParameterError
 from .slab import Slab
 
 METHODS = ("lct", "fk", "iterative")
+# falloff = None: the method's own radiometric exponent p of (t/T)^p (clnlos.lct, clnlos.fk):
+# LCT's suits diffuse (Lambertian) surfaces; for f-k the square root of the weighted
+# measurement is the wave. The iterative method models the falloff itself.
+METHOD_FALLOFF = {"lct": 4.0, "fk": 2.0}
 DEPTH_GUARD_M = 0.15  # "auto" support: first-arrival depth minus this (slab delay + noise)
 
 # TOML (section, key) -> config field; the one table both directions use.

@@ -19,6 +19,7 @@ import numpy as np
 import pyopencl.array as cla
 
 from . import C0
+from .config import METHOD_FALLOFF
 from .fft import ComplexFFT3, RealFFT3
 from .lct import check_inversion_args
 from .runtime import (
@@ -33,7 +34,8 @@ from .runtime import (
 )
 
 
-DEFAULT_FALLOFF = 2.0  # the square root of the (t/T)^p-weighted measurement is the wave
+# the square root of the (t/T)^p-weighted measurement is the wave
+DEFAULT_FALLOFF = METHOD_FALLOFF["fk"]
 
 
 class FKMigration:

@@ -95,27 +95,36 @@ class IterativeInversion:
         self._ops: dict[int, tuple[LightConeTransport, float]] = {}
         self.report: SolveReport | None = None
 
-    def operator(self, depth_min_m: float) -> tuple[LinearOperator, int, float]:
+    def operator(self, depth_min_m: float, setup=None) -> tuple[LinearOperator, int, float]:
         """(model in xi, first support row, Lipschitz constant) for a support from
-        ``depth_min_m``, built once per DEPTH_QUANTUM_M step."""
+        ``depth_min_m``, built once per DEPTH_QUANTUM_M step; ``setup(step)`` names each
+        step of a build as it starts."""
         key = int(math.floor(max(0.0, depth_min_m) / DEPTH_QUANTUM_M))
         hit = self._ops.get(key)
         if hit is None:
+            if setup is not None:
+                setup("light-cone operator")
             lc = LightConeTransport(self.shape, bin_width_s=self.bin_width_s,
                                     scan_width_m=self.scan_width_m, margin=0,
                                     depth_min_m=key * DEPTH_QUANTUM_M,
                                     depth_weight=self.scale, dtype=self.dtype,
                                     queue=self.queue, scratch=self.scratch)
-            hit = (lc, lc.k_min, lipschitz(lc))
+            power = None if setup is None else (
+                lambda k, n: setup(f"step size (power iteration {k}/{n})"))
+            hit = (lc, lc.k_min, lipschitz(lc, progress=power))
             self._ops[key] = hit
         return hit
 
-    def __call__(self, tau, *, depth_min_m: float = 0.0, callback=None):
-        """Albedo volume rho [z, y, x] >= 0 from a transient [t, y, x] (device or numpy)."""
+    def __call__(self, tau, *, depth_min_m: float = 0.0, callback=None, setup=None):
+        """Albedo volume rho [z, y, x] >= 0 from a transient [t, y, x] (device or numpy).
+        ``callback(k, x)`` follows the solver's iterations (:func:`clnlos.solvers.fista`),
+        ``setup(step)`` the steps before them (operator, step size, warm start)."""
         on_device = isinstance(tau, cla.Array)
         q, dt = self.queue, self.dtype
         y = tau if on_device else cla.to_device(q, np.ascontiguousarray(tau, dt))
-        op, row_min, L = self.operator(depth_min_m)
+        op, row_min, L = self.operator(depth_min_m, setup)
+        if setup is not None:
+            setup("LCT warm start")
         # warm start: LCT, rescaled to xi and to the best fit along its direction
         x0 = self.warm(y).get().astype(np.float64)
         x0[:row_min] = 0.0

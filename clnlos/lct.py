@@ -27,6 +27,7 @@ import pyopencl.array as cla
 import scipy.sparse as sp
 
 from . import C0
+from .config import METHOD_FALLOFF
 from .grid import grid_offsets
 from .errors import ParameterError, ShapeError
 from .fft import RealFFT3
@@ -36,7 +37,7 @@ from .runtime import Scratch, get_kernels, get_queue, real_defines, require_dtyp
 from .wiener import SpectralFilter
 
 
-DEFAULT_FALLOFF = 4.0  # diffuse (Lambertian) surfaces
+DEFAULT_FALLOFF = METHOD_FALLOFF["lct"]  # diffuse (Lambertian) surfaces
 DEFAULT_SNR = 1e2  # light-cone Wiener SNR when none is given
 
 

@@ -151,10 +151,12 @@ def support_depth_m(noise: NoiseEstimate, config: ReconstructionConfig) -> float
 
 
 class ReconstructionPipeline:
-    """The composed stages for one capture geometry (shape, bin width, scan width)."""
+    """The composed stages for one capture geometry (shape, bin width, scan width);
+    ``setup(step)`` names each step of the construction as it starts."""
 
     def __init__(self, shape_in, *, bin_width_s: float, start_s: float, scan_width_m: float,
-                 config: ReconstructionConfig, dtype=np.float32, queue=None):
+                 config: ReconstructionConfig, dtype=np.float32, queue=None, setup=None):
+        setup = setup or (lambda step: None)
         self.queue = get_queue(queue)
         self.dtype = require_dtype(self.queue.device, dtype)
         self.config = config
@@ -172,6 +174,7 @@ class ReconstructionPipeline:
         self.raw_window = (max(0, int(np.floor(-start_s / bin_width_s))),
                            min(nt_in, int(np.ceil((t_keep - start_s) / bin_width_s))))
         self.stages = ["preprocess"]
+        setup("preprocess")
         self.pre = AxisResample(A, (ny, nx), dtype=self.dtype, queue=self.queue)
         self.pre.name = "preprocess"
         self._rk = get_kernels(self.queue, "resample", real_defines(self.dtype))
@@ -182,6 +185,7 @@ class ReconstructionPipeline:
         self.scratch = Scratch(self.queue)  # work buffers shared by the stages below
         cache = SpectrumCache.from_env()  # CLNLOS_SPECTRUM_CACHE: spectra kept on disk
         if config.slab is not None:
+            setup("slab PSF")
             self.deconv = slab_blur(config.slab, (A.shape[0], ny, nx),
                                     bin_width_s=self.bin_width_s, pitch_m=pitch, mode="wiener",
                                     snr=snr0, n_dipoles=config.n_dipoles,
@@ -198,6 +202,7 @@ class ReconstructionPipeline:
         geo = dict(bin_width_s=self.bin_width_s, scan_width_m=scan_width_m, dtype=self.dtype,
                    queue=self.queue, scratch=self.scratch)
         falloff = {} if config.falloff is None else {"falloff": config.falloff}
+        setup(f"{config.method} plan")
         if config.method == "lct":
             self.invert = LCT(self.shape, snr=isnr0, **falloff, **geo, cache=cache)
         elif config.method == "fk":
@@ -218,10 +223,10 @@ class ReconstructionPipeline:
         return out
 
     def run(self, transient: np.ndarray, *, keep_transient: bool = False,
-            progress=None, model_snr: float = math.inf) -> Reconstruction:
+            progress=None, model_snr: float = math.inf, setup=None) -> Reconstruction:
         """Reconstruct one capture. ``progress(k, n)`` is called during the iterative
-        method's iterations; ``model_snr`` is the slab model's accuracy
-        (:func:`model_snr_for`)."""
+        method's iterations, ``setup(step)`` as each of its set-up steps before them starts;
+        ``model_snr`` is the slab model's accuracy (:func:`model_snr_for`)."""
         timings: dict[str, float] = {}
         x = cla.to_device(self.queue, np.ascontiguousarray(transient, self.dtype))
         tau = self._timed(timings, "preprocess", self.pre, x)
@@ -266,7 +271,7 @@ class ReconstructionPipeline:
             cb = None if progress is None else (lambda k, _x: progress(k + 1,
                                                                        self.config.iterations))
             vol = self._timed(timings, "invert:iterative", self.invert, tau,
-                              depth_min_m=depth_min, callback=cb)
+                              depth_min_m=depth_min, callback=cb, setup=setup)
             solve = self.invert.report.as_dict()
         volume = vol.get()
         nt, ny, nx = self.shape
@@ -351,11 +356,14 @@ def resolve_geometry(capture: Capture, config: ReconstructionConfig) -> tuple[fl
 
 
 def reconstruct(capture: Capture, config: ReconstructionConfig, *, dtype=np.float32,
-                device=None, keep_transient: bool = False, progress=None) -> Reconstruction:
+                device=None, keep_transient: bool = False, progress=None,
+                setup=None) -> Reconstruction:
     """Reconstruct an albedo volume from a capture with the given configuration.
 
     Pipelines (PSFs, spectra, FFT plans) are kept in :data:`clnlos.plans.PIPELINES` (LRU
     under a byte budget), so many captures of one geometry (a study) pay the set-up once.
+    ``progress(k, n)`` follows the iterative method's iterations and ``setup(step)`` names
+    each set-up step (pipeline, operator, step size, warm start) as it starts.
     """
     from .plans import PIPELINES
 
@@ -367,9 +375,9 @@ def reconstruct(capture: Capture, config: ReconstructionConfig, *, dtype=np.floa
            np.dtype(dtype).str, queue)
     pipe = PIPELINES.get(key, lambda: ReconstructionPipeline(
         capture.transient.shape, bin_width_s=bw, start_s=start, scan_width_m=sw,
-        config=config, dtype=dtype, queue=queue), queue)
+        config=config, dtype=dtype, queue=queue, setup=setup), queue)
     return pipe.run(capture.transient, keep_transient=keep_transient, progress=progress,
-                    model_snr=model_snr_for(capture, config))
+                    model_snr=model_snr_for(capture, config), setup=setup)
 
 
 def volume_figure(rec: Reconstruction, title: str = ""):
@@ -391,30 +399,37 @@ def volume_attrs(rec: Reconstruction) -> dict:
             "format": "clnlos-volume-1"}
 
 
+def _iteration(bar) -> None:
+    """One iteration done: the set-up note (if any) goes, the bar moves."""
+    if bar.postfix:
+        bar.set_postfix_str("", refresh=False)
+    bar.update(1)
+
+
 def reconstruct_to_files(capture: Capture, out, config: ReconstructionConfig, *,
                          dtype=np.float32, queue=None, title_extra: str = "",
                          show_progress: bool = True) -> Reconstruction:
     """Reconstruct and write the volume (HDF5) and its figure (PNG beside it) together,
     atomically, with the provenance of the result; the iterative method shows a progress
-    bar when it runs longer than two seconds."""
+    bar (:mod:`clnlos.progress`), its set-up steps beside it, then its iterations."""
     from pathlib import Path
-
-    from tqdm import tqdm
 
     from .deflate import DeflatedArray
     from .figures import volume_figure as figure
     from .io import save_figure_file, write_h5_file
     from .outputs import provenance, write_group
+    from .progress import progress_bar, stage
 
     out = Path(out)
     queue = get_queue(queue)
     bar = None
     if show_progress and config.method == "iterative":
-        bar = tqdm(total=config.iterations, desc="iterative", unit="it", delay=2.0,
-                   leave=False)
+        bar = progress_bar(config.iterations, "iterative", "it")
     try:
         rec = reconstruct(capture, config, dtype=dtype, device=queue,
-                          progress=None if bar is None else (lambda k, n: bar.update(1)))
+                          progress=None if bar is None else (lambda k, n: _iteration(bar)),
+                          setup=None if bar is None else (
+                              lambda step: stage(bar, f"setup: {step}")))
     finally:
         if bar is not None:
             bar.close()

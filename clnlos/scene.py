@@ -63,6 +63,7 @@ from pathlib import Path
 import numpy as np
 
 from .checks import choice, integer, positive
+from .brdf.data import TEXT_ENCODING
 from .config import check_keys, load_toml, slab_from_table
 from .slab import Slab
 from .errors import InputFileError, ParameterError
@@ -244,7 +245,7 @@ def read_retro_csv(path) -> tuple[np.ndarray, np.ndarray]:
     if not p.is_file():
         raise InputFileError(f"{p}: no such file")
     rows = []
-    with p.open(newline="", encoding="utf-8") as f:
+    with p.open(newline="", encoding=TEXT_ENCODING) as f:  # a BOM (Excel) is skipped
         lines = [ln for ln in f if ln.strip() and not ln.lstrip().startswith("#")]
     reader = csv.reader(lines)
     header = [h.strip() for h in next(reader, [])]

@@ -38,13 +38,12 @@ def simulate_to_file(scene, out, *, fmt: str = "clnlos", dtype=np.float32, queue
     if fmt not in FORMATS:
         raise ParameterError("--format", fmt, " or ".join(FORMATS))
     out = Path(out)
-    from tqdm import tqdm
+    from .progress import progress_bar, stage
 
     t0 = time.perf_counter()
     fm = ForwardModel(scene, dtype=dtype, queue=queue)
-    with tqdm(total=len(fm.stages), desc="simulate", unit="stage", delay=2.0,
-              leave=False) as bar:
-        tau = fm.run(progress=lambda stage: (bar.set_postfix_str(stage), bar.update(1)))
+    with progress_bar(len(fm.stages), "simulate", "stage") as bar:
+        tau = fm.run(progress=lambda name: (stage(bar, name), bar.update(1)))
     seconds = time.perf_counter() - t0
     units = "photon counts" if scene.detector else "1/(m^2 sr) per bin"
     attrs = {**fm.setup_attrs(), **provenance(device=fm.queue.device.name.strip()),

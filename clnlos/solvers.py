@@ -43,12 +43,15 @@ def _launch1(queue, n: int) -> tuple[int]:
 
 
 def lipschitz(op: LinearOperator, weights: cla.Array | None = None, *,
-              iterations: int = POWER_ITERATIONS, seed: int = 0) -> float:
-    """Upper estimate of ||A^T W A|| by power iteration (+5%), on the device."""
+              iterations: int = POWER_ITERATIONS, seed: int = 0, progress=None) -> float:
+    """Upper estimate of ||A^T W A|| by power iteration (+5%), on the device;
+    ``progress(k, iterations)`` is called as power iteration k (from 1) starts."""
     q = op.queue
     x = cla.to_device(q, np.random.default_rng(seed).random(op.in_shape).astype(op.dtype))
     est = 0.0
-    for _ in range(iterations):
+    for k in range(iterations):
+        if progress is not None:
+            progress(k + 1, iterations)
         ax = op._apply(x)
         if weights is not None:
             ax *= weights

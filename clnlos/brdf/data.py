@@ -25,6 +25,8 @@ MIN_SIGNIFICANT = 0.01
 # A value printed with q as its last decimal place is known to about +-q/2; below 10 q its
 # relative error exceeds 5%, so 10 q is taken as the file's precision.
 PRECISION_QUANTA = 10
+# Text data files are UTF-8, with or without the byte-order mark that Excel writes.
+TEXT_ENCODING = "utf-8-sig"
 
 
 def precision_from_text(values: list[str]) -> float:
@@ -99,7 +101,7 @@ def read_gonio_csv(path) -> BRDFSamples:
         raise InputFileError(f"{p}: no such file")
     meta, rows, header, printed = {}, [], None, []
     try:
-        text = p.read_text(encoding="utf-8")
+        text = p.read_text(encoding=TEXT_ENCODING)
     except UnicodeDecodeError:
         raise InputFileError(f"{p}: not a text CSV file") from None
     for ln, line in enumerate(text.splitlines(), start=1):
@@ -159,7 +161,7 @@ def read_pbrt_brdf(path, wavelength_nm: float = 550.0) -> BRDFSamples:
     if not p.is_file():
         raise InputFileError(f"{p}: no such file")
     toks: list[str] = []
-    for line in p.read_text(encoding="utf-8", errors="replace").splitlines():
+    for line in p.read_text(encoding=TEXT_ENCODING, errors="replace").splitlines():
         line = line.split("#", 1)[0]
         toks.extend(line.split())
     try:

@@ -69,7 +69,10 @@ def peak_error(pred, truth) -> float:
 
 
 def fit_analytic(name: str, train: BRDFSamples, test: BRDFSamples | None = None, *,
-                 starts: int = 8, seed: int = 0) -> FitResult:
+                 starts: int = 8, seed: int = 0, progress=None) -> FitResult:
+    """Fit the analytic model ``name`` from ``starts`` seeded random starts (the module
+    docstring). ``progress(done, total)`` is called after every residual evaluation with
+    ``done`` of ``total`` = ``starts`` optimiser runs finished."""
     if name == "lambertian":
         name = "lambert"
     if name not in FIT_SPACE:
@@ -91,13 +94,18 @@ def fit_analytic(name: str, train: BRDFSamples, test: BRDFSamples | None = None,
                                                                                strict=True)},
                                       **fixed})
 
+    done = 0  # optimiser runs finished
+
     def resid(x):
         p = make(x)(train.theta_i, train.phi_i, train.theta_s, train.phi_s)
+        if progress is not None:
+            progress(done, starts)
         return np.log(np.maximum(np.nan_to_num(p, nan=0.0, posinf=1e30), 0) + eps) - logf
 
     rng = np.random.default_rng(seed)
     best = None
     for k in range(starts):
+        done = k
         if k == 0:
             x0 = np.where(np.isfinite(hi), (lo + np.minimum(hi, lo + 1)) / 2, lo + 1)
         else:
@@ -115,6 +123,8 @@ def fit_analytic(name: str, train: BRDFSamples, test: BRDFSamples | None = None,
             continue
         if best is None or r.cost < best.cost:
             best = r
+    if progress is not None:
+        progress(starts, starts)
     if best is None:
         raise ParameterError("model", name, "a model that can be evaluated on this data")
     model = make(best.x)
@@ -128,9 +138,11 @@ def fit_analytic(name: str, train: BRDFSamples, test: BRDFSamples | None = None,
 
 
 def fit_to_file(model_name: str, train, test, out, *, seed: int = 0,
-                metrics_json=None) -> dict:
+                metrics_json=None, progress=None) -> dict:
     """Fit ``model_name`` (an analytic model, or ``mlp`` / ``mlp-seed``) to ``train`` and save it
-    (and its metrics as JSON when asked); returns the metrics."""
+    (and its metrics as JSON when asked); returns the metrics. ``progress(done, total)``
+    follows the fit: epochs of the MLPs (:func:`clnlos.brdf.mlp.train_mlp`), optimiser runs of
+    an analytic model (:func:`fit_analytic`)."""
     import json
 
     from ..io import atomic_path
@@ -143,13 +155,14 @@ def fit_to_file(model_name: str, train, test, out, *, seed: int = 0,
 
         t0 = time.perf_counter()
         model, log = train_mlp(train, MLPConfig(recipe="seed" if model_name == "mlp-seed"
-                                                else "improved", seed=seed))
+                                                else "improved", seed=seed),
+                               progress=progress)
         metrics = {"model": model_name, "fit_time_s": time.perf_counter() - t0,
                    "recipe": model.meta()["config"],
                    **{k: v for k, v in log.items() if k != "loss_log"},
                    **metrics_for(model, train, test)}
     else:
-        r = fit_analytic(model_name, train, test, seed=seed)
+        r = fit_analytic(model_name, train, test, seed=seed, progress=progress)
         model, metrics = r.model, r.metrics
     save_model(out, model, metrics, {"train": train.meta, "test": test.meta if test else None})
     if metrics_json:

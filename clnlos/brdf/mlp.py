@@ -213,8 +213,13 @@ def build_net(cfg: MLPConfig):
 
 
 # ------------------------------------------------------------------ training
-def train_mlp(train: BRDFSamples, cfg: MLPConfig | None = None) -> tuple[NeuralBRDF, dict]:
-    """Fit ``train`` with ``cfg``'s recipe; returns the model and a training log."""
+def train_mlp(train: BRDFSamples, cfg: MLPConfig | None = None, *,
+              progress=None) -> tuple[NeuralBRDF, dict]:
+    """Fit ``train`` with ``cfg``'s recipe; returns the model and a training log.
+
+    ``progress(done, total)`` is called after every epoch of every network: ``done`` epochs
+    of ``total`` = epochs x networks (``members`` for the improved recipe, 1 for the seed's).
+    """
     import torch
 
     cfg = cfg or MLPConfig()
@@ -222,16 +227,22 @@ def train_mlp(train: BRDFSamples, cfg: MLPConfig | None = None) -> tuple[NeuralB
         from ..errors import ParameterError
 
         raise ParameterError("recipe", cfg.recipe, " or ".join(RECIPES))
+    networks = cfg.members if cfg.improved else 1
+
+    def epoch_done(member: int):  # member m's epochs -> the count over all networks
+        if progress is None:
+            return None
+        return lambda e: progress(member * cfg.epochs + e, networks * cfg.epochs)
     # networks this small are dominated by per-op threading overhead: one thread is fastest
     threads = torch.get_num_threads()
     torch.set_num_threads(1)
     try:
         if not cfg.improved:
-            net, log = _train_seed(train, cfg)
+            net, log = _train_seed(train, cfg, epoch_done(0))
             return NeuralBRDF([net], cfg), log
         nets, logs = [], []
         for m in range(cfg.members):
-            net, log = _train_improved(train, cfg, cfg.seed + m)
+            net, log = _train_improved(train, cfg, cfg.seed + m, epoch_done(m))
             nets.append(net)
             logs.append(log)
         model = NeuralBRDF(nets, cfg)
@@ -246,7 +257,7 @@ def train_mlp(train: BRDFSamples, cfg: MLPConfig | None = None) -> tuple[NeuralB
         torch.set_num_threads(threads)
 
 
-def _train_seed(train: BRDFSamples, cfg: MLPConfig):
+def _train_seed(train: BRDFSamples, cfg: MLPConfig, epoch_done=None):
     import torch
 
     torch.manual_seed(cfg.seed)
@@ -270,11 +281,13 @@ def _train_seed(train: BRDFSamples, cfg: MLPConfig):
         opt.step()
         if epoch % 200 == 0:
             log.append((epoch, float(loss.detach())))
+        if epoch_done is not None:
+            epoch_done(epoch + 1)
     net.eval()
     return net, {"epochs_run": cfg.epochs, "loss_log": log}
 
 
-def _train_improved(train: BRDFSamples, cfg: MLPConfig, seed: int):
+def _train_improved(train: BRDFSamples, cfg: MLPConfig, seed: int, epoch_done=None):
     import torch
     import torch.nn.functional as tf
 
@@ -324,6 +337,8 @@ def _train_improved(train: BRDFSamples, cfg: MLPConfig, seed: int):
                 best, best_state = v, {k: t.clone() for k, t in net.state_dict().items()}
             if epoch % 200 == 0:
                 log.append((epoch, float(loss.detach()), v))
+        if epoch_done is not None:
+            epoch_done(epoch + 1)
     net.load_state_dict(best_state)
     net.eval()
     return net, {"epochs_run": cfg.epochs, "best_val_loss": best, "loss_log": log,

@@ -36,8 +36,11 @@ def dihedral(images: np.ndarray) -> np.ndarray:
 
 def train_classifier(images: np.ndarray, labels: np.ndarray, *, epochs: int = 10,
                      val_fraction: float = 0.2, seed: int = 0, batch: int = 32,
-                     augment: bool = True):
-    """Returns (predict function: images -> (labels 1..3, softmax probs), report dict)."""
+                     augment: bool = True, progress=None):
+    """Returns (predict function: images -> (labels 1..3, softmax probs), report dict).
+
+    ``progress(done, total)`` is called after every training batch: ``done`` batches of
+    ``total`` = epochs x batches per epoch."""
     import torch
 
     torch.manual_seed(seed)
@@ -58,7 +61,8 @@ def train_classifier(images: np.ndarray, labels: np.ndarray, *, epochs: int = 10
     opt = torch.optim.Adam(net.parameters(), lr=2e-3)
     lossf = torch.nn.CrossEntropyLoss()
     history = {"train_loss": [], "val_loss": [], "train_accuracy": [], "val_accuracy": []}
-    for _ in range(epochs):
+    per_epoch = -(-len(Y) // batch)  # batches per epoch
+    for epoch in range(epochs):
         net.train()
         perm = rng.permutation(len(Y))
         tot, hit = 0.0, 0
@@ -71,6 +75,8 @@ def train_classifier(images: np.ndarray, labels: np.ndarray, *, epochs: int = 10
             opt.step()
             tot += float(loss.detach()) * len(ii)
             hit += int((out.argmax(1) == Y[ii]).sum())
+            if progress is not None:
+                progress(epoch * per_epoch + b // batch + 1, epochs * per_epoch)
         history["train_loss"].append(tot / max(len(Y), 1))
         history["train_accuracy"].append(hit / max(len(Y), 1))
         net.eval()

@@ -138,6 +138,7 @@ def run_study(out_dir: Path, opts: StudyOptions, *, workers: int | None = None,
               scheduler: str | None = None, device: str | None = None) -> dict:
     from ..brdf.presets import preset_model, preset_table
     from ..io import atomic_path
+    from ..progress import counter, progress_bar
     from .classify import train_classifier
     from .report import write_report
 
@@ -176,7 +177,9 @@ def run_study(out_dir: Path, opts: StudyOptions, *, workers: int | None = None,
     # -- CNN
     t0 = time.perf_counter()
     images = np.stack([r["mip"] for r in ds_res])
-    predict, cnn = train_classifier(images, labels, epochs=opts.epochs, seed=opts.seed)
+    with progress_bar(None, "study CNN", "batch") as bar:
+        predict, cnn = train_classifier(images, labels, epochs=opts.epochs, seed=opts.seed,
+                                        progress=counter(bar))
     timings["cnn_s"] = time.perf_counter() - t0
 
     # -- materials
