@@ -15,14 +15,14 @@ from __future__ import annotations
 import numpy as np
 
 
-def _net(n: int):
+def _net(n: int, n_classes: int = 3):
     import torch.nn as nn
 
     side = n // 4
     return nn.Sequential(
         nn.Conv2d(1, 8, 3, padding=1), nn.ReLU(), nn.MaxPool2d(2),
         nn.Conv2d(8, 16, 3, padding=1), nn.ReLU(), nn.MaxPool2d(2),
-        nn.Flatten(), nn.Linear(16 * side * side, 32), nn.ReLU(), nn.Linear(32, 3))
+        nn.Flatten(), nn.Linear(16 * side * side, 32), nn.ReLU(), nn.Linear(32, n_classes))
 
 
 def dihedral(images: np.ndarray) -> np.ndarray:
@@ -36,11 +36,13 @@ def dihedral(images: np.ndarray) -> np.ndarray:
 
 def train_classifier(images: np.ndarray, labels: np.ndarray, *, epochs: int = 10,
                      val_fraction: float = 0.2, seed: int = 0, batch: int = 32,
-                     augment: bool = True, progress=None):
-    """Returns (predict function: images -> (labels 1..3, softmax probs), report dict).
+                     augment: bool = True, progress=None, n_classes: int = 3,
+                     val_mask: np.ndarray | None = None):
+    """Returns (predict function: images -> (labels 1..n_classes, softmax probs), report).
 
-    ``progress(done, total)`` is called after every training batch: ``done`` batches of
-    ``total`` = epochs x batches per epoch."""
+    The validation split is a random ``val_fraction``, or the samples where ``val_mask`` is
+    true (held-out glyphs and geometries). ``progress(done, total)`` is called after every
+    training batch: ``done`` batches of ``total`` = epochs x batches per epoch."""
     import torch
 
     torch.manual_seed(seed)
@@ -48,8 +50,13 @@ def train_classifier(images: np.ndarray, labels: np.ndarray, *, epochs: int = 10
     images = np.asarray(images, np.float32)
     labels = np.asarray(labels, np.int64)
     idx = rng.permutation(len(labels))
-    n_val = int(round(val_fraction * len(labels)))
-    val, tr = idx[:n_val], idx[n_val:]
+    if val_mask is None:
+        n_val = int(round(val_fraction * len(labels)))
+        val, tr = idx[:n_val], idx[n_val:]
+    else:
+        held = np.asarray(val_mask, bool)
+        val, tr = idx[held[idx]], idx[~held[idx]]
+        n_val = len(val)
     x_tr, y_tr = images[tr], labels[tr]
     if augment:
         x_tr, y_tr = dihedral(x_tr), np.tile(y_tr, 8)
@@ -57,7 +64,7 @@ def train_classifier(images: np.ndarray, labels: np.ndarray, *, epochs: int = 10
     Y = torch.from_numpy(y_tr - 1)
     Xv = torch.from_numpy(images[val][:, None])
     Yv = torch.from_numpy(labels[val] - 1)
-    net = _net(images.shape[-1])
+    net = _net(images.shape[-1], n_classes)
     opt = torch.optim.Adam(net.parameters(), lr=2e-3)
     lossf = torch.nn.CrossEntropyLoss()
     history = {"train_loss": [], "val_loss": [], "train_accuracy": [], "val_accuracy": []}
@@ -93,11 +100,12 @@ def train_classifier(images: np.ndarray, labels: np.ndarray, *, epochs: int = 10
 
     pv, _ = predict(images[val]) if n_val else (np.zeros(0, int), None)
     yv = labels[val]
-    conf = np.zeros((3, 3), int)
+    conf = np.zeros((n_classes, n_classes), int)
     for t, p in zip(yv, pv, strict=True):
         conf[t - 1, p - 1] += 1
     acc = float((pv == yv).mean()) if n_val else float("nan")
-    majority = float(np.bincount(yv, minlength=4)[1:].max() / len(yv)) if n_val else float("nan")
+    majority = (float(np.bincount(yv, minlength=n_classes + 1)[1:].max() / len(yv)) if n_val
+                else float("nan"))
     return predict, {"val_accuracy": acc, "majority_baseline": majority,
                      "confusion": conf.tolist(), "train_loss": history["train_loss"],
                      "val_loss": history["val_loss"],

@@ -28,6 +28,7 @@ from .. import C0
 from ..config import ReconstructionConfig
 from ..metrics import coverage_image, iou, otsu_threshold, peak_depth_m
 from ..slab import CDT_SLAB
+from .legibility import box_baseline_iou
 from .quality import quality_metrics
 
 
@@ -68,7 +69,7 @@ def code_version() -> str:
                   if e.is_file() and e.name.endswith(suffixes)]
     study = resources.files("clnlos.study")
     files += [study.joinpath("dataset.py"), study.joinpath("quality.py"),
-              study.joinpath("clarity.py")]
+              study.joinpath("clarity.py"), study.joinpath("legibility.py")]
     for entry in sorted(files, key=lambda e: str(e)):
         h.update(entry.name.encode() + entry.read_bytes())
     return f"{__version__}+{h.hexdigest()[:16]}"
@@ -183,11 +184,26 @@ def render_sample(sample: dict, grid: StudyGrid, device: str | None = None) -> d
     mse = float(np.mean((mip - cover) ** 2))
     depth_map = ((np.argmax(vol, axis=0) + 0.5) * dz).astype(np.float32)
     return {"mip": mip.astype(np.float32), "truth": cover.astype(np.float32),
-            "depth_map": depth_map, "iou": iou(pred, mask), "depth_m": float(depth),
+            "depth_map": depth_map, "iou": iou(pred, mask),
+            "iou_box_baseline": box_baseline_iou(mask), "depth_m": float(depth),
+            **figure8_slices(cap.transient, vol), "bin_width_s": float(cap.bin_width_s),
+            "voxel_depth_m": float(dz),
             "true_depth_m": true_depth, "depth_error_m": abs(float(depth) - true_depth),
             "psnr_db": float(10 * np.log10(1.0 / max(mse, 1e-12))),
             "counts": float(cap.transient.sum()),
             **{f"q_{k}": v for k, v in quality_metrics(vol, dz).items()}}
+
+
+def figure8_slices(transient: np.ndarray, volume: np.ndarray) -> dict[str, np.ndarray]:
+    """What the seed's Figure 8 shows of one sample (float32): the measurement integrated over
+    time [y, x] with its x-t [t, x] and y-t [t, y] slices through the scan centre, and the
+    reconstruction's x-z [z, x] and y-z [z, y] maximum projections."""
+    t = np.asarray(transient, np.float32)
+    ny, nx = t.shape[1:]
+    return {"meas_image": t.sum(axis=0), "meas_xt": t[:, ny // 2, :].copy(),
+            "meas_yt": t[:, :, nx // 2].copy(),
+            "vol_xz": volume.max(axis=1).astype(np.float32),
+            "vol_yz": volume.max(axis=2).astype(np.float32)}
 
 
 def _cached(sample: dict, grid: StudyGrid, cache: Path, version: str,

@@ -33,35 +33,162 @@ def _short(name: str, n: int = 16) -> str:
     return name if len(name) <= n else name[:n - 1] + "."
 
 
-def fig_materials(results, main_res, seeds: int):
-    """The first noise realisation's MIP of every material with the true outline."""
+def _outline(ax, truth, w):
+    c = np.linspace(-w / 2, w / 2, truth.shape[0] + 1)
+    cc = (c[:-1] + c[1:]) / 2
+    ax.contour(cc, cc, truth, [0.5], colors="tab:red", linewidths=0.8)
+
+
+def _first_sample(plan, res, geometry: str, material: str, glyph: str | None = None):
+    for (meta, s), r in zip(plan, res, strict=True):
+        if (meta["set"] == "main" and meta["geometry"] == geometry
+                and meta["material"] == material and meta["k"] == 0
+                and (glyph is None or meta["glyph"] == glyph)):
+            return s, r
+    return None, None
+
+
+def fig_materials(results, plan, res, geometry: str):
+    """Each material's reconstruction of every glyph's first realisation (MIP, true outline
+    in red, the matched glyph in the title)."""
     import matplotlib.pyplot as plt
 
-    g = results["options"]["grid"]
-    w = g["scan_width_m"]
-    mats = results["materials"]
-    cols = 5
-    rows = int(np.ceil(len(mats) / cols))
-    fig, axes = plt.subplots(rows, cols, figsize=(11.5, 2.55 * rows), squeeze=False,
-                             constrained_layout=True)
+    geo = next(g for g in results["geometries"] if g["name"] == geometry)
+    glyphs = results["options"]["glyphs"]
+    mats = geo["materials"]
+    w = geo["scan_width_m"]
+    fig, axes = plt.subplots(len(mats), len(glyphs), figsize=(11.5, 1.45 * len(mats) + 0.6),
+                             squeeze=False, constrained_layout=True)
     ext = (-w / 2, w / 2, -w / 2, w / 2)
     im = None
-    for ax in axes.ravel():
-        ax.set_visible(False)
-    for j, m in enumerate(mats):
-        ax = axes[j // cols, j % cols]
-        ax.set_visible(True)
-        r = main_res[j * seeds]
-        im = ax.imshow(r["mip"], origin="lower", cmap="gray", extent=ext, vmin=0, vmax=1)
-        c = np.linspace(-w / 2, w / 2, r["truth"].shape[0] + 1)
-        cc = (c[:-1] + c[1:]) / 2
-        ax.contour(cc, cc, r["truth"], [0.5], colors="tab:red", linewidths=0.8)
-        ax.set_title(f"{_short(m['name'], 24)}\nIoU {m['iou']:.2f} [{m['iou_ci'][0]:.2f}, "
-                     f"{m['iou_ci'][1]:.2f}]", fontsize=8)
-        ax.set_xlabel("x (m)", fontsize=7)
-        ax.set_ylabel("y (m)", fontsize=7)
-        ax.tick_params(labelsize=6)
-    fig.colorbar(im, ax=axes, shrink=0.8, label="MIP / max (albedo, a.u.)")
+    for i, m in enumerate(mats):
+        for j, g in enumerate(glyphs):
+            ax = axes[i, j]
+            _, r = _first_sample(plan, res, geometry, m["name"], g)
+            im = ax.imshow(r["mip"], origin="lower", cmap="gray", extent=ext, vmin=0, vmax=1)
+            _outline(ax, r["truth"], w)
+            ok = "ok" if r["identified"] else "no"
+            ax.set_title(f"{g} -> {r['identified_as']} ({ok})", fontsize=7)
+            ax.set_xticks([])
+            ax.set_yticks([])
+            if j == 0:
+                ax.set_ylabel(_short(m["name"], 18), fontsize=7)
+    axes[-1, 0].set_xticks([-w / 2, 0, w / 2])
+    axes[-1, 0].set_xlabel("x (m)", fontsize=7)
+    fig.colorbar(im, ax=axes, shrink=0.5, label="MIP / max (a.u.)")
+    return fig
+
+
+def fig_figure8(results, plan, res, geometry: str):
+    """The seed's Figure 8 side by side, per material (glyph E, first realisation): the
+    measurement integrated over time with its x-t and y-t slices through the scan centre,
+    and the reconstruction's MIP (true outline in red) with its x-z and y-z projections."""
+    import matplotlib.pyplot as plt
+
+    from .. import C0
+
+    geo = next(g for g in results["geometries"] if g["name"] == geometry)
+    mats = geo["materials"]
+    w = geo["scan_width_m"]
+    glyph = results["options"]["glyphs"][0]
+    fig, axes = plt.subplots(len(mats), 6, figsize=(11.5, 1.75 * len(mats) + 0.8),
+                             squeeze=False, constrained_layout=True)
+    titles = ("measurement, sum over t", "x-t (y = 0)", "y-t (x = 0)",
+              "reconstruction MIP", "x-z (max over y)", "y-z (max over x)")
+    for i, m in enumerate(mats):
+        _, r = _first_sample(plan, res, geometry, m["name"], glyph)
+        nt = r["meas_xt"].shape[0]
+        t_ns = nt * r["bin_width_s"] * 1e9
+        nz = r["vol_xz"].shape[0]
+        z_max = nz * r["voxel_depth_m"]
+        ext_xy = (-w / 2, w / 2, -w / 2, w / 2)
+        panels = ((r["meas_image"], ext_xy, "magma"),
+                  (r["meas_xt"], (-w / 2, w / 2, 0, t_ns), "magma"),
+                  (r["meas_yt"], (-w / 2, w / 2, 0, t_ns), "magma"),
+                  (r["mip"], ext_xy, "gray"),
+                  (r["vol_xz"], (-w / 2, w / 2, 0, z_max), "gray"),
+                  (r["vol_yz"], (-w / 2, w / 2, 0, z_max), "gray"))
+        for j, (img, ext, cmap) in enumerate(panels):
+            ax = axes[i, j]
+            a = np.asarray(img, float)
+            a = a / a.max() if a.max() > 0 else a
+            im = ax.imshow(a, origin="lower", aspect="auto", extent=ext, cmap=cmap,
+                           vmin=0, vmax=1)
+            if j == 3:
+                _outline(ax, r["truth"], w)
+            if j in (4, 5):
+                ax.axhline(geo["depth_m"], color="tab:red", lw=0.6, ls=":")
+            ax.tick_params(labelsize=6)
+            if i == 0:
+                ax.set_title(titles[j], fontsize=8)
+            if i == len(mats) - 1:
+                ax.set_xlabel("x (m)" if j in (0, 1, 3, 4) else "y (m)", fontsize=7)
+            ax.set_ylabel({0: f"{_short(m['name'], 16)}\ny (m)", 1: "t (ns)", 2: "t (ns)",
+                           3: "y (m)", 4: "z (m)", 5: "z (m)"}[j], fontsize=7)
+        if i == 0:
+            fig.colorbar(im, ax=axes[:, 5], shrink=0.3, label="/ max (a.u.)")
+    fig.suptitle(f"glyph {glyph}, geometry {geometry}: {geo['description']} "
+                 f"(c t / 2 at the window end: {C0 * t_ns * 1e-9 / 2:.2f} m)", fontsize=8)
+    return fig
+
+
+def fig_identification(results):
+    """Identification accuracy per material and geometry (Wilson 95% intervals, chance), and
+    IoU against the box baseline."""
+    import matplotlib.pyplot as plt
+
+    geos = results["geometries"]
+    fig, ax = plt.subplots(1, 2, figsize=(11.5, 4.2), constrained_layout=True)
+    names = [m["name"] for m in geos[0]["materials"]]
+    x = np.arange(len(names))
+    width = 0.8 / len(geos)
+    for k, g in enumerate(geos):
+        acc = np.array([m["identification"]["accuracy"] for m in g["materials"]])
+        lo = acc - np.array([m["identification"]["ci"][0] for m in g["materials"]])
+        hi = np.array([m["identification"]["ci"][1] for m in g["materials"]]) - acc
+        ax[0].bar(x + (k - (len(geos) - 1) / 2) * width, acc, width, yerr=[lo, hi],
+                  capsize=2, label=f"{g['name']} (stroke/res {g['stroke_over_resolution']:.1f})")
+        box = [m["iou_box_baseline"] for m in g["materials"]]
+        ax[1].scatter(box, [m["iou"] for m in g["materials"]], label=g["name"], s=18)
+    chance = geos[0]["materials"][0]["identification"]["chance"]
+    ax[0].axhline(chance, color="gray", ls=":", label=f"chance 1/K = {chance:.3f}")
+    ax[0].set_xticks(x)
+    ax[0].set_xticklabels([_short(n, 18) for n in names], rotation=55, ha="right",
+                          fontsize=7)
+    ax[0].set(ylabel="identification accuracy (95% Wilson interval)", ylim=(0, 1.05),
+              title="which of K glyphs? (closest blurred template)")
+    ax[0].legend(fontsize=7)
+    ax[1].plot([0, 1], [0, 1], color="gray", ls=":", label="IoU = box baseline")
+    ax[1].set(xlabel="IoU of the filled box of the true mask (blob baseline)",
+              ylabel="IoU of the reconstruction", xlim=(0, 1), ylim=(0, 1),
+              title="IoU against what a blob scores")
+    ax[1].legend(fontsize=7)
+    return fig
+
+
+def fig_legibility_sweeps(results):
+    import matplotlib.pyplot as plt
+
+    rows = results["legibility_sweeps"]
+    fig, ax = plt.subplots(1, 2, figsize=(11.5, 3.8), constrained_layout=True)
+    for a, var, xlabel in ((ax[0], "letter_height_m", "letter height (m; strokes scaled)"),
+                           (ax[1], "exposure_s", "exposure per scan point (s)")):
+        for m in dict.fromkeys(r["material"] for r in rows if r["variable"] == var):
+            rs = sorted((r for r in rows if r["variable"] == var and r["material"] == m),
+                        key=lambda r: r["value"])
+            x = [r["value"] for r in rs]
+            y = np.array([r["identification"]["accuracy"] for r in rs])
+            err = [y - [r["identification"]["ci"][0] for r in rs],
+                   [r["identification"]["ci"][1] for r in rs] - y]
+            a.errorbar(x, y, yerr=err, fmt="o-", capsize=3, label=_short(m, 22))
+        a.axhline(0.9, color="gray", ls="--", lw=0.8, label="legible (0.9)")
+        if rows:
+            a.axhline(rows[0]["identification"]["chance"], color="gray", ls=":", lw=0.8,
+                      label="chance")
+        if var == "exposure_s":
+            a.set_xscale("log")
+        a.set(xlabel=xlabel, ylabel="identification accuracy", ylim=(0, 1.05))
+        a.legend(fontsize=7)
     return fig
 
 
@@ -87,49 +214,29 @@ def fig_brdf(results):
     return fig
 
 
-def fig_iou_by_material(results):
+def fig_metrics(results, plan, res):
+    """No-reference metrics against ground truth over the glyph reconstructions: each
+    metric against IoU, coloured by whether the glyph was identified."""
     import matplotlib.pyplot as plt
 
-    mats = results["materials"]
-    fig, ax = plt.subplots(1, 2, figsize=(11.5, 3.9), constrained_layout=True)
-    x = np.arange(len(mats))
-    colours = {1: "tab:green", 2: "tab:orange", 3: "tab:red", None: "tab:gray"}
-    iou = np.array([m["iou"] for m in mats])
-    lo = iou - np.array([m["iou_ci"][0] for m in mats])
-    hi = np.array([m["iou_ci"][1] for m in mats]) - iou
-    ax[0].bar(x, iou, yerr=[lo, hi], capsize=3,
-              color=[colours[m["seed_label"]] for m in mats])
-    ax[0].set_xticks(x)
-    ax[0].set_xticklabels([_short(m["name"], 18) for m in mats], rotation=55, ha="right",
-                          fontsize=7)
-    ax[0].set(ylabel="IoU of the MIP (mean, 95% interval)", ylim=(0, 1),
-              title="per material (colour: seed Fig. 9 group 1 green, 2 orange, 3 red)")
-    sp = [m["specular_fraction"] for m in mats]
-    ax[1].errorbar(sp, iou, yerr=[lo, hi], fmt="o", capsize=3)
-    for m, s_, i_ in zip(mats, sp, iou, strict=True):
-        ax[1].annotate(_short(m["name"], 14), (s_, i_), fontsize=6, xytext=(3, 3),
-                       textcoords="offset points")
-    r = results["findings"]["corr_specular_fraction_vs_iou_materials"]
-    ax[1].set(xlabel="specular fraction of the reflectance at 45 deg", ylabel="IoU",
-              title=f"specular fraction vs IoU (r = {r:+.2f})", ylim=(0, 1))
-    return fig
-
-
-def fig_dataset(results, ds_res, values):
-    import matplotlib.pyplot as plt
-
-    iou = np.array([r["iou"] for r in ds_res])
-    metric = results["labels"]["metric"]
+    rs = [r for (meta, _), r in zip(plan, res, strict=True) if meta["set"] != "dataset"]
+    iou = np.array([r["iou"] for r in rs])
+    ok = np.array([r["identified"] for r in rs])
     fig, ax = plt.subplots(1, 3, figsize=(11.5, 3.6), constrained_layout=True)
-    ax[0].hist(iou, bins=20, range=(0, 1), color="tab:blue")
+    ax[0].hist([iou[ok], iou[~ok]], bins=20, range=(0, 1), stacked=True,
+               label=["identified", "not identified"], color=["tab:green", "tab:red"])
     ax[0].set(xlabel="IoU of the MIP", ylabel="reconstructions",
-              title=f"dataset IoU (median {np.median(iou):.2f}, n = {len(iou)})")
-    for a, name in ((ax[1], metric), (ax[2], "fft_clarity")):
-        sc = a.scatter(values[name], iou, s=6, c=[r["counts"] for r in ds_res], cmap="viridis",
-                       norm=__import__("matplotlib").colors.LogNorm())
+              title=f"glyph reconstructions (n = {len(rs)})")
+    ax[0].legend(fontsize=7)
+    val = results["metric_validation"]
+    for a, name in ((ax[1], "nr_clarity"), (ax[2], "fft_clarity")):
+        v = np.array([r[f"q_{name}"] for r in rs])
+        a.scatter(v[ok], iou[ok], s=6, c="tab:green", label="identified")
+        a.scatter(v[~ok], iou[~ok], s=6, c="tab:red", label="not identified")
         a.set(xlabel=name + (" (log10)" if name == "fft_clarity" else " (0..1)"),
-              ylabel="IoU", title=f"{name}: r = {results['metrics'][name]:+.2f} with IoU")
-    fig.colorbar(sc, ax=ax[1:], label="photon counts in the capture")
+              ylabel="IoU", title=f"{name}: r = {val[name]['iou']:+.2f} with IoU, "
+                                  f"{val[name]['identified']:+.2f} with identified")
+        a.legend(fontsize=7)
     return fig
 
 
@@ -139,12 +246,14 @@ def fig_cnn(results):
     cnn = results["cnn"]
     fig, ax = plt.subplots(1, 3, figsize=(11.5, 3.5), constrained_layout=True)
     conf = np.asarray(cnn["confusion"])
+    k = conf.shape[0]
     im = ax[0].imshow(conf, cmap="Blues")
-    for i in range(3):
-        for j in range(3):
+    for i in range(k):
+        for j in range(k):
             ax[0].text(j, i, str(conf[i, j]), ha="center", va="center")
-    ax[0].set(xticks=range(3), yticks=range(3), xticklabels=["1", "2", "3"],
-              yticklabels=["1", "2", "3"], xlabel="CNN label", ylabel="true label",
+    names = [str(i + 1) for i in range(k)]
+    ax[0].set(xticks=range(k), yticks=range(k), xticklabels=names,
+              yticklabels=names, xlabel="CNN label", ylabel="true label",
               title=f"validation: accuracy {cnn['val_accuracy']:.2f} "
                     f"(majority {cnn['majority_baseline']:.2f})")
     fig.colorbar(im, ax=ax[0], label="samples")
@@ -174,21 +283,30 @@ def sweep_condition(variable: str, value: float) -> str:
 
 
 def fig_sweeps(results):
+    """The geometry sweeps at the seed's letter size: identification (top) and IoU over its
+    box baseline (bottom) against each variable."""
     import matplotlib.pyplot as plt
 
     rows = results["sweeps"]
     variables = list(dict.fromkeys(r["variable"] for r in rows))
-    fig, ax = plt.subplots(1, len(variables), figsize=(11.5, 3.6), squeeze=False,
+    fig, ax = plt.subplots(2, len(variables), figsize=(11.5, 6.4), squeeze=False,
                            constrained_layout=True)
-    for a, var in zip(ax[0], variables, strict=True):
+    for j, var in enumerate(variables):
         for m in dict.fromkeys(r["material"] for r in rows if r["variable"] == var):
-            rs = [r for r in rows if r["variable"] == var and r["material"] == m]
+            rs = sorted((r for r in rows if r["variable"] == var and r["material"] == m),
+                        key=lambda r: r["value"])
             x = [r["value"] for r in rs]
-            y = np.array([r["iou"] for r in rs])
-            err = [y - [r["iou_ci"][0] for r in rs], [r["iou_ci"][1] for r in rs] - y]
-            a.errorbar(x, y, yerr=err, fmt="o-", capsize=3, label=_short(m, 22))
-        a.set(xlabel=SWEEP_AXES.get(var, var), ylabel="IoU of the MIP", ylim=(0, 1))
-        a.legend(fontsize=7)
+            y = np.array([r["identification"]["accuracy"] for r in rs])
+            err = [y - [r["identification"]["ci"][0] for r in rs],
+                   [r["identification"]["ci"][1] for r in rs] - y]
+            ax[0, j].errorbar(x, y, yerr=err, fmt="o-", capsize=3, label=_short(m, 22))
+            ax[1, j].plot(x, [r["iou_excess"] for r in rs], "o-", label=_short(m, 22))
+        ax[0, j].axhline(rows[0]["identification"]["chance"], color="gray", ls=":", lw=0.8)
+        ax[0, j].set(xlabel=SWEEP_AXES.get(var, var), ylabel="identification accuracy",
+                     ylim=(0, 1.05))
+        ax[1, j].axhline(0, color="gray", ls=":", lw=0.8)
+        ax[1, j].set(xlabel=SWEEP_AXES.get(var, var), ylabel="IoU - box baseline IoU")
+        ax[0, j].legend(fontsize=7)
     return fig
 
 
@@ -212,97 +330,172 @@ OVERFLOW_PROBE = ("<script>addEventListener('load', function () {document.body.d
                   " = String(document.documentElement.scrollWidth > innerWidth);});</script>")
 
 
+def _pct(v) -> str:
+    return "n/a" if v is None else f"{100 * v:.0f}%"
+
+
+def _ident(e) -> str:
+    i = e["identification"]
+    return (f"{i['accuracy']:.2f} [{i['ci'][0]:.2f}, {i['ci'][1]:.2f}] "
+            f"(n {i['n']})")
+
+
 def findings_html(results) -> str:
     f = results["findings"]
-    mats = results["materials"]
-    best = max(mats, key=lambda m: m["iou"])
-    worst = min(mats, key=lambda m: m["iou"])
-    items = [
-        f["statement"],
-        f"IoU ranges from {worst['iou']:.2f} ({html.escape(worst['name'])}) to "
-        f"{best['iou']:.2f} ({html.escape(best['name'])}), a spread of "
-        f"{f['iou_spread_materials']:.2f}.",
-        f"Labels from <b>{results['labels']['metric']}</b> (no reference needed) correlate "
-        f"with IoU at r = {results['labels']['corr_with_iou']:+.2f} over the "
-        f"{results['n_dataset']} dataset reconstructions; the seed's FFT clarity at "
-        f"r = {results['metrics']['fft_clarity']:+.2f}.",
-        f"The CNN reproduces the labels of held-out reconstructions with accuracy "
-        f"{results['cnn']['val_accuracy']:.2f} (majority class "
-        f"{results['cnn']['majority_baseline']:.2f}).",
-        f"Our labels agree with the seed's Figure 9 for "
-        f"{results['seed_figure9_agreement']} of {len(mats)} materials (the CNN's for "
-        f"{results['seed_figure9_agreement_cnn']}).",
-    ]
-    lm = f.get("largest_material_spread")
-    if lm:
-        items.append(f"The material matters most {sweep_condition(lm['variable'], lm['value'])}"
-                     f": IoU differs "
-                     f"by {lm['iou_spread']:.2f} between the swept materials (at the seed "
-                     f"geometry: {f['iou_spread_materials']:.2f} over all ten).")
+    items = [html.escape(f["statement"])]
+    for g in results["geometries"]:
+        bg = f["by_geometry"][g["name"]]
+        items.append(
+            f"<b>{html.escape(g['name'])}</b> ({html.escape(g['description'])}; stroke / "
+            f"measured lateral resolution {g['stroke_over_resolution']:.2f}): identification "
+            f"{_pct(bg['identification_lambertian_and_diffuse'])} for Lambertian and "
+            f"strong-diffuse materials, {_pct(bg['identification_specular_plus_diffuse'])} "
+            f"for mixed, {_pct(bg['identification_strong_specular'])} for strong specular; "
+            f"IoU above its box baseline by "
+            f"{(bg['iou_excess_lambertian_and_diffuse'] or 0):+.2f} (diffuse) and "
+            f"{(bg['iou_excess_strong_specular'] or 0):+.2f} (specular).")
+    r = results["resolution"]
+    items.append(
+        f"Measured resolution at the seed geometry: effective temporal FWHM "
+        f"{r['effective_temporal_fwhm_s'] * 1e12:.0f} ps after the deconvolution, O'Toole's "
+        f"lateral bound {r['bound_lateral_m'] * 100:.1f} cm; "
+        + ", ".join(f"{m} lateral {v['lateral_fwhm_m'] * 100:.1f} cm / axial "
+                    f"{v['axial_fwhm_m'] * 100:.1f} cm" for m, v in r.items()
+                    if isinstance(v, dict) and "lateral_fwhm_m" in v) + ".")
+    items.append(
+        f"No-reference metrics against identification (point-biserial r): nr_clarity "
+        f"{f['corr_nr_clarity_vs_identified']:+.2f}, the seed's FFT clarity "
+        f"{f['corr_clarity_vs_identified']:+.2f}; against IoU: FFT clarity "
+        f"{f['corr_clarity_vs_iou_dataset']:+.2f}.")
+    cnn = results["cnn"]
+    items.append(
+        f"The CNN ({html.escape(results['labels']['source'])} labels) on held-out glyphs "
+        f"{', '.join(cnn['held_out']['glyphs'])} and letters of "
+        f"{cnn['held_out']['letter_height_m']:g} m: accuracy {cnn['val_accuracy']:.2f} "
+        f"(majority class {cnn['majority_baseline']:.2f}, n {cnn['n_val']}).")
+    items.append(
+        "Our labels agree with the seed's Figure 9 for "
+        + ", ".join(f"{v} of 10 at {k}" for k, v in
+                    results["seed_figure9_agreement_by_geometry"].items())
+        + f" (the CNN's: {results['seed_figure9_agreement_cnn']}).")
     for var, e in f["sweeps"].items():
         per = "; ".join(f"{html.escape(_short(m, 22))} {v['min']:.2f}-{v['max']:.2f}"
                         for m, v in e["per_material"].items())
-        items.append(f"{SWEEP_AXES.get(var, var)}: IoU spans {per}. Mean change with the "
-                     f"variable {e['geometry_effect']:.2f} against mean spread between "
-                     f"materials {e['material_effect']:.2f}: <b>{e['dominant']}</b> "
-                     "dominates.")
+        items.append(f"{SWEEP_AXES.get(var, var)} (seed letters): identification spans "
+                     f"{per}; change with the variable {e['geometry_effect']:.2f} against "
+                     f"spread between materials {e['material_effect']:.2f}: "
+                     f"<b>{e['dominant']}</b> dominates.")
     return "<ul class='findings'>" + "".join(f"<li>{i}</li>" for i in items) + "</ul>"
 
 
-def write_report(out_dir, results, main_res, ds_res, labels, values) -> None:
+def _geometry_table(g) -> str:
+    rows = [[html.escape(m["name"]), html.escape(m["brdf_class"]),
+             f"{m['specular_fraction']:.2f}", _ident(m),
+             f"{m['identification']['chance']:.3f}", f"{m['iou']:.3f}",
+             f"{m['iou_box_baseline']:.3f}", f"{m['iou_excess']:+.3f}",
+             f"{m['depth_error_m'] * 100:.1f}", f"{m['photon_counts']:.2g}", m["label"],
+             m["cnn_label"], m["seed_label"] if m["seed_label"] is not None else "-",
+             m["clarity_label"]] for m in g["materials"]]
+    head = (f"<p>Geometry <b>{html.escape(g['name'])}</b>: {html.escape(g['description'])};"
+            f" scan {g['scan_width_m']} m, letters {g['letter_height_m']} m tall with "
+            f"{g['stroke_m'] * 100:g} cm strokes at {g['depth_m']} m; measured lateral "
+            f"resolution {g['lateral_resolution_m'] * 100:.1f} cm, stroke / resolution "
+            f"{g['stroke_over_resolution']:.2f}.</p>")
+    return head + _table(["material", "BRDF class", "specular fraction",
+                          "identification [95%]", "chance", "IoU", "box baseline IoU",
+                          "IoU - baseline", "depth error (cm)", "photons", "label",
+                          "CNN label", "seed Fig. 9", "FFT label"], rows)
+
+
+def _real_html(results) -> str:
+    rc = results.get("real_capture")
+    if not rc:
+        return "<p>../shared/data not present: no real capture.</p>"
+    keys = ("photons", "peak_time_s", "temporal_fwhm_s")
+    rows = [[k, f"{rc[k]:.4g}", f"{rc['simulated'][k]:.4g}",
+             f"{rc['simulated'][k] / rc[k]:.3g}" if rc[k] else "-"] for k in keys]
+    out = _table(["quantity", f"real ({html.escape(rc['name'])})", "simulated",
+                  "simulated / real"], rows)
+    if rc.get("notes"):
+        out += "<p>" + html.escape(rc["notes"]) + "</p>"
+    cnn = results.get("real_captures_cnn") or []
+    if cnn:
+        out += "<p>The CNN's legibility on the real captures (reconstructed with the study's " \
+               "method and defaults):</p>" + _table(
+                   ["capture", "CNN label", "probabilities"],
+                   [[html.escape(c["name"]), c["cnn_label"],
+                     ", ".join(f"{p:.2f}" for p in c["cnn_probabilities"])] for c in cnn])
+    return out
+
+
+def write_report(out_dir, results, plan, res, real=None) -> None:
     import matplotlib
 
     matplotlib.use("Agg")
     from ..io import atomic_path
 
     g = results["options"]["grid"]
-    seeds = results["options"]["seeds"]
-    mats = results["materials"]
     figs = [
-        ("Reconstructions of 'UT' behind the slab (seed Fig. 8)",
-         "Max-intensity projection of each material's first noise realisation; red: the "
-         "true letters. Titles: IoU over all realisations with its 95% interval.",
-         fig_materials(results, main_res, seeds)),
-        ("IoU per material", "", fig_iou_by_material(results)),
+        ("The seed's Figure 8, side by side (legible geometry)",
+         "Per material: the measurement (photon counts) integrated over time with its x-t and "
+         "y-t slices, and the reconstruction's MIP with the true outline (red) and its x-z "
+         "and y-z projections (dotted: the true depth).",
+         fig_figure8(results, plan, res, results['legible_geometry'])),
+        ("Identification and IoU against the blob baseline", "", fig_identification(results)),
+        ("Every glyph at the legible geometry", "Title: true glyph -> the matched one.",
+         fig_materials(results, plan, res, results['legible_geometry'])),
+        ("Every glyph at the seed's Table 1 geometry", "Title: true glyph -> the matched one.",
+         fig_materials(results, plan, res, results['seed_geometry'])),
+        ("Where the material decides legibility: letter size and exposure",
+         "Legible geometry; mean over glyphs and noise realisations, Wilson 95% intervals.",
+         fig_legibility_sweeps(results)),
+        ("Geometry sweeps (the seed's letters)", "", fig_sweeps(results)),
+        ("No-reference metrics against ground truth", "", fig_metrics(results, plan, res)),
+        ("CNN legibility classifier (seed Fig. 9)", "", fig_cnn(results)),
         ("BRDF of each material (seed Fig. 7)", "", fig_brdf(results)),
-        ("Dataset and label metrics", "", fig_dataset(results, ds_res, values)),
-        ("CNN classifier (seed Fig. 9)", "", fig_cnn(results)),
-        ("Sweeps: where the material matters, where the geometry dominates",
-         "'UT' at the seed geometry unless varied; mean over noise realisations.",
-         fig_sweeps(results)),
     ]
-    mat_rows = [[html.escape(m["name"]), html.escape(m["brdf_class"]),
-                 f"{m['specular_fraction']:.2f}", f"{m['iou']:.3f}",
-                 f"[{m['iou_ci'][0]:.2f}, {m['iou_ci'][1]:.2f}]",
-                 f"{m['depth_error_m'] * 100:.1f}", f"{m['psnr_db']:.1f}",
-                 f"{m['photon_counts']:.2g}", m["label"], m["cnn_label"],
-                 m["seed_label"] if m["seed_label"] is not None else "-",
-                 m["clarity_label"]] for m in mats]
+    if real is not None and real.get("figure") is not None:
+        figs.insert(2, ("A real capture beside its simulation", "", real["figure"]))
+    small = results["smallest_legible"]
+    need_rows = [[html.escape(n["material"]),
+                  "-" if n["letter_height_m"] is None else f"{n['letter_height_m']:g}",
+                  "-" if n["exposure_s"] is None else f"{n['exposure_s']:g}"] for n in small]
+    res_rows = [[m, f"{v['lateral_fwhm_m'] * 100:.2f}", f"{v['axial_fwhm_m'] * 100:.2f}"]
+                for m, v in results["resolution"].items()
+                if isinstance(v, dict) and "lateral_fwhm_m" in v]
     val = results["metric_validation"]
     metric_rows = [[m + (" (labels)" if m == results["labels"]["metric"] else ""),
-                    f"{val[m]['iou']:+.2f}", f"{val[m]['depth_error_m']:+.2f}",
+                    f"{val[m]['identified']:+.2f}", f"{val[m]['iou']:+.2f}",
+                    f"{val[m]['iou_excess']:+.2f}", f"{val[m]['depth_error_m']:+.2f}",
                     f"{val[m]['psnr_db']:+.2f}"] for m in METRICS]
     body = [
-        "<h1>How the surface material of a hidden target changes what we reconstruct</h1>",
+        "<h1>How the surface material of a hidden target changes what we can read</h1>",
         "<h2>Findings</h2>", findings_html(results),
-        f"<p>Mode <b>{results['study']}</b>: scan {g['scan_width_m']} m x "
-        f"{g['scan_width_m']} m of {g['points']} x {g['points']} points, "
+        f"<p>Mode <b>{results['study']}</b>: {g['points']} x {g['points']} scan points, "
         f"{g['bin_width_s'] * 1e12:.0f} ps bins, 2.54 cm slab (mu_a 0.53 1/m, mu_s' 262 1/m, "
         f"n 1.12), 35 ps pulse, {g['rep_rate_hz'] / 1e6:.0f} MHz, {g['power_w'] * 1e3:.0f} mW "
-        f"at {g['wavelength_m'] * 1e9:.0f} nm, 0.1 s per scan point for the materials; "
+        f"at {g['wavelength_m'] * 1e9:.0f} nm, 0.1 s per scan point unless swept; "
         f"reconstruction: {g['method']}"
         + (f" ({g['iterations']} iterations)" if g["method"] == "iterative" else "")
-        + f"; {seeds} noise realisations per material; {results['n_dataset']} dataset "
-        "reconstructions.</p>",
-        "<h2>Materials</h2>",
-        _table(["material", "BRDF class", "specular fraction", "IoU", "95% interval",
-                "depth error (cm)", "PSNR (dB)", "photons", "label", "CNN label",
-                "seed Fig. 9", "FFT label"], mat_rows),
+        + f"; glyphs {''.join(results['options']['glyphs'])} (K = "
+        f"{len(results['options']['glyphs'])}), {results['options']['seeds']} noise "
+        f"realisation(s) each; {results['n_dataset']} reconstructions in all.</p>",
+        "<h2>Materials at each geometry</h2>",
+        *[_geometry_table(geo) for geo in results["geometries"]],
+        "<h2>What the material costs: smallest legible letter and exposure</h2>",
+        "<p>Legible geometry; identification >= 0.9 at 0.1 s per point (height) and with "
+        "0.3 m letters (exposure); '-': not reached within the swept values.</p>",
+        _table(["material", "smallest legible letter (m)", "exposure needed (s)"], need_rows),
+        "<h2>Measured resolution (seed geometry, noise-free point target)</h2>",
+        _table(["method", "lateral FWHM (cm)", "axial FWHM (cm)"], res_rows),
+        f"<p>O'Toole's bound with the measured effective temporal FWHM "
+        f"{results['resolution']['effective_temporal_fwhm_s'] * 1e12:.0f} ps: "
+        f"{results['resolution']['bound_lateral_m'] * 100:.2f} cm.</p>",
+        "<h2>A real capture and its simulation</h2>", _real_html(results),
         "<h2>No-reference metrics against ground truth</h2>",
-        "<p>Pearson r over the dataset. Labels: " + html.escape(results["labels"]["metric"])
-        + f", cut at the seed's split 19.3/51.4/29.3 % (counts {results['labels']['counts']}"
-        ").</p>",
-        _table(["metric", "r with IoU", "r with depth error", "r with PSNR"], metric_rows),
+        "<p>Pearson r over the glyph reconstructions (point-biserial for identified).</p>",
+        _table(["metric", "r with identified", "r with IoU", "r with IoU - baseline",
+                "r with depth error", "r with PSNR"], metric_rows),
     ]
     for title, caption, fig in figs:
         body.append(f"<h2>{html.escape(title)}</h2>")

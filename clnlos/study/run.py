@@ -1,21 +1,35 @@
 """``clnlos study``: how a hidden target's surface material changes what NLOS imaging through
-a scattering slab recovers (seed sections 3.2, 4.2, 4.3, 5).
+a scattering slab can *read* (seed sections 3.2, 4.2, 4.3, 5).
 
-1. Materials: the ten presets on "UT" (0.15 m letters, 4 cm strokes) 0.5 m behind the
-   2.54 cm slab at the seed's Table 1 geometry, ``seeds`` photon-noise realisations each:
-   IoU with a 95% interval, depth error, PSNR, the no-reference label, the CNN's label and the
-   seed's Figure 9 label side by side.
-2. Dataset: reconstructions spread over objects, poses, depths and photon budgets
-   (:func:`clnlos.study.dataset.dataset_samples`); every no-reference metric is validated
-   against ground truth (IoU, depth error, PSNR) and labels come from the default metric
-   (``--labels nr``) or the seed's FFT clarity (``--labels fft``), cut at the seed's split.
-3. CNN (torch, CPU, seeded) trained on the dataset's MIPs and labels, applied to the ten.
-4. Sweeps: scan width, target depth and slab thickness for a strong-specular, a mixed and a
-   Lambertian material.
-5. Report (report.html) and results.json.
+The question is answered with legibility, not with how well a blob covers the target:
+
+1. Geometries (:data:`GEOMETRIES`), each stated in every table: the seed's Table 1
+   (``seed_table1``: 0.3 m scan, letters 0.15 m tall with 4 cm strokes at 0.5 m, the strokes
+   at the confocal resolution limit) and ``legible`` (0.6 m scan, letters 0.3 m tall with
+   8 cm strokes at 0.5 m: the scale of the published CDT captures, where a Lambertian target
+   reads at the default budget).
+2. Materials: the ten presets, each reconstructing each of the K = 8 glyphs of
+   :mod:`clnlos.study.legibility` (``seeds`` noise realisations each) at each geometry.
+   Per material: identification accuracy (closest of the K blurred glyph templates, Wilson
+   95% interval, chance 1/K), IoU beside the IoU of the filled box of the true mask (what a
+   blob scores) and the excess over it; the seed's Figure 9 grouping beside ours.
+3. Legibility sweeps at the legible geometry for a strong-specular, a mixed and a Lambertian
+   material: letter height (strokes scaled with it) and exposure; the smallest legible
+   letter and the exposure each material needs (identification >= LEGIBLE_ACCURACY).
+4. The geometry sweeps (scan width, depth, slab thickness) at the seed's letter size,
+   scored the same way.
+5. Measured resolution (:mod:`clnlos.study.resolution`) and a real capture beside its
+   simulation (:mod:`clnlos.study.real_capture`), when ../shared/data is present.
+6. CNN (torch, CPU, seeded) trained on reconstructions with ground truth to predict
+   legibility (``--labels legibility``: 1 identified with IoU above its box baseline,
+   2 one of the two, 3 neither), validated on held-out glyphs and a held-out letter size,
+   applied to the real captures; ``--labels fft`` is the seed's recipe (FFT clarity
+   terciles), ``nr`` the no-reference metric's.
+7. Report (report.html, with the seed's Figure 8 side by side) and results.json.
 
 Every sample is rendered (simulated, reconstructed, scored) by :mod:`clnlos.study.dataset`,
-cached on disk and run through one pool of workers.
+cached on disk and run through one pool of workers; identification is computed from the
+cached MIPs, so a change of the matching rule reuses every sample.
 """
 
 from __future__ import annotations
@@ -23,6 +37,7 @@ from __future__ import annotations
 import json
 import math
 import time
+import zlib
 from dataclasses import asdict, dataclass, field
 from pathlib import Path
 
@@ -31,6 +46,8 @@ import numpy as np
 from ..errors import ParameterError
 from .clarity import label_thresholds
 from .dataset import StudyGrid, cpu_workers, dataset_samples, run_samples
+from .legibility import (GLYPHS, LEGIBLE_ACCURACY, glyph_templates, identification_summary,
+                         identify, otoole_lateral_bound_m)
 from .quality import DEFAULT_LABEL_METRIC, METRICS, pearson, validate_metrics
 
 # The seed's Figure 9 grouping of its ten materials (1 clear, 2 medium, 3 fuzzy).
@@ -40,44 +57,93 @@ SEED_FIGURE9 = {
     "fuchsia lacquer board": 2,
     "gold-plated polyester film": 3, "painted steel plate": 3, "glass fibre": 3,
 }
-LABEL_METRICS = {"nr": DEFAULT_LABEL_METRIC, "fft": "fft_clarity"}
+LABEL_METRICS = {"legibility": "identification", "nr": DEFAULT_LABEL_METRIC,
+                 "fft": "fft_clarity"}
 SWEEP_MATERIALS = ("aluminium alloy sample", "fuchsia lacquer board", "standard white plate")
 SWEEPS = {"scan_width_m": (0.3, 0.45, 0.6, 0.8), "depth_m": (0.3, 0.5, 0.7, 0.9),
           "slab_thickness_m": (0.0, 0.0127, 0.0254, 0.0508)}
+LEGIBILITY_SWEEPS = {"letter_height_m": (0.1, 0.2, 0.3, 0.5),
+                     "exposure_s": (0.01, 0.1, 1.0)}
+STROKE_PER_HEIGHT = 0.04 / 0.15   # the seed's letters: 4 cm strokes on 15 cm
+DEFAULT_EXPOSURE_S = 0.1          # per scan point (the seed's budget)
+HELD_OUT_GLYPHS = ("U", "X")      # the CNN's validation: glyphs ...
+HELD_OUT_HEIGHT_M = 0.2           # ... and a letter size it never saw
+
+
+@dataclass(frozen=True)
+class Geometry:
+    """One study geometry: scan width (m), letters (height and stroke, m) and their depth."""
+
+    name: str
+    scan_width_m: float
+    letter_height_m: float
+    stroke_m: float
+    depth_m: float
+    description: str = ""
+
+
+GEOMETRIES = (
+    Geometry("seed_table1", 0.3, 0.15, 0.04, 0.5,
+             "the seed's Table 1: 0.3 m scan, letters 15 cm tall with 4 cm strokes at 0.5 m"),
+    Geometry("legible", 0.6, 0.3, 0.08, 0.5,
+             "the published CDT captures' scale: 0.6 m scan, letters 30 cm tall with 8 cm "
+             "strokes at 0.5 m"),
+)
+LEGIBLE_GEOMETRY = "legible"
+SEED_GEOMETRY = "seed_table1"
 MAIN_TARGET = {"object": "letters", "text": "UT", "height_m": 0.15, "stroke_m": 0.04,
-               "depth_m": 0.5, "rotate_deg": [0.0, 0.0, 0.0], "exposure_s": 0.1}
+               "depth_m": 0.5, "rotate_deg": [0.0, 0.0, 0.0], "exposure_s": DEFAULT_EXPOSURE_S}
 
 
 @dataclass
 class StudyOptions:
-    n_dataset: int = 1000
+    n_dataset: int = 200                # extra random reconstructions (metric validation)
     epochs: int = 10
     grid: StudyGrid = field(default_factory=StudyGrid)
     materials: list[str] | None = None  # default: the ten presets
-    seeds: int = 5                      # photon-noise realisations per material
-    sweep_seeds: int = 2
+    seeds: int = 2                      # noise realisations per material, glyph, geometry
+    sweep_seeds: int = 1
     sweep_materials: tuple[str, ...] = SWEEP_MATERIALS
     sweeps: dict = field(default_factory=lambda: dict(SWEEPS))
-    labels: str = "nr"
+    legibility_sweeps: dict = field(default_factory=lambda: dict(LEGIBILITY_SWEEPS))
+    glyphs: tuple[str, ...] = GLYPHS
+    sweep_glyphs: tuple[str, ...] = GLYPHS  # glyphs reconstructed at each geometry-sweep point
+    geometries: tuple[Geometry, ...] = GEOMETRIES
+    labels: str = "legibility"
     seed: int = 0
     label: str = "full"
+    real_data: bool = True              # the shared real captures, when present
 
     @classmethod
     def quick(cls) -> StudyOptions:
-        """The built-in default (the README main job, under 3 minutes on 2 CPU cores): 200
-        dataset samples, one seed per sweep point (the full study: 1000 and 2)."""
-        return cls(n_dataset=200, sweep_seeds=1, label="quick")
+        """The built-in default (the README main job, within 4 minutes on 2 CPU cores): one
+        noise realisation per glyph, four glyphs at each geometry-sweep point and three
+        values per geometry sweep, no extra random samples."""
+        return cls(n_dataset=0, seeds=1, sweep_glyphs=("E", "H", "T", "U"),
+                   sweeps={"scan_width_m": (0.3, 0.6, 0.8), "depth_m": (0.3, 0.5, 0.7),
+                           "slab_thickness_m": (0.0, 0.0254, 0.0508)}, label="quick")
 
     def validate(self) -> StudyOptions:
         if self.labels not in LABEL_METRICS:
             raise ParameterError("--labels", self.labels, " or ".join(LABEL_METRICS))
         if self.grid.method not in ("lct", "fk", "iterative"):
             raise ParameterError("--method", self.grid.method, "lct, fk or iterative")
-        if self.n_dataset < 10:
-            raise ParameterError("--n-dataset", self.n_dataset, ">= 10")
+        if self.n_dataset < 0:
+            raise ParameterError("--n-dataset", self.n_dataset, ">= 0")
         if self.seeds < 1:
             raise ParameterError("seeds", self.seeds, ">= 1")
+        if len(self.glyphs) < 2 or any(g not in GLYPHS for g in self.glyphs):
+            raise ParameterError("glyphs", self.glyphs, f"two or more of {''.join(GLYPHS)}")
+        if not self.sweep_glyphs or any(g not in self.glyphs for g in self.sweep_glyphs):
+            raise ParameterError("sweep_glyphs", self.sweep_glyphs,
+                                 f"one or more of {''.join(self.glyphs)}")
+        if LEGIBLE_GEOMETRY not in {g.name for g in self.geometries}:
+            raise ParameterError("geometries", [g.name for g in self.geometries],
+                                 f"a list that includes {LEGIBLE_GEOMETRY!r}")
         return self
+
+    def geometry(self, name: str) -> Geometry:
+        return next(g for g in self.geometries if g.name == name)
 
 
 def specular_fraction(model, theta_i_deg: float = 45.0, n: int = 64) -> float:
@@ -111,22 +177,78 @@ def mean_interval(x) -> tuple[float, list[float]]:
     return m, [m - h, m + h]
 
 
-def main_samples(materials, opts: StudyOptions) -> list[dict]:
-    return [{**MAIN_TARGET, "material": m, "seed": opts.seed * 1000 + 10 * i + k}
-            for i, m in enumerate(materials) for k in range(opts.seeds)]
+def noise_seed(base: int, *parts) -> int:
+    """A sample's noise seed from what identifies it (not from its geometry: one scene asked
+    for by two parts of the study is rendered once)."""
+    return base * 1_000_003 + zlib.crc32("|".join(str(p) for p in parts).encode()) % 1_000_000
 
 
-def sweep_samples(opts: StudyOptions) -> list[dict]:
+def glyph_sample(glyph: str, material: str, *, scan_width_m: float, height_m: float,
+                 stroke_m: float, depth_m: float, exposure_s: float, seed: int,
+                 slab_thickness_m: float | None = None) -> dict:
+    """The sample (:mod:`clnlos.study.dataset`) of one glyph, centred on the scan, facing it."""
+    s = {"object": "letters", "text": glyph, "height_m": round(height_m, 6),
+         "stroke_m": round(stroke_m, 6), "depth_m": depth_m, "scan_width_m": scan_width_m,
+         "rotate_deg": [0.0, 0.0, 0.0], "exposure_s": exposure_s, "material": material,
+         "seed": int(seed)}
+    if slab_thickness_m is not None:
+        s["slab_thickness_m"] = slab_thickness_m
+    return s
+
+
+def _glyph_entries(opts: StudyOptions, geo: Geometry, material: str, glyphs, seeds: int,
+                   meta: dict, *, height_m=None, exposure_s=DEFAULT_EXPOSURE_S,
+                   scan_width_m=None, depth_m=None, slab_thickness_m=None) -> list:
+    h = geo.letter_height_m if height_m is None else height_m
+    stroke = geo.stroke_m if height_m is None else STROKE_PER_HEIGHT * h
     out = []
+    for g in glyphs:
+        for k in range(seeds):
+            s = glyph_sample(g, material, scan_width_m=scan_width_m or geo.scan_width_m,
+                             height_m=h, stroke_m=stroke, depth_m=depth_m or geo.depth_m,
+                             exposure_s=exposure_s, seed=noise_seed(opts.seed, material, g, k),
+                             slab_thickness_m=slab_thickness_m)
+            out.append(({**meta, "glyph": g, "material": material, "k": k,
+                         "geometry": geo.name}, s))
+    return out
+
+
+def study_plan(materials, opts: StudyOptions) -> list[tuple[dict, dict]]:
+    """Every (meta, sample) of the study: the materials at each geometry, the legibility
+    sweeps (legible geometry), the geometry sweeps (the seed's letters), the random extras."""
+    plan = []
+    for geo in opts.geometries:
+        for m in materials:
+            plan += _glyph_entries(opts, geo, m, opts.glyphs, opts.seeds, {"set": "main"})
+    legible = opts.geometry(LEGIBLE_GEOMETRY)
+    for var, values in opts.legibility_sweeps.items():
+        for v in values:
+            for m in opts.sweep_materials:
+                kw = {"height_m": v} if var == "letter_height_m" else {"exposure_s": v}
+                plan += _glyph_entries(opts, legible, m, opts.glyphs, opts.sweep_seeds,
+                                       {"set": "legibility_sweep", "variable": var,
+                                        "value": float(v)}, **kw)
+    seed_geo = next((g for g in opts.geometries if g.name == SEED_GEOMETRY),
+                    opts.geometries[0])
     for var, values in opts.sweeps.items():
         for v in values:
             for m in opts.sweep_materials:
-                for k in range(opts.sweep_seeds):
-                    s = {**MAIN_TARGET, "material": m, "seed": opts.seed * 1000 + 500 + k,
-                         "sweep": var}
-                    s[var] = float(v)
-                    out.append(s)
-    return out
+                kw = {var: float(v)}
+                plan += _glyph_entries(opts, seed_geo, m, opts.sweep_glyphs, opts.sweep_seeds,
+                                       {"set": "geometry_sweep", "variable": var,
+                                        "value": float(v)}, **kw)
+    for k, s in enumerate(dataset_samples(opts.n_dataset, list(materials), opts.seed)):
+        plan.append(({"set": "dataset", "k": k, "material": s["material"]}, s))
+    return plan
+
+
+def render_plan(plan, grid: StudyGrid, cache: Path, **kw) -> list[dict]:
+    """The result of every plan entry; each distinct scene rendered once (cached)."""
+    keys = [json.dumps(s, sort_keys=True) for _, s in plan]
+    unique = list(dict.fromkeys(keys))
+    res = run_samples([json.loads(k) for k in unique], grid, cache, **kw)
+    by_key = dict(zip(unique, res, strict=True))
+    return [by_key[k] for k in keys]
 
 
 def label_of(value: float, thresholds: tuple[float, float]) -> int:
@@ -134,12 +256,172 @@ def label_of(value: float, thresholds: tuple[float, float]) -> int:
     return 1 if value >= t_clear else (3 if value < t_fuzzy else 2)
 
 
-def run_study(out_dir: Path, opts: StudyOptions, *, workers: int | None = None,
-              scheduler: str | None = None, device: str | None = None) -> dict:
-    from ..brdf.presets import preset_model, preset_table
-    from ..io import atomic_path
+def legibility_label(identified: bool, iou: float, iou_box: float) -> int:
+    """A reconstruction's legibility class: 1 identified and its IoU above the box baseline,
+    2 one of the two, 3 neither."""
+    return 1 if identified and iou > iou_box else (2 if identified or iou > iou_box else 3)
+
+
+def material_class(ident: dict) -> int:
+    """A material's legibility at a geometry: 1 identification >= LEGIBLE_ACCURACY, 3 not
+    above chance (the Wilson interval reaches 1/K), 2 between."""
+    if ident["accuracy"] >= LEGIBLE_ACCURACY:
+        return 1
+    return 3 if ident["ci"][0] <= ident["chance"] else 2
+
+
+def _temporal_fwhm_and_resolution(opts: StudyOptions, device) -> tuple[dict, dict]:
+    """(results.json ``resolution`` at the default geometry, lateral FWHM per geometry)."""
+    from .resolution import measure_resolution
+
+    seed_geo = next((g for g in opts.geometries if g.name == SEED_GEOMETRY),
+                    opts.geometries[0])
+    res = measure_resolution(seed_geo, opts.grid, device=device)
+    lateral = {}
+    for geo in opts.geometries:
+        if geo.name == seed_geo.name:
+            lateral[geo.name] = res[opts.grid.method]["lateral_fwhm_m"]
+        else:
+            r = measure_resolution(geo, opts.grid, device=device, methods=(opts.grid.method,))
+            lateral[geo.name] = r[opts.grid.method]["lateral_fwhm_m"]
+    return res, lateral
+
+
+def identification_of(plan, results, opts: StudyOptions, gamma_s: float,
+                      lateral: dict[str, float]) -> None:
+    """Adds ``identified``, ``identified_as``, ``margin`` and ``legibility`` to every glyph
+    result: its MIP matched to the closest of the K templates blurred to the lateral
+    resolution (measured at the study's geometries, O'Toole's bound with the measured
+    temporal FWHM elsewhere)."""
+    from ..scene import Scene
+    from .dataset import scene_dict
+
+    templates = {}
+    for (meta, s), r in zip(plan, results, strict=True):
+        if meta["set"] == "dataset":
+            continue
+        key = (s["scan_width_m"], s["height_m"], s["stroke_m"], s["depth_m"])
+        if key not in templates:
+            scene = Scene.from_dict(scene_dict(s, opts.grid))
+            fwhm = lateral.get(meta["geometry"]) if meta["set"] == "main" else None
+            if fwhm is None or meta.get("variable") in ("scan_width_m", "depth_m"):
+                fwhm = otoole_lateral_bound_m(s["scan_width_m"], s["depth_m"], gamma_s)
+            templates[key] = glyph_templates(s["height_m"], s["stroke_m"], (0.0, 0.0),
+                                             scene.scan_centres(), fwhm, opts.glyphs)
+        best, margin, _ = identify(r["mip"], templates[key])
+        r["identified_as"], r["margin"] = best, margin
+        r["identified"] = bool(best == s["text"])
+        r["legibility"] = legibility_label(r["identified"], r["iou"], r["iou_box_baseline"])
+
+
+def _summary(rows: list[dict], chance: float) -> dict:
+    iou_mean, iou_ci = mean_interval([r["iou"] for r in rows])
+    box = float(np.mean([r["iou_box_baseline"] for r in rows]))
+    return {"identification": identification_summary([r["identified"] for r in rows], chance),
+            "iou": iou_mean, "iou_ci": iou_ci, "iou_box_baseline": box,
+            "iou_excess": iou_mean - box}
+
+
+def material_entries(materials, plan, results, geo: Geometry, opts: StudyOptions, table,
+                     label_metric: str, thresholds, fft_thresholds, predict) -> list[dict]:
+    from ..brdf.presets import preset_model
+
+    chance = 1.0 / len(opts.glyphs)
+    out = []
+    for m in materials:
+        rs = [r for (meta, _), r in zip(plan, results, strict=True)
+              if meta["set"] == "main" and meta["geometry"] == geo.name
+              and meta["material"] == m]
+        e = {"name": m, "geometry": geo.name, "brdf_class": table[m]["class"],
+             **_summary(rs, chance), "iou_seeds": [float(r["iou"]) for r in rs]}
+        if label_metric == "identification":
+            value = e["identification"]["accuracy"]
+            label = material_class(e["identification"])
+        else:
+            value = float(np.mean([r[f"q_{label_metric}"] for r in rs]))
+            label = label_of(value, thresholds)
+        fft_mean = float(np.mean([r["q_fft_clarity"] for r in rs]))
+        _, probs = predict(np.stack([r["mip"] for r in rs]))
+        p = probs.mean(axis=0)
+        e.update({
+            "label": label, "label_metric_value": value,
+            "cnn_label": int(np.argmax(p) + 1), "cnn_probabilities": [float(v) for v in p],
+            "seed_label": SEED_FIGURE9.get(m),
+            "clarity_score": fft_mean, "clarity_label": label_of(fft_mean, fft_thresholds),
+            "depth_error_m": float(np.mean([r["depth_error_m"] for r in rs])),
+            "psnr_db": float(np.mean([r["psnr_db"] for r in rs])),
+            "photon_counts": float(np.mean([r["counts"] for r in rs])),
+            "specular_fraction": specular_fraction(preset_model(m)),
+            "provenance": table[m].get("provenance", "")})
+        out.append(e)
+    return out
+
+
+def sweep_rows(plan, results, which: str, chance: float) -> list[dict]:
+    """One row per (variable, value, material) of a sweep set."""
+    groups: dict = {}
+    for (meta, _), r in zip(plan, results, strict=True):
+        if meta["set"] == which:
+            groups.setdefault((meta["variable"], meta["value"], meta["material"]), []).append(r)
+    rows = []
+    for (var, v, m), rs in groups.items():
+        rows.append({"variable": var, "value": v, "material": m, "n": len(rs),
+                     **_summary(rs, chance),
+                     "photon_counts": float(np.mean([r["counts"] for r in rs])),
+                     "depth_error_m": float(np.mean([r["depth_error_m"] for r in rs]))})
+    return rows
+
+
+def smallest_legible(rows: list[dict], materials) -> list[dict]:
+    """Per material: the smallest letter height and the smallest exposure whose
+    identification reaches LEGIBLE_ACCURACY (None where no swept value does)."""
+    def first(var, m):
+        ok = sorted(r["value"] for r in rows if r["variable"] == var and r["material"] == m
+                    and r["identification"]["accuracy"] >= LEGIBLE_ACCURACY)
+        return ok[0] if ok else None
+
+    return [{"material": m, "letter_height_m": first("letter_height_m", m),
+             "exposure_s": first("exposure_s", m)} for m in materials]
+
+
+def _samples_labels(results, idx, label_metric, thresholds) -> np.ndarray:
+    if label_metric == "identification":
+        return np.array([results[i]["legibility"] for i in idx])
+    return np.array([label_of(results[i][f"q_{label_metric}"], thresholds) for i in idx])
+
+
+def train_cnn(plan, results, opts: StudyOptions, label_metric: str, thresholds):
+    """The CNN on every glyph reconstruction (and the random extras for the metric labels):
+    validation on the held-out glyphs and letter size."""
     from ..progress import counter, progress_bar
     from .classify import train_classifier
+
+    use = [i for i, (meta, _) in enumerate(plan)
+           if meta["set"] != "dataset" or label_metric != "identification"]
+    # one image per distinct scene
+    seen, idx = set(), []
+    for i in use:
+        key = json.dumps(plan[i][1], sort_keys=True)
+        if key not in seen:
+            seen.add(key)
+            idx.append(i)
+    held = np.array([plan[i][0].get("glyph") in HELD_OUT_GLYPHS
+                     or (plan[i][0].get("variable") == "letter_height_m"
+                         and plan[i][0].get("value") == HELD_OUT_HEIGHT_M) for i in idx])
+    labels = _samples_labels(results, idx, label_metric, thresholds)
+    images = np.stack([results[i]["mip"] for i in idx])
+    with progress_bar(None, "study CNN", "batch") as bar:
+        predict, report = train_classifier(images, labels, epochs=opts.epochs, seed=opts.seed,
+                                           progress=counter(bar), val_mask=held)
+    report["held_out"] = {"glyphs": list(HELD_OUT_GLYPHS), "letter_height_m": HELD_OUT_HEIGHT_M}
+    return predict, report, labels
+
+
+def run_study(out_dir: Path, opts: StudyOptions, *, workers: int | None = None,
+              scheduler: str | None = None, device: str | None = None) -> dict:
+    from ..brdf.presets import preset_table
+    from ..io import atomic_path
+    from .real_capture import real_capture_study
     from .report import write_report
 
     opts = opts.validate()
@@ -152,158 +434,219 @@ def run_study(out_dir: Path, opts: StudyOptions, *, workers: int | None = None,
         raise ParameterError("materials", unknown[0], "the preset names: " + ", ".join(table))
     nw = cpu_workers(workers) if scheduler is None else 1
     timings = {}
+    chance = 1.0 / len(opts.glyphs)
 
     # -- every sample through one pool (cached)
-    main = main_samples(materials, opts)
-    sweeps = sweep_samples(opts)
-    ds = dataset_samples(opts.n_dataset, materials, opts.seed)
+    plan = study_plan(materials, opts)
     t0 = time.perf_counter()
-    allres = run_samples(main + sweeps + ds, opts.grid, cache, workers=nw,
-                         scheduler=scheduler, device=device, desc="study samples")
+    results = render_plan(plan, opts.grid, cache, workers=nw, scheduler=scheduler,
+                          device=device, desc="study samples")
     timings["samples_s"] = time.perf_counter() - t0
-    main_res = allres[:len(main)]
-    sweep_res = allres[len(main):len(main) + len(sweeps)]
-    ds_res = allres[len(main) + len(sweeps):]
+
+    # -- resolution, identification
+    t0 = time.perf_counter()
+    resolution, lateral = _temporal_fwhm_and_resolution(opts, device)
+    identification_of(plan, results, opts, resolution["effective_temporal_fwhm_s"], lateral)
+    timings["resolution_s"] = time.perf_counter() - t0
 
     # -- metrics, labels
-    truth = {k: np.array([r[k] for r in ds_res]) for k in ("iou", "depth_error_m", "psnr_db")}
-    values = {m: np.array([r[f"q_{m}"] for r in ds_res]) for m in METRICS}
+    glyph_idx = [i for i, (meta, _) in enumerate(plan) if meta["set"] != "dataset"]
+    truth = {k: np.array([results[i][k] for i in glyph_idx], float)
+             for k in ("iou", "depth_error_m", "psnr_db", "identified")}
+    truth["iou_excess"] = np.array([results[i]["iou"] - results[i]["iou_box_baseline"]
+                                    for i in glyph_idx])
+    values = {m: np.array([results[i][f"q_{m}"] for i in glyph_idx]) for m in METRICS}
     validation = validate_metrics(values, truth)
     label_metric = LABEL_METRICS[opts.labels]
-    thresholds = label_thresholds(values[label_metric])
-    labels = np.array([label_of(v, thresholds) for v in values[label_metric]])
-    fft_thresholds = label_thresholds(values["fft_clarity"])
+    all_values = {m: np.array([r[f"q_{m}"] for r in results]) for m in METRICS}
+    thresholds = ((0.5, 0.5) if label_metric == "identification"
+                  else label_thresholds(all_values[label_metric]))
+    fft_thresholds = label_thresholds(all_values["fft_clarity"])
 
     # -- CNN
     t0 = time.perf_counter()
-    images = np.stack([r["mip"] for r in ds_res])
-    with progress_bar(None, "study CNN", "batch") as bar:
-        predict, cnn = train_classifier(images, labels, epochs=opts.epochs, seed=opts.seed,
-                                        progress=counter(bar))
+    predict, cnn, labels = train_cnn(plan, results, opts, label_metric, thresholds)
     timings["cnn_s"] = time.perf_counter() - t0
 
-    # -- materials
-    per_material = []
-    for i, m in enumerate(materials):
-        rs = main_res[i * opts.seeds:(i + 1) * opts.seeds]
-        iou_mean, iou_ci = mean_interval([r["iou"] for r in rs])
-        metric_mean = float(np.mean([r[f"q_{label_metric}"] for r in rs]))
-        fft_mean = float(np.mean([r["q_fft_clarity"] for r in rs]))
-        _, probs = predict(np.stack([r["mip"] for r in rs]))
-        p = probs.mean(axis=0)
-        model = preset_model(m)
-        per_material.append({
-            "name": m, "brdf_class": table[m]["class"],
-            "iou": iou_mean, "iou_ci": iou_ci, "iou_seeds": [float(r["iou"]) for r in rs],
-            "label": label_of(metric_mean, thresholds), "label_metric_value": metric_mean,
-            "cnn_label": int(np.argmax(p) + 1), "cnn_probabilities": [float(v) for v in p],
-            "seed_label": SEED_FIGURE9.get(m),
-            "clarity_score": fft_mean, "clarity_label": label_of(fft_mean, fft_thresholds),
-            "depth_error_m": float(np.mean([r["depth_error_m"] for r in rs])),
-            "psnr_db": float(np.mean([r["psnr_db"] for r in rs])),
-            "photon_counts": float(np.mean([r["counts"] for r in rs])),
-            "specular_fraction": specular_fraction(model),
-            "provenance": table[m].get("provenance", "")})
-    agreement = sum(p["label"] == p["seed_label"] for p in per_material
-                    if p["seed_label"] is not None)
-    cnn_agreement = sum(p["cnn_label"] == p["seed_label"] for p in per_material
-                        if p["seed_label"] is not None)
+    # -- materials per geometry
+    geometries = []
+    for geo in opts.geometries:
+        ents = material_entries(materials, plan, results, geo, opts, table, label_metric,
+                                thresholds, fft_thresholds, predict)
+        geometries.append({**asdict(geo), "lateral_resolution_m": lateral[geo.name],
+                           "stroke_over_resolution": geo.stroke_m / lateral[geo.name],
+                           "materials": ents})
+    main_geo = next(g for g in geometries if g["name"] == LEGIBLE_GEOMETRY)
+    per_material = main_geo["materials"]
+    agreement = {g["name"]: sum(m["label"] == m["seed_label"] for m in g["materials"]
+                                if m["seed_label"] is not None) for g in geometries}
+    cnn_agreement = sum(m["cnn_label"] == m["seed_label"] for m in per_material
+                        if m["seed_label"] is not None)
 
     # -- sweeps
-    sweep_rows = []
-    for var, vals in opts.sweeps.items():
-        for v in vals:
-            for m in opts.sweep_materials:
-                rs = [r for s, r in zip(sweeps, sweep_res, strict=True)
-                      if s["sweep"] == var and s[var] == float(v) and s["material"] == m]
-                mean, ci = mean_interval([r["iou"] for r in rs])
-                sweep_rows.append({"variable": var, "value": float(v), "material": m,
-                                   "iou": mean, "iou_ci": ci, "n": len(rs),
-                                   "depth_error_m": float(np.mean(
-                                       [r["depth_error_m"] for r in rs]))})
+    legibility_rows = sweep_rows(plan, results, "legibility_sweep", chance)
+    geometry_rows = sweep_rows(plan, results, "geometry_sweep", chance)
 
-    findings = make_findings(per_material, sweep_rows, validation, label_metric, truth,
-                             cnn, agreement)
-    hist, edges = np.histogram(truth["iou"], bins=10, range=(0, 1))
-    results = {
+    # -- real captures (shared data): the simulated twin, the CNN's verdict
+    t0 = time.perf_counter()
+    real = real_capture_study(opts.grid, predict, device=device) if opts.real_data else None
+    timings["real_capture_s"] = time.perf_counter() - t0
+
+    findings = make_findings(geometries, legibility_rows, geometry_rows, validation,
+                             label_metric, cnn, agreement, opts)
+    ious = np.array([r["iou"] for r in results])
+    hist, edges = np.histogram(ious, bins=10, range=(0, 1))
+    results_json = {
         "study": opts.label,
         "options": {**asdict(opts), "grid": asdict(opts.grid), "workers": nw},
         "materials": per_material,
+        "geometries": geometries, "legible_geometry": LEGIBLE_GEOMETRY,
+        "seed_geometry": next((g["name"] for g in geometries if g["name"] == SEED_GEOMETRY),
+                              geometries[0]["name"]),
+        "resolution": resolution,
+        "legibility_sweeps": [{"variable": r["variable"], "value": r["value"],
+                               "material": r["material"],
+                               "identification": r["identification"], "iou": r["iou"],
+                               "iou_box_baseline": r["iou_box_baseline"],
+                               "iou_excess": r["iou_excess"],
+                               "photon_counts": r["photon_counts"], "n": r["n"]}
+                              for r in legibility_rows],
+        "smallest_legible": smallest_legible(legibility_rows, opts.sweep_materials),
+        "real_capture": None if real is None else real["summary"],
+        "real_captures_cnn": None if real is None else real["cnn"],
         "cnn_validation_accuracy": cnn["val_accuracy"], "cnn": cnn,
         "labels": {"source": opts.labels, "metric": label_metric,
-                   "corr_with_iou": validation[label_metric]["iou"],
+                   "corr_with_iou": validation[label_metric]["iou"]
+                   if label_metric in validation else pearson(truth["identified"],
+                                                               truth["iou"]),
                    "thresholds": list(thresholds),
                    "counts": {str(k): int((labels == k).sum()) for k in (1, 2, 3)}},
         "metrics": {m: validation[m]["iou"] for m in METRICS},
         "metric_validation": validation,
         "clarity_thresholds": list(fft_thresholds),
         "label_counts": {str(k): int((labels == k).sum()) for k in (1, 2, 3)},
-        "seed_figure9_agreement": int(agreement),
+        "seed_figure9_agreement": int(agreement[LEGIBLE_GEOMETRY]),
+        "seed_figure9_agreement_by_geometry": agreement,
         "seed_figure9_agreement_cnn": int(cnn_agreement),
-        "sweeps": sweep_rows,
-        "dataset": {"n": len(ds_res), "iou_median": float(np.median(truth["iou"])),
+        "sweeps": geometry_rows,
+        "dataset": {"n": len(results), "iou_median": float(np.median(ious)),
                     "iou_histogram": {"edges": edges.tolist(), "counts": hist.tolist()},
-                    "iou_zero_fraction": float(np.mean(truth["iou"] == 0))},
-        "findings": findings, "timings_s": timings, "n_dataset": len(ds_res)}
+                    "iou_zero_fraction": float(np.mean(ious == 0))},
+        "findings": findings, "timings_s": timings, "n_dataset": len(results)}
     t0 = time.perf_counter()
-    write_report(out_dir, results, main_res, ds_res, labels, values)
+    write_report(out_dir, results_json, plan, results, real)
     timings["report_s"] = time.perf_counter() - t0
     with atomic_path(out_dir / "results.json") as tmp:
-        tmp.write_text(json.dumps(results, indent=1))
-    return results
+        tmp.write_text(json.dumps(results_json, indent=1))
+    return results_json
 
 
-def make_findings(materials, sweeps, validation, label_metric, truth, cnn, agreement) -> dict:
+def _class_mean(entries, classes, key) -> float | None:
+    vals = [key(m) for m in entries if m["brdf_class"] in classes]
+    return float(np.mean(vals)) if vals else None
+
+
+def make_findings(geometries, legibility_rows, geometry_rows, validation, label_metric, cnn,
+                  agreement, opts: StudyOptions) -> dict:
     """The study's answer in numbers."""
-    spec = np.array([m["specular_fraction"] for m in materials])
-    ious = np.array([m["iou"] for m in materials])
-    diffuse = [m["iou"] for m in materials if m["brdf_class"] in ("Lambertian",
-                                                                   "strong diffuse")]
-    specular = [m["iou"] for m in materials if m["brdf_class"] == "strong specular"]
-    mixed = [m["iou"] for m in materials if m["brdf_class"] == "strong specular + diffuse"]
-    f = {"corr_specular_fraction_vs_iou_materials": pearson(spec, ious),
-         "iou_mean_lambertian_and_diffuse": float(np.mean(diffuse)) if diffuse else None,
-         "iou_mean_strong_specular": float(np.mean(specular)) if specular else None,
-         "iou_mean_specular_plus_diffuse": float(np.mean(mixed)) if mixed else None,
-         "iou_spread_materials": float(ious.max() - ious.min()),
-         "label_corr_with_iou": validation[label_metric]["iou"],
-         "corr_clarity_vs_iou_dataset": validation["fft_clarity"]["iou"],
-         "corr_clarity_vs_depth_error_dataset": validation["fft_clarity"]["depth_error_m"],
-         "corr_clarity_vs_psnr_dataset": validation["fft_clarity"]["psnr_db"],
-         "cnn_val_accuracy": cnn["val_accuracy"], "cnn_majority_baseline":
-             cnn["majority_baseline"], "seed_figure9_agreement": agreement}
-    # sweeps: IoU range per variable and material; material effect vs geometry effect
+    def acc(m):
+        return m["identification"]["accuracy"]
+
+    f: dict = {"by_geometry": {}}
+    for g in geometries:
+        ms = g["materials"]
+        spec = np.array([m["specular_fraction"] for m in ms])
+        f["by_geometry"][g["name"]] = {
+            "identification_lambertian_and_diffuse": _class_mean(
+                ms, ("Lambertian", "strong diffuse"), acc),
+            "identification_strong_specular": _class_mean(ms, ("strong specular",), acc),
+            "identification_specular_plus_diffuse": _class_mean(
+                ms, ("strong specular + diffuse",), acc),
+            "iou_excess_lambertian_and_diffuse": _class_mean(
+                ms, ("Lambertian", "strong diffuse"), lambda m: m["iou_excess"]),
+            "iou_excess_strong_specular": _class_mean(ms, ("strong specular",),
+                                                      lambda m: m["iou_excess"]),
+            "corr_specular_fraction_vs_identification": pearson(
+                spec, np.array([acc(m) for m in ms])),
+            "stroke_over_resolution": g["stroke_over_resolution"]}
+    main = f["by_geometry"][LEGIBLE_GEOMETRY]
+    seed = f["by_geometry"].get(SEED_GEOMETRY)
+    # keep today's keys, now about the legible geometry
+    legible_ms = next(g for g in geometries if g["name"] == LEGIBLE_GEOMETRY)["materials"]
+    ious = np.array([m["iou"] for m in legible_ms])
+    spec = np.array([m["specular_fraction"] for m in legible_ms])
+    f.update({
+        "corr_specular_fraction_vs_iou_materials": pearson(spec, ious),
+        "iou_mean_lambertian_and_diffuse": _class_mean(legible_ms, ("Lambertian",
+                                                                    "strong diffuse"),
+                                                       lambda m: m["iou"]),
+        "iou_mean_strong_specular": _class_mean(legible_ms, ("strong specular",),
+                                                lambda m: m["iou"]),
+        "iou_mean_specular_plus_diffuse": _class_mean(legible_ms,
+                                                      ("strong specular + diffuse",),
+                                                      lambda m: m["iou"]),
+        "iou_spread_materials": float(ious.max() - ious.min()),
+        "label_corr_with_iou": validation.get(label_metric, {}).get("iou"),
+        "corr_clarity_vs_iou_dataset": validation["fft_clarity"]["iou"],
+        "corr_clarity_vs_identified": validation["fft_clarity"]["identified"],
+        "corr_nr_clarity_vs_identified": validation["nr_clarity"]["identified"],
+        "corr_clarity_vs_depth_error_dataset": validation["fft_clarity"]["depth_error_m"],
+        "corr_clarity_vs_psnr_dataset": validation["fft_clarity"]["psnr_db"],
+        "cnn_val_accuracy": cnn["val_accuracy"], "cnn_majority_baseline":
+            cnn["majority_baseline"], "seed_figure9_agreement": agreement[LEGIBLE_GEOMETRY]})
+    # material cost in photons and size
+    need = smallest_legible(legibility_rows, opts.sweep_materials)
+    f["smallest_legible"] = need
+    # geometry sweeps: identification range per variable and material
     effect = {}
-    for var in sorted({s["variable"] for s in sweeps}):
-        rows = [s for s in sweeps if s["variable"] == var]
+    for var in sorted({s["variable"] for s in geometry_rows}):
+        rows = [s for s in geometry_rows if s["variable"] == var]
         per_m = {}
         for m in sorted({s["material"] for s in rows}):
-            ys = [s["iou"] for s in rows if s["material"] == m]
+            ys = [s["identification"]["accuracy"] for s in rows if s["material"] == m]
             per_m[m] = {"min": float(min(ys)), "max": float(max(ys)),
                         "range": float(max(ys) - min(ys))}
         geometry = float(np.mean([v["range"] for v in per_m.values()]))
         vals = sorted({s["value"] for s in rows})
-        material = float(np.mean([np.ptp([s["iou"] for s in rows if s["value"] == v])
-                                  for v in vals]))
+        material = float(np.mean([np.ptp([s["identification"]["accuracy"] for s in rows
+                                           if s["value"] == v]) for v in vals]))
         effect[var] = {"per_material": per_m, "geometry_effect": geometry,
                        "material_effect": material,
                        "dominant": "geometry" if geometry > material else "material"}
     f["sweeps"] = effect
-    # the condition (sweep value) where the material matters most: largest spread of IoU
-    # between the sweep's materials
-    spread = [(float(np.ptp([s["iou"] for s in sweeps if (s["variable"], s["value"]) == key])),
-               key) for key in {(s["variable"], s["value"]) for s in sweeps}]
+    spread = [(float(np.ptp([s["identification"]["accuracy"] for s in geometry_rows
+                             if (s["variable"], s["value"]) == key])), key)
+              for key in {(s["variable"], s["value"]) for s in geometry_rows}]
     if spread:
         best, (var, val) = max(spread)
-        f["largest_material_spread"] = {"variable": var, "value": val, "iou_spread": best}
-    c = f["corr_specular_fraction_vs_iou_materials"]
-    f["seed_conclusion_holds"] = bool(np.isfinite(c) and c < -0.3)
+        f["largest_material_spread"] = {"variable": var, "value": val,
+                                        "identification_spread": best}
+    ld, sp = main["identification_lambertian_and_diffuse"], main["identification_strong_specular"]
+    f["seed_conclusion_holds"] = bool(ld is not None and sp is not None and ld > sp)
+    chance = 1.0 / len(opts.glyphs)
+
+    def pct(v):
+        return "n/a" if v is None else f"{100 * v:.0f}%"
+
+    costs = "; ".join(
+        f"{n['material']}: letters from {n['letter_height_m']:g} m"
+        if n["letter_height_m"] is not None else f"{n['material']}: no swept letter size"
+        for n in need)
+    expo = "; ".join(
+        f"{n['material']}: {n['exposure_s']:g} s" if n["exposure_s"] is not None
+        else f"{n['material']}: not within the swept exposures" for n in need)
     f["statement"] = (
-        f"Across the {len(materials)} materials the correlation between specular fraction "
-        f"and IoU is {c:+.2f}; Lambertian and strong-diffuse targets reach IoU "
-        f"{f['iou_mean_lambertian_and_diffuse'] or float('nan'):.2f} on average, strong-"
-        f"specular ones {f['iou_mean_strong_specular'] or float('nan'):.2f}: "
-        + ("less specular targets reconstruct better, as the seed concluded."
+        f"At the legible geometry (stroke / resolution {main['stroke_over_resolution']:.1f}) "
+        f"Lambertian and strong-diffuse targets are identified in "
+        f"{pct(ld)} of reconstructions, strong-specular ones in {pct(sp)} and mixed ones in "
+        f"{pct(main['identification_specular_plus_diffuse'])} (chance {pct(chance)}). "
+        + (f"At the seed's Table 1 geometry (stroke / resolution "
+           f"{seed['stroke_over_resolution']:.1f}) identification is "
+           f"{pct(seed['identification_lambertian_and_diffuse'])} for diffuse targets: the "
+           f"strokes sit at the resolution limit and no material reads. " if seed else "")
+        + f"Smallest legible letters (identification >= {LEGIBLE_ACCURACY:g}): {costs}. "
+        f"Exposure per scan point needed: {expo}. "
+        + ("Less specular targets are read more often, as the seed concluded."
            if f["seed_conclusion_holds"] else
-           "the seed's conclusion (less specular -> clearer) is not supported here."))
+           "The seed's conclusion (less specular -> clearer) is not supported here."))
     return f
