@@ -1,0 +1,313 @@
+"""Measured resolution of the study's geometry, O'Toole's bound beside it, and the real chart.
+
+A small square patch (point-like: ``patch_m`` = 1 cm, about one lateral voxel of the seed's
+geometry) faces the scan plane at the geometry's depth, centred on the scan point nearest
+the axis. It is simulated through the slab once noise-free and once at a photon budget,
+and reconstructed by each method; for each reconstruction the profiles through its peak
+along x, y and z give the lateral FWHM (mean of x and y) and the axial FWHM, each with the
+half-maximum crossings interpolated between voxels (:func:`fwhm_1d`). The patch broadens a
+Gaussian PSF of FWHM F to about sqrt(F^2 + (0.94 a)^2): under 2% for a = 1 cm and F >= 5 cm.
+
+O'Toole's bound for confocal scans (O'Toole, Lindell & Wetzstein, Nature 555, 2018):
+lateral dx >= c gamma sqrt(w^2 + z^2) / (2 w) and axial dz >= c gamma / 2, with 2w the scan
+width, z the depth and gamma the effective temporal FWHM, here MEASURED after the slab
+deconvolution: the FWHM of the deconvolved transient at the scan point over the patch (it
+holds the laser pulse, the bin width and what the Wiener filter leaves of the slab blur).
+
+At the budget, a 1 cm^2 patch returns ~150x fewer photons than the study's 'UT' letters and
+the auto-chosen Wiener SNRs (:mod:`clnlos.noise`) would smooth it far more than they smooth
+the letters. ``budget_area_m2`` (default: the area of the geometry's letters) scales the
+patch's albedo so that its capture holds the photons of a Lambertian target of that area at
+the same depth: the resolution the letters' own photon count allows.
+
+The real chart (``resolution_70.mat``, Supplementary Fig. 17 of Lindell & Wetzstein 2020,
+0.7 m scan): the chart's design is not part of the shared data, so its features are found
+in the reconstruction (:func:`chart_features`): the rows of patches (maxima of the chart
+plane's mean over x), the maxima along each row, and the dip between each pair of
+neighbours. A pair is resolved when its contrast 1 - dip / min(peak1, peak2) is at least
+CONTRAST_RESOLVED (0.2, about Rayleigh's 19% dip for two sinc^2 spots); a row whose
+profile has a single maximum is reported with its width (nothing inside it is resolved).
+"""
+
+from __future__ import annotations
+
+import math
+from dataclasses import asdict, dataclass, replace
+
+import numpy as np
+
+from .. import C0
+from ..config import METHODS, ReconstructionConfig
+from ..slab import CDT_SLAB, Slab
+
+CONTRAST_RESOLVED = 0.2   # dip between two maxima, as a fraction of the lower one
+PEAK_FLOOR = 0.25         # chart maxima below this fraction of the image maximum are ignored
+PEAK_PROMINENCE = 0.03    # ... and those that rise less than this above their surroundings
+CHART_SLAB_M = 0.05       # the chart image: max over +-this depth around the chart plane
+SEARCH_CELLS = 2          # the patch's peak is searched within +-this many scan cells of it
+
+
+@dataclass(frozen=True)
+class ResolutionGeometry:
+    """Where the resolution is measured (defaults: the seed's Table 1, the study's default
+    geometry): a ``points`` x ``points`` confocal scan of side ``scan_width_m``, the patch at
+    ``depth_m`` behind the ``slab`` (None: no slab), ``bin_width_s`` bins, a Gaussian pulse
+    of ``pulse_width_s`` FWHM, the reconstruction window ``max_path_m`` of round-trip path
+    and ``iterations`` of the iterative method. ``text``, ``letter_height_m`` and
+    ``stroke_m`` are the letters read at this geometry: their area sets the budget's photon
+    count (``budget_area_m2`` None) and their stroke the ratio stroke / resolution."""
+
+    scan_width_m: float = 0.3
+    points: int = 32
+    depth_m: float = 0.5
+    slab: Slab | None = CDT_SLAB
+    bin_width_s: float = 16e-12
+    pulse_width_s: float = 35e-12
+    max_path_m: float = 1.6
+    iterations: int = 50
+    patch_m: float = 0.01
+    density_per_m2: float = 4e6  # 400 surface elements on the 1 cm patch
+    text: str = "UT"
+    letter_height_m: float = 0.15
+    stroke_m: float = 0.04
+    budget_area_m2: float | None = None
+
+    @property
+    def pitch_m(self) -> float:
+        return self.scan_width_m / self.points
+
+    def patch_centre_m(self) -> float:
+        """x = y of the patch: the centre of scan cell ``points // 2`` (m)."""
+        return (self.points // 2 + 0.5) * self.pitch_m - self.scan_width_m / 2
+
+    def bins(self) -> int:
+        """Capture bins: 30% past the reconstruction window (the deconvolution's guard)."""
+        return int(math.ceil(1.3 * self.max_path_m / (C0 * self.bin_width_s)))
+
+
+def _crossing(p: np.ndarray, i: int, level: float) -> float:
+    """Where the profile crosses ``level`` between samples i and i + 1 (one below it, one
+    at or above): the root of the cubic through the four samples i-1..i+2 (fewer at the
+    ends), fitted to their logarithms when all are positive (exact for a Gaussian, whose
+    logarithm is a parabola), else to the values."""
+    from scipy.optimize import brentq
+
+    j = np.arange(max(0, i - 1), min(p.size, i + 3))
+    v = p[j]
+    if np.all(v > 0):
+        v, level = np.log(v), math.log(level)
+    poly = np.polynomial.Polynomial.fit(j, v, len(j) - 1)
+    fa, fb = poly(i) - level, poly(i + 1) - level
+    if fa * fb > 0:  # a sample on the level, moved off it by round-off
+        return float(i if abs(fa) < abs(fb) else i + 1)
+    return float(brentq(lambda x: poly(x) - level, i, i + 1))
+
+
+def _peak_value(p: np.ndarray, k: int) -> float:
+    """The profile's maximum near sample k: the vertex of the parabola through samples
+    k-1..k+1, fitted to their logarithms when positive (exact for a Gaussian), else the
+    sample itself when the vertex is not a maximum inside (k-1, k+1)."""
+    if k < 1 or k > p.size - 2:
+        return float(p[k])
+    v = p[k - 1:k + 2]
+    logs = bool(np.all(v > 0))
+    f = np.log(v) if logs else v
+    a, b = (f[0] + f[2]) / 2 - f[1], (f[2] - f[0]) / 2
+    if not a < 0:
+        return float(p[k])
+    d = -b / (2 * a)
+    if abs(d) >= 1:
+        return float(p[k])
+    top = f[1] - b * b / (4 * a)
+    return float(math.exp(top) if logs else top)
+
+
+def fwhm_1d(profile: np.ndarray, spacing: float = 1.0, peak: int | None = None
+            ) -> float | None:
+    """Full width at half maximum of a 1-D profile (units of ``spacing``) around its sample
+    ``peak`` (default: the maximum sample). The maximum between samples is the vertex of
+    the parabola through the three samples around ``peak`` (:func:`_peak_value`), and the
+    half-maximum crossing on each side is interpolated between the last sample at or above
+    half and the first below it (:func:`_crossing`): both exact for a Gaussian.
+    None when the profile does not fall below half its peak on both sides (wider than the
+    array) or the peak is not positive."""
+    p = np.asarray(profile, np.float64)
+    k = int(np.argmax(p)) if peak is None else int(peak)
+    if not p[k] > 0 or p.size < 3:
+        return None
+    half = _peak_value(p, k) / 2
+    below = np.nonzero(p < half)[0]
+    left, right = below[below < k], below[below > k]
+    if left.size == 0 or right.size == 0:
+        return None
+    x_lo = _crossing(p, int(left[-1]), half)
+    x_hi = _crossing(p, int(right[0]) - 1, half)
+    return float((x_hi - x_lo) * spacing)
+
+
+def peak_index(volume: np.ndarray, near_yx: tuple[int, int] | None = None,
+               cells: int = SEARCH_CELLS) -> tuple[int, int, int]:
+    """(z, y, x) of the brightest voxel of a [z, y, x] volume, within ``cells`` scan cells
+    of the column ``near_yx`` when given."""
+    v = np.asarray(volume)
+    if near_yx is None:
+        return tuple(int(i) for i in np.unravel_index(np.argmax(v), v.shape))
+    iy, ix = near_yx
+    y0, x0 = max(0, iy - cells), max(0, ix - cells)
+    sub = v[:, y0:iy + cells + 1, x0:ix + cells + 1]
+    z, y, x = np.unravel_index(np.argmax(sub), sub.shape)
+    return int(z), int(y + y0), int(x + x0)
+
+
+def volume_fwhm(volume: np.ndarray, voxel_lateral_m: float, voxel_depth_m: float,
+                near_yx: tuple[int, int] | None = None) -> dict:
+    """FWHM (m) of the profiles through the peak of a [z, y, x] volume (:func:`peak_index`):
+    ``lateral_fwhm_m`` (mean of x and y; None if either is wider than the volume), the two
+    lateral ones, ``axial_fwhm_m``, and the peak's depth (voxel centre)."""
+    z, y, x = peak_index(volume, near_yx)
+    v = np.asarray(volume, np.float64)
+    fx = fwhm_1d(v[z, y, :], voxel_lateral_m, x)
+    fy = fwhm_1d(v[z, :, x], voxel_lateral_m, y)
+    fz = fwhm_1d(v[:, y, x], voxel_depth_m, z)
+    lat = None if fx is None or fy is None else (fx + fy) / 2
+    return {"lateral_fwhm_m": lat, "lateral_fwhm_x_m": fx, "lateral_fwhm_y_m": fy,
+            "axial_fwhm_m": fz, "peak_depth_m": (z + 0.5) * voxel_depth_m}
+
+
+def otoole_lateral_bound_m(scan_width_m: float, depth_m: float, temporal_fwhm_s: float
+                           ) -> float:
+    """O'Toole's confocal lateral bound c gamma sqrt(w^2 + z^2) / (2 w), w = half the scan
+    width (m), z the depth (m), gamma the effective temporal FWHM (s); m."""
+    w = scan_width_m / 2
+    return C0 * temporal_fwhm_s * math.sqrt(w * w + depth_m * depth_m) / (2 * w)
+
+
+def otoole_axial_bound_m(temporal_fwhm_s: float) -> float:
+    """O'Toole's confocal axial bound c gamma / 2 (m)."""
+    return C0 * temporal_fwhm_s / 2
+
+
+def stroke_over_resolution(stroke_m: float, lateral_fwhm_m: float | None) -> float | None:
+    """Stroke width over the lateral FWHM (> 1: strokes wider than the resolution); None
+    when the FWHM was not measured (wider than the scan)."""
+    if lateral_fwhm_m is None or not lateral_fwhm_m > 0:
+        return None
+    return float(stroke_m / lateral_fwhm_m)
+
+
+def letters_area_m2(text: str, height_m: float, stroke_m: float) -> float:
+    """Area (m^2) of the stroked letters (:func:`clnlos.geometry.sample_letters`)."""
+    from ..geometry import sample_letters
+
+    return float(sample_letters(text, height_m, stroke_m, 1e6).area.sum())
+
+
+def patch_scene(geometry: ResolutionGeometry):
+    """The noise-free scene of the patch (:class:`clnlos.scene.Scene`)."""
+    from ..scene import Scene
+
+    g = geometry
+    c = g.patch_centre_m()
+    d = {"seed": 0, "scan": {"width_m": g.scan_width_m, "points": g.points},
+         "time": {"bin_width_s": g.bin_width_s, "bins": g.bins(), "start_s": 0.0},
+         "objects": [{"shape": "rectangle", "size_m": [g.patch_m, g.patch_m],
+                      "translate_m": [c, c, g.depth_m], "material": "lambertian",
+                      "albedo": 1.0}],
+         "laser": {"pulse_width_s": g.pulse_width_s},
+         "sampling": {"density_per_m2": g.density_per_m2, "splat_order": 1}}
+    if g.slab is not None:
+        d["slab"] = {"thickness_m": g.slab.thickness_m, "mu_a": g.slab.mu_a,
+                     "mu_s_prime": g.slab.mu_s_prime, "n": g.slab.n}
+    return Scene.from_dict(d)
+
+
+def detector_table(grid, exposure_s: float) -> dict:
+    """A scene's [detector] table from the study grid's photon budget
+    (:class:`clnlos.study.dataset.StudyGrid`) at ``exposure_s`` per scan point."""
+    return {"power_w": grid.power_w, "rep_rate_hz": grid.rep_rate_hz, "exposure_s": exposure_s,
+            "efficiency": grid.efficiency, "wavelength_m": grid.wavelength_m,
+            "etendue_m2_sr": grid.etendue_m2_sr, "dark_count_rate_hz": grid.dark_count_rate_hz}
+
+
+def budget_capture(noise_free, scene, geometry: ResolutionGeometry, grid, exposure_s: float,
+                   seed: int = 0):
+    """Photon counts of the patch at ``exposure_s``: the noise-free capture scaled by the
+    albedo that gives the patch the photons of ``budget_area_m2`` (default: the letters'
+    area), then Poisson noise and dark counts (:func:`clnlos.forward.photon_counts`)."""
+    from ..forward import photon_counts
+    from ..io import Capture
+    from ..scene import Detector
+
+    g = geometry
+    area = (g.budget_area_m2 if g.budget_area_m2 is not None
+            else letters_area_m2(g.text, g.letter_height_m, g.stroke_m))
+    albedo = area / (g.patch_m * g.patch_m)
+    det_scene = replace(scene, detector=Detector(**detector_table(grid, exposure_s)))
+    counts = photon_counts(noise_free.transient * albedo, det_scene,
+                           np.random.default_rng(seed))
+    cap = Capture(counts, noise_free.bin_width_s, noise_free.start_s, noise_free.scan_width_m,
+                  "simulated", dict(noise_free.attrs))
+    return cap, albedo
+
+
+def _measure(capture, geometry: ResolutionGeometry, methods, queue) -> dict:
+    """FWHMs of each method's reconstruction of one capture, the effective temporal FWHM
+    of its deconvolved transient over the patch and the bounds from it."""
+    from ..reconstruct import reconstruct
+
+    g = geometry
+    iy = ix = g.points // 2
+    out: dict = {}
+    gamma = None
+    for m in methods:
+        cfg = ReconstructionConfig(max_path_m=g.max_path_m, slab=g.slab, method=m,
+                                   iterations=g.iterations).validate()
+        rec = reconstruct(capture, cfg, device=queue, keep_transient=gamma is None)
+        e = rec.extents
+        out[m] = volume_fwhm(rec.volume, e["voxel_lateral_m"], e["voxel_depth_m"], (iy, ix))
+        if gamma is None:
+            gamma = fwhm_1d(rec.transient[:, iy, ix], rec.bin_width_s)
+    out["effective_temporal_fwhm_s"] = gamma
+    out["bound_lateral_m"] = (None if gamma is None else
+                              otoole_lateral_bound_m(g.scan_width_m, g.depth_m, gamma))
+    out["bound_axial_m"] = None if gamma is None else otoole_axial_bound_m(gamma)
+    out["photons"] = float(np.asarray(capture.transient, np.float64).sum())
+    return out
+
+
+def measure_resolution(geometry: ResolutionGeometry = ResolutionGeometry(), *,
+                       exposure_s: float | None = 0.1, methods=METHODS, grid=None,
+                       queue=None, seed: int = 0) -> dict:
+    """Resolution of each method at ``geometry`` (results.json ``resolution``).
+
+    Returns, noise-free: ``{method: {"lateral_fwhm_m", "axial_fwhm_m", ...}}``,
+    ``bound_lateral_m``, ``bound_axial_m``, ``effective_temporal_fwhm_s``, ``photons`` (the
+    capture's sum, 1/(m^2 sr) for noise-free), ``stroke_over_resolution`` {method: stroke /
+    lateral FWHM}; and ``budget``, the same keys at ``exposure_s`` per scan point of the
+    ``grid``'s photon budget (default :class:`clnlos.study.dataset.StudyGrid`) with
+    ``exposure_s`` and the patch's ``albedo`` (absent when ``exposure_s`` is None);
+    ``geometry`` echoes the geometry. A FWHM is None where the profile stays above half its
+    peak across the volume."""
+    from ..forward import ForwardModel
+    from ..runtime import get_queue
+    from .dataset import StudyGrid
+
+    grid = StudyGrid() if grid is None else grid
+    queue = get_queue(queue)
+    g = geometry
+    scene = patch_scene(g)
+    clean = ForwardModel(scene, queue=queue).capture()
+    res = _measure(clean, g, methods, queue)
+    cases = [res]
+    if exposure_s is not None:
+        cap, albedo = budget_capture(clean, scene, g, grid, exposure_s, seed)
+        res["budget"] = {**_measure(cap, g, methods, queue), "exposure_s": exposure_s,
+                         "albedo": albedo}
+        cases.append(res["budget"])
+    for case in cases:
+        case["stroke_over_resolution"] = {
+            m: stroke_over_resolution(g.stroke_m, case[m]["lateral_fwhm_m"]) for m in methods}
+    geo = asdict(g)
+    geo["slab"] = None if g.slab is None else asdict(g.slab)
+    res["geometry"] = geo
+    return res
