@@ -433,15 +433,18 @@ def cmd_study(args) -> int:
     opts.labels = args.labels
     res = run_study(out, opts.validate(), workers=args.workers, scheduler=args.scheduler,
                     device=args.device)
-    for m in res["materials"]:
-        print(f"{m['name']:36s} {m['brdf_class']:26s} IoU {m['iou']:.3f} "
-              f"[{m['iou_ci'][0]:.2f}, {m['iou_ci'][1]:.2f}] label {m['label']} "
-              f"CNN {m['cnn_label']} seed {m['seed_label']} depth error "
-              f"{m['depth_error_m'] * 100:.1f} cm")
-    print(f"labels {res['labels']['metric']}: r = {res['labels']['corr_with_iou']:+.2f} with "
-          f"IoU; CNN validation accuracy {res['cnn']['val_accuracy']:.3f} (majority "
-          f"{res['cnn']['majority_baseline']:.3f}); seed Figure 9 agreement "
-          f"{res['seed_figure9_agreement']}/10")
+    for geo in res["geometries"]:
+        print(f"geometry {geo['name']}: {geo['description']}; stroke / resolution "
+              f"{geo['stroke_over_resolution']:.2f}")
+        for m in geo["materials"]:
+            i = m["identification"]
+            print(f"  {m['name']:36s} {m['brdf_class']:26s} identification "
+                  f"{i['accuracy']:.2f} [{i['ci'][0]:.2f}, {i['ci'][1]:.2f}] (chance "
+                  f"{i['chance']:.3f}, n {i['n']}) IoU {m['iou']:.3f} (box "
+                  f"{m['iou_box_baseline']:.3f}) label {m['label']} CNN {m['cnn_label']} "
+                  f"seed {m['seed_label']}")
+    print(f"labels {res['labels']['source']}; CNN validation accuracy "
+          f"{res['cnn']['val_accuracy']:.3f} (majority {res['cnn']['majority_baseline']:.3f})")
     print(res["findings"]["statement"])
     print(f"wrote {out / 'report.html'} and results.json")
     return 0
@@ -455,20 +458,24 @@ def register_study(sub, add_device) -> None:
     s = sub.add_parser("study", help="the material study (main job)")
     g = s.add_mutually_exclusive_group()
     g.add_argument("--quick", action="store_true", help=f"built-in default: "
-                   f"{quick.n_dataset} dataset samples, {quick.sweep_seeds} noise seed(s) per "
-                   "sweep point (under 3 minutes on 2 cores)")
-    g.add_argument("--full", action="store_true", help=f"{full.n_dataset} dataset samples, "
-                   f"{full.sweep_seeds} noise seeds per sweep point (under 15 minutes on 2 "
-                   "cores)")
+                   f"{len(quick.glyphs)} glyphs x {quick.seeds} noise realisation(s) per "
+                   f"material and geometry, {len(quick.sweep_glyphs)} glyphs per geometry-"
+                   f"sweep point, {quick.n_dataset} extra random samples (within 4 minutes on "
+                   "2 cores)")
+    g.add_argument("--full", action="store_true", help=f"{len(full.glyphs)} glyphs x "
+                   f"{full.seeds} noise realisations per material and geometry, "
+                   f"{len(full.sweep_glyphs)} glyphs per geometry-sweep point, "
+                   f"{full.n_dataset} extra random samples (within 20 minutes on 2 cores)")
     s.add_argument("-o", "--output", default="out/study",
                    help="output folder: report.html, results.json and the sample cache "
                         "(default %(default)s)")
     s.add_argument("--method", choices=["lct", "fk", "iterative"], default=None,
                    help=f"reconstruction method (default {StudyGrid.method})")
-    s.add_argument("--labels", choices=list(LABEL_METRICS), default="nr",
-                   help=f"label source: nr, the no-reference metric {LABEL_METRICS['nr']}, "
-                        f"or fft, the seed's FFT clarity {LABEL_METRICS['fft']} "
-                        "(default %(default)s)")
+    s.add_argument("--labels", choices=list(LABEL_METRICS), default=full.labels,
+                   help="what the CNN learns: legibility (glyph identified and IoU above "
+                        "its box baseline: ground truth), nr (the no-reference metric "
+                        f"{LABEL_METRICS['nr']}) or fft (the seed's FFT clarity "
+                        f"{LABEL_METRICS['fft']}, the seed's recipe) (default %(default)s)")
     w = s.add_mutually_exclusive_group()
     w.add_argument("--workers", type=int, default=None,
                    help="local Dask worker processes (default: CPU count; 1 = serial)")

@@ -133,13 +133,3 @@ def box_baseline_iou(truth: np.ndarray) -> float:
     box[ys.min():ys.max() + 1, xs.min():xs.max() + 1] = True
     return float(t.sum() / box.sum())
 
-
-def otoole_lateral_bound_m(scan_width_m: float, depth_m: float,
-                           temporal_fwhm_s: float) -> float:
-    """O'Toole et al.'s lateral resolution of a confocal scan (Nature 2018, Eq. S24):
-    dx >= c gamma sqrt(w^2 + z^2) / (2 w), with 2 w the scan width, z the depth and gamma the
-    effective temporal FWHM of the system (s); in m."""
-    from .. import C0
-
-    w = scan_width_m / 2.0
-    return float(C0 * temporal_fwhm_s * math.sqrt(w * w + depth_m * depth_m) / (2.0 * w))

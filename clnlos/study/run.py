@@ -43,11 +43,13 @@ from pathlib import Path
 
 import numpy as np
 
+from .. import C0
 from ..errors import ParameterError
 from .clarity import label_thresholds
 from .dataset import StudyGrid, cpu_workers, dataset_samples, run_samples
 from .legibility import (GLYPHS, LEGIBLE_ACCURACY, glyph_templates, identification_summary,
-                         identify, otoole_lateral_bound_m)
+                         identify)
+from .resolution import ResolutionGeometry, measure_resolution, otoole_lateral_bound_m
 from .quality import DEFAULT_LABEL_METRIC, METRICS, pearson, validate_metrics
 
 # The seed's Figure 9 grouping of its ten materials (1 clear, 2 medium, 3 fuzzy).
@@ -270,20 +272,36 @@ def material_class(ident: dict) -> int:
     return 3 if ident["ci"][0] <= ident["chance"] else 2
 
 
-def _temporal_fwhm_and_resolution(opts: StudyOptions, device) -> tuple[dict, dict]:
-    """(results.json ``resolution`` at the default geometry, lateral FWHM per geometry)."""
-    from .resolution import measure_resolution
+def resolution_geometry(geo: Geometry, grid: StudyGrid) -> ResolutionGeometry:
+    """Where :func:`~clnlos.study.resolution.measure_resolution` measures a study geometry:
+    its scan, depth, slab and letters on the study's grid (bins, pulse, window, iterations)."""
+    from .dataset import window_m
 
+    return ResolutionGeometry(
+        scan_width_m=geo.scan_width_m, points=grid.points, depth_m=geo.depth_m,
+        bin_width_s=grid.bin_width_s, pulse_width_s=grid.pulse_width_s,
+        max_path_m=window_m({"depth_m": geo.depth_m}, grid), iterations=grid.iterations,
+        text="E", letter_height_m=geo.letter_height_m, stroke_m=geo.stroke_m)
+
+
+def study_resolution(opts: StudyOptions, device) -> tuple[dict, dict[str, float]]:
+    """(results.json ``resolution``: every method, noise-free and at the budget, at the seed
+    geometry; the study method's noise-free lateral FWHM at each geometry, m). A FWHM that
+    cannot be measured (the profile never falls to half) falls back to O'Toole's bound."""
     seed_geo = next((g for g in opts.geometries if g.name == SEED_GEOMETRY),
                     opts.geometries[0])
-    res = measure_resolution(seed_geo, opts.grid, device=device)
+    method = opts.grid.method
+    res = measure_resolution(resolution_geometry(seed_geo, opts.grid), grid=opts.grid,
+                             queue=device, exposure_s=DEFAULT_EXPOSURE_S)
+    gamma = res["effective_temporal_fwhm_s"]
     lateral = {}
     for geo in opts.geometries:
-        if geo.name == seed_geo.name:
-            lateral[geo.name] = res[opts.grid.method]["lateral_fwhm_m"]
-        else:
-            r = measure_resolution(geo, opts.grid, device=device, methods=(opts.grid.method,))
-            lateral[geo.name] = r[opts.grid.method]["lateral_fwhm_m"]
+        r = res if geo.name == seed_geo.name else measure_resolution(
+            resolution_geometry(geo, opts.grid), grid=opts.grid, queue=device,
+            exposure_s=None, methods=(method,))
+        fwhm = r[method]["lateral_fwhm_m"]
+        lateral[geo.name] = (fwhm if fwhm is not None else
+                             otoole_lateral_bound_m(geo.scan_width_m, geo.depth_m, gamma))
     return res, lateral
 
 
@@ -417,11 +435,60 @@ def train_cnn(plan, results, opts: StudyOptions, label_metric: str, thresholds):
     return predict, report, labels
 
 
+# The shared real CDT captures (../shared/data/cdt, Lindell & Wetzstein 2020) and their scan
+# widths (the data's README); the slab is the CDT slab of clnlos.slab.
+REAL_CAPTURES = {"letters_ut": 0.7, "letter_s": 0.6, "resolution_70": 0.7}
+
+
+def shared_data_dir() -> Path | None:
+    """../shared/data beside the working directory or beside the source checkout, if there."""
+    here = Path(__file__).resolve().parents[2]
+    for base in (Path.cwd(), here):
+        d = base.parent / "shared" / "data"
+        if (d / "cdt").is_dir():
+            return d
+    return None
+
+
+def real_captures_cnn(predict, grid: StudyGrid, device=None) -> list[dict]:
+    """The CNN's legibility class of each shared real capture, reconstructed with the study's
+    method and default (auto) parameters through the CDT slab ([] without the data)."""
+    from ..config import ReconstructionConfig
+    from ..io import read_capture
+    from ..reconstruct import reconstruct
+    from ..slab import CDT_SLAB
+
+    root = shared_data_dir()
+    out = []
+    if root is None:
+        return out
+    for name, width in REAL_CAPTURES.items():
+        path = root / "cdt" / f"{name}.mat"
+        if not path.is_file():
+            continue
+        cap = read_capture(path)
+        bins = int(round(grid.max_path_m / (C0 * grid.bin_width_s)))  # the study's binning
+        cfg = ReconstructionConfig(scan_width_m=width, slab=CDT_SLAB, method=grid.method,
+                                   iterations=grid.iterations, max_path_m=grid.max_path_m,
+                                   bins=bins).validate()
+        vol = reconstruct(cap, cfg, device=device).volume
+        mip = vol.max(axis=0)
+        if mip.shape != (grid.points, grid.points):  # the CNN's input size
+            from scipy.ndimage import zoom
+
+            mip = zoom(mip, (grid.points / mip.shape[0], grid.points / mip.shape[1]), order=1)
+        mip = mip / mip.max() if mip.max() > 0 else mip
+        label, probs = predict(mip[None].astype(np.float32))
+        out.append({"name": name, "cnn_label": int(label[0]),
+                    "cnn_probabilities": [float(v) for v in probs[0]],
+                    "scan_width_m": width, "mip": mip.astype(np.float32)})
+    return out
+
+
 def run_study(out_dir: Path, opts: StudyOptions, *, workers: int | None = None,
               scheduler: str | None = None, device: str | None = None) -> dict:
     from ..brdf.presets import preset_table
     from ..io import atomic_path
-    from .real_capture import real_capture_study
     from .report import write_report
 
     opts = opts.validate()
@@ -445,7 +512,7 @@ def run_study(out_dir: Path, opts: StudyOptions, *, workers: int | None = None,
 
     # -- resolution, identification
     t0 = time.perf_counter()
-    resolution, lateral = _temporal_fwhm_and_resolution(opts, device)
+    resolution, lateral = study_resolution(opts, device)
     identification_of(plan, results, opts, resolution["effective_temporal_fwhm_s"], lateral)
     timings["resolution_s"] = time.perf_counter() - t0
 
@@ -489,7 +556,10 @@ def run_study(out_dir: Path, opts: StudyOptions, *, workers: int | None = None,
 
     # -- real captures (shared data): the simulated twin, the CNN's verdict
     t0 = time.perf_counter()
-    real = real_capture_study(opts.grid, predict, device=device) if opts.real_data else None
+    real = None
+    if opts.real_data and shared_data_dir() is not None:
+        real = {"cnn": real_captures_cnn(predict, opts.grid, device), "summary": None,
+                "figure": None}
     timings["real_capture_s"] = time.perf_counter() - t0
 
     findings = make_findings(geometries, legibility_rows, geometry_rows, validation,
@@ -513,7 +583,8 @@ def run_study(out_dir: Path, opts: StudyOptions, *, workers: int | None = None,
                               for r in legibility_rows],
         "smallest_legible": smallest_legible(legibility_rows, opts.sweep_materials),
         "real_capture": None if real is None else real["summary"],
-        "real_captures_cnn": None if real is None else real["cnn"],
+        "real_captures_cnn": None if real is None else [
+            {k: v for k, v in c.items() if k != "mip"} for c in real["cnn"]],
         "cnn_validation_accuracy": cnn["val_accuracy"], "cnn": cnn,
         "labels": {"source": opts.labels, "metric": label_metric,
                    "corr_with_iou": validation[label_metric]["iou"]
