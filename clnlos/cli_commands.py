@@ -33,6 +33,13 @@ def require(module: str, what: str) -> None:
             f"({hint})")
 
 
+def _add_force(p) -> None:
+    p.add_argument("--force", action="store_true",
+                   help="replace an existing file at a path written beside the output (or "
+                        "in the output folder) that clnlos did not write; inputs are never "
+                        "replaced")
+
+
 def _add_precision(p) -> None:
     p.add_argument("--dtype", choices=sorted(DTYPES), default="float32",
                    help="kernel precision (default float32)")
@@ -101,7 +108,8 @@ def cmd_reconstruct(args) -> int:
     out = Path(args.output)
     cfg = config_from_args(args)  # parameter errors before reading anything
     check_outputs({"-o": out, "figure": out.with_suffix(".png")},
-                  inputs=[args.capture, args.config], suffixes={"-o": HDF5_SUFFIXES})
+                  inputs=[args.capture, args.config], suffixes={"-o": HDF5_SUFFIXES},
+                  implied={"figure": None}, force=args.force)
     queue = get_queue(args.device)
     capture = read_capture(args.capture)
     resolve_geometry(capture, cfg)  # missing geometry before the slab note
@@ -153,6 +161,7 @@ def register_reconstruct(sub, add_device) -> None:
     r.add_argument("--n", type=float, help="slab refractive index (relative)")
     r.add_argument("--no-slab", action="store_true",
                    help="skip the slab deconvolution (also of a slab the capture recorded)")
+    _add_force(r)
     _add_precision(r)
     add_device(r)
     r.set_defaults(func=cmd_reconstruct)
@@ -164,7 +173,8 @@ def cmd_plot(args) -> int:
     from .io import read_volume, save_figure
 
     out = Path(args.output) if args.output else Path(args.volume).with_suffix(".png")
-    check_outputs({"-o": out}, inputs=[args.volume], suffixes={"-o": (".png",)})
+    check_outputs({"-o": out}, inputs=[args.volume], suffixes={"-o": (".png",)},
+                  implied={} if args.output else {"-o": None}, force=args.force)
     if args.gamma is not None and not (np.isfinite(args.gamma) and 0 < args.gamma <= 10):
         from .errors import ParameterError
 
@@ -183,6 +193,7 @@ def register_plot(sub) -> None:
     g = p.add_mutually_exclusive_group()
     g.add_argument("--gamma", type=float, help="display value^gamma (e.g. 0.5)")
     g.add_argument("--log", action="store_true", help="display log10(value / max)")
+    _add_force(p)
     p.set_defaults(func=cmd_plot)
 
 
@@ -194,8 +205,9 @@ def cmd_simulate(args) -> int:
 
     out = Path(args.output)
     scene = Scene.from_toml(args.scene)
-    check_outputs({"-o": out, "figure": figure_path(out)}, inputs=[args.scene],
-                  suffixes={"-o": HDF5_SUFFIXES})
+    check_outputs({"-o": out, "figure": figure_path(out)},
+                  inputs=[args.scene, *scene.input_paths()], suffixes={"-o": HDF5_SUFFIXES},
+                  implied={"figure": None}, force=args.force)
     queue = get_queue(args.device)
     sim = simulate_to_file(scene, out, fmt=args.format, dtype=DTYPES[args.dtype], queue=queue)
     print(f"wrote {out} ({args.format}) transient {sim.transient.shape} [t, y, x]; stages "
@@ -214,8 +226,9 @@ def cmd_demo(args) -> int:
 
         raise OutputFileError(f"-o {out}: is a file; the demo writes a folder")
     scene, cfg = demo_inputs(args.scene, args.config)
-    check_outputs({f"-o {name}": out / name for name in DEMO_FILES},
-                  inputs=[args.scene, args.config])
+    outs = {f"-o {name}": out / name for name in DEMO_FILES}
+    check_outputs(outs, inputs=[args.scene, args.config, *scene.input_paths()],
+                  implied=dict.fromkeys(outs), force=args.force)
     run_demo(out, scene, cfg, queue=get_queue(args.device))
     return 0
 
@@ -227,6 +240,7 @@ def register_forward(sub, add_device) -> None:
                    help="output capture (.h5; a PNG is written beside)")
     s.add_argument("--format", choices=["clnlos", "tal"], default="clnlos",
                    help="capture format: clnlos HDF5 (default) or y-tal HDF5")
+    _add_force(s)
     _add_precision(s)
     add_device(s)
     s.set_defaults(func=cmd_simulate)
@@ -236,6 +250,7 @@ def register_forward(sub, add_device) -> None:
     d.add_argument("--scene", help="scene TOML with letters as objects[0] (default: built-in)")
     d.add_argument("--config", help="reconstruction TOML (default: built-in; its slab "
                    "defaults to the scene's)")
+    _add_force(d)
     add_device(d)
     d.set_defaults(func=cmd_demo)
 
@@ -287,7 +302,8 @@ def cmd_brdf_plot(args) -> int:
     from .io import save_figure
 
     out = Path(args.output) if args.output else Path(args.model).with_suffix(".png")
-    check_outputs({"-o": out}, inputs=[args.model, args.data], suffixes={"-o": (".png",)})
+    check_outputs({"-o": out}, inputs=[args.model, args.data], suffixes={"-o": (".png",)},
+                  implied={} if args.output else {"-o": None}, force=args.force)
     model, meta = load_model(args.model)
     data = read_samples(args.data) if args.data else None
     save_figure(brdf_figure(model, f"{args.model}: {meta['metrics'].get('model', '')}", data),
@@ -299,7 +315,7 @@ def cmd_brdf_plot(args) -> int:
 def cmd_brdf_evaluate(args) -> int:
     from tqdm import tqdm
 
-    from .brdf.evaluate import evaluate, measured_sets, summary_table, write_rows
+    from .brdf.evaluate import evaluate, is_rows_json, measured_files, summary_table, write_rows
 
     if any(m in ("mlp", "mlp-seed") for m in args.models):
         require("torch", "brdf evaluate with an MLP model")
@@ -309,8 +325,8 @@ def cmd_brdf_evaluate(args) -> int:
         raise ParameterError("--splits", args.splits, "an integer from 1 to 100")
     out = Path(args.output)
     outs = {"-o": out, "(json)": out.with_suffix(".json")}
-    check_outputs(outs, inputs=[args.directory], suffixes={"-o": (".csv",)})
-    measured_sets(args.directory)
+    check_outputs(outs, inputs=measured_files(args.directory), suffixes={"-o": (".csv",)},
+                  implied={"(json)": is_rows_json}, force=args.force)
     rows = evaluate(args.directory, models=args.models, modes=args.modes,
                     splits=tuple(range(args.splits)), materials=args.material,
                     progress=lambda jobs: tqdm(jobs, desc="brdf evaluate", unit="fit"))
@@ -344,6 +360,7 @@ def register_brdf(sub, add_device) -> None:
     p.add_argument("model")
     p.add_argument("--data", help="measured CSV to overlay")
     p.add_argument("-o", "--output")
+    _add_force(p)
     p.set_defaults(func=cmd_brdf_plot)
     e = bs.add_parser("evaluate", help="interpolation and extrapolation scores of models on "
                       "every NAME_gonio.csv/NAME_test.csv pair in a directory")
@@ -353,6 +370,7 @@ def register_brdf(sub, add_device) -> None:
     e.add_argument("--modes", nargs="+", default=list(EVAL_MODES), choices=list(EVAL_MODES))
     e.add_argument("--splits", type=int, default=1, help="random interpolation splits")
     e.add_argument("--material", nargs="+", help="only sets whose name contains one of these")
+    _add_force(e)
     e.set_defaults(func=cmd_brdf_evaluate)
 
 
@@ -366,8 +384,8 @@ def cmd_study(args) -> int:
     from .study.run import StudyOptions, run_study
 
     out = Path(args.output)
-    check_outputs({"-o report.html": out / "report.html", "-o results.json":
-                   out / "results.json"})
+    outs = {"-o report.html": out / "report.html", "-o results.json": out / "results.json"}
+    check_outputs(outs, implied=dict.fromkeys(outs), force=args.force)
     opts = StudyOptions() if args.full else StudyOptions.quick()
     if args.n_dataset is not None:
         opts.n_dataset = args.n_dataset
@@ -408,6 +426,7 @@ def register_study(sub, add_device) -> None:
                    help="local Dask worker processes (default: CPU count; 1 = serial)")
     w.add_argument("--scheduler", default=None, help="address of an existing Dask scheduler")
     s.add_argument("--n-dataset", type=int, default=None, help=argparse.SUPPRESS)
+    _add_force(s)
     add_device(s)
     s.set_defaults(func=cmd_study)
 
@@ -418,7 +437,8 @@ def cmd_bench(args) -> int:
     from .bench import main as bench_main
 
     out = Path(args.output)
-    check_outputs({"-o bench.json": out / "bench.json", "-o bench.html": out / "bench.html"})
+    outs = {"-o bench.json": out / "bench.json", "-o bench.html": out / "bench.html"}
+    check_outputs(outs, implied=dict.fromkeys(outs), force=args.force)
     argv = ["-o", args.output] + (["--quick"] if args.quick else []) + (
         ["--tiny"] if args.tiny else []) + (["--only", args.only] if args.only else []) + (
         ["--device", args.device] if args.device else [])
@@ -435,6 +455,7 @@ def register_bench(sub, add_device) -> None:
     b.add_argument("-o", "--output", default="out/bench")
     b.add_argument("--only", default=None, help="comma-separated sections (diffusion, "
                    "lightcone, brdf, forward, reconstruction, iterative, end_to_end)")
+    _add_force(b)
     add_device(b)
     b.set_defaults(func=cmd_bench)
 

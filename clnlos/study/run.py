@@ -138,6 +138,7 @@ def run_study(out_dir: Path, opts: StudyOptions, *, workers: int | None = None,
               scheduler: str | None = None, device: str | None = None) -> dict:
     from ..brdf.presets import preset_model, preset_table
     from ..io import atomic_path
+    from ..outputs import stamp
     from .classify import train_classifier
     from .report import write_report
 
@@ -246,7 +247,7 @@ def run_study(out_dir: Path, opts: StudyOptions, *, workers: int | None = None,
     write_report(out_dir, results, main_res, ds_res, labels, values)
     timings["report_s"] = time.perf_counter() - t0
     with atomic_path(out_dir / "results.json") as tmp:
-        tmp.write_text(json.dumps(results, indent=1))
+        tmp.write_text(json.dumps(stamp(results), indent=1))
     return results
 
 
