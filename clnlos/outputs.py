@@ -237,8 +237,12 @@ def _write_error(exc: OSError, tmps: list[Path], targets: list[Path]) -> OutputF
         if fn and Path(fn).parent == u.parent and Path(fn).name.startswith(f".{u.name}.") \
                 and fn.endswith(".tmp"):
             names.setdefault(fn, str(u))
-    where = names.get(fn, fn) if fn else " and ".join(str(t) for t in targets)
     reason = str(exc.strerror or exc)
+    if fn:
+        where = names.get(fn, fn)
+    else:  # a library's message (h5py) may name the temporary instead
+        named = [u for t, u in names.items() if t in reason]
+        where = named[0] if named else " and ".join(str(t) for t in targets)
     for t, u in names.items():
         reason = reason.replace(t, u)
     lines = reason.strip().splitlines()
