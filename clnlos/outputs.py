@@ -125,7 +125,7 @@ def _check_implied(role: str, p: Path, recognise: Callable[[Path], bool] | None)
     if (recognise or written_by_clnlos)(p):
         return
     raise OutputFileError(f"{role} {p}: a file clnlos did not write is in the way (this "
-                          "output is written beside the one named); move it, or pass "
+                          "output goes beside or into the one named); move it, or pass "
                           "--force to replace it")
 
 
