@@ -1,13 +1,15 @@
 """The clnlos command line: one entry point, thin over the pipelines.
 
 Known errors (bad file, bad parameter, device problems, kernel build failures) end in one
-line on stderr and exit status 2; nothing half-written is left behind.
+line on stderr and exit status 2; nothing half-written is left behind. SIGTERM unwinds like
+Ctrl-C (temporaries removed, one line) and exits with 128 + 15.
 """
 
 from __future__ import annotations
 
 import argparse
 import re
+import signal
 import sys
 
 from .errors import ClnlosError
@@ -92,7 +94,20 @@ def _one_line_warning(message, category, filename, lineno, file=None, line=None)
 def main(argv: list[str] | None = None) -> int:
     import warnings
 
+    from .outputs import install_sigterm_cleanup
+
     warnings.showwarning = _one_line_warning
+    previous = install_sigterm_cleanup()
+    try:
+        return _main(argv)
+    finally:
+        if previous is not None:  # main() called in-process (tests): restore the handler
+            signal.signal(signal.SIGTERM, previous)
+
+
+def _main(argv: list[str] | None) -> int:
+    from .outputs import Terminated, user_path
+
     parser = build_parser()
     try:
         args = parser.parse_args(argv)
@@ -107,13 +122,17 @@ def main(argv: list[str] | None = None) -> int:
         return int(exc.code) if isinstance(exc.code, int) else EXIT_USAGE
     except ClnlosError as exc:
         return _fail(str(exc))
+    except Terminated as exc:
+        _fail(str(exc))
+        return 128 + exc.signum
     except KeyboardInterrupt:
         return _fail("interrupted")
     except MemoryError:
         return _fail("out of host memory: use a smaller grid")
     except OSError as exc:  # files a user named: permissions, full disk, ...
-        where = f"{exc.filename}: " if getattr(exc, "filename", None) else ""
-        return _fail(f"{where}{exc.strerror or exc}")
+        name = user_path(getattr(exc, "filename", None))  # never a hidden temporary
+        where = f"{name}: " if name else ""
+        return _fail(f"{where}{(str(exc.strerror or exc).splitlines() or [''])[0]}")
     except Exception as exc:  # OpenCL runtime errors a user can cause (device memory, ...)
         import pyopencl as cl
 

@@ -33,6 +33,13 @@ def require(module: str, what: str) -> None:
             f"({hint})")
 
 
+def _add_force(p) -> None:
+    p.add_argument("--force", action="store_true",
+                   help="replace an existing file at a path written beside the output (or "
+                        "in the output folder) that clnlos did not write; inputs are never "
+                        "replaced")
+
+
 def _add_precision(p) -> None:
     p.add_argument("--dtype", choices=sorted(DTYPES), default="float32",
                    help="kernel precision (default %(default)s)")
@@ -101,7 +108,8 @@ def cmd_reconstruct(args) -> int:
     out = Path(args.output)
     cfg = config_from_args(args)  # parameter errors before reading anything
     check_outputs({"-o": out, "figure": out.with_suffix(".png")},
-                  inputs=[args.capture, args.config], suffixes={"-o": HDF5_SUFFIXES})
+                  inputs=[args.capture, args.config], suffixes={"-o": HDF5_SUFFIXES},
+                  implied={"figure": None}, force=args.force)
     queue = get_queue(args.device)
     capture = read_capture(args.capture)
     resolve_geometry(capture, cfg)  # missing geometry before the slab note
@@ -179,6 +187,7 @@ def register_reconstruct(sub, add_device) -> None:
     r.add_argument("--n", type=float, help=f"slab refractive index (relative) {slab}")
     r.add_argument("--no-slab", action="store_true",
                    help="skip the slab deconvolution (also of a slab the capture recorded)")
+    _add_force(r)
     _add_precision(r)
     add_device(r)
     r.set_defaults(func=cmd_reconstruct)
@@ -190,7 +199,8 @@ def cmd_plot(args) -> int:
     from .io import read_volume, save_figure
 
     out = Path(args.output) if args.output else Path(args.volume).with_suffix(".png")
-    check_outputs({"-o": out}, inputs=[args.volume], suffixes={"-o": (".png",)})
+    check_outputs({"-o": out}, inputs=[args.volume], suffixes={"-o": (".png",)},
+                  implied={} if args.output else {"-o": None}, force=args.force)
     if args.gamma is not None and not (np.isfinite(args.gamma) and 0 < args.gamma <= 10):
         from .errors import ParameterError
 
@@ -210,6 +220,7 @@ def register_plot(sub) -> None:
     g.add_argument("--gamma", type=float, help="display (value / max)^gamma, e.g. 0.5 to "
                    "lift faint parts (default: linear)")
     g.add_argument("--log", action="store_true", help="display log10(value / max)")
+    _add_force(p)
     p.set_defaults(func=cmd_plot)
 
 
@@ -221,8 +232,9 @@ def cmd_simulate(args) -> int:
 
     out = Path(args.output)
     scene = Scene.from_toml(args.scene)
-    check_outputs({"-o": out, "figure": figure_path(out)}, inputs=[args.scene],
-                  suffixes={"-o": HDF5_SUFFIXES})
+    check_outputs({"-o": out, "figure": figure_path(out)},
+                  inputs=[args.scene, *scene.input_paths()], suffixes={"-o": HDF5_SUFFIXES},
+                  implied={"figure": None}, force=args.force)
     queue = get_queue(args.device)
     sim = simulate_to_file(scene, out, fmt=args.format, dtype=DTYPES[args.dtype], queue=queue)
     print(f"wrote {out} ({args.format}) transient {sim.transient.shape} [t, y, x]; stages "
@@ -241,8 +253,9 @@ def cmd_demo(args) -> int:
 
         raise OutputFileError(f"-o {out}: is a file; the demo writes a folder")
     scene, cfg = demo_inputs(args.scene, args.config)
-    check_outputs({f"-o {name}": out / name for name in DEMO_FILES},
-                  inputs=[args.scene, args.config])
+    outs = {f"-o {name}": out / name for name in DEMO_FILES}
+    check_outputs(outs, inputs=[args.scene, args.config, *scene.input_paths()],
+                  implied=dict.fromkeys(outs), force=args.force)
     run_demo(out, scene, cfg, queue=get_queue(args.device))
     return 0
 
@@ -255,6 +268,7 @@ def register_forward(sub, add_device) -> None:
     s.add_argument("--format", choices=["clnlos", "tal"], default="clnlos",
                    help="capture format: clnlos (clnlos HDF5) or tal (y-tal HDF5) "
                         "(default %(default)s)")
+    _add_force(s)
     _add_precision(s)
     add_device(s)
     s.set_defaults(func=cmd_simulate)
@@ -265,6 +279,7 @@ def register_forward(sub, add_device) -> None:
     d.add_argument("--scene", help="scene TOML with letters as objects[0] (default: built-in)")
     d.add_argument("--config", help="reconstruction TOML (default: built-in; its slab "
                    "defaults to the scene's)")
+    _add_force(d)
     add_device(d)
     d.set_defaults(func=cmd_demo)
 
@@ -320,7 +335,8 @@ def cmd_brdf_plot(args) -> int:
     from .io import save_figure
 
     out = Path(args.output) if args.output else Path(args.model).with_suffix(".png")
-    check_outputs({"-o": out}, inputs=[args.model, args.data], suffixes={"-o": (".png",)})
+    check_outputs({"-o": out}, inputs=[args.model, args.data], suffixes={"-o": (".png",)},
+                  implied={} if args.output else {"-o": None}, force=args.force)
     model, meta = load_model(args.model)
     data = read_samples(args.data) if args.data else None
     save_figure(brdf_figure(model, f"{args.model}: {meta['metrics'].get('model', '')}", data),
@@ -332,7 +348,7 @@ def cmd_brdf_plot(args) -> int:
 def cmd_brdf_evaluate(args) -> int:
     from tqdm import tqdm
 
-    from .brdf.evaluate import evaluate, measured_sets, summary_table, write_rows
+    from .brdf.evaluate import evaluate, is_rows_json, measured_files, summary_table, write_rows
 
     if any(m in ("mlp", "mlp-seed") for m in args.models):
         require("torch", "brdf evaluate with an MLP model")
@@ -342,8 +358,8 @@ def cmd_brdf_evaluate(args) -> int:
         raise ParameterError("--splits", args.splits, "an integer from 1 to 100")
     out = Path(args.output)
     outs = {"-o": out, "(json)": out.with_suffix(".json")}
-    check_outputs(outs, inputs=[args.directory], suffixes={"-o": (".csv",)})
-    measured_sets(args.directory)
+    check_outputs(outs, inputs=measured_files(args.directory), suffixes={"-o": (".csv",)},
+                  implied={"(json)": is_rows_json}, force=args.force)
     rows = evaluate(args.directory, models=args.models, modes=args.modes,
                     splits=tuple(range(args.splits)), materials=args.material,
                     progress=lambda jobs: tqdm(jobs, desc="brdf evaluate", unit="fit"))
@@ -393,6 +409,7 @@ def register_brdf(sub, add_device) -> None:
     p.add_argument("model", help="fitted model (.h5) written by clnlos brdf fit")
     p.add_argument("--data", help="measured CSV or .brdf to overlay (default: none)")
     p.add_argument("-o", "--output", help="PNG (default: beside the model)")
+    _add_force(p)
     p.set_defaults(func=cmd_brdf_plot)
     e = bs.add_parser("evaluate", help="interpolation and extrapolation scores of models on "
                       "every NAME_gonio.csv/NAME_test.csv pair in a directory")
@@ -410,6 +427,7 @@ def register_brdf(sub, add_device) -> None:
                    help="random interpolation splits, seeds 0 to N-1 (default %(default)s)")
     e.add_argument("--material", nargs="+", help="only sets whose name contains one of these "
                    "(default: every set)")
+    _add_force(e)
     e.set_defaults(func=cmd_brdf_evaluate)
 
 
@@ -423,8 +441,8 @@ def cmd_study(args) -> int:
     from .study.run import StudyOptions, run_study
 
     out = Path(args.output)
-    check_outputs({"-o report.html": out / "report.html", "-o results.json":
-                   out / "results.json"})
+    outs = {"-o report.html": out / "report.html", "-o results.json": out / "results.json"}
+    check_outputs(outs, implied=dict.fromkeys(outs), force=args.force)
     opts = StudyOptions() if args.full else StudyOptions.quick()
     if args.n_dataset is not None:
         opts.n_dataset = args.n_dataset
@@ -482,6 +500,7 @@ def register_study(sub, add_device) -> None:
     w.add_argument("--scheduler", default=None, help="address of an existing Dask scheduler, "
                    "e.g. tcp://HOST:8786 (default: none, local workers)")
     s.add_argument("--n-dataset", type=int, default=None, help=argparse.SUPPRESS)
+    _add_force(s)
     add_device(s)
     s.set_defaults(func=cmd_study)
 
@@ -492,7 +511,8 @@ def cmd_bench(args) -> int:
     from .bench import main as bench_main
 
     out = Path(args.output)
-    check_outputs({"-o bench.json": out / "bench.json", "-o bench.html": out / "bench.html"})
+    outs = {"-o bench.json": out / "bench.json", "-o bench.html": out / "bench.html"}
+    check_outputs(outs, implied=dict.fromkeys(outs), force=args.force)
     argv = ["-o", args.output] + (["--quick"] if args.quick else []) + (
         ["--tiny"] if args.tiny else []) + (["--only", args.only] if args.only else []) + (
         ["--device", args.device] if args.device else [])
@@ -511,6 +531,7 @@ def register_bench(sub, add_device) -> None:
     b.add_argument("--only", default=None, help="comma-separated sections (diffusion, "
                    "lightcone, brdf, forward, reconstruction, iterative, end_to_end) "
                    "(default: all)")
+    _add_force(b)
     add_device(b)
     b.set_defaults(func=cmd_bench)
 

@@ -40,6 +40,7 @@ def run_demo(out_dir, scene, config, *, queue=None, log=print) -> dict:
     """Write the demo's capture, volumes, figures and summary.json into ``out_dir``."""
     from .io import atomic_path, read_capture
     from .metrics import letters_truth_mask, mip_iou, peak_depth_m
+    from .outputs import stamp
     from .reconstruct import reconstruct_to_files
     from .runtime import get_queue
     from .simulate import simulate_to_file
@@ -68,6 +69,6 @@ def run_demo(out_dir, scene, config, *, queue=None, log=print) -> dict:
             f"depth {depth:.3f} m (true {obj.translate_m[2]} m), {seconds:.2f} s; wrote "
             f"{vol_path} and .png")
     with atomic_path(out / "summary.json") as tmp:
-        tmp.write_text(json.dumps(summary, indent=1))
+        tmp.write_text(json.dumps(stamp(summary), indent=1))
     log(f"wrote {out / 'summary.json'}")
     return summary

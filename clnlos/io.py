@@ -147,10 +147,12 @@ def write_capture(path, transient: np.ndarray, *, bin_width_s: float, start_s: f
 
 def save_figure_file(fig, path) -> Path:
     """Save a figure (matplotlib, or :class:`clnlos.raster.RasterFigure`) as PNG to
-    ``path`` and close it (not atomic)."""
+    ``path``, marked as clnlos's (:func:`clnlos.outputs.png_metadata`), and close it (not
+    atomic)."""
     from .figures import close_figure
+    from .outputs import png_metadata
 
-    fig.savefig(path, format="png", dpi=110, bbox_inches="tight")
+    fig.savefig(path, format="png", dpi=110, bbox_inches="tight", metadata=png_metadata())
     close_figure(fig)
     return Path(path)
 

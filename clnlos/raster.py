@@ -183,6 +183,13 @@ class RasterFigure:
             self._text((bar[2] + TICK_PX + bar_widest + 16, (bar[1] + bar[3]) / 2),
                        p.bar_label, "label", rotate=True)
 
-    def savefig(self, path, format: str = "png", **_ignored) -> None:
-        """Write the canvas as PNG to a path or a binary file object."""
-        self.canvas.save(path, format="PNG", compress_level=3)
+    def savefig(self, path, format: str = "png", metadata: dict | None = None,
+                **_ignored) -> None:
+        """Write the canvas as PNG to a path or a binary file object, with ``metadata``
+        (keyword -> text) as PNG tEXt chunks."""
+        from PIL.PngImagePlugin import PngInfo
+
+        info = PngInfo()
+        for k, v in (metadata or {}).items():
+            info.add_text(k, v)
+        self.canvas.save(path, format="PNG", compress_level=3, pnginfo=info)

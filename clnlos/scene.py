@@ -140,6 +140,16 @@ class Scene:
     def scan_centres(self) -> np.ndarray:
         return (np.arange(self.points) + 0.5) * self.pitch_m - self.width_m / 2
 
+    def input_paths(self) -> list[Path]:
+        """The files the scene names (meshes, retro CSVs, BRDF texture materials), resolved
+        against its folder: read by a simulation, so never its outputs."""
+        out = []
+        for o in self.objects:
+            out += [self.base_dir / p for p in (o.path, o.brdf_retro_csv) if p is not None]
+            if isinstance(o.material, str) and o.material.endswith((".h5", ".hdf5")):
+                out.append(self.base_dir / o.material)
+        return out
+
     @classmethod
     def from_toml(cls, path) -> Scene:
         p = Path(path)

@@ -18,6 +18,7 @@ import json
 import time
 from pathlib import Path
 
+from ..outputs import stamp, write_group
 from ..runtime import get_queue
 from .harness import ROW_KEYS, Bench, print_table  # noqa: F401 (ROW_KEYS: row schema)
 from .report import recommendations, write_html
@@ -60,11 +61,11 @@ def main(argv=None) -> dict:
         for x in base:
             r[f"speedup_vs_{x['impl']}"] = x["median_s"] / r["median_s"]
     recs = recommendations(b.rows)
-    args.out.mkdir(parents=True, exist_ok=True)
     doc = {"meta": b.meta, "size": b.size, "seconds": time.perf_counter() - t0,
            "copy_bandwidth_gbs": bw / 1e9, "rows": b.rows, "recommendations": recs}
-    (args.out / "bench.json").write_text(json.dumps(doc, indent=1, default=str))
-    write_html(args.out / "bench.html", b.rows, recs, b.meta, bw)
+    with write_group([args.out / "bench.json", args.out / "bench.html"]) as (tmp_j, tmp_h):
+        tmp_j.write_text(json.dumps(stamp(doc), indent=1, default=str), encoding="utf-8")
+        write_html(tmp_h, b.rows, recs, b.meta, bw)
     print_table(b.rows, ["kernel", "knob", "value", "dtype", "impl", "median_s", "error"])
     print(f"wrote {args.out / 'bench.json'} and bench.html in {doc['seconds']:.1f} s")
     return doc

@@ -13,7 +13,6 @@ import os
 import platform
 import resource
 import statistics
-import tempfile
 import time
 from pathlib import Path
 
@@ -56,25 +55,22 @@ def timeit(fn, queue=None, *, warmup: int = 1, repeat: int = 5, min_time: float 
 
 
 def write_rows(rows: list[dict], out_dir: Path, stem: str) -> tuple[Path, Path]:
-    """Write rows as CSV and JSON atomically; returns both paths."""
-    out_dir.mkdir(parents=True, exist_ok=True)
+    """Write rows as CSV and JSON, atomically together (:func:`clnlos.outputs.write_group`);
+    returns both paths."""
+    from ..outputs import write_group
+
     keys: list[str] = []
     for r in rows:
         keys.extend(k for k in r if k not in keys)
-    paths = []
-    for ext in ("csv", "json"):
-        path = out_dir / f"{stem}.{ext}"
-        fd, tmp = tempfile.mkstemp(dir=out_dir, suffix=f".{ext}.tmp")
-        with os.fdopen(fd, "w", newline="") as f:
-            if ext == "csv":
-                w = csv.DictWriter(f, fieldnames=keys)
-                w.writeheader()
-                w.writerows(rows)
-            else:
-                json.dump(rows, f, indent=1)
-        os.replace(tmp, path)
-        paths.append(path)
-    return paths[0], paths[1]
+    paths = (out_dir / f"{stem}.csv", out_dir / f"{stem}.json")
+    with write_group(list(paths)) as (tmp_csv, tmp_json):
+        with open(tmp_csv, "w", newline="", encoding="utf-8") as f:
+            w = csv.DictWriter(f, fieldnames=keys)
+            w.writeheader()
+            w.writerows(rows)
+        with open(tmp_json, "w", encoding="utf-8") as f:
+            json.dump(rows, f, indent=1)
+    return paths
 
 
 def print_table(rows: list[dict], cols: list[str]) -> None:

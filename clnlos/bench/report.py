@@ -8,6 +8,7 @@ import io
 import json
 from pathlib import Path
 
+from ..outputs import HTML_GENERATOR
 
 # ------------------------------------------------------------------ report
 def recommendations(rows) -> list[dict]:
@@ -41,6 +42,8 @@ def _png(fig) -> str:
 
 
 def write_html(path: Path, rows, recs, meta, bw):
+    """Write the report page to ``path`` (not atomic: :func:`clnlos.bench.main` writes it
+    to a temporary of its group)."""
     import matplotlib
 
     matplotlib.use("Agg")
@@ -77,6 +80,7 @@ def write_html(path: Path, rows, recs, meta, bw):
                      f"</td><td>{r['value']}</td><td>{r['dtype']}</td><td>{r['seconds']:.3g}"
                      f"</td><td>{r['error']:.2g}</td></tr>" for r in recs) + "</table>")
     parts.append("<h2>All rows</h2><pre>" + html.escape(json.dumps(rows, indent=0)) + "</pre>")
-    path.write_text("<!doctype html><html><head><meta charset='utf-8'><title>clnlos bench"
+    path.write_text(f"<!doctype html><html><head><meta charset='utf-8'>{HTML_GENERATOR}"
+                    "<title>clnlos bench"
                     "</title></head><body style='font-family:sans-serif'>" + "\n".join(parts)
                     + "</body></html>", encoding="utf-8")

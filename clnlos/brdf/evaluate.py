@@ -55,6 +55,31 @@ def measured_sets(directory) -> list[str]:
     return names
 
 
+ROWS_JSON_MAX_BYTES = 64 << 20  # a larger JSON is not taken for a rows file of ours
+
+
+def measured_files(directory) -> list[Path]:
+    """Every ``NAME_gonio.csv`` and ``NAME_test.csv`` of :func:`measured_sets` (the inputs)."""
+    d = Path(directory)
+    return [d / f"{n}_{kind}.csv" for n in measured_sets(d) for kind in ("gonio", "test")]
+
+
+def is_rows_json(path) -> bool:
+    """Whether ``path`` holds the JSON rows :func:`write_rows` writes (a list of objects with
+    the fields of :class:`EvalRow`), so that a rerun may replace it."""
+    import json
+
+    fields = set(EvalRow.__dataclass_fields__)
+    try:
+        if Path(path).stat().st_size > ROWS_JSON_MAX_BYTES:
+            return False
+        doc = json.loads(Path(path).read_text(encoding="utf-8"))
+    except (OSError, ValueError):
+        return False
+    return isinstance(doc, list) and all(isinstance(r, dict) and set(r) == fields
+                                         for r in doc)
+
+
 def concat(a: BRDFSamples, b: BRDFSamples) -> BRDFSamples:
     return BRDFSamples(*(np.concatenate([getattr(a, k), getattr(b, k)])
                          for k in ("theta_i", "phi_i", "theta_s", "phi_s", "brdf")),

@@ -267,6 +267,10 @@ def run_samples(samples: list[dict], grid: StudyGrid, cache: Path, *, workers: i
     else:
         client = Client(scheduler)
     try:
+        from ..outputs import install_sigterm_cleanup
+
+        # a worker stopped by SIGTERM removes the cache entry it was writing
+        client.run(install_sigterm_cleanup, chain=True)
         futs = [client.submit(_cached, s, grid, cache, version, device, pure=False)
                 for s in samples]
         index = {f.key: i for i, f in enumerate(futs)}

@@ -433,6 +433,7 @@ def write_report(out_dir, results, plan, res, real=None) -> None:
 
     matplotlib.use("Agg")
     from ..io import atomic_path
+    from ..outputs import HTML_GENERATOR
 
     g = results["options"]["grid"]
     figs = [
@@ -505,7 +506,7 @@ def write_report(out_dir, results, plan, res, real=None) -> None:
                     f"{_png(fig)}'/>")
     t = results["timings_s"]
     body.append("<p>Timings: " + ", ".join(f"{k} {v:.1f} s" for k, v in t.items()) + "</p>")
-    doc = ("<!doctype html><html><head><meta charset='utf-8'>"
+    doc = (f"<!doctype html><html><head><meta charset='utf-8'>{HTML_GENERATOR}"
            "<meta name='viewport' content='width=device-width, initial-scale=1'>"
            f"<title>clnlos material study</title><style>{STYLE}</style>{OVERFLOW_PROBE}"
            "</head><body>" + "\n".join(body) + "</body></html>")

@@ -489,6 +489,7 @@ def run_study(out_dir: Path, opts: StudyOptions, *, workers: int | None = None,
               scheduler: str | None = None, device: str | None = None) -> dict:
     from ..brdf.presets import preset_table
     from ..io import atomic_path
+    from ..outputs import stamp
     from .report import write_report
 
     opts = opts.validate()
@@ -608,7 +609,7 @@ def run_study(out_dir: Path, opts: StudyOptions, *, workers: int | None = None,
     write_report(out_dir, results_json, plan, results, real)
     timings["report_s"] = time.perf_counter() - t0
     with atomic_path(out_dir / "results.json") as tmp:
-        tmp.write_text(json.dumps(results_json, indent=1))
+        tmp.write_text(json.dumps(stamp(results_json), indent=1))
     return results_json
 
 
