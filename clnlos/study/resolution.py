@@ -311,3 +311,82 @@ def measure_resolution(geometry: ResolutionGeometry = ResolutionGeometry(), *,
     geo["slab"] = None if g.slab is None else asdict(g.slab)
     res["geometry"] = geo
     return res
+
+
+def image_maxima(img: np.ndarray, floor: float = PEAK_FLOOR) -> list[tuple[int, int]]:
+    """(row, column) of the local maxima of an image (3 x 3 neighbourhood) at least
+    ``floor`` of its maximum, brightest first."""
+    from scipy.ndimage import maximum_filter
+
+    a = np.asarray(img, np.float64)
+    top = a.max()
+    if not top > 0:
+        return []
+    keep = (a == maximum_filter(a, size=3, mode="constant", cval=-np.inf)) & (a >= floor * top)
+    idx = np.argwhere(keep)
+    order = np.argsort(-a[keep])
+    return [(int(r), int(c)) for r, c in idx[order]]
+
+
+def neighbour_pairs(points: list[tuple[int, int]]) -> list[tuple[int, int]]:
+    """Index pairs (i, j) of the Gabriel graph of ``points``: no third point lies inside the
+    circle whose diameter is the segment i-j (the neighbours a dip can lie between)."""
+    p = np.asarray(points, np.float64).reshape(-1, 2)
+    out = []
+    for i in range(len(p)):
+        for j in range(i + 1, len(p)):
+            mid, r2 = (p[i] + p[j]) / 2, np.sum((p[i] - p[j]) ** 2) / 4
+            others = np.delete(p, [i, j], axis=0)
+            if not np.any(np.sum((others - mid) ** 2, axis=1) < r2):
+                out.append((i, j))
+    return out
+
+
+def dip_contrast(img: np.ndarray, a: tuple[int, int], b: tuple[int, int],
+                 samples_per_pixel: int = 4) -> float:
+    """1 - (minimum of the image along the segment a-b, bilinear) / min(img[a], img[b])."""
+    from scipy.ndimage import map_coordinates
+
+    n = max(2, int(math.ceil(math.dist(a, b) * samples_per_pixel)) + 1)
+    rows, cols = np.linspace(a[0], b[0], n), np.linspace(a[1], b[1], n)
+    line = map_coordinates(np.asarray(img, np.float64), [rows, cols], order=1)
+    lower = min(float(img[a]), float(img[b]))
+    return float(1.0 - line.min() / lower) if lower > 0 else 0.0
+
+
+def chart_features(volume: np.ndarray, extents: dict, *,
+                   contrast_min: float = CONTRAST_RESOLVED) -> dict:
+    """Which features of a reconstructed planar chart are resolved.
+
+    The chart image is the max over +-CHART_SLAB_M of depth around the chart plane (the
+    depth of the volume's brightest slice). Its spots are the local maxima of at least
+    PEAK_FLOOR of its maximum; each neighbouring pair (:func:`neighbour_pairs`) is a
+    feature ``"pair (x1, y1)-(x2, y2)"`` with its spacing (m), its ``contrast``
+    (:func:`dip_contrast`) and ``resolved`` = contrast >= ``contrast_min``. Each spot is also
+    reported with its FWHM along x and y (m): a spot much wider than the point response is
+    a group whose members are not resolved. Returns ``{"chart_depth_m", "criterion",
+    "spots": [...], "features": {name: {...}}}``."""
+    e = extents
+    v = np.asarray(volume, np.float64)
+    dz, dx = e["voxel_depth_m"], e["voxel_lateral_m"]
+    z0 = int(np.argmax(v.max(axis=(1, 2))))
+    k = int(round(CHART_SLAB_M / dz))
+    img = v[max(0, z0 - k):z0 + k + 1].max(axis=0)
+    img = img / img.max() if img.max() > 0 else img
+    ny, nx = img.shape
+    xs = e["x_min_m"] + (np.arange(nx) + 0.5) * dx
+    ys = e["y_min_m"] + (np.arange(ny) + 0.5) * (e["y_max_m"] - e["y_min_m"]) / ny
+    peaks = image_maxima(img)
+    spots = [{"x_m": float(xs[c]), "y_m": float(ys[r]), "value": float(img[r, c]),
+              "fwhm_x_m": fwhm_1d(img[r, :], dx, c), "fwhm_y_m": fwhm_1d(img[:, c], dx, r)}
+             for r, c in peaks]
+    features = {}
+    for i, j in neighbour_pairs(peaks):
+        (ra, ca), (rb, cb) = peaks[i], peaks[j]
+        c = dip_contrast(img, peaks[i], peaks[j])
+        name = (f"pair ({xs[ca]:+.2f}, {ys[ra]:+.2f})-({xs[cb]:+.2f}, {ys[rb]:+.2f}) m")
+        features[name] = {"resolved": bool(c >= contrast_min), "contrast": c,
+                          "spacing_m": float(math.hypot(xs[ca] - xs[cb], ys[ra] - ys[rb]))}
+    return {"chart_depth_m": (z0 + 0.5) * dz, "image": img.astype(np.float32),
+            "criterion": f"dip between neighbouring maxima >= {contrast_min:.0%} of the lower",
+            "spots": spots, "features": features}
