@@ -90,9 +90,15 @@ def _finite(v):
     return v is not None and math.isfinite(v)
 
 
-def test_measure_resolution_contract_on_a_small_grid(queue):
+def test_measure_resolution_contract_on_a_small_grid(queue, tmp_path):
+    import json
+
+    from clnlos.io import save_figure
+
     geo = rs.ResolutionGeometry(points=8, bin_width_s=48e-12, iterations=5)
     r = rs.measure_resolution(geo, methods=("lct", "fk"), queue=queue)
+    json.dumps(rs.json_ready(r))  # results.json holds it without its arrays
+    assert save_figure(rs.resolution_figure(r), tmp_path / "r.png").stat().st_size > 10_000
     for case in (r, r["budget"]):
         for m in ("lct", "fk"):
             assert _finite(case[m]["lateral_fwhm_m"]) and _finite(case[m]["axial_fwhm_m"])
@@ -155,13 +161,22 @@ def test_real_capture_contract(queue, shared_data, tmp_path):
     assert r["simulated"]["photons"] == pytest.approx(r["photons"], rel=1e-3)
     assert 0.3 < r["simulated"]["letters"]["height_m"] < 0.6
     assert len(r["differences"]) >= 4
+    import json
+
+    json.dumps(rs.json_ready(r))
     png = rc.write_real_capture_figure(r, tmp_path / "real.png")
     assert png.stat().st_size > 10_000
 
 
 @pytest.mark.shared_data
-def test_resolution_chart_features(queue, shared_data):
+def test_resolution_chart_features(queue, shared_data, tmp_path):
+    import json
+
+    from clnlos.io import save_figure
+
     r = rc.reconstruct_chart(shared_data / "cdt" / "resolution_70.mat", queue=queue)
+    json.dumps(rs.json_ready(r))
+    assert save_figure(rs.chart_figure(r), tmp_path / "c.png").stat().st_size > 10_000
     assert r["chart_depth_m"] == pytest.approx(0.7, abs=0.05)
     resolved = [f for f in r["features"].values() if f["resolved"]]
     assert resolved and min(f["spacing_m"] for f in resolved) < 0.25

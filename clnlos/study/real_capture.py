@@ -278,6 +278,7 @@ def reconstruct_chart(path, method: str = "lct", *, queue=None) -> dict:
     name = capture_name(path)
     rec = reconstruct(read_capture(path), capture_config(name, method, published_snr=True),
                       device=get_queue(queue))
-    return {"name": name, "method": method,
-            **chart_features(rec.volume, rec.extents), "extents": dict(rec.extents)}
+    r = chart_features(rec.volume, rec.extents)
+    r["arrays"]["extents"] = dict(rec.extents)
+    return {"name": name, "method": method, **r}
 
