@@ -150,6 +150,43 @@ def test_measurement_summary_numbers():
     assert s["tail_level"] == 0.0
 
 
+def _blob_volume(boxes, depths):
+    """A [z, y, x] volume (voxels 1 cm x 1 cm laterally, 1 cm deep) with unit boxes
+    (row0, row1, col0, col1) at depth indices ``depths``."""
+    v = np.zeros((60, 32, 32))
+    for (r0, r1, c0, c1), k in zip(boxes, depths, strict=True):
+        v[k, r0:r1, c0:c1] = 1.0
+    ext = {"voxel_depth_m": 0.01, "voxel_lateral_m": 0.01, "x_min_m": -0.16, "x_max_m": 0.16,
+           "y_min_m": -0.16, "y_max_m": 0.16}
+    return v, ext
+
+
+def test_estimate_letters_one_part_per_letter():
+    v, ext = _blob_volume([(4, 24, 2, 12), (8, 30, 18, 30)], [40, 50])
+    fit = rc.estimate_letters(v, ext, "UT")
+    assert fit["fit"] == "per-letter"
+    u, t = fit["letters"]
+    assert (u["text"], t["text"]) == ("U", "T")
+    assert u["height_m"] == pytest.approx(0.20) and t["height_m"] == pytest.approx(0.22)
+    assert u["depth_m"] == pytest.approx(0.405) and t["depth_m"] == pytest.approx(0.505)
+    assert u["centre_m"] == pytest.approx([-0.09, -0.02]) and t["centre_m"][0] > 0
+    ratio = rs.ResolutionGeometry().stroke_m / rs.ResolutionGeometry().letter_height_m
+    assert u["stroke_m"] == pytest.approx(ratio * 0.20)
+
+
+def test_estimate_letters_as_a_tilted_plane_when_the_parts_do_not_match():
+    # one part whose depth grows with x: a plane rotated about y by -atan(slope)
+    v = np.zeros((80, 32, 32))
+    for c in range(4, 28):
+        v[30 + c, 10:22, c] = 1.0  # depth index 30 + column: slope 1 cm per cm
+    ext = _blob_volume([], [])[1]
+    fit = rc.estimate_letters(v, ext, "UT")
+    assert fit["fit"] == "plane"
+    (L,) = fit["letters"]
+    assert L["tilt_deg"] == pytest.approx(-45.0, abs=0.5)
+    assert L["depth_m"] == pytest.approx((30 + 15.5 + 0.5) * 0.01, abs=0.002)
+
+
 @pytest.mark.shared_data
 def test_real_capture_contract(queue, shared_data, tmp_path):
     r = rc.compare_real_capture(shared_data / "cdt" / "letters_ut.mat", "lct", queue=queue)
@@ -159,7 +196,10 @@ def test_real_capture_contract(queue, shared_data, tmp_path):
         assert all(_finite(case[k]) for k in keys[1:])
     assert r["photons"] == pytest.approx(1.58e8, rel=0.01)  # the capture's sum of counts
     assert r["simulated"]["photons"] == pytest.approx(r["photons"], rel=1e-3)
-    assert 0.3 < r["simulated"]["letters"]["height_m"] < 0.6
+    fit = r["simulated"]["letters"]
+    assert fit["fit"] == "per-letter" and [L["text"] for L in fit["letters"]] == ["U", "T"]
+    assert all(0.3 < L["height_m"] < 0.6 and 0.4 < L["depth_m"] < 0.65 for L in fit["letters"])
+    assert 0 < r["mip_iou_with_simulated"] <= 1
     assert len(r["differences"]) >= 4
     import json
 
