@@ -5,16 +5,19 @@ geometry) faces the scan plane at the geometry's depth, centred on the scan poin
 the axis. It is simulated through the slab once noise-free and once at a photon budget,
 and reconstructed by each method; for each reconstruction the profiles through its peak
 along x, y and z give the lateral FWHM (mean of x and y) and the axial FWHM, each with the
-half-maximum crossings interpolated between voxels (:func:`fwhm_1d`). The patch broadens a
-Gaussian PSF of FWHM F to about sqrt(F^2 + (0.94 a)^2): under 2% for a = 1 cm and F >= 5 cm.
+half-maximum crossings interpolated between voxels (:func:`fwhm_1d`). A patch of side a
+broadens a Gaussian PSF of FWHM F to about sqrt(F^2 + (0.68 a)^2): 1% for a = 1 cm, F = 5 cm.
 
 O'Toole's bound for confocal scans (O'Toole, Lindell & Wetzstein, Nature 555, 2018):
 lateral dx >= c gamma sqrt(w^2 + z^2) / (2 w) and axial dz >= c gamma / 2, with 2w the scan
 width, z the depth and gamma the effective temporal FWHM, here MEASURED after the slab
 deconvolution: the FWHM of the deconvolved transient at the scan point over the patch (it
 holds the laser pulse, the bin width and what the Wiener filter leaves of the slab blur).
+The bound is a two-point criterion for a linear inversion; a single point's FWHM can fall
+below it: f-k migration returns |psi|^2 (:mod:`clnlos.fk`), whose FWHM is about 1/sqrt(2)
+of the amplitude's, and the iterative method's non-negativity and L1 prior narrow it.
 
-At the budget, a 1 cm^2 patch returns ~150x fewer photons than the study's 'UT' letters and
+At the budget, a 1 cm^2 patch returns ~200x fewer photons than the study's 'UT' letters and
 the auto-chosen Wiener SNRs (:mod:`clnlos.noise`) would smooth it far more than they smooth
 the letters. ``budget_area_m2`` (default: the area of the geometry's letters) scales the
 patch's albedo so that its capture holds the photons of a Lambertian target of that area at
@@ -22,11 +25,12 @@ the same depth: the resolution the letters' own photon count allows.
 
 The real chart (``resolution_70.mat``, Supplementary Fig. 17 of Lindell & Wetzstein 2020,
 0.7 m scan): the chart's design is not part of the shared data, so its features are found
-in the reconstruction (:func:`chart_features`): the rows of patches (maxima of the chart
-plane's mean over x), the maxima along each row, and the dip between each pair of
-neighbours. A pair is resolved when its contrast 1 - dip / min(peak1, peak2) is at least
-CONTRAST_RESOLVED (0.2, about Rayleigh's 19% dip for two sinc^2 spots); a row whose
-profile has a single maximum is reported with its width (nothing inside it is resolved).
+in the reconstruction (:func:`chart_features`): the spots (local maxima of the chart plane)
+and each pair of neighbouring spots with the dip of the image along the segment between
+them. A pair is resolved when its contrast 1 - dip / min(peak1, peak2) is at least
+CONTRAST_RESOLVED (0.2, about Rayleigh's 19% dip for two sinc^2 spots); patches closer than
+the resolution merge into one spot, reported with its FWHM along x and y (a spot much wider
+than the point response is a group none of whose members is resolved).
 """
 
 from __future__ import annotations
@@ -163,15 +167,20 @@ def volume_fwhm(volume: np.ndarray, voxel_lateral_m: float, voxel_depth_m: float
                 near_yx: tuple[int, int] | None = None) -> dict:
     """FWHM (m) of the profiles through the peak of a [z, y, x] volume (:func:`peak_index`):
     ``lateral_fwhm_m`` (mean of x and y; None if either is wider than the volume), the two
-    lateral ones, ``axial_fwhm_m``, and the peak's depth (voxel centre)."""
+    lateral ones, ``axial_fwhm_m``, the peak's depth (voxel centre) and index, and
+    ``profiles`` (arrays, not JSON): the x and z profiles through the peak over its value."""
     z, y, x = peak_index(volume, near_yx)
     v = np.asarray(volume, np.float64)
     fx = fwhm_1d(v[z, y, :], voxel_lateral_m, x)
     fy = fwhm_1d(v[z, :, x], voxel_lateral_m, y)
     fz = fwhm_1d(v[:, y, x], voxel_depth_m, z)
     lat = None if fx is None or fy is None else (fx + fy) / 2
+    top = v[z, y, x] if v[z, y, x] > 0 else 1.0
     return {"lateral_fwhm_m": lat, "lateral_fwhm_x_m": fx, "lateral_fwhm_y_m": fy,
-            "axial_fwhm_m": fz, "peak_depth_m": (z + 0.5) * voxel_depth_m}
+            "axial_fwhm_m": fz, "peak_depth_m": (z + 0.5) * voxel_depth_m,
+            "peak_index": [z, y, x],
+            "profiles": {"x": (v[z, y, :] / top).astype(np.float32),
+                         "z": (v[:, y, x] / top).astype(np.float32)}}
 
 
 def otoole_lateral_bound_m(scan_width_m: float, depth_m: float, temporal_fwhm_s: float
@@ -265,6 +274,7 @@ def _measure(capture, geometry: ResolutionGeometry, methods, queue) -> dict:
         rec = reconstruct(capture, cfg, device=queue, keep_transient=gamma is None)
         e = rec.extents
         out[m] = volume_fwhm(rec.volume, e["voxel_lateral_m"], e["voxel_depth_m"], (iy, ix))
+        out[m]["voxel_m"] = [e["voxel_depth_m"], e["voxel_lateral_m"]]
         if gamma is None:
             gamma = fwhm_1d(rec.transient[:, iy, ix], rec.bin_width_s)
     out["effective_temporal_fwhm_s"] = gamma
@@ -287,7 +297,8 @@ def measure_resolution(geometry: ResolutionGeometry = ResolutionGeometry(), *,
     ``grid``'s photon budget (default :class:`clnlos.study.dataset.StudyGrid`) with
     ``exposure_s`` and the patch's ``albedo`` (absent when ``exposure_s`` is None);
     ``geometry`` echoes the geometry. A FWHM is None where the profile stays above half its
-    peak across the volume."""
+    peak across the volume. Each method's entry also holds ``profiles`` (arrays for
+    :func:`resolution_figure`; pop them before writing JSON, e.g. :func:`json_ready`)."""
     from ..forward import ForwardModel
     from ..runtime import get_queue
     from .dataset import StudyGrid
@@ -311,3 +322,158 @@ def measure_resolution(geometry: ResolutionGeometry = ResolutionGeometry(), *,
     geo["slab"] = None if g.slab is None else asdict(g.slab)
     res["geometry"] = geo
     return res
+
+
+def image_maxima(img: np.ndarray, floor: float = PEAK_FLOOR) -> list[tuple[int, int]]:
+    """(row, column) of the local maxima of an image (3 x 3 neighbourhood) at least
+    ``floor`` of its maximum, brightest first."""
+    from scipy.ndimage import maximum_filter
+
+    a = np.asarray(img, np.float64)
+    top = a.max()
+    if not top > 0:
+        return []
+    keep = (a == maximum_filter(a, size=3, mode="constant", cval=-np.inf)) & (a >= floor * top)
+    idx = np.argwhere(keep)
+    order = np.argsort(-a[keep])
+    return [(int(r), int(c)) for r, c in idx[order]]
+
+
+def neighbour_pairs(points: list[tuple[int, int]]) -> list[tuple[int, int]]:
+    """Index pairs (i, j) of the Gabriel graph of ``points``: no third point lies inside the
+    circle whose diameter is the segment i-j (the neighbours a dip can lie between)."""
+    p = np.asarray(points, np.float64).reshape(-1, 2)
+    out = []
+    for i in range(len(p)):
+        for j in range(i + 1, len(p)):
+            mid, r2 = (p[i] + p[j]) / 2, np.sum((p[i] - p[j]) ** 2) / 4
+            others = np.delete(p, [i, j], axis=0)
+            if not np.any(np.sum((others - mid) ** 2, axis=1) < r2):
+                out.append((i, j))
+    return out
+
+
+def dip_contrast(img: np.ndarray, a: tuple[int, int], b: tuple[int, int],
+                 samples_per_pixel: int = 4) -> float:
+    """1 - (minimum of the image along the segment a-b, bilinear) / min(img[a], img[b])."""
+    from scipy.ndimage import map_coordinates
+
+    n = max(2, int(math.ceil(math.dist(a, b) * samples_per_pixel)) + 1)
+    rows, cols = np.linspace(a[0], b[0], n), np.linspace(a[1], b[1], n)
+    line = map_coordinates(np.asarray(img, np.float64), [rows, cols], order=1)
+    lower = min(float(img[a]), float(img[b]))
+    return float(1.0 - line.min() / lower) if lower > 0 else 0.0
+
+
+def chart_features(volume: np.ndarray, extents: dict, *,
+                   contrast_min: float = CONTRAST_RESOLVED) -> dict:
+    """Which features of a reconstructed planar chart are resolved.
+
+    The chart image is the max over +-CHART_SLAB_M of depth around the chart plane (the
+    depth of the volume's brightest slice). Its spots are the local maxima of at least
+    PEAK_FLOOR of its maximum; each neighbouring pair (:func:`neighbour_pairs`) is a
+    feature ``"pair (x1, y1)-(x2, y2)"`` with its spacing (m), its ``contrast``
+    (:func:`dip_contrast`) and ``resolved`` = contrast >= ``contrast_min``. Each spot is also
+    reported with its FWHM along x and y (m): a spot much wider than the point response is
+    a group whose members are not resolved. Returns ``{"chart_depth_m", "criterion",
+    "spots": [...], "features": {name: {"resolved", "contrast", "spacing_m"}}, "arrays":
+    {"image": the chart image [y, x] / max}}`` (``arrays`` is not JSON: pop it)."""
+    e = extents
+    v = np.asarray(volume, np.float64)
+    dz, dx = e["voxel_depth_m"], e["voxel_lateral_m"]
+    z0 = int(np.argmax(v.max(axis=(1, 2))))
+    k = int(round(CHART_SLAB_M / dz))
+    img = v[max(0, z0 - k):z0 + k + 1].max(axis=0)
+    img = img / img.max() if img.max() > 0 else img
+    ny, nx = img.shape
+    xs = e["x_min_m"] + (np.arange(nx) + 0.5) * dx
+    ys = e["y_min_m"] + (np.arange(ny) + 0.5) * (e["y_max_m"] - e["y_min_m"]) / ny
+    peaks = image_maxima(img)
+    spots = [{"x_m": float(xs[c]), "y_m": float(ys[r]), "value": float(img[r, c]),
+              "fwhm_x_m": fwhm_1d(img[r, :], dx, c), "fwhm_y_m": fwhm_1d(img[:, c], dx, r)}
+             for r, c in peaks]
+    features = {}
+    for i, j in neighbour_pairs(peaks):
+        (ra, ca), (rb, cb) = peaks[i], peaks[j]
+        c = dip_contrast(img, peaks[i], peaks[j])
+        name = (f"pair ({xs[ca]:+.2f}, {ys[ra]:+.2f})-({xs[cb]:+.2f}, {ys[rb]:+.2f}) m")
+        features[name] = {"resolved": bool(c >= contrast_min), "contrast": c,
+                          "spacing_m": float(math.hypot(xs[ca] - xs[cb], ys[ra] - ys[rb])),
+                          "ends_m": [[float(xs[ca]), float(ys[ra])],
+                                     [float(xs[cb]), float(ys[rb])]]}
+    return {"chart_depth_m": (z0 + 0.5) * dz, "arrays": {"image": img.astype(np.float32)},
+            "criterion": f"dip between neighbouring maxima >= {contrast_min:.0%} of the lower",
+            "spots": spots, "features": features}
+
+
+def json_ready(result: dict) -> dict:
+    """A copy of a :func:`measure_resolution` / :func:`chart_features` result without its
+    arrays (``profiles``, ``arrays``): what results.json holds."""
+    if isinstance(result, dict):
+        return {k: json_ready(v) for k, v in result.items() if k not in ("profiles", "arrays")}
+    if isinstance(result, list):
+        return [json_ready(v) for v in result]
+    return result
+
+
+def resolution_figure(result: dict, title: str = ""):
+    """The profiles through the patch's peak (matplotlib Figure): lateral (x, m, centred on
+    the peak) and axial (z, m) for every method, noise-free and at the budget, each with its
+    FWHM in the legend and the lateral bound drawn as a bar at half maximum."""
+    from ..figures import new_figure
+
+    cases = [("noise-free", result)] + ([("budget", result["budget"])]
+                                        if "budget" in result else [])
+    fig, ax = new_figure(len(cases), 2, (12, 4 * len(cases)))
+    ax = np.atleast_2d(ax)
+    methods = [m for m in METHODS if m in result]
+    for row, (label, case) in enumerate(cases):
+        for m in methods:
+            r = case[m]
+            dz, dx = r["voxel_m"]
+            z0, _, x0 = r["peak_index"]
+            px, pz = np.asarray(r["profiles"]["x"]), np.asarray(r["profiles"]["z"])
+            lat, axl = r["lateral_fwhm_m"], r["axial_fwhm_m"]
+            ax[row, 0].plot((np.arange(px.size) - x0) * dx, px, "o-", ms=3,
+                            label=f"{m}: FWHM {lat * 100:.1f} cm" if lat else f"{m}: > scan")
+            ax[row, 1].plot((np.arange(pz.size) + 0.5) * dz, pz, "-",
+                            label=f"{m}: FWHM {axl * 100:.2f} cm" if axl else f"{m}: -")
+        b = case.get("bound_lateral_m")
+        if b:
+            ax[row, 0].plot([-b / 2, b / 2], [0.5, 0.5], "k-", lw=3,
+                            label=f"O'Toole bound {b * 100:.1f} cm")
+        gamma = case.get("effective_temporal_fwhm_s")
+        g = f", gamma = {gamma * 1e12:.0f} ps" if gamma else ""
+        ax[row, 0].set(xlabel="x - x_peak (m)", ylabel="value / peak",
+                       title=f"{label}: lateral profile through the peak{g}")
+        ax[row, 1].set(xlabel="depth z (m)", ylabel="value / peak",
+                       title=f"{label}: axial profile through the peak")
+        ax[row, 1].set_xlim(r["peak_depth_m"] - 0.15, r["peak_depth_m"] + 0.15)
+        for a in ax[row]:
+            a.legend(fontsize=8)
+    if title:
+        fig.suptitle(title)
+    return fig
+
+
+def chart_figure(result: dict, title: str = ""):
+    """The chart image (x, y in m, colour bar) with its spots marked and each neighbouring
+    pair joined: solid green where resolved, dashed red where not, labelled with its dip
+    contrast (matplotlib Figure)."""
+    from ..figures import new_figure
+
+    e = result["arrays"]["extents"]
+    fig, ax = new_figure(1, 1, (7, 6))
+    im = ax.imshow(result["arrays"]["image"], origin="lower", cmap="gray",
+                   extent=(e["x_min_m"], e["x_max_m"], e["y_min_m"], e["y_max_m"]))
+    fig.colorbar(im, ax=ax, label="value / max")
+    spots = result["spots"]
+    ax.plot([s["x_m"] for s in spots], [s["y_m"] for s in spots], "c+", ms=12)
+    for f in result["features"].values():
+        (x1, y1), (x2, y2) = f["ends_m"]
+        ax.plot([x1, x2], [y1, y2], "g-" if f["resolved"] else "r--", lw=1.5)
+        ax.annotate(f"{f['contrast']:.2f}", ((x1 + x2) / 2, (y1 + y2) / 2), color="yellow",
+                    fontsize=8, ha="center")
+    ax.set(xlabel="x (m)", ylabel="y (m)",
+           title=title or f"chart at {result['chart_depth_m']:.2f} m: {result['criterion']}")
+    return fig
