@@ -416,8 +416,21 @@ def _real_html(results) -> str:
              f"{rc['simulated'][k] / rc[k]:.3g}" if rc[k] else "-"] for k in keys]
     out = _table(["quantity", f"real ({html.escape(rc['name'])})", "simulated",
                   "simulated / real"], rows)
-    if rc.get("notes"):
-        out += "<p>" + html.escape(rc["notes"]) + "</p>"
+    if rc.get("differences"):
+        out += ("<p>What the simulation gets wrong:</p><ul>" + "".join(
+            f"<li>{html.escape(d)}</li>" for d in rc["differences"]) + "</ul>")
+    chart = results["resolution"].get("real_chart")
+    if chart:
+        feats = chart.get("features", {})
+        out += (f"<p>The real resolution chart ({html.escape(chart['name'])}, "
+                f"{html.escape(chart['method'])}, published settings): "
+                f"{sum(bool(f['resolved']) for f in feats.values())} of {len(feats)} "
+                f"features resolved ({html.escape(str(chart.get('criterion', '')))}).</p>")
+        out += _table(["feature", "spacing (cm)", "contrast", "resolved"],
+                      [[html.escape(k), "-" if f.get("spacing_m") is None
+                        else f"{f['spacing_m'] * 100:.1f}",
+                        "-" if f.get("contrast") is None else f"{f['contrast']:.2f}",
+                        "yes" if f["resolved"] else "no"] for k, f in feats.items()])
     cnn = results.get("real_captures_cnn") or []
     if cnn:
         out += "<p>The CNN's legibility on the real captures (reconstructed with the study's " \

@@ -43,13 +43,13 @@ from pathlib import Path
 
 import numpy as np
 
-from .. import C0
 from ..errors import ParameterError
 from .clarity import label_thresholds
 from .dataset import StudyGrid, cpu_workers, dataset_samples, run_samples
 from .legibility import (GLYPHS, LEGIBLE_ACCURACY, glyph_templates, identification_summary,
                          identify)
-from .resolution import ResolutionGeometry, measure_resolution, otoole_lateral_bound_m
+from .resolution import (ResolutionGeometry, json_ready, measure_resolution,
+                         otoole_lateral_bound_m)
 from .quality import DEFAULT_LABEL_METRIC, METRICS, pearson, validate_metrics
 
 # The seed's Figure 9 grouping of its ten materials (1 clear, 2 medium, 3 fuzzy).
@@ -293,6 +293,7 @@ def study_resolution(opts: StudyOptions, device) -> tuple[dict, dict[str, float]
     method = opts.grid.method
     res = measure_resolution(resolution_geometry(seed_geo, opts.grid), grid=opts.grid,
                              queue=device, exposure_s=DEFAULT_EXPOSURE_S)
+    res = json_ready(res)
     gamma = res["effective_temporal_fwhm_s"]
     lateral = {}
     for geo in opts.geometries:
@@ -435,11 +436,6 @@ def train_cnn(plan, results, opts: StudyOptions, label_metric: str, thresholds):
     return predict, report, labels
 
 
-# The shared real CDT captures (../shared/data/cdt, Lindell & Wetzstein 2020) and their scan
-# widths (the data's README); the slab is the CDT slab of clnlos.slab.
-REAL_CAPTURES = {"letters_ut": 0.7, "letter_s": 0.6, "resolution_70": 0.7}
-
-
 def shared_data_dir() -> Path | None:
     """../shared/data beside the working directory or beside the source checkout, if there."""
     here = Path(__file__).resolve().parents[2]
@@ -452,36 +448,54 @@ def shared_data_dir() -> Path | None:
 
 def real_captures_cnn(predict, grid: StudyGrid, device=None) -> list[dict]:
     """The CNN's legibility class of each shared real capture, reconstructed with the study's
-    method and default (auto) parameters through the CDT slab ([] without the data)."""
-    from ..config import ReconstructionConfig
+    method and the default (auto) parameters (:func:`clnlos.study.real_capture.
+    capture_config`); [] without the data. MIPs are resampled to the CNN's input size."""
+    from scipy.ndimage import zoom
+
     from ..io import read_capture
     from ..reconstruct import reconstruct
-    from ..slab import CDT_SLAB
+    from .real_capture import PUBLISHED_SCAN_WIDTH_M, capture_config
 
     root = shared_data_dir()
     out = []
-    if root is None:
-        return out
-    for name, width in REAL_CAPTURES.items():
+    for name in PUBLISHED_SCAN_WIDTH_M if root is not None else ():
         path = root / "cdt" / f"{name}.mat"
         if not path.is_file():
             continue
-        cap = read_capture(path)
-        bins = int(round(grid.max_path_m / (C0 * grid.bin_width_s)))  # the study's binning
-        cfg = ReconstructionConfig(scan_width_m=width, slab=CDT_SLAB, method=grid.method,
-                                   iterations=grid.iterations, max_path_m=grid.max_path_m,
-                                   bins=bins).validate()
-        vol = reconstruct(cap, cfg, device=device).volume
-        mip = vol.max(axis=0)
-        if mip.shape != (grid.points, grid.points):  # the CNN's input size
-            from scipy.ndimage import zoom
-
+        cfg = capture_config(name, grid.method, iterations=grid.iterations)
+        mip = reconstruct(read_capture(path), cfg, device=device).volume.max(axis=0)
+        if mip.shape != (grid.points, grid.points):
             mip = zoom(mip, (grid.points / mip.shape[0], grid.points / mip.shape[1]), order=1)
         mip = mip / mip.max() if mip.max() > 0 else mip
         label, probs = predict(mip[None].astype(np.float32))
         out.append({"name": name, "cnn_label": int(label[0]),
                     "cnn_probabilities": [float(v) for v in probs[0]],
-                    "scan_width_m": width, "mip": mip.astype(np.float32)})
+                    "mip": mip.astype(np.float32)})
+    return out
+
+
+def real_data_study(predict, grid: StudyGrid, device=None) -> dict | None:
+    """The shared real captures (None without ../shared/data): letters_ut beside a simulation
+    of a comparable scene (:func:`clnlos.study.real_capture.compare_real_capture`, its
+    figure), the resolution chart's resolved features, and the CNN's verdict on each."""
+    from .real_capture import compare_real_capture, real_capture_figure, reconstruct_chart
+
+    root = shared_data_dir()
+    if root is None:
+        return None
+    cdt = root / "cdt"
+    out: dict = {"summary": None, "figure": None, "chart": None}
+    if (cdt / "letters_ut.mat").is_file():
+        cmp = compare_real_capture(cdt / "letters_ut.mat", grid.method,
+                                   iterations=grid.iterations, grid=grid, queue=device)
+        out["figure"] = real_capture_figure(cmp)
+        cmp.pop("arrays")
+        out["summary"] = cmp
+    if (cdt / "resolution_70.mat").is_file():
+        chart = reconstruct_chart(cdt / "resolution_70.mat", "lct", queue=device)
+        chart.pop("arrays", None)
+        out["chart"] = chart
+    out["cnn"] = real_captures_cnn(predict, grid, device)
     return out
 
 
@@ -557,10 +571,9 @@ def run_study(out_dir: Path, opts: StudyOptions, *, workers: int | None = None,
 
     # -- real captures (shared data): the simulated twin, the CNN's verdict
     t0 = time.perf_counter()
-    real = None
-    if opts.real_data and shared_data_dir() is not None:
-        real = {"cnn": real_captures_cnn(predict, opts.grid, device), "summary": None,
-                "figure": None}
+    real = real_data_study(predict, opts.grid, device) if opts.real_data else None
+    if real is not None and real["chart"] is not None:
+        resolution["real_chart"] = real["chart"]
     timings["real_capture_s"] = time.perf_counter() - t0
 
     findings = make_findings(geometries, legibility_rows, geometry_rows, validation,
