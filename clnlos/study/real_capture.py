@@ -101,7 +101,7 @@ def measurement_summary(transient: np.ndarray, bin_width_s: float, name: str) ->
 
 
 def _seed_stroke_ratio() -> float:
-    """Stroke / height of the seed's letters (:class:`ResolutionGeometry` defaults)."""
+    """Stroke / height of the seed's letters (the :class:`ResolutionGeometry` defaults)."""
     seed = ResolutionGeometry()
     return seed.stroke_m / seed.letter_height_m
 
