@@ -238,6 +238,7 @@ def letters_area_m2(text: str, height_m: float, stroke_m: float) -> float:
 def patch_scene(geometry: ResolutionGeometry):
     """The noise-free scene of the patch (:class:`clnlos.scene.Scene`) of a resolved
     geometry (:meth:`ResolutionGeometry.resolve`)."""
+    from ..config import slab_table
     from ..scene import Scene
 
     g = geometry
@@ -250,8 +251,7 @@ def patch_scene(geometry: ResolutionGeometry):
          "laser": {"pulse_width_s": g.pulse_width_s},
          "sampling": {"density_per_m2": g.density_per_m2, "splat_order": 1}}
     if g.slab is not None:
-        d["slab"] = {"thickness_m": g.slab.thickness_m, "mu_a": g.slab.mu_a,
-                     "mu_s_prime": g.slab.mu_s_prime, "n": g.slab.n}
+        d["slab"] = slab_table(g.slab)
     return Scene.from_dict(d)
 
 
@@ -311,16 +311,17 @@ def _measure(capture, geometry: ResolutionGeometry, methods, queue) -> dict:
 
 
 def measure_resolution(geometry: ResolutionGeometry = ResolutionGeometry(), *,
-                       exposure_s: float | None = 0.1, methods=METHODS, grid=None,
+                       exposure_s: float | None = None, methods=METHODS, grid=None,
                        queue=None, seed: int = 0) -> dict:
     """Resolution of each method at ``geometry`` (results.json ``resolution``).
 
     Returns, noise-free: ``{method: {"lateral_fwhm_m", "axial_fwhm_m", ...}}``,
     ``bound_lateral_m``, ``bound_axial_m``, ``effective_temporal_fwhm_s``, ``photons`` (the
     capture's sum, 1/(m^2 sr) for noise-free), ``stroke_over_resolution`` {method: stroke /
-    lateral FWHM}; and ``budget``, the same keys at ``exposure_s`` per scan point of the
-    ``grid``'s photon budget (default :class:`clnlos.study.dataset.StudyGrid`) with
-    ``exposure_s`` and the patch's ``albedo`` (absent when ``exposure_s`` is None);
+    lateral FWHM}; and, when ``exposure_s`` is given (the study's budget, e.g. 0.1 s per
+    scan point), ``budget``: the same keys at that exposure of the ``grid``'s photon budget
+    (default :class:`clnlos.study.dataset.StudyGrid`) with ``exposure_s`` and the patch's
+    ``albedo``;
     ``geometry`` echoes the geometry resolved against the grid. A FWHM is None where the
     profile stays above half its peak across the volume. Each method's entry also holds
     ``profiles`` (arrays for :func:`resolution_figure`; :func:`json_ready` drops them)."""
