@@ -204,6 +204,7 @@ def test_estimate_letters_as_a_tilted_plane_when_the_parts_do_not_match():
     assert L["depth_m"] == pytest.approx((30 + 15.5 + 0.5) * 0.01, abs=0.002)
 
 
+@pytest.mark.slow
 @pytest.mark.shared_data
 def test_real_capture_contract(queue, shared_data, tmp_path):
     r = rc.compare_real_capture(shared_data / "cdt" / "letters_ut.mat", "lct", queue=queue)
