@@ -101,7 +101,7 @@ def measurement_summary(transient: np.ndarray, bin_width_s: float, name: str) ->
 
 
 def _seed_stroke_ratio() -> float:
-    """Stroke / height of the seed's letters (:class:`ResolutionGeometry` defaults)."""
+    """Stroke / height of the seed's letters (the :class:`ResolutionGeometry` defaults)."""
     seed = ResolutionGeometry()
     return seed.stroke_m / seed.letter_height_m
 
@@ -299,7 +299,8 @@ def real_capture_figure(result: dict, title: str = ""):
         p = np.asarray(a[key]["profile"], np.float64)
         ax[0, 0].plot(t_ns, p, style, label=key)
         ax[1, 0].plot(t_ns, p / max(p.max(), 1e-300), style, label=key)
-    ax[0, 0].set(xlabel="t (ns)", ylabel="counts per 16 ps bin (summed over the scan)",
+    bin_ps = (t_ns[1] - t_ns[0]) * 1e3 if t_ns.size > 1 else 0.0
+    ax[0, 0].set(xlabel="t (ns)", ylabel=f"counts per {bin_ps:.0f} ps bin (summed over the scan)",
                  title="temporal profile")
     ax[1, 0].set(xlabel="t (ns)", ylabel="counts / peak", title="temporal profile, normalised")
     for k in (0, 1):

@@ -54,27 +54,51 @@ SEARCH_CELLS = 2          # the patch's peak is searched within +-this many scan
 @dataclass(frozen=True)
 class ResolutionGeometry:
     """Where the resolution is measured (defaults: the seed's Table 1, the study's default
-    geometry): a ``points`` x ``points`` confocal scan of side ``scan_width_m``, the patch at
-    ``depth_m`` behind the ``slab`` (None: no slab), ``bin_width_s`` bins, a Gaussian pulse
-    of ``pulse_width_s`` FWHM, the reconstruction window ``max_path_m`` of round-trip path
-    and ``iterations`` of the iterative method. ``text``, ``letter_height_m`` and
-    ``stroke_m`` are the letters read at this geometry: their area sets the budget's photon
-    count (``budget_area_m2`` None) and their stroke the ratio stroke / resolution."""
+    geometry): the patch at ``depth_m`` behind the ``slab`` (None: no slab), seen by a
+    confocal scan of side ``scan_width_m``. ``text``, ``letter_height_m`` and ``stroke_m``
+    are the letters read at this geometry: their area sets the budget's photon count
+    (``budget_area_m2`` None) and their stroke the ratio stroke / resolution.
 
-    scan_width_m: float = 0.3
-    points: int = 32
+    Fields left None are the study grid's (:class:`clnlos.study.dataset.StudyGrid`, filled
+    by :meth:`resolve`): ``scan_width_m``, ``points``, ``bin_width_s``, ``pulse_width_s``,
+    ``iterations``, and ``max_path_m`` (the study's window for this depth,
+    :func:`clnlos.study.dataset.window_m`)."""
+
     depth_m: float = 0.5
     slab: Slab | None = CDT_SLAB
-    bin_width_s: float = 16e-12
-    pulse_width_s: float = 35e-12
-    max_path_m: float = 1.6
-    iterations: int = 50
+    scan_width_m: float | None = None
+    points: int | None = None
+    bin_width_s: float | None = None
+    pulse_width_s: float | None = None
+    max_path_m: float | None = None
+    iterations: int | None = None
     patch_m: float = 0.01
     density_per_m2: float = 4e6  # 400 surface elements on the 1 cm patch
     text: str = "UT"
     letter_height_m: float = 0.15
     stroke_m: float = 0.04
     budget_area_m2: float | None = None
+
+    @classmethod
+    def from_study(cls, d: dict, **kw) -> ResolutionGeometry:
+        """From a study geometry or target dict: ``scan_width_m``, ``depth_m``,
+        ``letter_height_m`` or ``height_m``, ``stroke_m``, ``text`` (those present);
+        ``kw`` sets any other field."""
+        keys = {"scan_width_m": "scan_width_m", "depth_m": "depth_m", "stroke_m": "stroke_m",
+                "text": "text", "letter_height_m": "letter_height_m",
+                "height_m": "letter_height_m"}
+        return cls(**{keys[k]: v for k, v in d.items() if k in keys}, **kw)
+
+    def resolve(self, grid) -> ResolutionGeometry:
+        """A copy with every None field taken from the study ``grid``."""
+        from .dataset import window_m
+
+        fill = {f: getattr(grid, f) for f in ("scan_width_m", "points", "bin_width_s",
+                                              "pulse_width_s", "iterations")
+                if getattr(self, f) is None}
+        if self.max_path_m is None:
+            fill["max_path_m"] = window_m({"depth_m": self.depth_m}, grid)
+        return replace(self, **fill)
 
     @property
     def pitch_m(self) -> float:
@@ -212,7 +236,9 @@ def letters_area_m2(text: str, height_m: float, stroke_m: float) -> float:
 
 
 def patch_scene(geometry: ResolutionGeometry):
-    """The noise-free scene of the patch (:class:`clnlos.scene.Scene`)."""
+    """The noise-free scene of the patch (:class:`clnlos.scene.Scene`) of a resolved
+    geometry (:meth:`ResolutionGeometry.resolve`)."""
+    from ..config import slab_table
     from ..scene import Scene
 
     g = geometry
@@ -225,8 +251,7 @@ def patch_scene(geometry: ResolutionGeometry):
          "laser": {"pulse_width_s": g.pulse_width_s},
          "sampling": {"density_per_m2": g.density_per_m2, "splat_order": 1}}
     if g.slab is not None:
-        d["slab"] = {"thickness_m": g.slab.thickness_m, "mu_a": g.slab.mu_a,
-                     "mu_s_prime": g.slab.mu_s_prime, "n": g.slab.n}
+        d["slab"] = slab_table(g.slab)
     return Scene.from_dict(d)
 
 
@@ -286,26 +311,27 @@ def _measure(capture, geometry: ResolutionGeometry, methods, queue) -> dict:
 
 
 def measure_resolution(geometry: ResolutionGeometry = ResolutionGeometry(), *,
-                       exposure_s: float | None = 0.1, methods=METHODS, grid=None,
+                       exposure_s: float | None = None, methods=METHODS, grid=None,
                        queue=None, seed: int = 0) -> dict:
     """Resolution of each method at ``geometry`` (results.json ``resolution``).
 
     Returns, noise-free: ``{method: {"lateral_fwhm_m", "axial_fwhm_m", ...}}``,
     ``bound_lateral_m``, ``bound_axial_m``, ``effective_temporal_fwhm_s``, ``photons`` (the
     capture's sum, 1/(m^2 sr) for noise-free), ``stroke_over_resolution`` {method: stroke /
-    lateral FWHM}; and ``budget``, the same keys at ``exposure_s`` per scan point of the
-    ``grid``'s photon budget (default :class:`clnlos.study.dataset.StudyGrid`) with
-    ``exposure_s`` and the patch's ``albedo`` (absent when ``exposure_s`` is None);
-    ``geometry`` echoes the geometry. A FWHM is None where the profile stays above half its
-    peak across the volume. Each method's entry also holds ``profiles`` (arrays for
-    :func:`resolution_figure`; pop them before writing JSON, e.g. :func:`json_ready`)."""
+    lateral FWHM}; and, when ``exposure_s`` is given (the study's budget, e.g. 0.1 s per
+    scan point), ``budget``: the same keys at that exposure of the ``grid``'s photon budget
+    (default :class:`clnlos.study.dataset.StudyGrid`) with ``exposure_s`` and the patch's
+    ``albedo``;
+    ``geometry`` echoes the geometry resolved against the grid. A FWHM is None where the
+    profile stays above half its peak across the volume. Each method's entry also holds
+    ``profiles`` (arrays for :func:`resolution_figure`; :func:`json_ready` drops them)."""
     from ..forward import ForwardModel
     from ..runtime import get_queue
     from .dataset import StudyGrid
 
     grid = StudyGrid() if grid is None else grid
     queue = get_queue(queue)
-    g = geometry
+    g = geometry.resolve(grid)
     scene = patch_scene(g)
     clean = ForwardModel(scene, queue=queue).capture()
     res = _measure(clean, g, methods, queue)
