@@ -8,10 +8,25 @@ import numpy as np
 
 from ..errors import InputFileError
 from ..io import Capture
+from ..limits import declared_capture
 from .common import validate_transient
 
 
+def _declared_npy(path) -> None:
+    """Declare the array's size from the .npy header (a memory map reads none of the
+    data) before it is loaded; a header numpy cannot map is left to :func:`read_npy`."""
+    try:
+        mm = np.load(path, mmap_mode="r", allow_pickle=False)
+    except (OSError, ValueError):
+        return
+    shape, itemsize = mm.shape, mm.dtype.itemsize
+    del mm
+    if len(shape) == 3:
+        declared_capture(path, shape, itemsize)
+
+
 def read_npy(path) -> Capture:
+    _declared_npy(path)
     try:
         arr = np.load(path, allow_pickle=False)
     except (OSError, ValueError) as exc:
