@@ -95,7 +95,7 @@ def element_count(obj: SceneObject, density: float, base_dir) -> float:
         nx, ny = planar_cells(*half, density)
         return float(nx) * float(ny)
     if obj.shape == "sphere":
-        return max(4.0, 4 * math.pi * obj.radius_m**2 * density)
+        return float(max(4, round(4 * math.pi * obj.radius_m**2 * density)))  # as sampled
     V, F = read_mesh(base_dir / obj.path)
     area = 0.5 * np.linalg.norm(np.cross(V[F[:, 1]] - V[F[:, 0]], V[F[:, 2]] - V[F[:, 0]]),
                                 axis=1)

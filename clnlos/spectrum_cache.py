@@ -10,11 +10,11 @@ the folder is kept under ``CLNLOS_SPECTRUM_CACHE_MB`` (default 4096 MiB) by dele
 least recently used files. Files are written atomically, with the mode the umask gives a
 new file (:func:`clnlos.outputs.file_mode`).
 
-Each entry is a header -- ``MAGIC``, its key, the payload's size in bytes and CRC-32 -- then
-the spectrum's raw bytes. A read verifies all four (the CRC while the bytes stream into the
-device buffer: no second pass); an entry that fails (truncated, zero-filled, another
-entry's bytes, any flipped bit) is deleted, recomputed, stored again and reported in one
-warning that names the file.
+Each entry is a header -- ``MAGIC``, its key, the payload's size in bytes and its checksum
+(:func:`payload_checksum`) -- then the spectrum's raw bytes. A read verifies all four; an
+entry that fails (truncated, zero-filled, another entry's bytes, a flipped bit, a moved
+block) is deleted, recomputed, stored again and reported in one warning that names the
+file.
 """
 
 from __future__ import annotations
@@ -25,7 +25,6 @@ import os
 import struct
 import tempfile
 import warnings
-import zlib
 from pathlib import Path
 
 import numpy as np
@@ -34,11 +33,11 @@ ENV_DIR = "CLNLOS_SPECTRUM_CACHE"
 ENV_BUDGET = "CLNLOS_SPECTRUM_CACHE_MB"
 DEFAULT_BUDGET_MB = 4096.0
 SUFFIX = ".spectrum"
-# entry header: magic, key (KEY_CHARS ASCII hex), payload bytes (uint64), payload CRC-32
+# entry header: magic, key (KEY_CHARS ASCII hex), payload bytes, the checksum's two lanes
 MAGIC = b"CLNLOS-SPECTRUM-2\n"
 KEY_CHARS = 40
-HEADER = struct.Struct(f"<{len(MAGIC)}s{KEY_CHARS}sQI")
-CHUNK_BYTES = 8 << 20  # read and checksum in pieces that stay in cache
+HEADER = struct.Struct(f"<{len(MAGIC)}s{KEY_CHARS}sQQQ")
+CHECK_BLOCK_WORDS = 512  # 4 KiB blocks of the checksum's positional lane
 # what computes the spectra (and lays out the entries): a change to any of these
 # invalidates every entry
 SOURCE_MODULES = ("blur.py", "diffusion.py", "grid.py", "lct.py", "slab.py", "fft.py",
@@ -115,7 +114,7 @@ class SpectrumCache:
 
     def load(self, key: str, out_g) -> bool:
         """Read entry ``key`` into the device array ``out_g``: True when it is there and
-        verified (header and CRC-32, see the module docstring); False when it is missing,
+        verified (header and checksum, see the module docstring); False when it is missing,
         or bad -- then it is deleted, with one warning naming the file."""
         from .runtime import host_view
 
@@ -127,10 +126,15 @@ class SpectrumCache:
         with f:
             try:
                 size = os.fstat(f.fileno()).st_size
-                problem, crc = _header_problem(f.read(HEADER.size), size, key, out_g.nbytes)
+                problem, check = _header_problem(f.read(HEADER.size), size, key,
+                                                 out_g.nbytes)
                 if problem is None:
                     with host_view(out_g, write=True, read=False) as a:
-                        problem = _read_checked(f, memoryview(a).cast("B"), crc)
+                        data = memoryview(a).cast("B")
+                        if f.readinto(data) != data.nbytes:
+                            problem = "ends early (truncated)"
+                        elif payload_checksum(data) != check:
+                            problem = "fails its checksum (corrupt)"
             except OSError as exc:
                 problem = f"unreadable ({exc.strerror or exc})"
         if problem is not None:
@@ -164,7 +168,7 @@ class SpectrumCache:
                 with os.fdopen(fd, "wb") as f, host_view(spec_g) as a:
                     data = memoryview(np.ascontiguousarray(a)).cast("B")
                     f.write(HEADER.pack(MAGIC, key.encode("ascii"), data.nbytes,
-                                        zlib.crc32(data)))
+                                        *payload_checksum(data)))
                     f.write(data)
                 os.chmod(tmp, file_mode())
                 os.replace(tmp, self._path(key))
@@ -192,32 +196,38 @@ class SpectrumCache:
             total -= size
 
 
-def _read_checked(f, out: memoryview, crc: int) -> str | None:
-    """Read ``out.nbytes`` bytes of ``f`` into ``out`` in CHUNK_BYTES pieces, each added to
-    the CRC-32 while it is in cache; why they are not the recorded bytes, or None."""
-    got, n, got_crc = 0, out.nbytes, 0
-    while got < n:
-        piece = out[got:got + CHUNK_BYTES]
-        k = f.readinto(piece)
-        if not k:
-            return f"ends after {HEADER.size + got} bytes (truncated)"
-        got_crc = zlib.crc32(piece[:k], got_crc)
-        got += k
-    if got_crc != crc:
-        return "fails its CRC-32 check (corrupt)"
-    return None
+def payload_checksum(data: memoryview) -> tuple[int, int]:
+    """A Fletcher-style checksum of bytes at memory speed (numpy; a CRC or SHA would cost
+    most of what a cache hit saves): (the sum of the 64-bit words, the sum of the
+    CHECK_BLOCK_WORDS-word block sums weighted by their 1-based index), both mod 2^64.
+    Not cryptographic: it catches truncation, zero fills, overwritten or flipped bytes and
+    moved blocks."""
+    b = np.frombuffer(data, np.uint8)
+    n8 = b.size // 8
+    words = b[:n8 * 8].view(np.uint64)
+    nb = n8 // CHECK_BLOCK_WORDS
+    sums = np.add.reduce(words[:nb * CHECK_BLOCK_WORDS].reshape(nb, CHECK_BLOCK_WORDS),
+                         axis=1, dtype=np.uint64)
+    last = (int(np.add.reduce(words[nb * CHECK_BLOCK_WORDS:], dtype=np.uint64))
+            + int.from_bytes(b[n8 * 8:].tobytes(), "little")) % 2**64
+    sums = np.append(sums, np.uint64(last))
+    weights = np.arange(1, sums.size + 1, dtype=np.uint64)
+    return (int(np.add.reduce(sums, dtype=np.uint64)),
+            int(np.add.reduce(sums * weights, dtype=np.uint64)))
 
 
-def _header_problem(head: bytes, size: int, key: str, nbytes: int) -> tuple[str | None, int]:
+def _header_problem(head: bytes, size: int, key: str, nbytes: int
+                    ) -> tuple[str | None, tuple[int, int]]:
     """(why an entry's header and file size do not describe a spectrum of ``nbytes`` bytes
-    for ``key``, or None; the CRC-32 the header records)."""
+    for ``key``, or None; the checksum the header records)."""
     if len(head) < HEADER.size or not head.startswith(MAGIC):
-        return "is not a clnlos spectrum entry (bad header)", 0
-    _, k, n, crc = HEADER.unpack(head)
+        return "is not a clnlos spectrum entry (bad header)", (0, 0)
+    _, k, n, lane_a, lane_b = HEADER.unpack(head)
     if k.decode("ascii", "replace") != key:
-        return "holds another entry's key", crc
+        return "holds another entry's key", (lane_a, lane_b)
     if n != nbytes:
-        return f"holds {n} bytes, {nbytes} expected", crc
+        return f"holds {n} bytes, {nbytes} expected", (lane_a, lane_b)
     if size != HEADER.size + nbytes:
-        return f"is {size} bytes long, {HEADER.size + nbytes} expected (truncated)", crc
-    return None, crc
+        return (f"is {size} bytes long, {HEADER.size + nbytes} expected (truncated)",
+                (lane_a, lane_b))
+    return None, (lane_a, lane_b)
