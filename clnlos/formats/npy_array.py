@@ -13,16 +13,20 @@ from .common import validate_transient
 
 
 def _declared_npy(path) -> None:
-    """Declare the array's size from the .npy header (a memory map reads none of the
-    data) before it is loaded; a header numpy cannot map is left to :func:`read_npy`."""
+    """Declare the array's size from the .npy header before the data are loaded; a header
+    numpy cannot parse is left to :func:`read_npy`."""
+    from numpy.lib import format as npy
+
     try:
-        mm = np.load(path, mmap_mode="r", allow_pickle=False)
-    except (OSError, ValueError):
+        with open(path, "rb") as f:
+            version = npy.read_magic(f)
+            read = npy.read_array_header_1_0 if version == (1, 0) else \
+                npy.read_array_header_2_0
+            shape, _, dtype = read(f)
+    except (OSError, ValueError, SyntaxError):
         return
-    shape, itemsize = mm.shape, mm.dtype.itemsize
-    del mm
     if len(shape) == 3:
-        declared_capture(path, shape, itemsize)
+        declared_capture(path, shape, dtype.itemsize)
 
 
 def read_npy(path) -> Capture:
