@@ -255,7 +255,7 @@ def load_entry(path: Path, key: str, grid: StudyGrid) -> tuple[dict | None, str 
                 z = {k: f[k] for k in f.files}
         problem = entry_problem(z, key, grid)
     except NPZ_ERRORS as exc:
-        problem = f"is unreadable ({type(exc).__name__}: {exc})"
+        problem = f"is unreadable ({type(exc).__name__}: {' '.join(str(exc).split())})"
     if problem is None:
         return {k: (v.item() if v.ndim == 0 else v) for k, v in z.items()
                 if k not in (ENTRY_KEY, ENTRY_CHECKSUM)}, None
