@@ -542,3 +542,19 @@ def test_host_memory_comes_from_meminfo_capped_by_the_cgroup(tmp_path, monkeypat
     with pytest.raises(limits.MemoryLimitError, match="2.0 GiB of host memory; 1.0 GiB"):
         limits.check_memory("a step", host=2 * 2**30)
     limits.check_memory("a step", host=2**29)
+
+
+@pytest.mark.parametrize("name,suffix", [("transient", ".h5"), ("meas", ".mat"),
+                                         ("rect_data", ".mat")])
+def test_a_group_where_the_dataset_belongs_is_still_one_line(tmp_path, capsys, name, suffix):
+    import h5py
+
+    from clnlos.cli import main
+
+    path = tmp_path / f"g{suffix}"
+    with h5py.File(path, "w") as f:
+        f.create_group(name)
+        f.attrs["bin_width_s"] = DT
+    assert main(["reconstruct", str(path), "-o", str(tmp_path / "r.h5"),
+                 "--scan-width", "0.3"]) == 2
+    assert str(path) in _one_error_line(capsys)

@@ -75,9 +75,11 @@ def from_cdt(meas_t_y_x, path) -> Capture:
 def _declared_mat73(f, path) -> None:
     """Declare the capture variable's size before it is read (h5py's shape is MATLAB's
     reversed; the time axis as :func:`read_mat73` will take it)."""
+    import h5py
+
     if "rect_data" in f:  # MATLAB (N, N, T)
         declared_dataset(f["rect_data"], path)
-    elif "meas" in f and len(f["meas"].shape or ()) == 3:
+    elif isinstance(f.get("meas"), h5py.Dataset) and len(f["meas"].shape or ()) == 3:
         m = f["meas"].shape[::-1]  # MATLAB's order
         t_last = "tofgrid" in f or m[2] > max(m[0], m[1])  # as _time_last decides
         declared_dataset(f["meas"], path, order=(0, 1, 2) if t_last else (2, 1, 0),
