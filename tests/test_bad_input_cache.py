@@ -330,21 +330,22 @@ def test_capture_size_is_checked_against_host_memory_before_reading(tmp_path, mo
 
 def test_capture_declaring_a_huge_transient_is_refused_before_it_is_read(tmp_path,
                                                                          monkeypatch, capsys):
-    """An 8 KB HDF5 declaring a 4096 x 2048 x 2048 transient (its chunks never written)."""
+    """An 8 KB HDF5 declaring a 8192 x 4096 x 4096 transient (its chunks never written; 512
+    GiB: more than any host this runs on, so the old code's read fails at once too)."""
     import h5py
 
     from clnlos.cli import main
 
     path = tmp_path / "huge.h5"
     with h5py.File(path, "w") as f:
-        f.create_dataset("transient", shape=(4096, 2048, 2048), dtype="f4",
+        f.create_dataset("transient", shape=(8192, 4096, 4096), dtype="f4",
                          chunks=(64, 64, 64), compression="gzip")
         f.attrs.update(bin_width_s=DT, start_s=0.0, scan_width_m=WIDTH)
     assert path.stat().st_size < 8192
     _never_read(monkeypatch)
     assert main(["reconstruct", str(path), "-o", str(tmp_path / "r.h5")]) == 2
     err = _one_error_line(capsys)
-    assert str(path) in err and "4096 x 2048 x 2048" in err and " needs " in err
+    assert str(path) in err and "8192 x 4096 x 4096" in err and " needs " in err
     assert "memory" in err or "per buffer" in err
     assert not (tmp_path / "r.h5").exists()
 
@@ -424,7 +425,7 @@ translate_m = [0.0, 0.0, 0.5]
 
 
 def test_scene_surface_elements_are_bounded_before_sampling(tmp_path, monkeypatch, capsys):
-    """100 m x 100 m at 1e10 per m^2: 1e14 elements, refused before any is built."""
+    """10 m x 10 m at 1e10 per m^2: 1e12 elements, refused before any is built."""
     from clnlos import forward
     from clnlos.cli import main
 
@@ -433,11 +434,11 @@ def test_scene_surface_elements_are_bounded_before_sampling(tmp_path, monkeypatc
 
     monkeypatch.setattr(forward, "sample_object", boom)
     scene = tmp_path / "s.toml"
-    scene.write_text(SCENE + 'shape = "rectangle"\nsize_m = [100.0, 100.0]\n'
+    scene.write_text(SCENE + 'shape = "rectangle"\nsize_m = [10.0, 10.0]\n'
                      "[sampling]\ndensity_per_m2 = 1e10\n")
     assert main(["simulate", str(scene), "-o", str(tmp_path / "c.h5")]) == 2
     err = _one_error_line(capsys)
-    assert "sampling.density_per_m2 = 1e+10" in err and "1e+14 surface elements" in err
+    assert "sampling.density_per_m2 = 1e+10" in err and "1e+12 surface elements" in err
     assert " needs " in err and "memory" in err
     assert not (tmp_path / "c.h5").exists()
 
@@ -464,15 +465,18 @@ def test_scene_strings_are_bounded_and_not_echoed(tmp_path, capsys):
     from clnlos.cli import main
 
     scene = tmp_path / "s.toml"
-    scene.write_text(SCENE + f'shape = "letters"\ntext = "{"A" * 1_000_000}"\n')
+    # sizes the old code survives: 300 letters at a low density, a 1 MB file name
+    scene.write_text(SCENE + f'shape = "letters"\ntext = "{"A" * 300}"\n'
+                     "[sampling]\ndensity_per_m2 = 1e3\n")
     assert main(["simulate", str(scene), "-o", str(tmp_path / "c.h5")]) == 2
     err = _one_error_line(capsys)
     assert "objects[0].text" in err and "at most 256 characters" in err
-    assert "(1000000 characters)" in err and len(err) < 300
-    scene.write_text(SCENE + f'shape = "sphere"\nmaterial = "{"m" * 5000}"\n')
+    assert "(300 characters)" in err and len(err) < 300
+    scene.write_text(SCENE + f'shape = "sphere"\nmaterial = "{"m" * 1_000_000}.h5"\n')
     assert main(["simulate", str(scene), "-o", str(tmp_path / "c.h5")]) == 2
     err = _one_error_line(capsys)
-    assert "objects[0].material" in err and "4096 characters" in err and len(err) < 300
+    assert "objects[0].material" in err and "4096 characters" in err
+    assert "(1000003 characters)" in err and len(err) < 300
 
 
 def _phong_model(tmp_path):
