@@ -100,8 +100,34 @@ def config_from_args(args, capture=None):
     return cfg
 
 
+def _pipeline_fits(capture, cfg, queue, dtype):
+    """The check a capture reader runs with the declared size (:func:`clnlos.limits.
+    capture_use`): the reconstruction's device buffers fit the device (a time axis the file
+    does not store, or stores as no valid number, is left to the later checks)."""
+    from .limits import check_memory
+    from .errors import ParameterError
+    from .reconstruct import device_bytes_needed
+
+    def check(shape, bin_width_s, start_s):
+        bw = cfg.bin_width_s if cfg.bin_width_s is not None else bin_width_s
+        start = cfg.start_s if cfg.start_s is not None else start_s
+        if bw is None or not (np.isfinite(bw) and bw > 0 and np.isfinite(start)):
+            return
+        try:
+            total, largest = device_bytes_needed(shape, bin_width_s=bw, start_s=start,
+                                                 config=cfg, dtype=dtype)
+        except ParameterError:  # a window that keeps nothing: reported with the capture read
+            return
+        check_memory(f"reconstructing {capture} (transient {' x '.join(map(str, shape))} "
+                     "[t, y, x])", device=queue.device, device_total=total,
+                     device_buffer=largest)
+
+    return check
+
+
 def cmd_reconstruct(args) -> int:
     from .io import read_capture
+    from .limits import capture_use
     from .reconstruct import reconstruct_to_files, resolve_geometry
     from .runtime import get_queue
 
@@ -111,7 +137,8 @@ def cmd_reconstruct(args) -> int:
                   inputs=[args.capture, args.config], suffixes={"-o": HDF5_SUFFIXES},
                   implied={"figure": None}, force=args.force)
     queue = get_queue(args.device)
-    capture = read_capture(args.capture)
+    with capture_use(_pipeline_fits(args.capture, cfg, queue, DTYPES[args.dtype])):
+        capture = read_capture(args.capture)  # the pipeline's size checked before the data
     resolve_geometry(capture, cfg)  # missing geometry before the slab note
     if not np.any(capture.transient):
         from .errors import InputFileError

@@ -11,12 +11,28 @@ class ClnlosError(Exception):
     """Base class for errors a user can cause (bad input, bad parameter, device problem)."""
 
 
+SHOWN_CHARS = 80  # a value (or a name) is cut to this many characters in a message
+
+
+def shown(value, *, as_repr: bool = True) -> str:
+    """``value`` for a one-line message (its repr, or str with ``as_repr=False``), cut to
+    SHOWN_CHARS with its full length added: a 10 MB string is not echoed back."""
+    text = repr(value) if as_repr else str(value)
+    if len(text) <= SHOWN_CHARS:
+        return text
+    size = len(value) if isinstance(value, str | list | dict | tuple) else len(text)
+    unit = "characters" if isinstance(value, str) else "items" if size != len(text) else \
+        "characters as text"
+    return f"{text[:SHOWN_CHARS - 3]}... ({size} {unit})"
+
+
 class ParameterError(ClnlosError, ValueError):
     """A parameter is invalid; the message names it, its value and the allowed range."""
 
     def __init__(self, name: str, value, allowed: str):
         self.name, self.value, self.allowed = name, value, allowed
-        super().__init__(f"invalid {name} = {value!r}: allowed {allowed}")
+        super().__init__(f"invalid {shown(name, as_repr=False)} = {shown(value)}: "
+                         f"allowed {allowed}")
 
 
 class ShapeError(ClnlosError, ValueError):
@@ -45,3 +61,13 @@ class DeviceCapabilityError(DeviceError):
 
 class KernelBuildError(DeviceError):
     """An OpenCL program failed to build; the message carries file, options, device and log."""
+
+
+class MemoryLimitError(ClnlosError):
+    """A size declared by a file or a parameter needs more memory than the host has or a
+    device allows; the message names the size, the limit and which memory
+    (:func:`clnlos.limits.check_memory`)."""
+
+
+class DeviceMemoryError(MemoryLimitError, DeviceCapabilityError):
+    """:class:`MemoryLimitError` of a device's memory (global or largest allocation)."""

@@ -34,11 +34,13 @@ from .errors import ParameterError
 from .pulse import PulseBlur, pulse_taps  # noqa: F401 (re-exported)
 from .geometry import (
     Elements,
+    planar_cells,
     read_mesh,
     sample_letters,
     sample_mesh,
     sample_rectangle,
     sample_sphere,
+    text_extent_bound,
     transform,
 )
 from .runtime import (
@@ -76,6 +78,42 @@ def sample_object(obj: SceneObject, density: float, base_dir) -> Elements:
     else:
         el = sample_mesh(*read_mesh(base_dir / obj.path), density)
     return transform(el, obj.rotate_deg, obj.translate_m)
+
+
+# host bytes per surface element while a scene is sampled (positions, normals, areas,
+# albedo and material, the cell grid they come from, the concatenation; 136 B measured)
+HOST_BYTES_PER_ELEMENT = 160
+
+
+def element_count(obj: SceneObject, density: float, base_dir) -> float:
+    """The surface elements (cells of the covering grid, for planar shapes) that sampling
+    ``obj`` at ``density`` allocates, from its declared size (no element built; a mesh's
+    triangles are read)."""
+    if obj.shape in ("letters", "rectangle"):
+        half = (text_extent_bound(obj.text, obj.height_m, obj.stroke_m)
+                if obj.shape == "letters" else (obj.size_m[0] / 2, obj.size_m[1] / 2))
+        nx, ny = planar_cells(*half, density)
+        return float(nx) * float(ny)
+    if obj.shape == "sphere":
+        return float(max(4, round(4 * math.pi * obj.radius_m**2 * density)))  # as sampled
+    V, F = read_mesh(base_dir / obj.path)
+    area = 0.5 * np.linalg.norm(np.cross(V[F[:, 1]] - V[F[:, 0]], V[F[:, 2]] - V[F[:, 0]]),
+                                axis=1)
+    return float(np.sum(np.maximum(1.0, np.ceil(np.sqrt(area * density))) ** 2))
+
+
+def check_scene_size(scene: Scene, device, dtype) -> None:
+    """Before anything is sampled: the surface elements the scene implies (objects x area
+    x sampling.density_per_m2) fit the host while they are built and the device's buffers
+    (:func:`clnlos.limits.check_memory`)."""
+    from .limits import check_memory
+
+    n = sum(element_count(o, scene.density_per_m2, scene.base_dir) for o in scene.objects)
+    item = np.dtype(dtype).itemsize
+    check_memory(f"the scene's {len(scene.objects)} object(s) at sampling.density_per_m2 = "
+                 f"{scene.density_per_m2:g} ({n:.3g} surface elements)",
+                 host=int(n * HOST_BYTES_PER_ELEMENT), device=device,
+                 device_total=int(n * (8 * item + 4)), device_buffer=int(n * 3 * item))
 
 
 @dataclass
@@ -287,6 +325,7 @@ class ForwardModel:
         self.scene = scene
         self.queue = get_queue(queue)
         self.dtype = require_dtype(self.queue.device, dtype)
+        check_scene_size(scene, self.queue.device, self.dtype)
         self.warnings = check_scene_geometry(scene)
         self.samples = sample_scene(scene)
         s = scene

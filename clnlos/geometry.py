@@ -147,10 +147,23 @@ def transform(el: Elements, rotate_deg, translate_m) -> Elements:
     return Elements(el.pos @ R.T + np.asarray(translate_m, float), el.normal @ R.T, el.area)
 
 
-def _planar_grid(half_w: float, half_h: float, density: float, inside) -> Elements:
+def planar_cells(half_w: float, half_h: float, density: float) -> tuple[int, int]:
+    """(nx, ny): the cells of side density^-1/2 that cover a planar shape's box."""
     h = 1.0 / math.sqrt(density)
-    nx = max(1, int(math.ceil(2 * half_w / h)))
-    ny = max(1, int(math.ceil(2 * half_h / h)))
+    return max(1, int(math.ceil(2 * half_w / h))), max(1, int(math.ceil(2 * half_h / h)))
+
+
+def text_extent_bound(text: str, height_m: float, stroke_m: float) -> tuple[float, float]:
+    """An upper bound of :func:`text_extent` from the text's length alone (no strokes
+    built): every glyph box (GLYPH_WIDTH, 1) and gap, plus the stroke's caps."""
+    inner = height_m - stroke_m
+    n = max(1, len(text))
+    width = (n * GLYPH_WIDTH + (n - 1) * GLYPH_GAP) * inner
+    return width / 2 + stroke_m / 2, inner / 2 + stroke_m / 2
+
+
+def _planar_grid(half_w: float, half_h: float, density: float, inside) -> Elements:
+    nx, ny = planar_cells(half_w, half_h, density)
     xs = (np.arange(nx) + 0.5) * (2 * half_w / nx) - half_w
     ys = (np.arange(ny) + 0.5) * (2 * half_h / ny) - half_h
     X, Y = np.meshgrid(xs, ys, indexing="xy")

@@ -80,14 +80,7 @@ def preprocess_matrix(nt_in: int, bin_width_s: float, start_s: float, max_path_m
     it), then they are dropped, so the deconvolution's edge effects fall outside the volume.
     """
     src_edges = start_s + bin_width_s * np.arange(nt_in + 1)
-    t_end = src_edges[-1]
-    if max_path_m is not None:
-        t_end = min(t_end, max_path_m / C0)
-    if t_end <= 0:
-        raise ParameterError("preprocess.max_path_m", max_path_m,
-                             "a path length that keeps some of the capture's time window")
-    n_keep = max(1, int(round(t_end / bin_width_s)))
-    n_out = n_keep if bins is None else int(bins)
+    n_keep, n_out = preprocess_bins(nt_in, bin_width_s, start_s, max_path_m, bins)
     t_keep = n_keep * bin_width_s
     dt_out = t_keep / n_out
     n_avail = int(np.floor((src_edges[-1] - t_keep) / dt_out + 1e-9))
@@ -117,6 +110,35 @@ def window_end_level(profile: np.ndarray, *, background: float, end_bins: int,
     std = (math.sqrt(max(float(profile[-m:].mean()), 1.0) / m) if photon_counts
            else sigma * math.sqrt(n_scan / m))
     return max(0.0, excess / top) if excess > ARRIVAL_SIGMAS * std else 0.0
+
+
+def preprocess_bins(nt_in: int, bin_width_s: float, start_s: float,
+                    max_path_m: float | None, bins: int | None) -> tuple[int, int]:
+    """(capture bins kept from t = 0, bins after rebinning) of :func:`preprocess_matrix`,
+    from the capture's time axis alone."""
+    t_end = start_s + bin_width_s * nt_in
+    if max_path_m is not None:
+        t_end = min(t_end, max_path_m / C0)
+    if t_end <= 0:
+        raise ParameterError("preprocess.max_path_m", max_path_m,
+                             "a path length that keeps some of the capture's time window")
+    n_keep = max(1, int(round(t_end / bin_width_s)))
+    return n_keep, n_keep if bins is None else int(bins)
+
+
+def device_bytes_needed(shape_in, *, bin_width_s: float, start_s: float,
+                        config: ReconstructionConfig, dtype=np.float32) -> tuple[int, int]:
+    """(device bytes in all, bytes of the largest buffer) that a pipeline for captures of
+    ``shape_in`` [t, y, x] allocates at least: the capture, and twice (the filter's and
+    the work buffer) the half spectrum of the inversion's padded grid (2 n, 2 ny, 2 nx),
+    n the bins after preprocessing. Lower bounds, from the declared sizes alone: a check
+    before a capture is read (:func:`clnlos.limits.capture_use`) never refuses one that
+    fits."""
+    nt_in, ny, nx = (int(v) for v in shape_in)
+    _, n = preprocess_bins(nt_in, bin_width_s, start_s, config.max_path_m, config.bins)
+    item = np.dtype(dtype).itemsize
+    spectrum = 2 * n * 2 * ny * (nx + 1) * 2 * item  # (2n, 2ny, 2nx) real -> half, complex
+    return nt_in * ny * nx * item + 2 * spectrum, spectrum
 
 
 def model_snr_for(capture: Capture, config: ReconstructionConfig) -> float:

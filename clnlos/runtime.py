@@ -206,13 +206,11 @@ def require_dtype(device: cl.Device, dtype) -> np.dtype:
 
 
 def require_memory(device: cl.Device, nbytes: int, what: str) -> None:
-    """Raise before allocating when ``nbytes`` cannot fit on the device."""
-    if nbytes > device.max_mem_alloc_size or nbytes > device.global_mem_size:
-        raise DeviceCapabilityError(
-            f"{what} needs {nbytes / 2**20:.1f} MiB in one buffer but device "
-            f"{device.name.strip()!r} allows {device.max_mem_alloc_size / 2**20:.1f} MiB per "
-            f"buffer ({device.global_mem_size / 2**20:.1f} MiB in all); use a smaller grid"
-        )
+    """Raise before allocating when one buffer of ``nbytes`` cannot fit on the device
+    (:func:`clnlos.limits.check_memory`)."""
+    from .limits import check_memory
+
+    check_memory(what, device=device, device_total=nbytes, device_buffer=nbytes)
 
 
 def pocl_version(device: cl.Device) -> tuple[int, int] | None:

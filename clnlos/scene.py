@@ -69,6 +69,10 @@ from .slab import Slab
 from .errors import InputFileError, ParameterError
 
 SHAPES = ("letters", "rectangle", "sphere", "mesh")
+# string sizes: the stroke font's cost grows with characters x covered cells; a file name
+# longer than Linux's PATH_MAX cannot be opened
+MAX_TEXT_CHARS = 256
+MAX_PATH_CHARS = 4096
 
 
 def _vec3(name, v) -> tuple[float, float, float]:
@@ -222,6 +226,9 @@ def _object(i: int, o: dict) -> SceneObject:
         m = o["material"]
         if not isinstance(m, str | dict):
             raise ParameterError(f"{sec}.material", m, "a preset name or a model table")
+        if isinstance(m, str) and len(m) > MAX_PATH_CHARS:
+            raise ParameterError(f"{sec}.material", m, "a preset name or a texture file of "
+                                 f"at most {MAX_PATH_CHARS} characters")
         kw["material"] = m
     for k in ("height_m", "stroke_m", "radius_m"):
         if k in o:
@@ -229,6 +236,9 @@ def _object(i: int, o: dict) -> SceneObject:
     if "text" in o:
         if not isinstance(o["text"], str) or not o["text"].strip():
             raise ParameterError(f"{sec}.text", o["text"], "a non-empty string")
+        if len(o["text"]) > MAX_TEXT_CHARS:
+            raise ParameterError(f"{sec}.text", o["text"],
+                                 f"at most {MAX_TEXT_CHARS} characters")
         kw["text"] = o["text"]
     if "size_m" in o:
         s = o["size_m"]
@@ -238,8 +248,9 @@ def _object(i: int, o: dict) -> SceneObject:
                         positive(f"{sec}.size_m", s[1], upper=100.0))
     for k in ("path", "brdf_retro_csv"):
         if k in o:
-            if not isinstance(o[k], str):
-                raise ParameterError(f"{sec}.{k}", o[k], "a file path")
+            if not isinstance(o[k], str) or len(o[k]) > MAX_PATH_CHARS:
+                raise ParameterError(f"{sec}.{k}", o[k],
+                                     f"a file path of at most {MAX_PATH_CHARS} characters")
             kw[k] = o[k]
     if shape == "mesh" and "path" not in kw:
         raise ParameterError(f"{sec}.path", None, "an ASCII PLY or OBJ file for shape = mesh")

@@ -21,6 +21,7 @@ import pyopencl as cl
 import pyopencl.array as cla
 
 from ..errors import InputFileError, ParameterError
+from ..limits import check_memory
 from ..runtime import (
     get_kernels,
     get_queue,
@@ -31,6 +32,12 @@ from ..runtime import (
 )
 
 FORMAT, VERSION = "clnlos-brdf-texture", 1
+# tabulate: nodes per model evaluation (bounds its temporaries), host bytes per node of the
+# texture (float32, and its compressed copy while written) and of one evaluation (the
+# MLP's activations, the analytic models' intermediates; generous)
+TABULATE_CHUNK = 1 << 18
+TEXTURE_BYTES_PER_NODE = 4 + 4
+MODEL_BYTES_PER_NODE = 2048
 
 
 @dataclass
@@ -50,16 +57,24 @@ def tabulate(model, n_theta: int = 64, n_dphi: int = 64, n_retro: int = 256,
     for name, v, lo in (("n_theta", n_theta, 2), ("n_dphi", n_dphi, 2), ("n_retro", n_retro, 2)):
         if int(v) != v or not lo <= v <= 4096:
             raise ParameterError(name, v, f"an integer from {lo} to 4096")
+    shape = (int(n_theta), int(n_theta), int(n_dphi))
+    check_memory(f"BRDF texture {shape[0]} x {shape[1]} x {shape[2]} [theta_i, theta_s, "
+                 "dphi] (n_theta = --resolution, n_dphi = --dphi)",
+                 host=int(np.prod(shape, dtype=float)) * TEXTURE_BYTES_PER_NODE
+                 + TABULATE_CHUNK * MODEL_BYTES_PER_NODE)
     th = np.linspace(0, np.pi / 2, n_theta)
     th_eval = np.minimum(th, np.pi / 2 - 1e-6)  # cosines vanish exactly at grazing
     dp = np.linspace(0, np.pi, n_dphi)
-    TI, TS, DP = np.meshgrid(th_eval, th_eval, dp, indexing="ij")
-    f = np.asarray(model(TI.ravel(), np.zeros(TI.size), TS.ravel(), DP.ravel()), float)
-    tex = np.nan_to_num(np.maximum(f, 0), nan=0.0, posinf=0.0).reshape(TI.shape)
+    tex = np.empty(shape, np.float32)
+    flat = tex.reshape(-1)
+    for a in range(0, flat.size, TABULATE_CHUNK):
+        i, j, k = np.unravel_index(np.arange(a, min(a + TABULATE_CHUNK, flat.size)), shape)
+        f = np.asarray(model(th_eval[i], np.zeros(i.size), th_eval[j], dp[k]), float)
+        flat[a:a + i.size] = np.nan_to_num(np.maximum(f, 0), nan=0.0, posinf=0.0)
     r = np.minimum(np.linspace(0, np.pi / 2, n_retro), np.pi / 2 - 1e-6)
     retro = np.asarray(model(r, np.zeros_like(r), r, np.zeros_like(r)), float)
     retro = np.nan_to_num(np.maximum(retro, 0), nan=0.0, posinf=0.0)
-    return BRDFTexture(tex.astype(np.float32), retro.astype(np.float32), provenance or {})
+    return BRDFTexture(tex, retro.astype(np.float32), provenance or {})
 
 
 def write_texture(path, tex: BRDFTexture) -> None:
@@ -81,6 +96,12 @@ def read_texture(path) -> BRDFTexture:
             if int(f.attrs.get("version", 0)) != VERSION:
                 raise InputFileError(f"{path}: texture version {f.attrs.get('version')} "
                                      f"not supported (expected {VERSION})")
+            for name in ("texture", "retro"):
+                ds = f.get(name)
+                if isinstance(ds, h5py.Dataset) and ds.shape:  # the declared size first
+                    check_memory(f"{path}: reading its {name} "
+                                 f"({' x '.join(map(str, ds.shape))}, {ds.dtype.itemsize} B "
+                                 "per value)", host=ds.size * (ds.dtype.itemsize + 4))
             tex = f["texture"][()]
             retro = f["retro"][()]
             prov = json.loads(f.attrs.get("provenance", "{}"))

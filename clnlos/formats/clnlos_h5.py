@@ -9,15 +9,11 @@ import numpy as np
 
 from ..errors import InputFileError
 from ..io import Capture, plain_attr
-from .common import validate_transient
+from .common import declared_dataset, validate_transient
 
 
 def read_clnlos(f, path) -> Capture:
     ds = f["transient"]
-    try:
-        arr = validate_transient(ds[()], path)
-    except (OSError, ValueError) as exc:
-        raise InputFileError(f"{path}: cannot read dataset 'transient' ({exc})") from None
     at = dict(ds.attrs) | dict(f.attrs)
 
     def num(name, required):
@@ -33,6 +29,11 @@ def read_clnlos(f, path) -> Capture:
             raise InputFileError(f"{path}: attribute {name!r} = {v} is not finite")
         return v
 
-    return Capture(arr, num("bin_width_s", True), num("start_s", False) or 0.0,
-                   num("scan_width_m", False), str(path),
+    bin_width, start = num("bin_width_s", True), num("start_s", False) or 0.0
+    declared_dataset(ds, path, bin_width_s=bin_width, start_s=start)  # before reading it
+    try:
+        arr = validate_transient(ds[()], path)
+    except (OSError, ValueError) as exc:
+        raise InputFileError(f"{path}: cannot read dataset 'transient' ({exc})") from None
+    return Capture(arr, bin_width, start, num("scan_width_m", False), str(path),
                    {k: plain_attr(v) for k, v in at.items()})

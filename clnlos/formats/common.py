@@ -24,6 +24,24 @@ def validate_transient(arr, path) -> np.ndarray:
     return arr
 
 
+def declared_dataset(ds, path, *, order=(0, 1, 2), bin_width_s=None, start_s=0.0) -> None:
+    """Check an HDF5 dataset's declared shape and dtype before it is read
+    (:func:`clnlos.limits.declared_capture`); ``order``: the dataset's axes that become
+    [t, y, x]. A dataset that is not 3D or not numeric (or a group) is left to the reader's
+    own checks."""
+    import h5py
+
+    from ..limits import declared_capture
+
+    if not isinstance(ds, h5py.Dataset):
+        return
+    shape = ds.shape
+    if shape is None or len(shape) != len(order) or ds.dtype.kind not in "biuf":
+        return
+    declared_capture(path, [shape[a] for a in order], ds.dtype.itemsize,
+                     bin_width_s=bin_width_s, start_s=start_s)
+
+
 def shift_earlier(arr: np.ndarray, shift_bins: np.ndarray) -> np.ndarray:
     """Move each column of [t, y, x] earlier by ``shift_bins[y, x]`` (>= 0, fractional) bins.
 

@@ -22,7 +22,8 @@ import numpy as np
 
 from ..errors import InputFileError
 from ..io import Capture
-from .common import shift_earlier, validate_transient
+from ..limits import declared_capture
+from .common import declared_dataset, shift_earlier, validate_transient
 
 CDT_MAT_BIN_WIDTH_S = 16e-12  # the CDT capture format's histogram bin
 FK_MAT_BIN_WIDTH_S = 32e-12   # bin_resolution of the f-k data files
@@ -71,8 +72,23 @@ def from_cdt(meas_t_y_x, path) -> Capture:
     return Capture(arr, CDT_MAT_BIN_WIDTH_S, 0.0, None, str(path), {"format": "cdt-mat"})
 
 
+def _declared_mat73(f, path) -> None:
+    """Declare the capture variable's size before it is read (h5py's shape is MATLAB's
+    reversed; the time axis as :func:`read_mat73` will take it)."""
+    import h5py
+
+    if "rect_data" in f:  # MATLAB (N, N, T)
+        declared_dataset(f["rect_data"], path)
+    elif isinstance(f.get("meas"), h5py.Dataset) and len(f["meas"].shape or ()) == 3:
+        m = f["meas"].shape[::-1]  # MATLAB's order
+        t_last = "tofgrid" in f or m[2] > max(m[0], m[1])  # as _time_last decides
+        declared_dataset(f["meas"], path, order=(0, 1, 2) if t_last else (2, 1, 0),
+                         bin_width_s=FK_MAT_BIN_WIDTH_S if t_last else CDT_MAT_BIN_WIDTH_S)
+
+
 def read_mat73(f, path) -> Capture:
     """MATLAB v7.3 (h5py's axis order is MATLAB's reversed)."""
+    _declared_mat73(f, path)
     try:
         if "rect_data" in f:
             return from_lct(np.transpose(f["rect_data"][()]), f["width"][()],
@@ -86,9 +102,36 @@ def read_mat73(f, path) -> Capture:
     return from_cdt(meas, path)
 
 
+# bytes per value of MATLAB's numeric classes (whosmat); anything else counted as double
+MAT_CLASS_BYTES = {"double": 8, "single": 4, "int8": 1, "uint8": 1, "int16": 2, "uint16": 2,
+                   "int32": 4, "uint32": 4, "int64": 8, "uint64": 8, "logical": 1}
+
+
+def _declared_mat5(path) -> None:
+    """Declare the capture variable's size from the file's variable headers
+    (scipy.io.whosmat) before loadmat reads everything. A file whose headers cannot be
+    listed is left to :func:`read_mat5`'s own error."""
+    import scipy.io
+
+    try:
+        info = {name: (shape, cls) for name, shape, cls in scipy.io.whosmat(path)}
+    except Exception:  # any failure is reported by loadmat below
+        return
+    name = "rect_data" if "rect_data" in info else "meas" if "meas" in info else None
+    if name is None or len(info[name][0]) != 3:
+        return
+    shape, cls = info[name]
+    t_last = name == "rect_data" or "tofgrid" in info or shape[2] > max(shape[0], shape[1])
+    bin_width = (None if name == "rect_data" else FK_MAT_BIN_WIDTH_S if t_last
+                 else CDT_MAT_BIN_WIDTH_S)
+    declared_capture(path, (shape[2], shape[0], shape[1]) if t_last else shape,
+                     MAT_CLASS_BYTES.get(cls, 8), bin_width_s=bin_width)
+
+
 def read_mat5(path) -> Capture:
     import scipy.io
 
+    _declared_mat5(path)
     try:
         d = scipy.io.loadmat(path)
     except (ValueError, TypeError, NotImplementedError, OSError) as exc:

@@ -8,10 +8,29 @@ import numpy as np
 
 from ..errors import InputFileError
 from ..io import Capture
+from ..limits import declared_capture
 from .common import validate_transient
 
 
+def _declared_npy(path) -> None:
+    """Declare the array's size from the .npy header before the data are loaded; a header
+    numpy cannot parse is left to :func:`read_npy`."""
+    from numpy.lib import format as npy
+
+    try:
+        with open(path, "rb") as f:
+            version = npy.read_magic(f)
+            read = npy.read_array_header_1_0 if version == (1, 0) else \
+                npy.read_array_header_2_0
+            shape, _, dtype = read(f)
+    except (OSError, ValueError, SyntaxError):
+        return
+    if len(shape) == 3:
+        declared_capture(path, shape, dtype.itemsize)
+
+
 def read_npy(path) -> Capture:
+    _declared_npy(path)
     try:
         arr = np.load(path, allow_pickle=False)
     except (OSError, ValueError) as exc:

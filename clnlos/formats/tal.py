@@ -30,7 +30,7 @@ import numpy as np
 from .. import C0
 from ..errors import InputFileError
 from ..io import Capture
-from .common import shift_earlier, validate_transient
+from .common import declared_dataset, shift_earlier, validate_transient
 
 H_FORMAT = {"UNKNOWN": 0, "T_Sx_Sy": 1, "T_Lx_Ly_Sx_Sy": 2, "T_Si": 3, "T_Li_Si": 4}
 GRID_FORMAT = {"UNKNOWN": 0, "N_3": 1, "X_Y_3": 2}
@@ -51,6 +51,15 @@ def _value(f, key):
     if isinstance(v, bytes):
         v = v.decode("utf-8", "replace")
     return v
+
+
+def _seconds(metres) -> float | None:
+    """A y-tal time in metres of path as seconds; None unless a finite number."""
+    try:
+        t = float(metres) / C0
+    except (TypeError, ValueError):
+        return None
+    return t if np.isfinite(t) else None
 
 
 def _grid_axes(grid: np.ndarray, path) -> tuple[np.ndarray, np.ndarray, float]:
@@ -87,6 +96,8 @@ def read_tal(f, path) -> Capture:
                                  "irregular list of points is not supported")
     sensor = np.asarray(_value(f, "sensor_grid_xyz"), np.float64)
     laser = np.asarray(_value(f, "laser_grid_xyz"), np.float64)
+    declared_dataset(f["H"], path, bin_width_s=_seconds(_value(f, "delta_t")),
+                     start_s=_seconds(_value(f, "t_start")) or 0.0)  # before reading it
     H = np.asarray(f["H"][()])
     if H.ndim != 3 or sensor.shape != H.shape[1:] + (3,):
         raise InputFileError(f"{path}: H {H.shape} and sensor_grid_xyz {sensor.shape} do not "

@@ -3,8 +3,11 @@
 A sample is a JSON-able dict (material, object and its size, pose, depth, exposure, seed, and
 optional overrides of the scan width and slab thickness for the sweeps); with the grid it
 defines one scene (:func:`scene_dict`). Its result is cached on disk as
-``<cache>/<sha1 of sample, grid and code version>.npz`` (written atomically), so reruns and
-interrupted runs resume and a changed clnlos never reuses an old result. Samples run serially
+``<cache>/<sha1 of sample, grid and code version>.npz`` (written atomically, with the mode
+the umask gives), so reruns and interrupted runs resume and a changed clnlos never reuses an
+old result. Each entry also holds its key and a SHA-256 of its arrays, and is checked when
+read (readable, exactly the result's keys, shapes and dtypes, its key, its checksum): a bad
+entry is deleted, recomputed and reported in one warning naming the file. Samples run serially
 or through Dask (local processes with pinned threads, or an existing cluster): each worker
 process builds its own OpenCL context.
 
@@ -19,6 +22,9 @@ import hashlib
 import json
 import math
 import os
+import warnings
+import zipfile
+import zlib
 from dataclasses import asdict, dataclass
 from pathlib import Path
 
@@ -29,7 +35,7 @@ from ..config import ReconstructionConfig
 from ..metrics import coverage_image, iou, otsu_threshold, peak_depth_m
 from ..slab import CDT_SLAB
 from .legibility import box_baseline_iou
-from .quality import quality_metrics
+from .quality import METRICS, quality_metrics
 
 
 @dataclass(frozen=True)
@@ -206,19 +212,106 @@ def figure8_slices(transient: np.ndarray, volume: np.ndarray) -> dict[str, np.nd
             "vol_yz": volume.max(axis=2).astype(np.float32)}
 
 
+# what render_sample returns: float32 [points, points] images and float64 numbers
+RESULT_IMAGES = ("mip", "truth", "depth_map", "meas_image")
+RESULT_SLICES = ("meas_xt", "meas_yt", "vol_xz", "vol_yz")  # float32 [t or z, points]
+RESULT_NUMBERS = ("iou", "iou_box_baseline", "depth_m", "true_depth_m", "depth_error_m",
+                  "psnr_db", "counts", "bin_width_s", "voxel_depth_m",
+                  *(f"q_{m}" for m in METRICS))
+# the entry's own fields beside the result
+ENTRY_KEY, ENTRY_CHECKSUM = "_key", "_checksum"
+# what np.load raises on a damaged .npz
+NPZ_ERRORS = (OSError, ValueError, EOFError, KeyError, zipfile.BadZipFile, zlib.error)
+
+
+def result_checksum(res: dict) -> str:
+    """SHA-256 of a result's arrays (names, dtypes, shapes and bytes, in name order)."""
+    h = hashlib.sha256()
+    for k in sorted(res):
+        a = np.ascontiguousarray(res[k])
+        h.update(f"{k}:{a.dtype.str}:{a.shape};".encode())
+        h.update(memoryview(a).cast("B") if a.size else b"")
+    return h.hexdigest()
+
+
+def entry_problem(z: dict[str, np.ndarray], key: str, grid: StudyGrid) -> str | None:
+    """Why a loaded cache entry is not the result of sample ``key`` on ``grid`` (None when
+    it is): its keys, the images' shapes and dtypes, the numbers', its key, its checksum."""
+    expected = {*RESULT_IMAGES, *RESULT_SLICES, *RESULT_NUMBERS, ENTRY_KEY, ENTRY_CHECKSUM}
+    missing, extra = sorted(expected - set(z)), sorted(set(z) - expected)
+    if missing or extra:
+        return (f"has {'no ' + ', '.join(missing) if missing else ''}"
+                f"{'; ' if missing and extra else ''}"
+                f"{'unexpected ' + ', '.join(extra) if extra else ''}")
+    img = (grid.points, grid.points)
+    for k in RESULT_IMAGES:
+        if z[k].shape != img or z[k].dtype != np.float32:
+            return f"has {k} {z[k].dtype}{list(z[k].shape)}, float32{list(img)} expected"
+    for k in RESULT_SLICES:
+        if z[k].ndim != 2 or z[k].shape[1] != grid.points or z[k].dtype != np.float32:
+            return f"has {k} {z[k].dtype}{list(z[k].shape)}, float32[n, {grid.points}] expected"
+    for k in RESULT_NUMBERS:
+        if z[k].shape != () or z[k].dtype.kind != "f":
+            return f"has {k} {z[k].dtype}{list(z[k].shape)}, a number expected"
+    if z[ENTRY_KEY].shape != () or str(z[ENTRY_KEY]) != key:
+        return "holds another sample's key"
+    res = {k: v for k, v in z.items() if k not in (ENTRY_KEY, ENTRY_CHECKSUM)}
+    if str(z[ENTRY_CHECKSUM]) != result_checksum(res):
+        return "fails its SHA-256 check (corrupt)"
+    return None
+
+
+def load_entry(path: Path, key: str, grid: StudyGrid) -> tuple[dict | None, str | None]:
+    """(the cached result at ``path``, None) when it is there and checked
+    (:func:`entry_problem`); (None, why) for a bad entry, which is deleted; (None, None)
+    when there is none."""
+    if not path.is_file():
+        return None, None
+    try:
+        with open(path, "rb") as fh:
+            f = np.load(fh, allow_pickle=False)
+            if not isinstance(f, np.lib.npyio.NpzFile):
+                raise ValueError("a single array, not an .npz archive")
+            with f:
+                z = {k: f[k] for k in f.files}
+        problem = entry_problem(z, key, grid)
+    except NPZ_ERRORS as exc:
+        problem = f"is unreadable ({type(exc).__name__}: {' '.join(str(exc).split())})"
+    if problem is None:
+        return {k: (v.item() if v.ndim == 0 else v) for k, v in z.items()
+                if k not in (ENTRY_KEY, ENTRY_CHECKSUM)}, None
+    path.unlink(missing_ok=True)
+    return None, f"study cache entry {path} {problem}: deleted; the sample is recomputed"
+
+
 def _cached(sample: dict, grid: StudyGrid, cache: Path, version: str,
-            device: str | None) -> dict:
-    path = cache / f"{sample_key(sample, grid, version)}.npz"
-    if path.is_file():
-        with np.load(path, allow_pickle=False) as z:
-            return {k: (z[k].item() if z[k].ndim == 0 else z[k]) for k in z.files}
+            device: str | None) -> tuple[dict, str | None]:
+    """(the sample's result, from the cache or rendered and stored; the one-line note on a
+    bad entry that was replaced, else None). Runs on Dask workers: the note travels back
+    to the client, which reports it."""
+    key = sample_key(sample, grid, version)
+    path = cache / f"{key}.npz"
+    res, note = load_entry(path, key, grid)
+    if res is not None:
+        return res, None
     res = render_sample(sample, grid, device)
     from ..io import atomic_path
 
+    entry = {k: np.asarray(v) for k, v in res.items()}
+    entry[ENTRY_CHECKSUM] = np.asarray(result_checksum(entry))
+    entry[ENTRY_KEY] = np.asarray(key)
     with atomic_path(path) as tmp:
         with open(tmp, "wb") as f:
-            np.savez(f, **res)
-    return res
+            np.savez(f, **entry)
+    return res, note
+
+
+def _report(pairs: list[tuple[dict, str | None]]) -> list[dict]:
+    """The results, each note of a replaced cache entry given as one warning."""
+    for _, note in pairs:
+        if note:
+            warnings.warn(note, UserWarning, stacklevel=3)
+    return [res for res, _ in pairs]
 
 
 def _pin_threads(threads: int) -> dict:
@@ -238,8 +331,8 @@ def run_samples(samples: list[dict], grid: StudyGrid, cache: Path, *, workers: i
     cache.mkdir(parents=True, exist_ok=True)
     version = code_version()
     if scheduler is None and workers <= 1:
-        return [_cached(s, grid, cache, version, device)
-                for s in tqdm(samples, desc=desc, unit="sample")]
+        return _report([_cached(s, grid, cache, version, device)
+                        for s in tqdm(samples, desc=desc, unit="sample")])
     from dask.distributed import Client, LocalCluster, as_completed
 
     cluster = None
@@ -277,7 +370,7 @@ def run_samples(samples: list[dict], grid: StudyGrid, cache: Path, *, workers: i
         out: list = [None] * len(samples)
         for f in tqdm(as_completed(futs), total=len(futs), desc=desc, unit="sample"):
             out[index[f.key]] = f.result()
-        return out
+        return _report(out)
     finally:
         client.close()
         if cluster is not None:

@@ -315,6 +315,7 @@ def identification_of(plan, results, opts: StudyOptions, gamma_s: float,
     from ..scene import Scene
     from .dataset import scene_dict
 
+    measured = {(g.scan_width_m, g.depth_m): lateral[g.name] for g in opts.geometries}
     templates = {}
     for (meta, s), r in zip(plan, results, strict=True):
         if meta["set"] == "dataset":
@@ -322,8 +323,8 @@ def identification_of(plan, results, opts: StudyOptions, gamma_s: float,
         key = (s["scan_width_m"], s["height_m"], s["stroke_m"], s["depth_m"])
         if key not in templates:
             scene = Scene.from_dict(scene_dict(s, opts.grid))
-            fwhm = lateral.get(meta["geometry"]) if meta["set"] == "main" else None
-            if fwhm is None or meta.get("variable") in ("scan_width_m", "depth_m"):
+            fwhm = measured.get((s["scan_width_m"], s["depth_m"]))
+            if fwhm is None:  # resolution depends on the scan and the depth only
                 fwhm = otoole_lateral_bound_m(s["scan_width_m"], s["depth_m"], gamma_s)
             templates[key] = glyph_templates(s["height_m"], s["stroke_m"], (0.0, 0.0),
                                              scene.scan_centres(), fwhm, opts.glyphs)
