@@ -17,7 +17,7 @@ from clnlos.reconstruct import reconstruct
 from clnlos.slab import CDT_SLAB
 from clnlos.spectrum_cache import HEADER, SUFFIX
 
-SHAPE_T, WIDTH, DT = 48, 0.5, 48e-12
+SHAPE_T, WIDTH, DT = 96, 0.5, 48e-12  # 4.6 ns: every arrival inside (no tail fill)
 
 
 # ------------------------------------------------------------------ spectrum cache
@@ -247,10 +247,10 @@ def test_study_entry_follows_the_umask(tmp_path, monkeypatch):
 
 
 def test_result_schema_is_what_render_sample_returns(study_entry):
-    from clnlos.study.dataset import RESULT_IMAGES, RESULT_NUMBERS
+    from clnlos.study.dataset import RESULT_IMAGES, RESULT_NUMBERS, RESULT_SLICES
 
     _, _, res, _ = study_entry
-    assert set(res) == set(RESULT_IMAGES) | set(RESULT_NUMBERS)
+    assert set(res) == set(RESULT_IMAGES) | set(RESULT_SLICES) | set(RESULT_NUMBERS)
 
 
 # ------------------------------------------------------------------ resources
