@@ -63,6 +63,12 @@ def number_or_auto(text: str):
         raise argparse.ArgumentTypeError(f"expected a number or 'auto', got {text!r}") from None
 
 
+def flag_names(args) -> dict[str, str]:
+    """Config field -> the flag the user typed, for the flags given (error messages)."""
+    return {field: flag for dest, (field, flag) in RECON_FLAGS.items()
+            if getattr(args, dest, None) is not None}
+
+
 def config_from_args(args, capture=None):
     """The reconstruction config: TOML file (if any), overridden by flags; validated with
     the flags' names in error messages. Without slab flags, --no-slab or a [slab] in the
@@ -72,11 +78,9 @@ def config_from_args(args, capture=None):
     from .reconstruct import setup_slab
 
     cfg = ReconstructionConfig.from_toml(args.config) if args.config else ReconstructionConfig()
-    changes, names = {}, {}
-    for dest, (field, flag) in RECON_FLAGS.items():
-        v = getattr(args, dest, None)
-        if v is not None:
-            changes[field], names[field] = v, flag
+    names = flag_names(args)
+    changes = {field: getattr(args, dest) for dest, (field, _) in RECON_FLAGS.items()
+               if getattr(args, dest, None) is not None}
     slab_given = {k: getattr(args, dest) for dest, (k, _) in SLAB_FLAGS.items()
                   if getattr(args, dest) is not None}
     if args.no_slab:
@@ -104,7 +108,7 @@ def cmd_reconstruct(args) -> int:
                   inputs=[args.capture, args.config], suffixes={"-o": HDF5_SUFFIXES})
     queue = get_queue(args.device)
     capture = read_capture(args.capture)
-    resolve_geometry(capture, cfg)  # missing geometry before the slab note
+    resolve_geometry(capture, cfg, names=flag_names(args))  # before the slab note
     if not np.any(capture.transient):
         from .errors import InputFileError
 
@@ -270,6 +274,13 @@ def cmd_brdf_texture(args) -> int:
     from .brdf.store import load_model
     from .brdf.texture import tabulate, write_texture
 
+    from .brdf.texture import MAX_NODES, MIN_NODES
+    from .checks import integer
+
+    for flag, v in (("--resolution", args.resolution), ("--dphi", args.dphi),
+                    ("--retro", args.retro)):
+        if v is not None:
+            integer(flag, v, MIN_NODES, MAX_NODES)
     check_outputs({"-o": Path(args.output)}, inputs=[args.model],
                   suffixes={"-o": HDF5_SUFFIXES})
     model, meta = load_model(args.model)
@@ -360,6 +371,13 @@ def register_brdf(sub, add_device) -> None:
 def cmd_study(args) -> int:
     from dataclasses import replace
 
+    from .checks import integer
+    from .study.dataset import MAX_WORKERS, check_scheduler_address
+
+    if args.workers is not None:
+        integer("--workers", args.workers, 1, MAX_WORKERS)
+    if args.scheduler is not None:
+        check_scheduler_address("--scheduler", args.scheduler)
     require("torch", "clnlos study (its CNN)")
     if args.scheduler is not None or (args.workers or 2) > 1:
         require("distributed", "clnlos study with worker processes")
@@ -415,8 +433,10 @@ def register_study(sub, add_device) -> None:
 # ------------------------------------------------------------------ bench
 def cmd_bench(args) -> int:
     """Thin front of :func:`clnlos.bench.main` (runs from an installed package)."""
-    from .bench import main as bench_main
+    from .bench import main as bench_main, sections_of
 
+    if args.only is not None:
+        sections_of(args.only)  # an unknown section: one line before any work
     out = Path(args.output)
     check_outputs({"-o bench.json": out / "bench.json", "-o bench.html": out / "bench.html"})
     argv = ["-o", args.output] + (["--quick"] if args.quick else []) + (

@@ -31,6 +31,7 @@ from ..runtime import (
 )
 
 FORMAT, VERSION = "clnlos-brdf-texture", 1
+MIN_NODES, MAX_NODES = 2, 4096  # nodes per texture axis (and of the retro slice)
 
 
 @dataclass
@@ -47,9 +48,9 @@ class BRDFTexture:
 def tabulate(model, n_theta: int = 64, n_dphi: int = 64, n_retro: int = 256,
              provenance: dict | None = None) -> BRDFTexture:
     """Evaluate ``model(ti, pi, ts, ps)`` on the texture grid (phi_i = 0, phi_s = delta_phi)."""
-    for name, v, lo in (("n_theta", n_theta, 2), ("n_dphi", n_dphi, 2), ("n_retro", n_retro, 2)):
-        if int(v) != v or not lo <= v <= 4096:
-            raise ParameterError(name, v, f"an integer from {lo} to 4096")
+    for name, v in (("n_theta", n_theta), ("n_dphi", n_dphi), ("n_retro", n_retro)):
+        if int(v) != v or not MIN_NODES <= v <= MAX_NODES:
+            raise ParameterError(name, v, f"an integer from {MIN_NODES} to {MAX_NODES}")
     th = np.linspace(0, np.pi / 2, n_theta)
     th_eval = np.minimum(th, np.pi / 2 - 1e-6)  # cosines vanish exactly at grazing
     dp = np.linspace(0, np.pi, n_dphi)
