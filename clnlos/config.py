@@ -45,7 +45,6 @@ from __future__ import annotations
 import dataclasses
 import tomllib
 from dataclasses import asdict, dataclass
-from pathlib import Path
 
 from . import C0
 from .checks import (
@@ -141,15 +140,15 @@ def slab_from_table(t: dict, section: str = "slab", names: dict | None = None
         return names.get(k, f"{section}.{k}")
 
     check_keys(section, t, SLAB_KEYS)
-    missing = [k for k in ("thickness_m", "mu_a", "mu_s_prime", "n") if k not in t]
-    if missing:
-        raise ParameterError(nm(missing[0]), None, "required when a slab is given")
     nd = t.get("n_dipoles")
     if nd is not None:
         nd = integer(nm("n_dipoles"), nd, 0, 10000)
     for k in ("thickness_m", "mu_a", "mu_s_prime", "n", "ze_m"):
         if k in t and t[k] is not None:
             positive(nm(k), t[k], allow_zero=k in ("mu_a", "ze_m"))
+    missing = [k for k in ("thickness_m", "mu_a", "mu_s_prime", "n") if k not in t]
+    if missing:  # after the values given: a bad one is named before one left out
+        raise ParameterError(nm(missing[0]), None, "required when a slab is given")
     try:
         slab = Slab(thickness_m=t["thickness_m"], mu_a=t["mu_a"], mu_s_prime=t["mu_s_prime"],
                     n=t["n"], ze_m=t.get("ze_m"))

@@ -56,12 +56,12 @@ class Capture:
             v = getattr(self, f)
             if v is None:
                 continue
-            label = labels.get(f, f"attribute {f!r}")
+            what = f"{labels[f]} gives {f}" if f in labels else f"attribute {f!r}"
             try:
                 setattr(self, f, check_geometry(f, v, f))
             except ParameterError as exc:
-                raise InputFileError(f"{self.source or 'capture'}: {label} gives {f} = "
-                                     f"{v!r}: allowed {exc.allowed}") from None
+                raise InputFileError(f"{self.source or 'capture'}: {what} = {v!r}: allowed "
+                                     f"{exc.allowed}") from None
 
     def recorded_scene(self) -> dict | None:
         """The scene a clnlos simulation recorded in the file (parsed TOML), else None; a

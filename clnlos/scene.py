@@ -62,7 +62,7 @@ from pathlib import Path
 
 import numpy as np
 
-from .checks import choice, integer, positive
+from .checks import choice, input_file, integer, positive
 from .config import check_keys, load_toml, slab_from_table
 from .slab import Slab
 from .errors import InputFileError, ParameterError
@@ -70,13 +70,19 @@ from .errors import InputFileError, ParameterError
 SHAPES = ("letters", "rectangle", "sphere", "mesh")
 
 
-def _vec3(name, v) -> tuple[float, float, float]:
+MAX_ROTATE_DEG = 360.0  # |rotate_deg| per axis at most (a turn; beyond it sin/cos lose digits)
+
+
+def _vec3(name, v, bound: float | None = None) -> tuple[float, float, float]:
+    """Three finite numbers (each within [-bound, bound] when given)."""
     if not isinstance(v, list | tuple) or len(v) != 3:
         raise ParameterError(name, v, "a list of three numbers")
     out = []
+    rng = "three finite numbers" + (f" from {-bound:g} to {bound:g}" if bound else "")
     for x in v:
-        if isinstance(x, bool) or not isinstance(x, int | float) or not math.isfinite(x):
-            raise ParameterError(name, v, "three finite numbers")
+        if isinstance(x, bool) or not isinstance(x, int | float) or not math.isfinite(x) or (
+                bound is not None and abs(x) > bound):
+            raise ParameterError(name, v, rng)
         out.append(float(x))
     return tuple(out)
 
@@ -204,7 +210,7 @@ def _object(i: int, o: dict) -> SceneObject:
     if "translate_m" in o:
         kw["translate_m"] = _vec3(f"{sec}.translate_m", o["translate_m"])
     if "rotate_deg" in o:
-        kw["rotate_deg"] = _vec3(f"{sec}.rotate_deg", o["rotate_deg"])
+        kw["rotate_deg"] = _vec3(f"{sec}.rotate_deg", o["rotate_deg"], MAX_ROTATE_DEG)
     if "albedo" in o:
         kw["albedo"] = positive(f"{sec}.albedo", o["albedo"], allow_zero=True, upper=1e3)
     if "material" in o:
@@ -240,9 +246,7 @@ def _object(i: int, o: dict) -> SceneObject:
 
 def read_retro_csv(path) -> tuple[np.ndarray, np.ndarray]:
     """(theta_rad, f) of a confocal retro-reflection slice CSV with columns theta_deg,brdf."""
-    p = Path(path)
-    if not p.is_file():
-        raise InputFileError(f"{p}: no such file")
+    p = input_file(path, "brdf_retro_csv ")
     rows = []
     with p.open(newline="", encoding="utf-8") as f:
         lines = [ln for ln in f if ln.strip() and not ln.lstrip().startswith("#")]
