@@ -276,7 +276,7 @@ def check_scene_geometry(scene: Scene) -> list[str]:
         if t_far.max() >= t1 or t_near.min() < t0:
             notes.append(f"{name} returns light partly outside the time window "
                          f"[{t0:.3g}, {t1:.3g}) s")
-        why = _no_light(i, obj, el.pos[z > 0], el.normal[z > 0], w)
+        why = _no_light(i, obj, el.pos[z > 0], el.normal[z > 0], scene.scan_centres())
         if why is not None:
             dark.append(why)
             notes.append(f"{why[2]}: it returns no light")
@@ -289,17 +289,19 @@ def check_scene_geometry(scene: Scene) -> list[str]:
     return notes
 
 
-def _no_light(i: int, obj: SceneObject, pos: np.ndarray, normal: np.ndarray, half_w: float
-              ) -> tuple[str, object, str, str] | None:
-    """(field, value, why, what would be allowed) when object ``i`` returns no light to the
-    scan square [-half_w, half_w]^2 at z = 0 (albedo 0, or every element's front facing away
-    from every scan point: the light-cone kernel skips back faces), else None."""
+def _no_light(i: int, obj: SceneObject, pos: np.ndarray, normal: np.ndarray,
+              centres: np.ndarray) -> tuple[str, object, str, str] | None:
+    """(field, value, why, what would be allowed) when object ``i`` (elements in front of
+    the relay plane) returns no light to the scan points (``centres`` along x and y, m, at
+    z = 0): albedo 0, or every element's front turned away from every scan point (the
+    light-cone kernel skips back faces); else None."""
     if obj.albedo == 0:
         return (f"objects[{i}].albedo", obj.albedo, f"objects[{i}] is black (albedo 0)",
                 "> 0 for at least one object")
-    corners = np.array([[sx * half_w, sy * half_w, 0.0] for sx in (-1, 1) for sy in (-1, 1)])
-    # n . (q - p) is linear in the scan point q: its largest value over the square is at a
-    # corner; > 0 somewhere means the element's front faces some scan point
+    lo, hi = float(centres[0]), float(centres[-1])
+    corners = np.array([[x, y, 0.0] for x in (lo, hi) for y in (lo, hi)])
+    # n . (q - p) is linear in the scan point q: its largest value over the grid of scan
+    # points is at a corner point; > 0 there means the element's front faces that point
     facing = np.einsum("ek,cek->ce", normal, corners[:, None, :] - pos[None]).max(axis=0)
     if not np.any(facing > 0):
         return (f"objects[{i}].rotate_deg", list(obj.rotate_deg),
@@ -402,8 +404,8 @@ class ForwardModel:
             raise ParameterError("objects", f"{len(s.objects)} object(s)", "objects that "
                                  "return light to the scan points inside the time window "
                                  f"[{s.start_s:.3g}, {s.start_s + s.bins * s.bin_width_s:.3g})"
-                                 " s: this scene's capture is all zero (material, albedo, "
-                                 "rotate_deg)")
+                                 " s: this scene's capture is all zero (check the objects' "
+                                 "materials, rotations and positions)")
         if self.scene.detector is not None:
             tau = photon_counts(tau, self.scene, np.random.default_rng(self.scene.seed))
             done("photon_noise")

@@ -44,8 +44,9 @@ def check_fit_samples(model_name: str, train: BRDFSamples, test: BRDFSamples | N
     naming the file, the count and the floor (an all-zero BRDF has none)."""
     from ..errors import InputFileError
 
-    for role, s, need, who in (("training", train, min_fit_samples(model_name),
-                                f"the {model_name} fit"), ("test", test, 1, "its metrics")):
+    checks = (("training", train, min_fit_samples(model_name), f"the {model_name} fit needs"),
+              ("test", test, 1, "its metrics need"))
+    for role, s, need, who in checks:
         if s is None:
             continue
         floor = significance_floor(s)
@@ -54,7 +55,7 @@ def check_fit_samples(model_name: str, train: BRDFSamples, test: BRDFSamples | N
             raise InputFileError(
                 f"{s.meta.get('path', role + ' data')}: {n} of {len(s.brdf)} {role} samples "
                 f"have brdf >= {floor:g} 1/sr (the significance floor: its precision, at "
-                f"least {MIN_SIGNIFICANT:g}); {who} need at least {need}")
+                f"least {MIN_SIGNIFICANT:g}); {who} at least {need}")
 
 
 @dataclass
