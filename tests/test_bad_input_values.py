@@ -145,9 +145,13 @@ def test_invalid_recorded_scene_slab_is_named(tmp_path):
 
 
 # ------------------------------------------------------------------ item 5: tracebacks
-def test_text_file_with_a_matlab_header(tmp_path):
+@pytest.mark.parametrize("content", [
+    b"MATLAB 5.0 MAT-file hello world\n",  # IndexError inside scipy's parser
+    b"MATLAB 5.0 MAT-file, Platform: GLNXA64, Created on: today",
+    b"MATLAB 5.0 MAT-file".ljust(116) + bytes(8) + b"\x00\x01IM" + b"text, no matrix"])
+def test_text_file_with_a_matlab_header(tmp_path, content):
     p = tmp_path / "c.mat"
-    p.write_text("MATLAB 5.0 MAT-file, but only text follows\n" + "x" * 200)
+    p.write_bytes(content)
     out = tmp_path / "v.h5"
     rc, _, err = _run_both(["reconstruct", str(p), "-o", str(out), "--scan-width", "0.3"])
     line = _one_error_line(rc, err)
