@@ -272,9 +272,7 @@ def cmd_brdf_fit(args) -> int:
 
 def cmd_brdf_texture(args) -> int:
     from .brdf.store import load_model
-    from .brdf.texture import tabulate, write_texture
-
-    from .brdf.texture import MAX_NODES, MIN_NODES
+    from .brdf.texture import MAX_NODES, MIN_NODES, tabulate, write_texture
     from .checks import integer
 
     for flag, v in (("--resolution", args.resolution), ("--dphi", args.dphi),

@@ -178,7 +178,7 @@ def check_window(nt_in: int, bin_width_s: float, start_s: float, config, *,
 
     def nm(f):
         if getattr(config, f) is None and f in GEOMETRY_LIMITS:
-            return f"{f} of {source}"
+            return f"{f} (from {source})"
         return names.get(f, FIELD_NAMES.get(f, f))
 
     t_end = start_s + nt_in * bin_width_s

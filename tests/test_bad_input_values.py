@@ -399,7 +399,7 @@ def test_fuzz_capture_geometry(plain_capture, tmp_path_factory, scale, aspect, s
     event(f"exit {rc}")
     if bad:
         line = _one_error_line(rc, err)
-        assert any(f"'{k}'" in line or f"{k} of" in line for k in bad), (values, line)
+        assert any(f"'{k}'" in line or f"{k} (from" in line for k in bad), (values, line)
         _assert_clean_failure(rc, err, out)
         return
     assert rc == 0, (values, err)
