@@ -254,10 +254,9 @@ def run_samples(samples: list[dict], grid: StudyGrid, cache: Path, *, workers: i
         except (OSError, TimeoutError, ValueError) as exc:  # nothing there, refused, ...
             from ..errors import ParameterError
 
+            why = str(exc).splitlines()[0] if str(exc) else type(exc).__name__
             raise ParameterError("--scheduler", scheduler, "the address of a running Dask "
-                                 f"scheduler (connecting failed: "
-                                 f"{str(exc).splitlines()[0] if str(exc) else type(exc).__name__})"
-                                 ) from None
+                                 f"scheduler (connecting failed: {why})") from None
     try:
         futs = [client.submit(_cached, s, grid, cache, version, device, pure=False)
                 for s in samples]
