@@ -71,6 +71,8 @@ SHAPES = ("letters", "rectangle", "sphere", "mesh")
 
 
 MAX_ROTATE_DEG = 360.0  # |rotate_deg| per axis at most (a turn; beyond it sin/cos lose digits)
+MAX_TRANSLATE_M = 1e7   # |translate_m| per axis at most (past the reach of any time window:
+                        # 65536 bins of 1 us, 9.8e6 m of depth)
 
 
 def _vec3(name, v, bound: float | None = None) -> tuple[float, float, float]:
@@ -208,7 +210,7 @@ def _object(i: int, o: dict) -> SceneObject:
     shape = choice(f"{sec}.shape", o.get("shape"), SHAPES)
     kw = {"shape": shape}
     if "translate_m" in o:
-        kw["translate_m"] = _vec3(f"{sec}.translate_m", o["translate_m"])
+        kw["translate_m"] = _vec3(f"{sec}.translate_m", o["translate_m"], MAX_TRANSLATE_M)
     if "rotate_deg" in o:
         kw["rotate_deg"] = _vec3(f"{sec}.rotate_deg", o["rotate_deg"], MAX_ROTATE_DEG)
     if "albedo" in o:

@@ -321,6 +321,15 @@ def test_scene_that_returns_no_light(tmp_path, obj, field):
     _assert_clean_failure(rc, err, out)
 
 
+@pytest.mark.parametrize("translate", [[1e300, 0.0, 0.4], [0.0, 0.0, 1e300],
+                                       [0.0, -2e7, 0.4]])
+def test_translation_beyond_any_window_names_translate(tmp_path, translate):
+    out = tmp_path / "o.h5"
+    rc, _, err = _run_both(["simulate", str(_scene(tmp_path, obj={"translate_m": translate})),
+                            "-o", str(out)])
+    assert "objects[0].translate_m" in _one_error_line(rc, err) and "warning" not in err, err
+
+
 def test_one_dark_object_among_lit_ones_is_a_warning(tmp_path):
     p = _scene(tmp_path, bins=256)
     p.write_text(p.read_text() + '[[objects]]\nshape = "sphere"\nradius_m = 0.03\n'
