@@ -206,6 +206,33 @@ def check_window(nt_in: int, bin_width_s: float, start_s: float, config, *,
                              "m, where the volume (its time window) ends")
 
 
+def check_light_in_window(transient, bin_width_s: float, start_s: float, config, *,
+                          names: dict[str, str] | None = None, source: str = "the capture"
+                          ) -> None:
+    """The capture's light (bins with any count, ``transient`` [t, y, x]) must fall after
+    t = 0 and, with ``max_path_m``, start before that path: else the ParameterError names
+    the start or the max path that puts all of it outside the kept window (an all-zero
+    capture is left to the caller)."""
+    import numpy as np
+
+    names = names or {}
+    lit = np.flatnonzero(np.asarray(transient).reshape(len(transient), -1).max(axis=1) > 0)
+    if lit.size == 0:
+        return
+    t_first = start_s + lit[0] * bin_width_s
+    t_last = start_s + (lit[-1] + 1) * bin_width_s
+    if t_last <= 0:
+        name = (names.get("start_s", FIELD_NAMES["start_s"]) if config.start_s is not None
+                else f"start_s (from {source})")
+        raise ParameterError(name, start_s, f"a start that puts the capture's light after "
+                             f"t = 0: it is in bins {lit[0]}-{lit[-1]}, from {t_first:.4g} to "
+                             f"{t_last:.4g} s, before the volume begins")
+    if config.max_path_m is not None and config.max_path_m <= C0 * t_first:
+        raise ParameterError(names.get("max_path_m", FIELD_NAMES["max_path_m"]),
+                             config.max_path_m, f"> {C0 * t_first:.4g} m, the shortest path "
+                             f"with light in the capture (bin {lit[0]})")
+
+
 @dataclass(frozen=True)
 class ReconstructionConfig:
     """Reconstruction parameters; the field defaults are the defaults (stated once here)."""

@@ -238,6 +238,21 @@ def test_window_ending_before_zero_names_start(tmp_path):
     assert "start_s" in line and "max_path_m = None" not in line, line
 
 
+def test_light_before_zero_names_start(tmp_path):
+    cap = _capture(tmp_path / "c.h5", start_s=-1e-9)  # the bright bin 32 ends at -0.34 ns
+    rc, _, err = _run_both(["reconstruct", str(cap), "-o", str(tmp_path / "v.h5")])
+    line = _one_error_line(rc, err)
+    assert "start_s (from" in line and "bins 32-32" in line, line
+
+
+def test_max_path_before_the_light_names_max_path(tmp_path):
+    cap = _capture(tmp_path / "c.h5")  # light in bin 32: 0.19 m of path
+    rc, _, err = _run_both(["reconstruct", str(cap), "-o", str(tmp_path / "v.h5"),
+                            "--max-path", "0.1"])
+    line = _one_error_line(rc, err)
+    assert "--max-path = 0.1" in line and "0.1919 m" in line, line
+
+
 def test_max_path_before_the_window_names_max_path(tmp_path):
     cap = _capture(tmp_path / "c.h5", start_s=2e-9)
     rc, _, err = _run_both(["reconstruct", str(cap), "-o", str(tmp_path / "v.h5"),
