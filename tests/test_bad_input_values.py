@@ -260,9 +260,10 @@ def test_max_path_before_the_window_names_max_path(tmp_path):
     assert "--max-path = 0.3" in _one_error_line(rc, err)
 
 
-@pytest.mark.parametrize("what", ["config", "mesh", "retro_csv", "fit_data"])
+@pytest.mark.parametrize("what", ["config", "mesh", "retro_csv", "fit_data", "texture",
+                                  "model"])
 def test_directory_given_as_an_input_file(tmp_path, what):
-    folder = tmp_path / "folder"
+    folder = tmp_path / "folder.h5"  # a name a texture or model file could have
     folder.mkdir()
     out = tmp_path / "o.h5"
     if what == "config":
@@ -270,9 +271,12 @@ def test_directory_given_as_an_input_file(tmp_path, what):
                 str(folder)]
     elif what == "fit_data":
         args = ["brdf", "fit", str(folder), "--model", "lambert", "-o", str(out)]
+    elif what == "model":
+        args = ["brdf", "texture", str(folder), "-o", str(out)]
     else:
-        obj = ({"shape": "mesh", "path": "folder"} if what == "mesh"
-               else {"brdf_retro_csv": "folder"})
+        obj = {"mesh": {"shape": "mesh", "path": folder.name},
+               "texture": {"material": folder.name},
+               "retro_csv": {"brdf_retro_csv": folder.name}}[what]
         args = ["simulate", str(_scene(tmp_path, obj=obj)), "-o", str(out)]
     rc, _, err = _run_both(args)
     line = _one_error_line(rc, err)

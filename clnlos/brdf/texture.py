@@ -75,6 +75,9 @@ def write_texture(path, tex: BRDFTexture) -> None:
 def read_texture(path) -> BRDFTexture:
     import h5py
 
+    from ..checks import input_file
+
+    path = input_file(path, "BRDF texture ")
     try:
         with h5py.File(path, "r") as f:
             if f.attrs.get("format") != FORMAT:
