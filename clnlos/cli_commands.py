@@ -98,6 +98,7 @@ def config_from_args(args, capture=None):
 
 
 def cmd_reconstruct(args) -> int:
+    from .config import check_light_in_window
     from .io import read_capture
     from .reconstruct import reconstruct_to_files, resolve_geometry
     from .runtime import get_queue
@@ -108,12 +109,15 @@ def cmd_reconstruct(args) -> int:
                   inputs=[args.capture, args.config], suffixes={"-o": HDF5_SUFFIXES})
     queue = get_queue(args.device)
     capture = read_capture(args.capture)
-    resolve_geometry(capture, cfg, names=flag_names(args))  # before the slab note
+    names = flag_names(args)
+    bw, start, _ = resolve_geometry(capture, cfg, names=names)  # before the slab note
     if not np.any(capture.transient):
         from .errors import InputFileError
 
         raise InputFileError(f"{args.capture}: the capture holds no signal (all zero): "
                              "nothing to reconstruct")
+    check_light_in_window(capture.transient, bw, start, cfg, names=names,
+                          source=str(args.capture))
     cfg = config_from_args(args, capture)
     rec = reconstruct_to_files(capture, out, cfg, dtype=DTYPES[args.dtype], queue=queue)
     total = sum(rec.timings_s.values())

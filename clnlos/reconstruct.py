@@ -28,12 +28,7 @@ import pyopencl.array as cla
 
 from . import C0
 from .blur import slab_blur
-from .config import (
-    DEPTH_GUARD_M,
-    ReconstructionConfig,
-    check_light_in_window,
-    check_window,
-)
+from .config import DEPTH_GUARD_M, ReconstructionConfig, check_window
 from .errors import InputFileError, ParameterError
 from .fk import FKMigration
 from .io import Capture
@@ -288,8 +283,6 @@ def resolve_geometry(capture: Capture, config: ReconstructionConfig, *,
     start = config.start_s if config.start_s is not None else capture.start_s
     check_window(capture.transient.shape[0], float(bw), float(start), config, names=names,
                  source=capture.source or "the capture")
-    check_light_in_window(capture.transient, float(bw), float(start), config, names=names,
-                          source=capture.source or "the capture")
     return float(bw), float(start), float(sw)
 
 
