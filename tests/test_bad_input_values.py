@@ -94,6 +94,7 @@ def test_capture_geometry_uses_the_flags_range(tmp_path, field, value):
 
 def test_the_range_table_limits_are_the_boundaries(tmp_path):
     """Just inside each limit a capture is read; just outside it is refused."""
+    from clnlos.errors import InputFileError
     from clnlos.io import read_capture
 
     for field, (lo, hi, lo_ok) in GEOMETRY_LIMITS.items():
@@ -102,7 +103,7 @@ def test_the_range_table_limits_are_the_boundaries(tmp_path):
         for v in inside:
             read_capture(_capture(tmp_path / "in.h5", **{field: v}))
         for v in outside:
-            with pytest.raises(Exception, match=field):
+            with pytest.raises(InputFileError, match=field):
                 read_capture(_capture(tmp_path / "out.h5", **{field: v}))
 
 
