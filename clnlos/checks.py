@@ -9,9 +9,11 @@ from __future__ import annotations
 import difflib
 import math
 import numbers
+import os
+from pathlib import Path
 from typing import Any
 
-from .errors import ParameterError
+from .errors import InputFileError, ParameterError
 
 
 def _is_real(v: Any) -> bool:
@@ -72,3 +74,17 @@ def did_you_mean(v: Any, options) -> str:
         return ""
     original = next(o for o in options if str(o).lower() == hits[0])
     return f" (did you mean {original!r}?)"
+
+
+def input_file(path: str | os.PathLike, what: str = "") -> Path:
+    """``path`` as a Path when it is an existing regular file, else an InputFileError naming
+    it and what it is instead ("no such file", "is a directory", "not a regular file");
+    ``what`` ("mesh ", ...) says which kind of file was expected."""
+    p = Path(path)
+    if p.is_file():
+        return p
+    if p.is_dir():
+        raise InputFileError(f"{p}: is a directory, not a {what}file")
+    if p.exists():
+        raise InputFileError(f"{p}: not a regular {what}file")
+    raise InputFileError(f"{p}: no such {what}file")

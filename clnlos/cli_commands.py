@@ -70,6 +70,12 @@ def number_or_auto(text: str):
         raise argparse.ArgumentTypeError(f"expected a number or 'auto', got {text!r}") from None
 
 
+def flag_names(args) -> dict[str, str]:
+    """Config field -> the flag the user typed, for the flags given (error messages)."""
+    return {field: flag for dest, (field, flag) in RECON_FLAGS.items()
+            if getattr(args, dest, None) is not None}
+
+
 def config_from_args(args, capture=None):
     """The reconstruction config: TOML file (if any), overridden by flags; validated with
     the flags' names in error messages. Without slab flags, --no-slab or a [slab] in the
@@ -79,11 +85,9 @@ def config_from_args(args, capture=None):
     from .reconstruct import setup_slab
 
     cfg = ReconstructionConfig.from_toml(args.config) if args.config else ReconstructionConfig()
-    changes, names = {}, {}
-    for dest, (field, flag) in RECON_FLAGS.items():
-        v = getattr(args, dest, None)
-        if v is not None:
-            changes[field], names[field] = v, flag
+    names = flag_names(args)
+    changes = {field: getattr(args, dest) for dest, (field, _) in RECON_FLAGS.items()
+               if getattr(args, dest, None) is not None}
     slab_given = {k: getattr(args, dest) for dest, (k, _) in SLAB_FLAGS.items()
                   if getattr(args, dest) is not None}
     if args.no_slab:
@@ -126,6 +130,7 @@ def _pipeline_fits(capture, cfg, queue, dtype):
 
 
 def cmd_reconstruct(args) -> int:
+    from .config import check_light_in_window
     from .io import read_capture
     from .limits import capture_use
     from .reconstruct import reconstruct_to_files, resolve_geometry
@@ -137,14 +142,17 @@ def cmd_reconstruct(args) -> int:
                   inputs=[args.capture, args.config], suffixes={"-o": HDF5_SUFFIXES},
                   implied={"figure": None}, force=args.force)
     queue = get_queue(args.device)
+    names = flag_names(args)
     with capture_use(_pipeline_fits(args.capture, cfg, queue, DTYPES[args.dtype])):
         capture = read_capture(args.capture)  # the pipeline's size checked before the data
-    resolve_geometry(capture, cfg)  # missing geometry before the slab note
+    bw, start, _ = resolve_geometry(capture, cfg, names=names)  # before the slab note
     if not np.any(capture.transient):
         from .errors import InputFileError
 
         raise InputFileError(f"{args.capture}: the capture holds no signal (all zero): "
                              "nothing to reconstruct")
+    check_light_in_window(capture.transient, bw, start, cfg, names=names,
+                          source=str(args.capture))
     cfg = config_from_args(args, capture)
     rec = reconstruct_to_files(capture, out, cfg, dtype=DTYPES[args.dtype], queue=queue)
     for note in rec.notes:
@@ -343,8 +351,13 @@ def cmd_brdf_fit(args) -> int:
 
 def cmd_brdf_texture(args) -> int:
     from .brdf.store import load_model
-    from .brdf.texture import tabulate, write_texture
+    from .brdf.texture import MAX_NODES, MIN_NODES, tabulate, write_texture
+    from .checks import integer
 
+    for flag, v in (("--resolution", args.resolution), ("--dphi", args.dphi),
+                    ("--retro", args.retro)):
+        if v is not None:
+            integer(flag, v, MIN_NODES, MAX_NODES)
     check_outputs({"-o": Path(args.output)}, inputs=[args.model],
                   suffixes={"-o": HDF5_SUFFIXES})
     model, meta = load_model(args.model)
@@ -462,6 +475,13 @@ def register_brdf(sub, add_device) -> None:
 def cmd_study(args) -> int:
     from dataclasses import replace
 
+    from .checks import integer
+    from .study.dataset import MAX_WORKERS, check_scheduler_address
+
+    if args.workers is not None:
+        integer("--workers", args.workers, 1, MAX_WORKERS)
+    if args.scheduler is not None:
+        check_scheduler_address("--scheduler", args.scheduler)
     require("torch", "clnlos study (its CNN)")
     if args.scheduler is not None or (args.workers or 2) > 1:
         require("distributed", "clnlos study with worker processes")
@@ -535,8 +555,10 @@ def register_study(sub, add_device) -> None:
 # ------------------------------------------------------------------ bench
 def cmd_bench(args) -> int:
     """Thin front of :func:`clnlos.bench.main` (runs from an installed package)."""
-    from .bench import main as bench_main
+    from .bench import main as bench_main, sections_of
 
+    if args.only is not None:
+        sections_of(args.only)  # an unknown section: one line before any work
     out = Path(args.output)
     outs = {"-o bench.json": out / "bench.json", "-o bench.html": out / "bench.html"}
     check_outputs(outs, implied=dict.fromkeys(outs), force=args.force)

@@ -45,9 +45,17 @@ from __future__ import annotations
 import dataclasses
 import tomllib
 from dataclasses import asdict, dataclass
-from pathlib import Path
 
-from .checks import auto_or_positive, choice, did_you_mean, integer, positive, real
+from . import C0
+from .checks import (
+    auto_or_positive,
+    choice,
+    did_you_mean,
+    input_file,
+    integer,
+    positive,
+    real,
+)
 from .errors import InputFileError, ParameterError
 from .slab import Slab
 
@@ -57,6 +65,15 @@ METHODS = ("lct", "fk", "iterative")
 # measurement is the wave. The iterative method models the falloff itself.
 METHOD_FALLOFF = {"lct": 4.0, "fk": 2.0}
 DEPTH_GUARD_M = 0.15  # "auto" support: first-arrival depth minus this (slab delay + noise)
+MAX_BINS = 1 << 16    # time bins of a reconstructed volume at most (--bins and the window)
+
+# The one range table of the capture geometry (SI units): (low, high, low allowed). The flags,
+# the [capture] table and the values read from capture files are all checked against it.
+GEOMETRY_LIMITS: dict[str, tuple[float, float, bool]] = {
+    "scan_width_m": (0.0, 1e3, False),   # side of the scanned square (m), > 0
+    "bin_width_s": (0.0, 1e-6, False),   # histogram bin (s), > 0
+    "start_s": (-1e-3, 1e-3, True),      # start of bin 0, round trip (s)
+}
 
 # TOML (section, key) -> config field; the one table both directions use.
 TOML_FIELDS: dict[tuple[str, str], str] = {
@@ -92,13 +109,28 @@ def check_keys(section: str, table: dict, allowed) -> None:
                              + did_you_mean(extra[0], allowed))
 
 
-def load_toml(path) -> dict:
-    p = Path(path)
-    if not p.is_file():
-        raise InputFileError(f"{p}: no such file")
+def check_geometry(field: str, value, name: str | None = None) -> float:
+    """A capture geometry value (``field`` of :data:`GEOMETRY_LIMITS`) checked against the
+    one range table; the ParameterError names ``name`` (default: the field)."""
+    lo, hi, lo_allowed = GEOMETRY_LIMITS[field]
+    if lo_allowed:
+        return real(name or field, value, lo, hi)
+    return positive(name or field, value, upper=hi)
+
+
+def parse_toml(text: str) -> dict:
+    """TOML text to a dict; nesting too deep for the parser is a ValueError like bad syntax."""
     try:
-        return tomllib.loads(p.read_text(encoding="utf-8"))
-    except (tomllib.TOMLDecodeError, UnicodeDecodeError) as exc:
+        return tomllib.loads(text)
+    except RecursionError:
+        raise ValueError("nested too deeply") from None
+
+
+def load_toml(path) -> dict:
+    p = input_file(path)
+    try:
+        return parse_toml(p.read_text(encoding="utf-8"))
+    except (ValueError, UnicodeDecodeError) as exc:  # TOMLDecodeError is a ValueError
         raise InputFileError(f"{p}: invalid TOML ({exc})") from None
 
 
@@ -112,15 +144,15 @@ def slab_from_table(t: dict, section: str = "slab", names: dict | None = None
         return names.get(k, f"{section}.{k}")
 
     check_keys(section, t, SLAB_KEYS)
-    missing = [k for k in ("thickness_m", "mu_a", "mu_s_prime", "n") if k not in t]
-    if missing:
-        raise ParameterError(nm(missing[0]), None, "required when a slab is given")
     nd = t.get("n_dipoles")
     if nd is not None:
         nd = integer(nm("n_dipoles"), nd, 0, 10000)
     for k in ("thickness_m", "mu_a", "mu_s_prime", "n", "ze_m"):
         if k in t and t[k] is not None:
             positive(nm(k), t[k], allow_zero=k in ("mu_a", "ze_m"))
+    missing = [k for k in ("thickness_m", "mu_a", "mu_s_prime", "n") if k not in t]
+    if missing:  # after the values given: a bad one is named before one left out
+        raise ParameterError(nm(missing[0]), None, "required when a slab is given")
     try:
         slab = Slab(thickness_m=t["thickness_m"], mu_a=t["mu_a"], mu_s_prime=t["mu_s_prime"],
                     n=t["n"], ze_m=t.get("ze_m"))
@@ -136,6 +168,73 @@ def slab_table(slab: Slab) -> dict:
     if slab.ze_m is not None:
         d["ze_m"] = slab.ze_m
     return d
+
+
+def check_window(nt_in: int, bin_width_s: float, start_s: float, config, *,
+                 names: dict[str, str] | None = None, source: str = "the capture") -> None:
+    """The time window a reconstruction keeps, checked before any allocation: the capture's
+    ``nt_in`` bins of ``bin_width_s`` (s) from ``start_s`` (s) must reach past t = 0 and past
+    the start of ``max_path_m``; aligned to t = 0 they need at most MAX_BINS bins (unless
+    ``bins`` rebins them); a numeric ``depth_min_m`` lies inside the volume. ``names`` map
+    fields to how the user gave them (flags); a value the capture gave is named with
+    ``source``."""
+    names = names or {}
+
+    def nm(f):
+        if getattr(config, f) is None and f in GEOMETRY_LIMITS:
+            return f"{f} (from {source})"
+        return names.get(f, FIELD_NAMES.get(f, f))
+
+    t_end = start_s + nt_in * bin_width_s
+    if t_end <= 0:
+        raise ParameterError(nm("start_s"), start_s, f"> {-nt_in * bin_width_s:.4g} s: the "
+                             f"window ({nt_in} bins of {bin_width_s:g} s) must end after "
+                             "t = 0, where the volume begins")
+    if config.max_path_m is not None:
+        if config.max_path_m <= C0 * start_s:
+            raise ParameterError(nm("max_path_m"), config.max_path_m,
+                                 f"> {C0 * start_s:.4g} m, the path where the window begins "
+                                 f"(start_s = {start_s:g} s)")
+        t_end = min(t_end, config.max_path_m / C0)
+    n_keep = max(1, int(round(t_end / bin_width_s)))
+    if config.bins is None and n_keep > max(MAX_BINS, nt_in):
+        raise ParameterError(nm("start_s"), start_s, f"a start the volume can reach: from "
+                             f"t = 0 to the window's end at {t_end:.4g} s it needs {n_keep} "
+                             f"bins of {bin_width_s:g} s, at most {MAX_BINS} (rebin with "
+                             f"{names.get('bins', FIELD_NAMES['bins'])} or crop with "
+                             f"{names.get('max_path_m', FIELD_NAMES['max_path_m'])})")
+    depth_max = C0 * n_keep * bin_width_s / 2
+    d = config.depth_min_m
+    if d != "auto" and d is not None and d >= depth_max:
+        raise ParameterError(nm("depth_min_m"), d, f"a depth from 0 to below {depth_max:.4g} "
+                             "m, where the volume (its time window) ends")
+
+
+def check_light_in_window(transient, bin_width_s: float, start_s: float, config, *,
+                          names: dict[str, str] | None = None, source: str = "the capture"
+                          ) -> None:
+    """The capture's light (bins with any count, ``transient`` [t, y, x]) must fall after
+    t = 0 and, with ``max_path_m``, start before that path: else the ParameterError names
+    the start or the max path that puts all of it outside the kept window (an all-zero
+    capture is left to the caller)."""
+    import numpy as np
+
+    names = names or {}
+    lit = np.flatnonzero(np.asarray(transient).reshape(len(transient), -1).max(axis=1) > 0)
+    if lit.size == 0:
+        return
+    t_first = start_s + lit[0] * bin_width_s
+    t_last = start_s + (lit[-1] + 1) * bin_width_s
+    if t_last <= 0:
+        name = (names.get("start_s", FIELD_NAMES["start_s"]) if config.start_s is not None
+                else f"start_s (from {source})")
+        raise ParameterError(name, start_s, f"a start that puts the capture's light after "
+                             f"t = 0: it is in bins {lit[0]}-{lit[-1]}, from {t_first:.4g} to "
+                             f"{t_last:.4g} s, before the volume begins")
+    if config.max_path_m is not None and config.max_path_m <= C0 * t_first:
+        raise ParameterError(names.get("max_path_m", FIELD_NAMES["max_path_m"]),
+                             config.max_path_m, f"> {C0 * t_first:.4g} m, the shortest path "
+                             f"with light in the capture (bin {lit[0]})")
 
 
 @dataclass(frozen=True)
@@ -171,16 +270,13 @@ class ReconstructionConfig:
             return names.get(f, FIELD_NAMES.get(f, f))
 
         v = {}
-        if self.scan_width_m is not None:
-            v["scan_width_m"] = positive(nm("scan_width_m"), self.scan_width_m, upper=1e3)
-        if self.bin_width_s is not None:
-            v["bin_width_s"] = positive(nm("bin_width_s"), self.bin_width_s, upper=1e-6)
-        if self.start_s is not None:
-            v["start_s"] = real(nm("start_s"), self.start_s, -1e-3, 1e-3)
+        for f in GEOMETRY_LIMITS:
+            if getattr(self, f) is not None:
+                v[f] = check_geometry(f, getattr(self, f), nm(f))
         if self.max_path_m is not None:
             v["max_path_m"] = positive(nm("max_path_m"), self.max_path_m, upper=1e4)
         if self.bins is not None:
-            v["bins"] = integer(nm("bins"), self.bins, 1, 1 << 16)
+            v["bins"] = integer(nm("bins"), self.bins, 1, MAX_BINS)
         if self.slab is not None and not isinstance(self.slab, Slab):
             raise ParameterError("slab", self.slab, "a Slab")
         if self.n_dipoles is not None:

@@ -287,6 +287,7 @@ def check_scene_geometry(scene: Scene) -> list[str]:
     w = scene.width_m / 2
     t0, t1 = scene.start_s, scene.start_s + scene.bins * scene.bin_width_s
     notes = []
+    dark = []  # (field, value, why) of each object that returns no light at all
     for i, obj in enumerate(scene.objects):
         el = sample_object(obj, min(scene.density_per_m2, 1e4), scene.base_dir)
         if len(el) == 0:
@@ -313,9 +314,38 @@ def check_scene_geometry(scene: Scene) -> list[str]:
         if t_far.max() >= t1 or t_near.min() < t0:
             notes.append(f"{name} returns light partly outside the time window "
                          f"[{t0:.3g}, {t1:.3g}) s")
+        why = _no_light(i, obj, el.pos[z > 0], el.normal[z > 0], scene.scan_centres())
+        if why is not None:
+            dark.append(why)
+            notes.append(f"{why[2]}: it returns no light")
+    if dark and len(dark) == len(scene.objects):
+        field, value, why, allowed = dark[0]
+        raise ParameterError(field, value, f"{allowed}: {why} and no other object returns "
+                             "light (the capture would be all zero)")
     for n in notes:
         warnings.warn(n, UserWarning, stacklevel=3)
     return notes
+
+
+def _no_light(i: int, obj: SceneObject, pos: np.ndarray, normal: np.ndarray,
+              centres: np.ndarray) -> tuple[str, object, str, str] | None:
+    """(field, value, why, what would be allowed) when object ``i`` (elements in front of
+    the relay plane) returns no light to the scan points (``centres`` along x and y, m, at
+    z = 0): albedo 0, or every element's front turned away from every scan point (the
+    light-cone kernel skips back faces); else None."""
+    if obj.albedo == 0:
+        return (f"objects[{i}].albedo", obj.albedo, f"objects[{i}] is black (albedo 0)",
+                "> 0 for at least one object")
+    lo, hi = float(centres[0]), float(centres[-1])
+    corners = np.array([[x, y, 0.0] for x in (lo, hi) for y in (lo, hi)])
+    # n . (q - p) is linear in the scan point q: its largest value over the grid of scan
+    # points is at a corner point; > 0 there means the element's front faces that point
+    facing = np.einsum("ek,cek->ce", normal, corners[:, None, :] - pos[None]).max(axis=0)
+    if not np.any(facing > 0):
+        return (f"objects[{i}].rotate_deg", list(obj.rotate_deg),
+                f"objects[{i}] ({obj.shape}) turns its back to every scan point",
+                "a rotation that turns the front of some object towards the scan points")
+    return None
 
 
 class ForwardModel:
@@ -408,6 +438,13 @@ class ForwardModel:
             m = self.margin
             tau = tau[:, m:-m, m:-m]
         tau = np.maximum(tau, 0)  # FFT round-off can leave -1e-17 where tau is 0
+        if not np.any(tau):  # what check_scene_geometry cannot see (a black material, ...)
+            s = self.scene
+            raise ParameterError("objects", f"{len(s.objects)} object(s)", "objects that "
+                                 "return light to the scan points inside the time window "
+                                 f"[{s.start_s:.3g}, {s.start_s + s.bins * s.bin_width_s:.3g})"
+                                 " s: this scene's capture is all zero (check the objects' "
+                                 "materials, rotations and positions)")
         if self.scene.detector is not None:
             tau = photon_counts(tau, self.scene, np.random.default_rng(self.scene.seed))
             done("photon_noise")

@@ -14,10 +14,10 @@ from __future__ import annotations
 
 import math
 from dataclasses import dataclass
-from pathlib import Path
 
 import numpy as np
 
+from .checks import input_file
 from .errors import InputFileError, ParameterError
 
 # Stroke font: each glyph is a list of polylines in a box of width 0.6 and height 1
@@ -198,9 +198,7 @@ def sample_sphere(radius_m: float, density: float) -> Elements:
 
 def read_mesh(path) -> tuple[np.ndarray, np.ndarray]:
     """Vertices (V, 3) and triangles (F, 3) of an ASCII OBJ or PLY file (polygons fanned)."""
-    p = Path(path)
-    if not p.is_file():
-        raise InputFileError(f"{p}: no such mesh file")
+    p = input_file(path, "mesh ")
     try:
         lines = p.read_text(encoding="utf-8").splitlines()
     except UnicodeDecodeError:

@@ -28,7 +28,7 @@ import pyopencl.array as cla
 
 from . import C0
 from .blur import TailFilledDeconvolution, blur_time_scales, slab_blur
-from .config import DEPTH_GUARD_M, ReconstructionConfig
+from .config import DEPTH_GUARD_M, ReconstructionConfig, check_window
 from .errors import InputFileError, ParameterError
 from .fk import FKMigration
 from .io import Capture
@@ -147,8 +147,10 @@ def model_snr_for(capture: Capture, config: ReconstructionConfig) -> float:
     model made the data) and MEASURED_MODEL_SNR otherwise."""
     if config.model_snr != "auto":
         return float(config.model_snr)
+    if config.slab is None:  # no deconvolution: the recorded slab is not read (--no-slab)
+        return math.inf
     recorded = capture.recorded_slab()
-    if config.slab is None or (recorded is not None and recorded[0] == config.slab):
+    if recorded is not None and recorded[0] == config.slab:
         return math.inf
     return MEASURED_MODEL_SNR
 
@@ -363,8 +365,11 @@ def describe_slab(slab) -> str:
             f"{slab.mu_s_prime:g} 1/m, n = {slab.n:g}")
 
 
-def resolve_geometry(capture: Capture, config: ReconstructionConfig) -> tuple[float, float, float]:
-    """(bin_width_s, start_s, scan_width_m): the config overrides the file."""
+def resolve_geometry(capture: Capture, config: ReconstructionConfig, *,
+                     names: dict[str, str] | None = None) -> tuple[float, float, float]:
+    """(bin_width_s, start_s, scan_width_m): the config overrides the file; the time window
+    is checked (:func:`clnlos.config.check_window`, errors naming ``names`` or the TOML
+    fields)."""
     bw = config.bin_width_s if config.bin_width_s is not None else capture.bin_width_s
     if bw is None:
         raise ParameterError("--bin-width", None, "> 0: the capture does not store its bin "
@@ -374,6 +379,8 @@ def resolve_geometry(capture: Capture, config: ReconstructionConfig) -> tuple[fl
         raise ParameterError("--scan-width", None, "> 0: the capture does not store the scan "
                              "width; give --scan-width or [capture] scan_width_m")
     start = config.start_s if config.start_s is not None else capture.start_s
+    check_window(capture.transient.shape[0], float(bw), float(start), config, names=names,
+                 source=capture.source or "the capture")
     return float(bw), float(start), float(sw)
 
 

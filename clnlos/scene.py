@@ -62,8 +62,8 @@ from pathlib import Path
 
 import numpy as np
 
-from .checks import choice, integer, positive
 from .brdf.data import TEXT_ENCODING
+from .checks import choice, input_file, integer, positive
 from .config import check_keys, load_toml, slab_from_table
 from .slab import Slab
 from .errors import InputFileError, ParameterError
@@ -75,13 +75,21 @@ MAX_TEXT_CHARS = 256
 MAX_PATH_CHARS = 4096
 
 
-def _vec3(name, v) -> tuple[float, float, float]:
+MAX_ROTATE_DEG = 360.0  # |rotate_deg| per axis at most (a turn; beyond it sin/cos lose digits)
+MAX_TRANSLATE_M = 1e7   # |translate_m| per axis at most (past the reach of any time window:
+                        # 65536 bins of 1 us, 9.8e6 m of depth)
+
+
+def _vec3(name, v, bound: float | None = None) -> tuple[float, float, float]:
+    """Three finite numbers (each within [-bound, bound] when given)."""
     if not isinstance(v, list | tuple) or len(v) != 3:
         raise ParameterError(name, v, "a list of three numbers")
     out = []
+    rng = "three finite numbers" + (f" from {-bound:g} to {bound:g}" if bound else "")
     for x in v:
-        if isinstance(x, bool) or not isinstance(x, int | float) or not math.isfinite(x):
-            raise ParameterError(name, v, "three finite numbers")
+        if isinstance(x, bool) or not isinstance(x, int | float) or not math.isfinite(x) or (
+                bound is not None and abs(x) > bound):
+            raise ParameterError(name, v, rng)
         out.append(float(x))
     return tuple(out)
 
@@ -217,9 +225,9 @@ def _object(i: int, o: dict) -> SceneObject:
     shape = choice(f"{sec}.shape", o.get("shape"), SHAPES)
     kw = {"shape": shape}
     if "translate_m" in o:
-        kw["translate_m"] = _vec3(f"{sec}.translate_m", o["translate_m"])
+        kw["translate_m"] = _vec3(f"{sec}.translate_m", o["translate_m"], MAX_TRANSLATE_M)
     if "rotate_deg" in o:
-        kw["rotate_deg"] = _vec3(f"{sec}.rotate_deg", o["rotate_deg"])
+        kw["rotate_deg"] = _vec3(f"{sec}.rotate_deg", o["rotate_deg"], MAX_ROTATE_DEG)
     if "albedo" in o:
         kw["albedo"] = positive(f"{sec}.albedo", o["albedo"], allow_zero=True, upper=1e3)
     if "material" in o:
@@ -262,9 +270,7 @@ def _object(i: int, o: dict) -> SceneObject:
 
 def read_retro_csv(path) -> tuple[np.ndarray, np.ndarray]:
     """(theta_rad, f) of a confocal retro-reflection slice CSV with columns theta_deg,brdf."""
-    p = Path(path)
-    if not p.is_file():
-        raise InputFileError(f"{p}: no such file")
+    p = input_file(path, "brdf_retro_csv ")
     rows = []
     with p.open(newline="", encoding=TEXT_ENCODING) as f:  # a BOM (Excel) is skipped
         lines = [ln for ln in f if ln.strip() and not ln.lstrip().startswith("#")]

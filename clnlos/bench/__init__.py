@@ -38,6 +38,13 @@ SECTIONS = {"diffusion": bench_diffusion, "lightcone": bench_lightcone, "brdf": 
             "iterative": bench_iterative, "end_to_end": bench_end_to_end}
 
 
+def sections_of(only: str) -> list[str]:
+    """The section names of a comma-separated ``--only``, each checked (ParameterError)."""
+    from ..checks import choice
+
+    return [choice("--only", name.strip(), tuple(SECTIONS)) for name in only.split(",")]
+
+
 def main(argv=None) -> dict:
     ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     ap.add_argument("--device", default=None)
@@ -47,11 +54,10 @@ def main(argv=None) -> dict:
     g.add_argument("--tiny", action="store_true", help="seconds; for tests")
     ap.add_argument("--only", default=",".join(SECTIONS), help="comma-separated sections")
     args = ap.parse_args(argv)
+    sections = sections_of(args.only)  # all checked before the first one runs
     b = Bench(get_queue(args.device), "tiny" if args.tiny else "quick" if args.quick else "full")
     t0 = time.perf_counter()
-    for name in args.only.split(","):
-        if name not in SECTIONS:
-            raise SystemExit(f"unknown section {name!r}: choose from {', '.join(SECTIONS)}")
+    for name in sections:
         print(f"== {name}", flush=True)
         SECTIONS[name](b)
     bw = bench_roofline(b)

@@ -12,10 +12,10 @@ from __future__ import annotations
 
 import math
 from dataclasses import dataclass, field
-from pathlib import Path
 
 import numpy as np
 
+from ..checks import input_file
 from ..errors import InputFileError
 
 CSV_COLUMNS = ["theta_i_deg", "phi_i_deg", "theta_s_deg", "phi_s_deg", "brdf"]
@@ -96,9 +96,7 @@ def read_gonio_csv(path) -> BRDFSamples:
 
     ``meta["precision"]`` (1/sr) is a ``# precision:`` header when present, else derived from
     the printed decimals of the brdf column (:func:`precision_from_text`)."""
-    p = Path(path)
-    if not p.is_file():
-        raise InputFileError(f"{p}: no such file")
+    p = input_file(path)
     meta, rows, header, printed = {}, [], None, []
     try:
         text = p.read_text(encoding=TEXT_ENCODING)
@@ -157,9 +155,7 @@ def _set_precision(path, meta: dict, printed: list[str]) -> None:
 def read_pbrt_brdf(path, wavelength_nm: float = 550.0) -> BRDFSamples:
     """pbrt-v2 irregular spectral BRDF: counts, wavelengths, then rows of 4 angles (rad) and
     one value per wavelength; the value at ``wavelength_nm`` is linearly interpolated."""
-    p = Path(path)
-    if not p.is_file():
-        raise InputFileError(f"{p}: no such file")
+    p = input_file(path)
     toks: list[str] = []
     for line in p.read_text(encoding=TEXT_ENCODING, errors="replace").splitlines():
         line = line.split("#", 1)[0]
@@ -213,9 +209,7 @@ class MerlBRDF:
     """
 
     def __init__(self, path, channel: int = 1):
-        p = Path(path)
-        if not p.is_file():
-            raise InputFileError(f"{p}: no such file")
+        p = input_file(path)
         raw = p.read_bytes()
         if len(raw) < 12:
             raise InputFileError(f"{p}: truncated MERL file")

@@ -28,6 +28,34 @@ FIT_SPACE = {
                    ("a_exp", 0.1, 3.0), ("kd", 0.0, 10.0)],
 }
 FIXED = {"torrance-sparrow": {"f0": 1.0, "distribution": "ggx"}}
+MIN_MLP_SAMPLES = 10  # significant training samples an MLP fit needs at least
+
+
+def min_fit_samples(model_name: str) -> int:
+    """Significant training samples a fit needs: one more than its free parameters (an
+    analytic model), MIN_MLP_SAMPLES for an MLP."""
+    name = "lambert" if model_name == "lambertian" else model_name
+    return len(FIT_SPACE[name]) + 1 if name in FIT_SPACE else MIN_MLP_SAMPLES
+
+
+def check_fit_samples(model_name: str, train: BRDFSamples, test: BRDFSamples | None) -> None:
+    """Enough samples at or above the significance floor (where the metrics are computed):
+    min_fit_samples for the training set, one for a test set; else an InputFileError
+    naming the file, the count and the floor (an all-zero BRDF has none)."""
+    from ..errors import InputFileError
+
+    checks = (("training", train, min_fit_samples(model_name), f"the {model_name} fit needs"),
+              ("test", test, 1, "its metrics need"))
+    for role, s, need, who in checks:
+        if s is None:
+            continue
+        floor = significance_floor(s)
+        n = int(np.count_nonzero(s.brdf >= floor))
+        if n < need:
+            raise InputFileError(
+                f"{s.meta.get('path', role + ' data')}: {n} of {len(s.brdf)} {role} samples "
+                f"have brdf >= {floor:g} 1/sr (the significance floor: its precision, at "
+                f"least {MIN_SIGNIFICANT:g}); {who} at least {need}")
 
 
 @dataclass
@@ -148,6 +176,7 @@ def fit_to_file(model_name: str, train, test, out, *, seed: int = 0,
     from ..io import atomic_path
     from .store import save_model
 
+    check_fit_samples(model_name, train, test)
     if model_name in ("mlp", "mlp-seed"):
         from .mlp import MLPConfig, train_mlp
 

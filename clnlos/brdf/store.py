@@ -35,8 +35,10 @@ def save_model(path, model, metrics: dict, provenance: dict) -> None:
 def load_model(path):
     import h5py
 
+    from ..checks import input_file
     from .mlp import NeuralBRDF
 
+    path = input_file(path, "BRDF model ")
     try:
         with h5py.File(path, "r") as f:
             if f.attrs.get("format") != FORMAT:

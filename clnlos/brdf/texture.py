@@ -38,6 +38,7 @@ FORMAT, VERSION = "clnlos-brdf-texture", 1
 TABULATE_CHUNK = 1 << 18
 TEXTURE_BYTES_PER_NODE = 4 + 4
 MODEL_BYTES_PER_NODE = 2048
+MIN_NODES, MAX_NODES = 2, 4096  # nodes per texture axis (and of the retro slice)
 
 
 @dataclass
@@ -54,9 +55,9 @@ class BRDFTexture:
 def tabulate(model, n_theta: int = 64, n_dphi: int = 64, n_retro: int = 256,
              provenance: dict | None = None) -> BRDFTexture:
     """Evaluate ``model(ti, pi, ts, ps)`` on the texture grid (phi_i = 0, phi_s = delta_phi)."""
-    for name, v, lo in (("n_theta", n_theta, 2), ("n_dphi", n_dphi, 2), ("n_retro", n_retro, 2)):
-        if int(v) != v or not lo <= v <= 4096:
-            raise ParameterError(name, v, f"an integer from {lo} to 4096")
+    for name, v in (("n_theta", n_theta), ("n_dphi", n_dphi), ("n_retro", n_retro)):
+        if int(v) != v or not MIN_NODES <= v <= MAX_NODES:
+            raise ParameterError(name, v, f"an integer from {MIN_NODES} to {MAX_NODES}")
     shape = (int(n_theta), int(n_theta), int(n_dphi))
     check_memory(f"BRDF texture {shape[0]} x {shape[1]} x {shape[2]} [theta_i, theta_s, "
                  "dphi] (n_theta = --resolution, n_dphi = --dphi)",
@@ -89,6 +90,9 @@ def write_texture(path, tex: BRDFTexture) -> None:
 def read_texture(path) -> BRDFTexture:
     import h5py
 
+    from ..checks import input_file
+
+    path = input_file(path, "BRDF texture ")
     try:
         with h5py.File(path, "r") as f:
             if f.attrs.get("format") != FORMAT:

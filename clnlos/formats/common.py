@@ -53,6 +53,7 @@ def shift_earlier(arr: np.ndarray, shift_bins: np.ndarray) -> np.ndarray:
     s = np.asarray(shift_bins, np.float64)
     if s.shape != arr.shape[1:] or np.any(~np.isfinite(s)) or np.any(s < 0):
         raise InputFileError("time offsets must be finite, >= 0 and one per scan point")
+    s = np.minimum(s, nt)  # a shift past the window's end empties the column (no overflow)
     k0 = np.floor(s).astype(np.int64)
     f = s - k0
     t = np.arange(nt)[:, None, None]

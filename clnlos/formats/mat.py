@@ -57,10 +57,20 @@ def from_fk(meas, tofgrid, path) -> Capture:
     arr = validate_transient(np.transpose(meas, (2, 0, 1)), path)
     attrs = {"format": "fk-mat"}
     if tofgrid is not None:
-        tof = np.asarray(tofgrid, np.float64)
+        try:
+            tof = np.asarray(tofgrid, np.float64)
+        except (TypeError, ValueError):
+            raise InputFileError(f"{path}: 'tofgrid' must be numbers (ps)") from None
         if tof.shape != arr.shape[1:]:
             raise InputFileError(f"{path}: 'tofgrid' must be {arr.shape[1:]} like the scan, "
                                  f"got {tof.shape}")
+        window_ps = arr.shape[0] * FK_MAT_BIN_WIDTH_S * 1e12
+        bad = ~(np.isfinite(tof) & (tof >= 0) & (tof < window_ps))
+        if bad.any():
+            v = float(tof[bad].flat[0])
+            raise InputFileError(f"{path}: 'tofgrid' holds {v:g} ps: allowed 0 to below "
+                                 f"{window_ps:g} ps (the capture's time window, "
+                                 f"{arr.shape[0]} bins of {FK_MAT_BIN_WIDTH_S * 1e12:g} ps)")
         arr = shift_earlier(arr, tof * 1e-12 / FK_MAT_BIN_WIDTH_S)
         attrs["tofgrid_removed"] = True
     return Capture(arr, FK_MAT_BIN_WIDTH_S, 0.0, None, str(path), attrs)
@@ -129,12 +139,16 @@ def _declared_mat5(path) -> None:
 
 
 def read_mat5(path) -> Capture:
+    import struct
+
     import scipy.io
 
     _declared_mat5(path)
     try:
         d = scipy.io.loadmat(path)
-    except (ValueError, TypeError, NotImplementedError, OSError) as exc:
+    except (ValueError, TypeError, NotImplementedError, OSError, IndexError, KeyError,
+            EOFError, OverflowError, AttributeError, struct.error) as exc:
+        # a corrupt or truncated file ends in any of these inside scipy's parser
         raise InputFileError(f"{path}: not a readable MATLAB v5/v7 file ({exc})") from None
     if "rect_data" in d:
         missing = [k for k in ("width", "bin_resolution") if k not in d]

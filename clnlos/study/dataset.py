@@ -358,7 +358,14 @@ def run_samples(samples: list[dict], grid: StudyGrid, cache: Path, *, workers: i
                     os.environ[k] = v
         client = Client(cluster)
     else:
-        client = Client(scheduler)
+        try:
+            client = Client(scheduler)
+        except (OSError, TimeoutError, ValueError) as exc:  # nothing there, refused, ...
+            from ..errors import ParameterError
+
+            why = str(exc).splitlines()[0] if str(exc) else type(exc).__name__
+            raise ParameterError("--scheduler", scheduler, "the address of a running Dask "
+                                 f"scheduler (connecting failed: {why})") from None
     try:
         from ..outputs import install_sigterm_cleanup
 
@@ -413,6 +420,32 @@ def dataset_samples(n: int, materials: list[str], seed: int) -> list[dict]:
             s["radius_m"] = round(float(rng.uniform(0.04, 0.1)), 3)
         out.append(s)
     return out
+
+
+MAX_WORKERS = 256  # local worker processes at most
+
+
+def check_scheduler_address(name: str, address) -> str:
+    """A Dask scheduler address: ``[tcp://|tls://]host:port`` (port 1-65535; ``inproc://``,
+    ``ucx://`` and ``ws[s]://`` addresses as Dask writes them); else a ParameterError."""
+    from ..errors import ParameterError
+
+    allowed = "a Dask scheduler address such as tcp://host:8786"
+    if not isinstance(address, str) or not address.strip() or any(c.isspace()
+                                                                   for c in address):
+        raise ParameterError(name, address, allowed)
+    scheme, sep, loc = address.partition("://")
+    if not sep:
+        scheme, loc = "tcp", address
+    if scheme not in ("tcp", "tls", "inproc", "ucx", "ws", "wss"):
+        raise ParameterError(name, address, allowed + " (protocol tcp, tls, inproc, ucx, ws "
+                             "or wss)")
+    if scheme == "inproc":
+        return address
+    host, colon, port = loc.rpartition(":")
+    if not colon or not host.strip("[]") or not port.isdigit() or not 0 < int(port) < 65536:
+        raise ParameterError(name, address, allowed + " (host and a port from 1 to 65535)")
+    return address
 
 
 def cpu_workers(requested: int | None) -> int:
