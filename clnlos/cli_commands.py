@@ -108,14 +108,18 @@ def _pipeline_fits(capture, cfg, queue, dtype):
     """The check a capture reader runs with the declared size (:func:`clnlos.limits.
     capture_use`): the reconstruction's device buffers fit the device (a time axis the file
     does not store, or stores as no valid number, is left to the later checks)."""
-    from .limits import check_memory
+    from .config import check_geometry
     from .errors import ParameterError
+    from .limits import check_memory
     from .reconstruct import device_bytes_needed
 
     def check(shape, bin_width_s, start_s):
         bw = cfg.bin_width_s if cfg.bin_width_s is not None else bin_width_s
         start = cfg.start_s if cfg.start_s is not None else start_s
-        if bw is None or not (np.isfinite(bw) and bw > 0 and np.isfinite(start)):
+        try:  # values outside the range table are named by the reader, not sized here
+            check_geometry("bin_width_s", bw)
+            check_geometry("start_s", start)
+        except ParameterError:
             return
         try:
             total, largest = device_bytes_needed(shape, bin_width_s=bw, start_s=start,
