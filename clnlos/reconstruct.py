@@ -89,10 +89,16 @@ def preprocess_matrix(nt_in: int, bin_width_s: float, start_s: float, max_path_m
     return overlap_matrix(src_edges, dst_edges), dt_out, n_out
 
 
-TRUNCATION_TOL = 1e-2  # the window ends "before the blur has decayed": its last bins hold more
-#                       than this fraction of the peak (above the background)
-GUARD_PEAKS = 2.0      # ... unless the deconvolved bins past the volume (guard) span this many
-#                       blur peak lags: the inverse filter's ringing at the cut stays in them
+GUARD_PEAKS = 2.0  # a cut is harmless behind this many blur peak lags of guard bins (the
+#                   deconvolved bins past the volume): the inverse filter's ringing stays there
+
+
+def cut_level(snr: float) -> float:
+    """The light still arriving at a window's end (fraction of the peak) above which the cut
+    matters to a Wiener deconvolution of SNR ``snr``: 1 / sqrt(snr), the amplitude the
+    filter itself treats as noise (1e-2 at SNR 1e4; 1e-5 for a noise-free capture at the
+    SNR cap, whose inverse filter turns even a 0.3% step into the brightest voxels)."""
+    return 1.0 / math.sqrt(snr)
 
 
 def window_end_level(profile: np.ndarray, *, background: float, end_bins: int,
@@ -273,7 +279,7 @@ class ReconstructionPipeline:
         params = self.config.as_attrs()
         notes: list[str] = []
         if self.deconv is not None:
-            deconv = self._deconvolution_for(profile, noise, params, notes)
+            deconv = self._deconvolution_for(profile, noise, snr, params, notes)
             deconv.set_snr(snr)
             params["snr_used"] = snr
             params["model_snr_used"] = model_snr
@@ -309,11 +315,11 @@ class ReconstructionPipeline:
                               transient=tau.get() if keep_transient else None, extents=extents,
                               noise=noise.as_dict(), solver=solve, notes=notes)
 
-    def _deconvolution_for(self, profile, noise: NoiseEstimate, params: dict,
+    def _deconvolution_for(self, profile, noise: NoiseEstimate, snr: float, params: dict,
                            notes: list[str]):
         """The slab deconvolution for this capture: the plain Wiener filter, or where the
         time window ends before the blur of its latest arrivals has decayed (more than
-        TRUNCATION_TOL of the peak still arriving in its last ``peak`` bins, and fewer
+        :func:`cut_level` of the peak still arriving in its last ``peak`` bins, and fewer
         than GUARD_PEAKS peak lags of guard bins between the volume's end and the cut) the
         :class:`~clnlos.blur.TailFilledDeconvolution` on the window padded by the blur's
         reach (built on first use), with a note saying which depths rest on the rise of
@@ -325,7 +331,7 @@ class ReconstructionPipeline:
                                  photon_counts=noise.photon_counts, sigma=noise.sigma,
                                  n_scan=n_scan)
         params["window_end_level"] = level
-        if level <= TRUNCATION_TOL or self.n_guard >= GUARD_PEAKS * scales.peak_lags:
+        if level <= cut_level(snr) or self.n_guard >= GUARD_PEAKS * scales.peak_lags:
             return self.deconv
         if self._tail_deconv is None:
             self._tail_deconv = TailFilledDeconvolution(self.config.slab, (profile.size,)

@@ -17,7 +17,7 @@ from clnlos.cli import main
 from clnlos.config import ReconstructionConfig
 from clnlos.io import Capture, read_capture
 from clnlos.metrics import letters_truth_mask, mip_iou, peak_depth_m
-from clnlos.reconstruct import TRUNCATION_TOL, reconstruct, window_end_level
+from clnlos.reconstruct import cut_level, reconstruct, window_end_level
 from clnlos.scene import Scene
 from clnlos.simulate import simulate_to_file
 from clnlos.slab import CDT_SLAB
@@ -89,7 +89,7 @@ def test_window_end_level_ignores_noise_and_background():
     cut = prof[:230]  # cut on the falling edge
     level = window_end_level(cut, background=bg, end_bins=40, photon_counts=True, sigma=0.0,
                              n_scan=1)
-    assert level > TRUNCATION_TOL
+    assert level > cut_level(1e4)
 
 
 @pytest.fixture(scope="module")
@@ -146,12 +146,14 @@ def test_demo_short_window_true_depth(queue, demo_captures, bins, method):
 
 
 def test_demo_full_window_takes_the_plain_filter(queue, demo_captures):
-    """A window in which the blur has decayed (512 bins) runs the plain Wiener filter: no
-    note, no extra grid."""
+    """The demo's own window (512 bins, the volume to 1.6 m of path and 84 guard bins past
+    it, more than GUARD_PEAKS blur peaks of 40 bins) runs the plain Wiener filter: no note,
+    no extra grid, although 0.7% of the peak still arrives at the cut (above the
+    noise-free cut level: the guard holds the ringing)."""
     caps, _, slab, _ = demo_captures
     rec = reconstruct(caps[512], _demo_config("lct", slab), device=queue)
     assert rec.notes == []
-    assert rec.params["window_end_level"] <= TRUNCATION_TOL
+    assert rec.params["window_end_level"] > cut_level(rec.params["snr_used"])
     assert "tail_fill_bins" not in rec.params
 
 
@@ -193,7 +195,29 @@ def test_guard_bins_hold_the_cut(queue, patch_transient):
     cfg = ReconstructionConfig(slab=CDT_SLAB, snr=1e6, method="lct", max_path_m=n_out * DT * C0,
                                guard_fraction=1.0).validate()
     rec = reconstruct(cap, cfg, device=queue)
-    assert rec.params["window_end_level"] > TRUNCATION_TOL
+    assert rec.params["window_end_level"] > cut_level(rec.params["snr_used"])
     assert rec.notes == [] and "tail_fill_bins" not in rec.params
     dz = rec.extents["voxel_depth_m"]
     assert abs(peak_depth_m(rec.volume, dz) - 0.5) <= 1.5 * dz
+
+
+@pytest.mark.parametrize("bins", [128, 256])
+def test_noise_free_plate_with_a_small_residual_at_the_cut(queue, tmp_path, bins):
+    """A 10 cm plate 0.25 m behind the slab, 8 x 8 points, 20 ps bins, noise-free: with 256
+    bins only 0.3% of the peak still arrives at the cut, which at the noise-free SNR cap
+    (1e10) put the plate at 0.742 m; with 128 bins the window ends on the falling edge
+    (0.343 m before). Both now at 0.25 m within one voxel."""
+    scene = tmp_path / "s.toml"
+    scene.write_text("\n".join([
+        "[scan]", "width_m = 0.3", "points = 8", "[time]", "bin_width_s = 2e-11",
+        f"bins = {bins}", "[[objects]]", 'shape = "rectangle"', "size_m = [0.1, 0.1]",
+        "translate_m = [0.0, 0.0, 0.25]", "[slab]", "thickness_m = 0.0254", "mu_a = 0.53",
+        "mu_s_prime = 262.0", "n = 1.12"]) + "\n")
+    cap = tmp_path / "c.h5"
+    assert main(["simulate", str(scene), "-o", str(cap)]) == 0
+    rec = reconstruct(read_capture(cap), ReconstructionConfig(slab=CDT_SLAB).validate(),
+                      device=queue)
+    dz = rec.extents["voxel_depth_m"]
+    k = np.unravel_index(int(np.argmax(rec.volume)), rec.volume.shape)
+    assert abs((k[0] + 0.5) * dz - 0.25) <= dz
+    assert rec.notes
