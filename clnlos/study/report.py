@@ -391,6 +391,7 @@ def findings_html(results) -> str:
 def _geometry_table(g) -> str:
     rows = [[html.escape(m["name"]), html.escape(m["brdf_class"]),
              f"{m['specular_fraction']:.2f}", _ident(m),
+             f"{m['measurement_identification']['accuracy']:.2f}",
              f"{m['identification']['chance']:.3f}", f"{m['iou']:.3f}",
              f"{m['iou_box_baseline']:.3f}", f"{m['iou_excess']:+.3f}",
              f"{m['depth_error_m'] * 100:.1f}", f"{m['photon_counts']:.2g}", m["label"],
@@ -402,7 +403,8 @@ def _geometry_table(g) -> str:
             f"resolution {g['lateral_resolution_m'] * 100:.1f} cm, stroke / resolution "
             f"{g['stroke_over_resolution']:.2f}.</p>")
     return head + _table(["material", "BRDF class", "specular fraction",
-                          "identification [95%]", "chance", "IoU", "box baseline IoU",
+                          "identification [95%]", "measurement alone", "chance", "IoU",
+                          "box baseline IoU",
                           "IoU - baseline", "depth error (cm)", "photons", "label",
                           "CNN label", "seed Fig. 9", "FFT label"], rows)
 
