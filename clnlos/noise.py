@@ -45,6 +45,7 @@ MEASURED_MODEL_SNR = 1e4  # accuracy of the slab model on measured captures (see
 SNR_MIN = 1e2
 SNR_MAX = 1e10
 LIGHTCONE_SNR_MAX = 1e4
+LIGHTCONE_SNR_MIN = 10.0  # lower end of the light-cone SNRs cross-validation tries
 LEAD_FRACTION = 0.05  # the first 5% of the window estimates the background (if signal-free)
 ARRIVAL_SIGMAS = 6.0  # a bin holds signal when above background by this many std
 ARRIVAL_FRACTION = 1e-3  # ... and by this fraction of the peak of the scan-summed profile
