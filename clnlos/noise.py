@@ -68,6 +68,13 @@ class NoiseEstimate:
         return {k: getattr(self, k) for k in self.__dataclass_fields__}
 
     @property
+    def noise_free(self) -> bool:
+        """No noise measurable: the photon rule's SNR at its cap SNR_MAX (a simulation
+        without a detector, or more photons than float32 resolves). Cross-validation
+        (:mod:`clnlos.gcv`) has then no noise to weigh the fit against: the caps apply."""
+        return self.snr >= SNR_MAX
+
+    @property
     def nearest_depth_m(self) -> float | None:
         """Depth bound c t / 2 of the first arrival: no hidden point is nearer (r >= z)."""
         return None if self.first_arrival_s is None else C0 * self.first_arrival_s / 2

@@ -12,9 +12,10 @@ Stages (each a plan built once for the capture's shape, dtype and device):
 SNRs given as "auto" are chosen from the data by generalised cross-validation
 (:mod:`clnlos.gcv`), each on its own filter's grid: the slab's on the preprocessed
 transient, the light cone's on the deconvolved one; the slab's is then combined with the
-model's accuracy (:func:`model_snr_for`). Without a slab, or for a stage that is not run,
-the photon rule of :mod:`clnlos.noise` stands in (it is also what :func:`auto_snrs` gives
-when no data SNR is passed).
+model's accuracy (:func:`model_snr_for`). On noise-free data
+(:attr:`clnlos.noise.NoiseEstimate.noise_free`: nothing to cross-validate against) the
+rule of :mod:`clnlos.noise` stands in, which there gives the caps SNR_MAX and
+LIGHTCONE_SNR_MAX (it is also what :func:`auto_snrs` gives when no data SNR is passed).
 
 Output volume [z, y, x]: depth bin k spans [k, k+1) * c * dt / 2 behind the scan plane
 (the slab's hidden face), x and y the scan-cell centres, x increasing with the column
@@ -235,7 +236,7 @@ class ReconstructionPipeline:
                 self._rk.scale_inplace(self.queue, (round_up(tau.size, 256),), None, tau.data,
                                        self.dtype.type(1.0 / s), np.int64(tau.size))
         data_snr = None
-        if self.deconv is not None and self.config.snr == "auto":
+        if self.deconv is not None and self.config.snr == "auto" and not noise.noise_free:
             data_snr = self._timed(timings, "choose_snr", self.slab_gcv_snr, tau)
         snr, inv_snr = auto_snrs(noise, self.config, model_snr, data_snr=data_snr)
         params = self.config.as_attrs()
@@ -249,7 +250,7 @@ class ReconstructionPipeline:
         if self.n_guard:
             tau = tau[:self.shape[0]]  # the guard bins dropped: a view of the leading rows
         method = self.config.method
-        if method != "fk" and self.config.inversion_snr == "auto":
+        if method != "fk" and self.config.inversion_snr == "auto" and not noise.noise_free:
             lct = self.invert if method == "lct" else self.invert.warm
             inv_snr = self._timed(timings, "choose_inversion_snr", lct.gcv_snr, tau,
                                   LIGHTCONE_SNR_MIN, LIGHTCONE_SNR_MAX)

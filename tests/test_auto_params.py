@@ -119,3 +119,20 @@ def test_fk_auto_monotone_in_exposure(queue, tmp_path):
     csv_path, json_path = write_rows(summary, tmp_path / "sweep")
     assert csv_path.read_text().splitlines()[0].startswith("method,exposure_s")
     assert json_path.is_file()
+
+
+def test_noise_free_capture_takes_the_caps(queue):
+    """Without noise (no [detector]) there is nothing to cross-validate against: the slab
+    and light-cone SNRs are the caps SNR_MAX and LIGHTCONE_SNR_MAX, as before."""
+    from clnlos.forward import ForwardModel
+    from clnlos.noise import LIGHTCONE_SNR_MAX, SNR_MAX
+    from clnlos.scene import Scene
+
+    d = replace(TINY, points=32, bins=256, bin_width_s=32e-12).scene_dict()
+    del d["detector"]
+    cap = ForwardModel(Scene.from_dict(d), queue=queue).capture()
+    cfg = ReconstructionConfig(slab=cap.recorded_slab()[0], method="lct").validate()
+    rec = reconstruct(cap, cfg, device=queue)
+    assert rec.noise["snr"] == SNR_MAX
+    assert rec.params["snr_used"] == SNR_MAX
+    assert rec.params["inversion_snr_used"] == LIGHTCONE_SNR_MAX
