@@ -131,11 +131,11 @@ def register_reconstruct(sub, add_device) -> None:
     r.add_argument("--scan-width", type=float, help="side of the scanned square (m)")
     r.add_argument("--bin-width", type=float, help="histogram bin width (s)")
     r.add_argument("--snr", type=number_or_auto,
-                   help="Wiener SNR of the slab deconvolution, or auto (default: from the "
-                        "capture's photon count)")
+                   help="Wiener SNR of the slab deconvolution, or auto (default: chosen "
+                        "from the capture by generalised cross-validation)")
     r.add_argument("--inversion-snr", type=number_or_auto,
                    help="Wiener SNR of the LCT filter (and of the iterative warm start), or "
-                        "auto (default)")
+                        "auto (default: by generalised cross-validation)")
     r.add_argument("--falloff", type=float, help="radiometric exponent of the inversion")
     r.add_argument("--max-path", type=float, help="keep round-trip paths below this (m)")
     r.add_argument("--bins", type=int, help="rebin the kept window to this many bins")

@@ -1,4 +1,10 @@
-"""Noise level of a capture, and the regularisation it calls for (pure numpy, no OpenCL).
+"""Noise level of a capture, and the photon rule of regularisation (pure numpy, no OpenCL).
+
+The "auto" SNRs of a reconstruction are chosen from the data by generalised
+cross-validation (:mod:`clnlos.gcv`); the photon rule below stands in for noise-free data
+(:attr:`NoiseEstimate.noise_free`, where it gives the caps) and is what "today" means in
+:mod:`clnlos.bench.oracle`. It assumes a flat signal spectrum, which over-states the SNR at
+the frequencies the slab deconvolution lifts (by 10^2-10^3 on wide scans, issue 24).
 
 A capture of photon counts (every value an integer) is Poisson: a bin holding n counts has
 variance n. For white noise of per-bin variance s^2 over M bins the DFT has E|N(k)|^2 = M s^2,
