@@ -21,6 +21,14 @@ unbiased risk estimate or the discrepancy principle, needs no noise variance -- 
 mirror padding, the time crop and, for the light-cone filter, the slab deconvolution
 (colouring the noise) would make uncertain.
 
+Limits. GCV assumes white noise: the light-cone filter sees noise the slab deconvolution
+has coloured, and there GCV is a heuristic, measured against the oracle in
+:mod:`clnlos.bench.oracle` rather than derived. On noise-free data the residual is model
+and rounding error, not noise; the pipeline then keeps the caps
+(:attr:`clnlos.noise.NoiseEstimate.noise_free`). GCV minimises a risk of the filtered data,
+not of a thresholded image: the SNR best for the IoU of a method can differ (the table of
+:mod:`clnlos.bench.oracle` says by how much).
+
 V depends on the data only through the sum of |Y_k|^2 over frequencies of equal |H_k|^2:
 :class:`GcvBins` groups the frequencies of one filter into bins of log10 |H|^2
 (BINS_PER_DECADE), once per plan, so each capture costs one FFT and one bincount; the SNRs

@@ -87,6 +87,9 @@ ORACLE_CASES = (
     OracleCase("plus 0.25 m, scan 0.5 m, 0.7 m deep, 0.5 s", "plus", 0.25, 0.7, 0.5, 0.5),
     OracleCase("S 0.35 m, scan 0.7 m, 0.4 m deep, 0.05 s", "S", 0.35, 0.4, 0.7, 0.05),
     OracleCase("UT 0.25 m, scan 0.45 m, 0.8 m deep, 5 s", "UT", 0.25, 0.8, 0.45, 5.0),
+    # examples/scene_ut_wide_noisy.toml (issue 24's "wide UT": 512 bins of 16 ps)
+    OracleCase("UT 0.3 m, scan 0.6 m, 0.5 m deep, 0.5 s, 16 ps", "UT", 0.3, 0.5, 0.6, 0.5,
+               bins=512, bin_width_s=16e-12),
 )
 
 
