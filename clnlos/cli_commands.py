@@ -188,11 +188,12 @@ def register_reconstruct(sub, add_device) -> None:
                    help=f"side of the scanned square (m) {from_file}")
     r.add_argument("--bin-width", type=float, help=f"histogram bin width (s) {from_file}")
     r.add_argument("--snr", type=number_or_auto,
-                   help="Wiener SNR of the slab deconvolution (dimensionless), or auto: from "
-                        f"the capture's photon count and the slab model (default {C.snr})")
+                   help="Wiener SNR of the slab deconvolution (dimensionless), or auto: chosen "
+                        "from the capture by generalised cross-validation, at most the slab "
+                        f"model's accuracy (default {C.snr})")
     r.add_argument("--inversion-snr", type=number_or_auto,
                    help="Wiener SNR of the LCT filter (and of the iterative warm start), or "
-                        "auto: from the deconvolution SNR, clnlos.noise.lightcone_snr "
+                        "auto: by generalised cross-validation on the deconvolved transient "
                         f"(default {C.inversion_snr})")
     r.add_argument("--falloff", type=float,
                    help="radiometric exponent p (dimensionless) of the (t/T)^p weighting "

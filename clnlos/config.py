@@ -19,8 +19,9 @@ optional and its default is the field default of :class:`ReconstructionConfig`::
     ze_m = 0.0036                # optional
     n_dipoles = 20               # optional (default: auto)
     [deconvolution]
-    snr = "auto"                 # Wiener SNR of the slab deconvolution, or "auto": from the
-                                 # capture's photon count and model_snr (clnlos.noise)
+    snr = "auto"                 # Wiener SNR of the slab deconvolution, or "auto": chosen
+                                 # from the capture by cross-validation (clnlos.gcv), with
+                                 # model_snr
     model_snr = "auto"           # accuracy of the slab model as an SNR; "auto": exact for a
                                  # capture clnlos simulated with this slab, else
                                  # clnlos.noise.MEASURED_MODEL_SNR
@@ -30,8 +31,8 @@ optional and its default is the field default of :class:`ReconstructionConfig`::
     [inversion]
     method = "lct"               # "lct", "fk" or "iterative"
     snr = "auto"                 # Wiener SNR of the LCT light-cone filter (and of the
-                                 # iterative method's LCT warm start); "auto" = sqrt of the
-                                 # deconvolution SNR
+                                 # iterative method's LCT warm start); "auto": chosen from
+                                 # the deconvolved transient by cross-validation (clnlos.gcv)
     falloff = 4.0                # radiometric exponent p (default: LCT 4, f-k 2)
     iterations = 200             # iterative: FISTA iterations at most
     l1_weight = 0.1              # iterative: L1 weight relative to max(L^T I)

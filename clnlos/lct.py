@@ -151,6 +151,7 @@ class LCT:
         self._to_z_padded = AxisResample(self.to_z.matrix, (ny, nx), dtype=self.dtype,
                                          queue=self.queue, in_plane=(2 * ny, 2 * nx))
         self._k = get_kernels(self.queue, "resample", real_defines(self.dtype))
+        self._gcv_bins = None  # clnlos.gcv.GcvBins of the light cone, built on first use
 
     def _cone_filter(self, pitch: float, scratch: Scratch, cache) -> SpectralFilter:
         """The light-cone convolution on the (2 nt, 2 ny, 2 nx) grid: its spectrum from the
@@ -178,6 +179,19 @@ class LCT:
     def set_snr(self, snr: float) -> None:
         """Change the SNR of the light-cone Wiener filter (no rebuild)."""
         self.inverse_filter.set_snr(snr)
+
+    def gcv_snr(self, tau: cla.Array, snr_min: float, snr_max: float) -> float:
+        """The light-cone Wiener SNR in [snr_min, snr_max] that generalised cross-validation
+        (:mod:`clnlos.gcv`) picks for the transient ``tau`` [t, y, x] (device): V evaluated
+        on the filter's own (v, y, x) grid, where the light cone is a convolution."""
+        from .gcv import GcvBins
+
+        if self._gcv_bins is None:
+            self._gcv_bins = GcvBins.from_gain(self.inverse_filter.gain_squared(),
+                                               self.inverse_filter.pad_shape[2])
+        power = self.inverse_filter.power_spectrum(
+            write_input=lambda buf: self._to_v_padded.apply_into(tau, buf))
+        return self._gcv_bins.snr(power, snr_min, snr_max)
 
     @property
     def forward_operator(self) -> LinearOperator:

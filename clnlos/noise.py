@@ -1,4 +1,10 @@
-"""Noise level of a capture, and the regularisation it calls for (pure numpy, no OpenCL).
+"""Noise level of a capture, and the photon rule of regularisation (pure numpy, no OpenCL).
+
+The "auto" SNRs of a reconstruction are chosen from the data by generalised
+cross-validation (:mod:`clnlos.gcv`); the photon rule below stands in for noise-free data
+(:attr:`NoiseEstimate.noise_free`, where it gives the caps) and is what "today" means in
+:mod:`clnlos.bench.oracle`. It assumes a flat signal spectrum, which over-states the SNR at
+the frequencies the slab deconvolution lifts (by 10^2-10^3 on wide scans, issue 24).
 
 A capture of photon counts (every value an integer) is Poisson: a bin holding n counts has
 variance n. For white noise of per-bin variance s^2 over M bins the DFT has E|N(k)|^2 = M s^2,
@@ -45,6 +51,7 @@ MEASURED_MODEL_SNR = 1e4  # accuracy of the slab model on measured captures (see
 SNR_MIN = 1e2
 SNR_MAX = 1e10
 LIGHTCONE_SNR_MAX = 1e4
+LIGHTCONE_SNR_MIN = 10.0  # lower end of the light-cone SNRs cross-validation tries
 LEAD_FRACTION = 0.05  # the first 5% of the window estimates the background (if signal-free)
 ARRIVAL_SIGMAS = 6.0  # a bin holds signal when above background by this many std
 ARRIVAL_FRACTION = 1e-3  # ... and by this fraction of the peak of the scan-summed profile
@@ -65,6 +72,13 @@ class NoiseEstimate:
 
     def as_dict(self) -> dict:
         return {k: getattr(self, k) for k in self.__dataclass_fields__}
+
+    @property
+    def noise_free(self) -> bool:
+        """No noise measurable: the photon rule's SNR at its cap SNR_MAX (a simulation
+        without a detector, or more photons than float32 resolves). Cross-validation
+        (:mod:`clnlos.gcv`) has then no noise to weigh the fit against: the caps apply."""
+        return self.snr >= SNR_MAX
 
     @property
     def nearest_depth_m(self) -> float | None:

@@ -9,8 +9,13 @@ Stages (each a plan built once for the capture's shape, dtype and device):
 3. ``invert``: LCT (:mod:`clnlos.lct`), f-k migration (:mod:`clnlos.fk`) or the regularised
    iterative inversion (:mod:`clnlos.iterative`).
 
-SNRs given as "auto" come from the capture's noise level (:mod:`clnlos.noise`), estimated
-on the preprocessed transient before normalisation.
+SNRs given as "auto" are chosen from the data by generalised cross-validation
+(:mod:`clnlos.gcv`), each on its own filter's grid: the slab's on the preprocessed
+transient, the light cone's on the deconvolved one; the slab's is then combined with the
+model's accuracy (:func:`model_snr_for`). On noise-free data
+(:attr:`clnlos.noise.NoiseEstimate.noise_free`: nothing to cross-validate against) the
+rule of :mod:`clnlos.noise` stands in, which there gives the caps SNR_MAX and
+LIGHTCONE_SNR_MAX (it is also what :func:`auto_snrs` gives when no data SNR is passed).
 
 Output volume [z, y, x]: depth bin k spans [k, k+1) * c * dt / 2 behind the scan plane
 (the slab's hidden face), x and y the scan-cell centres, x increasing with the column
@@ -34,9 +39,14 @@ from .fk import FKMigration
 from .io import Capture
 from .iterative import IterativeInversion
 from .lct import LCT
+from .gcv import GcvBins
 from .noise import (
     ARRIVAL_SIGMAS,
+    LIGHTCONE_SNR_MAX,
+    LIGHTCONE_SNR_MIN,
     MEASURED_MODEL_SNR,
+    SNR_MAX,
+    SNR_MIN,
     NoiseEstimate,
     combined_snr,
     estimate_noise,
@@ -162,13 +172,21 @@ def model_snr_for(capture: Capture, config: ReconstructionConfig) -> float:
 
 
 def auto_snrs(noise: NoiseEstimate, config: ReconstructionConfig,
-              model_snr: float = math.inf) -> tuple[float, float]:
+              model_snr: float = math.inf, *, data_snr: float | None = None,
+              data_inversion_snr: float | None = None) -> tuple[float, float]:
     """(deconvolution SNR, light-cone SNR) of a capture: the configured numbers, or for
-    "auto" the rules of :mod:`clnlos.noise` (photon count and model accuracy;
+    "auto" the data's own (``data_snr`` for the slab, combined with ``model_snr``;
+    ``data_inversion_snr`` for the light cone: :mod:`clnlos.gcv`) where given, else the
+    photon rule of :mod:`clnlos.noise` (photon count and model accuracy;
     :func:`lightcone_snr`)."""
-    snr = (combined_snr(noise.snr, model_snr) if config.snr == "auto"
-           else float(config.snr))
-    inv = (lightcone_snr(snr) if config.inversion_snr == "auto" else float(config.inversion_snr))
+    if config.snr != "auto":
+        snr = float(config.snr)
+    else:
+        snr = combined_snr(noise.snr if data_snr is None else data_snr, model_snr)
+    if config.inversion_snr != "auto":
+        inv = float(config.inversion_snr)
+    else:
+        inv = lightcone_snr(snr) if data_inversion_snr is None else float(data_inversion_snr)
     return snr, inv
 
 
@@ -212,6 +230,7 @@ class ReconstructionPipeline:
         snr0 = 1.0 if config.snr == "auto" else float(config.snr)  # set per capture if auto
         isnr0 = 1.0 if config.inversion_snr == "auto" else float(config.inversion_snr)
         self.deconv = None
+        self._gcv_slab: GcvBins | None = None  # the slab filter's GCV bins, on first use
         self.scratch = Scratch(self.queue)  # work buffers shared by the stages below
         cache = SpectrumCache.from_env()  # CLNLOS_SPECTRUM_CACHE: spectra kept on disk
         if config.slab is not None:
@@ -244,6 +263,15 @@ class ReconstructionPipeline:
                                              cache=cache, **geo)
         self.stages.append(f"invert:{config.method}")
 
+    def slab_gcv_snr(self, tau: cla.Array) -> float:
+        """The slab Wiener SNR in [SNR_MIN, SNR_MAX] that generalised cross-validation
+        (:mod:`clnlos.gcv`) picks for the preprocessed transient ``tau`` (device, guard
+        bins included): V on the deconvolution's padded grid, padded as it pads."""
+        if self._gcv_slab is None:
+            self._gcv_slab = GcvBins.from_gain(self.deconv.gain_squared(),
+                                               self.deconv.pad_shape[2])
+        return self._gcv_slab.snr(self.deconv.power_spectrum(tau), SNR_MIN, SNR_MAX)
+
     def _timed(self, timings, name, fn, *a, **kw):
         self.queue.finish()
         t0 = time.perf_counter()
@@ -269,24 +297,33 @@ class ReconstructionPipeline:
         k0, k1 = self.raw_window
         noise = estimate_noise(np.asarray(transient)[k0:k1], self.raw_bin_width_s,
                                self.raw_start_s + k0 * self.raw_bin_width_s)
-        snr, inv_snr = auto_snrs(noise, self.config, model_snr)
         norm = self.config.normalize
         if norm != "none":
             s = peak if norm == "max" else total
             if s > 0:
                 self._rk.scale_inplace(self.queue, (round_up(tau.size, 256),), None, tau.data,
                                        self.dtype.type(1.0 / s), np.int64(tau.size))
+        data_snr = None
+        if self.deconv is not None and self.config.snr == "auto" and not noise.noise_free:
+            data_snr = self._timed(timings, "choose_snr", self.slab_gcv_snr, tau)
+        snr, inv_snr = auto_snrs(noise, self.config, model_snr, data_snr=data_snr)
         params = self.config.as_attrs()
         notes: list[str] = []
         if self.deconv is not None:
             deconv = self._deconvolution_for(profile, noise, snr, params, notes)
             deconv.set_snr(snr)
             params["snr_used"] = snr
+            if data_snr is not None:
+                params["snr_data"] = data_snr  # cross-validation's, before the model's share
             params["model_snr_used"] = model_snr
             tau = self._timed(timings, "deconvolve", deconv, tau)
         if self.n_guard:
             tau = tau[:self.shape[0]]  # the guard bins dropped: a view of the leading rows
         method = self.config.method
+        if method != "fk" and self.config.inversion_snr == "auto" and not noise.noise_free:
+            lct = self.invert if method == "lct" else self.invert.warm
+            inv_snr = self._timed(timings, "choose_inversion_snr", lct.gcv_snr, tau,
+                                  LIGHTCONE_SNR_MIN, LIGHTCONE_SNR_MAX)
         solve = None
         if method == "lct":
             self.invert.set_snr(inv_snr)

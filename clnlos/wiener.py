@@ -175,7 +175,9 @@ class SpectralFilter(LinearOperator):
             raise ParameterError("snr", snr, "> 0 and finite")
         self.inv_snr = 1.0 / float(snr)
 
-    def _filter(self, x_g: cla.Array, adjoint: bool) -> cla.Array:
+    def _padder(self, x_g: cla.Array, adjoint: bool = False):
+        """(write_input, nonzero, zeroed) of :meth:`filter_padded` for ``x_g``: the mirror
+        extension (forward filter with ``lateral_pad="mirror"``) or zero padding."""
         n0, n1, n2 = self.in_shape
         if self.lateral_pad == "mirror" and not adjoint:
             p0, p1, p2 = self.pad_shape
@@ -184,10 +186,42 @@ class SpectralFilter(LinearOperator):
                 self._rk.pad_mirror_xy(self.queue, (round_up(p2, 8), round_up(p1, 8), p0),
                                        None, x_g.data, buf.data, kernel_int(n0),
                                        kernel_int(n1), kernel_int(n2), kernel_int(p0))
-            return self.filter_padded(write, self._pad._adjoint, adjoint=False,
-                                      nonzero=(n0, p1, p2), zeroed=False)
-        return self.filter_padded(lambda buf: self._pad.apply_into(x_g, buf),
-                                  self._pad._adjoint, adjoint=adjoint)
+            return write, (n0, p1, p2), False
+        return (lambda buf: self._pad.apply_into(x_g, buf)), None, True
+
+    def _filter(self, x_g: cla.Array, adjoint: bool) -> cla.Array:
+        write, nonzero, zeroed = self._padder(x_g, adjoint)
+        return self.filter_padded(write, self._pad._adjoint, adjoint=adjoint, nonzero=nonzero,
+                                  zeroed=zeroed)
+
+    def gain_squared(self) -> np.ndarray:
+        """|h_scale H|^2 on the (n0, n1, n2h) half-spectrum grid, unfolded (host, float64):
+        the squared gain of the filter's PSF at every frequency of :meth:`power_spectrum`."""
+        h = self.H.get()
+        g = (h.real.astype(np.float64) ** 2 + h.imag.astype(np.float64) ** 2) * self.h_scale**2
+        if not self.folded:
+            return g
+        n0, n1 = self.fft.spec_shape[:2]
+        w, ky = np.arange(n0), np.arange(n1)
+        return g[np.minimum(w, n0 - w)][:, np.minimum(ky, n1 - ky)]
+
+    def power_spectrum(self, x_g: cla.Array | None = None, *, write_input=None,
+                       nonzero=None) -> np.ndarray:
+        """|F[pad(x)]|^2 on the half-spectrum grid (host, float32): the power spectrum of
+        the input as this filter pads it (``x_g``), or as ``write_input(buf)`` writes it
+        into the zeroed padded grid (data in its low-corner ``nonzero`` block)."""
+        zeroed = True
+        if write_input is None:
+            write_input, nonzero, zeroed = self._padder(x_g)
+        buf = self._buf
+        if zeroed:
+            fill_zero(self.queue, buf)
+        write_input(buf)
+        spec = self.fft.forward(buf, self.scratch.array("b", self.fft.spec_shape,
+                                                        self.fft.cdtype),
+                                nonzero=self.in_shape if nonzero is None else nonzero)
+        s = spec.get()
+        return (s.real * s.real + s.imag * s.imag).astype(np.float32, copy=False)
 
     def filter_padded(self, write_input, read_output, *, adjoint: bool = False,
                       nonzero=None, zeroed: bool = True):

@@ -23,6 +23,7 @@ from ..runtime import get_queue
 from .harness import ROW_KEYS, Bench, print_table  # noqa: F401 (ROW_KEYS: row schema)
 from .report import recommendations, write_html
 from .sections import (
+    bench_auto_params,
     bench_brdf,
     bench_diffusion,
     bench_end_to_end,
@@ -35,7 +36,8 @@ from .sections import (
 
 SECTIONS = {"diffusion": bench_diffusion, "lightcone": bench_lightcone, "brdf": bench_brdf,
             "forward": bench_model_level, "reconstruction": bench_reconstruction,
-            "iterative": bench_iterative, "end_to_end": bench_end_to_end}
+            "iterative": bench_iterative, "end_to_end": bench_end_to_end,
+            "auto_params": bench_auto_params}
 
 
 def sections_of(only: str) -> list[str]:

@@ -370,3 +370,29 @@ def bench_iterative(b: Bench):
                   error_kind="1 - IoU", iou=iou, depth_error_m=abs(depth - 0.5),
                   mip_rel_l2=_rel(mip, cover), iterations=k or 0,
                   grid=f"{points}x{points}x{rec.volume.shape[0]}")
+
+
+def bench_auto_params(b: Bench):
+    """The "auto" SNRs against the oracle grid (:mod:`clnlos.bench.oracle`): per capture and
+    method the time of the auto reconstruction, error = max(0, oracle IoU - auto IoU)
+    (extra fields: the IoUs of auto, the oracle and the photon rule, the SNRs chosen)."""
+    from dataclasses import replace
+
+    from ..bench.oracle import ORACLE_CASES, compare_method, simulate_case
+    from ..config import ReconstructionConfig
+    from ..reconstruct import reconstruct
+
+    small = (replace(ORACLE_CASES[3], points=16, bins=128, bin_width_s=64e-12),)
+    cases = {"tiny": small, "quick": small, "full": ORACLE_CASES}[b.size]
+    iterations = {"tiny": 20, "quick": 50, "full": None}[b.size]
+    for case in cases:
+        cap, mask = simulate_case(case, b.q)
+        for method in ("iterative", "lct", "fk"):
+            row = compare_method(cap, mask, method, iterations=iterations, queue=b.q)
+            cfg = ReconstructionConfig(slab=cap.recorded_slab()[0], method=method,
+                                       **({} if iterations is None else
+                                          {"iterations": iterations})).validate()
+            b.add("auto_params", f"gap@{case.name}", method, np.float32,
+                  lambda cfg=cfg, cap=cap: reconstruct(cap, cfg, device=b.q),
+                  max(0.0, row["gap"]), error_kind="oracle IoU - auto IoU",
+                  **{k: v for k, v in row.items() if k != "method"})

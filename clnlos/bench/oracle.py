@@ -1,0 +1,222 @@
+"""The "auto" reconstruction parameters against an oracle that knows the truth.
+
+For simulated captures (Lambertian shapes through the CDT slab, photon noise), each method
+is run with its default "auto" SNRs (:mod:`clnlos.gcv`), with the photon rule the auto SNRs
+replaced (SNR = photons / K_SNR and its square root, :mod:`clnlos.noise`: "today"), and
+with every setting of the grid SLAB_SNRS x INVERSION_SNRS (f-k has no light-cone SNR: the
+slab SNRs alone). The oracle is the best IoU of the grid (Otsu-thresholded MIP against the
+true mask, :func:`clnlos.metrics.mip_iou`); the gap is oracle minus auto. Only the slab
+recorded in the capture is used, as ``clnlos reconstruct`` does with no slab flags.
+
+:func:`oracle_rows` gives one row per capture and method, :func:`exposure_sweep` the auto IoU
+over a range of exposures and noise seeds (auto must not get worse with more photons), and
+:func:`write_rows` writes either as CSV and JSON. ``tools/oracle_params.py`` runs them on
+:data:`ORACLE_CASES` and :data:`SWEEP_EXPOSURES_S`.
+"""
+
+from __future__ import annotations
+
+import csv
+import io
+import json
+from dataclasses import dataclass
+from pathlib import Path
+
+import numpy as np
+
+from ..config import ReconstructionConfig, slab_table
+from ..metrics import mip_iou, truth_mask
+from ..noise import combined_snr, lightcone_snr
+from ..slab import CDT_SLAB
+
+SLAB_SNRS = (1e2, 1e3, 1e4, 1e5)
+INVERSION_SNRS = (1e2, 1e3, 1e4)
+METHODS = ("iterative", "lct", "fk")
+SWEEP_EXPOSURES_S = (0.01, 0.1, 1.0, 10.0)
+MONOTONE_FLOOR = 0.02  # IoU steps below this count as unchanged (2-5 pixels of a 16 x 16 mask)
+
+
+@dataclass(frozen=True)
+class OracleCase:
+    """A simulated capture: ``shape`` "UT" (letters of ``size_m`` height, strokes 0.27 of
+    it), "S" (a letter likewise) or "plus" (bars 0.3 of ``size_m`` wide) at ``depth_m``
+    behind the CDT slab, a ``points`` x ``points`` scan of ``scan_width_m``, ``bins`` bins of
+    ``bin_width_s`` from t = 0, the detector of ``examples/scene_ut_wide_noisy.toml`` with
+    ``exposure_s``; noise ``seed``."""
+
+    name: str
+    shape: str
+    size_m: float
+    depth_m: float
+    scan_width_m: float
+    exposure_s: float
+    seed: int = 0
+    points: int = 32
+    bins: int = 256
+    bin_width_s: float = 32e-12
+
+    def objects(self) -> list[dict]:
+        z = [0.0, 0.0, self.depth_m]
+        if self.shape == "plus":
+            b = 0.3 * self.size_m
+            return [{"shape": "rectangle", "size_m": [self.size_m, b], "translate_m": z},
+                    {"shape": "rectangle", "size_m": [b, self.size_m], "translate_m": z}]
+        return [{"shape": "letters", "text": self.shape, "height_m": self.size_m,
+                 "stroke_m": 0.27 * self.size_m, "translate_m": z}]
+
+    def scene_dict(self) -> dict:
+        return {"seed": self.seed,
+                "scan": {"width_m": self.scan_width_m, "points": self.points},
+                "time": {"bin_width_s": self.bin_width_s, "bins": self.bins, "start_s": 0.0},
+                "objects": self.objects(), "slab": slab_table(CDT_SLAB),
+                "laser": {"pulse_width_s": 35e-12},
+                "sampling": {"density_per_m2": 4e4},
+                "detector": {"power_w": 0.4, "rep_rate_hz": 10e6,
+                             "exposure_s": self.exposure_s, "efficiency": 0.3,
+                             "wavelength_m": 532e-9, "etendue_m2_sr": 1e-9,
+                             "dark_count_rate_hz": 1e3}}
+
+
+# exposures over three decades (5e7 to 6e9 photons), scans 0.3-0.7 m, depths 0.4-0.8 m,
+# three shapes; 256 bins of 32 ps (8.2 ns) end well after the deepest return has decayed
+ORACLE_CASES = (
+    OracleCase("UT 0.15 m, scan 0.3 m, 0.5 m deep, 0.05 s", "UT", 0.15, 0.5, 0.3, 0.05),
+    OracleCase("UT 0.15 m, scan 0.3 m, 0.5 m deep, 0.5 s", "UT", 0.15, 0.5, 0.3, 0.5),
+    OracleCase("UT 0.15 m, scan 0.3 m, 0.5 m deep, 5 s", "UT", 0.15, 0.5, 0.3, 5.0),
+    OracleCase("UT 0.3 m, scan 0.6 m, 0.5 m deep, 0.5 s", "UT", 0.3, 0.5, 0.6, 0.5),
+    OracleCase("plus 0.25 m, scan 0.5 m, 0.7 m deep, 0.5 s", "plus", 0.25, 0.7, 0.5, 0.5),
+    OracleCase("S 0.35 m, scan 0.7 m, 0.4 m deep, 0.05 s", "S", 0.35, 0.4, 0.7, 0.05),
+    OracleCase("UT 0.25 m, scan 0.45 m, 0.8 m deep, 5 s", "UT", 0.25, 0.8, 0.45, 5.0),
+    # examples/scene_ut_wide_noisy.toml (issue 24's "wide UT": 512 bins of 16 ps)
+    OracleCase("UT 0.3 m, scan 0.6 m, 0.5 m deep, 0.5 s, 16 ps", "UT", 0.3, 0.5, 0.6, 0.5,
+               bins=512, bin_width_s=16e-12),
+)
+
+
+def simulate_case(case: OracleCase, queue=None):
+    """(capture, true mask [y, x]) of a case (:class:`clnlos.forward.ForwardModel`)."""
+    from ..forward import ForwardModel
+    from ..scene import Scene
+
+    scene = Scene.from_dict(case.scene_dict())
+    fm = ForwardModel(scene, queue=queue)
+    return fm.capture(), truth_mask(fm.samples.elements, scene.scan_centres())
+
+
+def _run(capture, mask, config: ReconstructionConfig, queue) -> tuple[float, dict]:
+    from ..reconstruct import reconstruct
+
+    rec = reconstruct(capture, config, device=queue)
+    return mip_iou(rec.volume, mask)[0], rec
+
+
+def grid_settings(method: str) -> list[tuple[float, float]]:
+    """The (slab SNR, light-cone SNR) settings the oracle tries (f-k: the slab SNR only)."""
+    inv = INVERSION_SNRS if method != "fk" else INVERSION_SNRS[:1]
+    return [(a, b) for a in SLAB_SNRS for b in inv]
+
+
+def compare_method(capture, mask, method: str, *, iterations: int | None = None,
+                   queue=None) -> dict:
+    """auto, today's photon rule and the oracle grid for one capture and method: a row
+    with the IoUs, the parameters each used, gap = oracle - auto and
+    vs_today = auto - today."""
+    kw = {} if iterations is None else {"iterations": iterations}
+    base = ReconstructionConfig(slab=capture.recorded_slab()[0], method=method, **kw)
+    auto_iou, rec = _run(capture, mask, base.validate(), queue)
+    row = {"method": method, "photons": float(np.sum(capture.transient, dtype=np.float64)),
+           "auto_iou": auto_iou, "auto_snr": rec.params.get("snr_used"),
+           "auto_inversion_snr": rec.params.get("inversion_snr_used")}
+    old = combined_snr(rec.noise["snr"], rec.params.get("model_snr_used", float("inf")))
+    old_inv = lightcone_snr(old)
+    row["today_iou"] = _run(capture, mask, base.replace(snr=old, inversion_snr=old_inv)
+                            .validate(), queue)[0]
+    row["today_snr"], row["today_inversion_snr"] = old, old_inv if method != "fk" else None
+    best = (-1.0, None, None)
+    for a, b in grid_settings(method):
+        v = _run(capture, mask, base.replace(snr=a, inversion_snr=b).validate(), queue)[0]
+        if v > best[0]:
+            best = (v, a, b)
+    row["oracle_iou"], row["oracle_snr"] = best[0], best[1]
+    row["oracle_inversion_snr"] = best[2] if method != "fk" else None
+    row["gap"] = row["oracle_iou"] - auto_iou
+    row["vs_today"] = auto_iou - row["today_iou"]
+    return row
+
+
+def oracle_rows(cases=ORACLE_CASES, methods=METHODS, *, iterations: int | None = None,
+                queue=None, progress=print) -> list[dict]:
+    """One row per case and method (:func:`compare_method`), with the case's fields."""
+    rows = []
+    for case in cases:
+        capture, mask = simulate_case(case, queue)
+        for m in methods:
+            row = {"capture": case.name, **compare_method(capture, mask, m,
+                                                          iterations=iterations,
+                                                          queue=queue)}
+            rows.append(row)
+            if progress:
+                progress(f"{case.name} [{m}]: auto {row['auto_iou']:.3f}, oracle "
+                         f"{row['oracle_iou']:.3f}, today {row['today_iou']:.3f}")
+    return rows
+
+
+def exposure_sweep(case: OracleCase, exposures=SWEEP_EXPOSURES_S, seeds=(0, 1, 2),
+                   methods=METHODS, *, iterations: int | None = None, queue=None
+                   ) -> list[dict]:
+    """auto IoU of each method for ``case`` at each exposure and noise seed: rows of
+    (method, exposure_s, photons, seed, auto_iou, auto SNRs)."""
+    from dataclasses import replace
+
+    rows = []
+    kw = {} if iterations is None else {"iterations": iterations}
+    for e in exposures:
+        for s in seeds:
+            capture, mask = simulate_case(replace(case, exposure_s=e, seed=s), queue)
+            for m in methods:
+                cfg = ReconstructionConfig(slab=capture.recorded_slab()[0], method=m,
+                                           **kw).validate()
+                v, rec = _run(capture, mask, cfg, queue)
+                rows.append({"method": m, "exposure_s": e, "seed": s,
+                             "photons": float(np.sum(capture.transient, dtype=np.float64)),
+                             "auto_iou": v, "auto_snr": rec.params.get("snr_used"),
+                             "auto_inversion_snr": rec.params.get("inversion_snr_used")})
+    return rows
+
+
+def sweep_summary(rows: list[dict]) -> list[dict]:
+    """Per method and exposure: mean and spread (max - min) of the auto IoU over seeds, the
+    drop of the mean below the best mean at a smaller exposure, and ``monotone``: that drop
+    within the larger spread of the two exposures (the noise seeds' own variation), or
+    below MONOTONE_FLOOR."""
+    out = []
+    for m in dict.fromkeys(r["method"] for r in rows):
+        best, best_spread = -np.inf, 0.0
+        for e in sorted({r["exposure_s"] for r in rows if r["method"] == m}):
+            v = [r["auto_iou"] for r in rows if r["method"] == m and r["exposure_s"] == e]
+            mean, spread = float(np.mean(v)), float(np.max(v) - np.min(v))
+            drop = max(0.0, best - mean)
+            out.append({"method": m, "exposure_s": e, "mean_iou": mean, "spread": spread,
+                        "drop": drop,
+                        "monotone": drop <= max(spread, best_spread, MONOTONE_FLOOR)})
+            if mean > best:
+                best, best_spread = mean, spread
+    return out
+
+
+def write_rows(rows: list[dict], stem) -> tuple[Path, Path]:
+    """``stem``.csv and ``stem``.json, written atomically (:func:`clnlos.io.atomic_path`)."""
+    from ..io import atomic_path
+
+    stem = Path(stem)
+    stem.parent.mkdir(parents=True, exist_ok=True)
+    keys = list(dict.fromkeys(k for r in rows for k in r))
+    buf = io.StringIO()
+    w = csv.DictWriter(buf, fieldnames=keys)
+    w.writeheader()
+    w.writerows(rows)
+    paths = stem.with_suffix(".csv"), stem.with_suffix(".json")
+    for path, text in zip(paths, (buf.getvalue(), json.dumps(rows, indent=1)), strict=True):
+        with atomic_path(path) as tmp:
+            Path(tmp).write_text(text, encoding="utf-8")
+    return paths
