@@ -44,7 +44,8 @@ WINDOW_S = (-0.25e-9, 35e-9)  # fitted span of s (time since entry), s
 PUBLISHED = CDT_SLAB  # mu_a 0.53 1/m, mu_s' 262 1/m, n 1.12 (the authors' joint fit)
 START_MU_S_PRIME = 150.0  # 1/m, the authors' initial guess
 START_MU_A = 0.1  # 1/m
-N_GRID = tuple(round(1.0 + 0.04 * k, 2) for k in range(11))  # 1.00 ... 1.40, n profile
+N_GRID = tuple(round(1.0 + 0.04 * k, 2) for k in range(16))  # 1.00 ... 1.60, n profile
+T0_BOUND_S = 2e-9  # |t0| limit of the fits (the thick captures need up to ~0.5 ns)
 # Departure measures: the rise is where the data climb from RISE_FROM to the peak, the tail
 # where they fall below TAIL_BELOW of it (down to TAIL_FLOOR, above the dark noise).
 RISE_FROM, TAIL_BELOW, TAIL_FLOOR = 0.05, 0.1, 0.003
@@ -204,7 +205,7 @@ def fit_slab(meas: list[Measurement], irf: ImpulseResponse, *, n: float = PUBLIS
     (held at the given values when ``fit_mu`` is False), one t0 per capture, n fixed.
 
     Starts at the given mu_s', mu_a and t0 = 0; bounds mu_s' in [10, 1e4] 1/m, mu_a in
-    [0, 50] 1/m, t0 within +-0.5 ns. The residual per capture is ||A m - y|| / ||y||.
+    [0, 50] 1/m, |t0| <= T0_BOUND_S. The residual per capture is ||A m - y|| / ||y||.
     """
     from scipy.optimize import least_squares
     from scipy.sparse import lil_matrix
@@ -231,8 +232,8 @@ def fit_slab(meas: list[Measurement], irf: ImpulseResponse, *, n: float = PUBLIS
         sparsity[offs[i]:offs[i + 1], :n_mu] = 1
         sparsity[offs[i]:offs[i + 1], n_mu + i] = 1
     x0 = np.array(([mu_s_prime / 100.0, mu_a] if fit_mu else []) + [0.0] * k)
-    lo = np.array(([0.1, 0.0] if fit_mu else []) + [-0.5] * k)
-    hi = np.array(([100.0, 50.0] if fit_mu else []) + [0.5] * k)
+    lo = np.array(([0.1, 0.0] if fit_mu else []) + [-T0_BOUND_S * 1e9] * k)
+    hi = np.array(([100.0, 50.0] if fit_mu else []) + [T0_BOUND_S * 1e9] * k)
     sol = least_squares(res, x0, bounds=(lo, hi), diff_step=1e-4,
                         jac_sparsity=sparsity if k > 1 else None,
                         x_scale=np.array(([1.0, 0.5] if fit_mu else []) + [0.05] * k),
