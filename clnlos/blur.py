@@ -24,6 +24,7 @@ import scipy.fft as sfft
 from .diffusion import (SUPPORT_TOL, SlabTransmittance, bin_time_nodes, diffusion_psf,
                         lateral_integral_profile, support_of)
 from .grid import grid_offsets
+from .errors import ParameterError
 from .slab import Slab
 from .fft import COMPLEX_OF, RealFFT3
 from .runtime import (
@@ -205,6 +206,64 @@ def confocal_psf(slab: Slab, shape: tuple[int, int, int], *, bin_width_s: float,
                           int(shape[0]))
 
 
+KERNELS = ("cdt", "eq8")  # hidden-face kernels: CDT's Phi * Phi, the far-target Eq. 8 one
+
+
+def eq8_psf(slab: Slab, shape: tuple[int, int, int], *, bin_width_s: float, pitch_m: float,
+            n_dipoles: int | None = None, periodic_xy: bool = False, dtype=np.float32,
+            queue=None) -> np.ndarray:
+    """The hidden-face kernel K that Eq. 8 gives for a target far from the face, on the grid
+    and in the conventions of :func:`confocal_psf` (host array, shape of the padded grid).
+
+    Eq. 8: tau(r0, t) = sum_{r1, r2} Phi(r1 - r0) (x)_t Phi(r2 - r0) (x)_t I(r1, r2, t). For a
+    target at z >> |r1 - r2| (a few cm), |x - r1| + |x - r2| = 2 |x - m| + O(|r1 - r2|^2 / z)
+    with m = (r1 + r2) / 2, and the cosines and distances are those of the confocal point
+    m: I(r1, r2, t) = I_c(m, t). With r1 = m + delta / 2, r2 = m - delta / 2 (unit Jacobian)
+
+        tau(r0, t) = sum_m K(m - r0, t) (x)_t I_c(m, t),
+        K(u, t) = int d^2 delta Phi(u + delta / 2) (x)_t Phi(u - delta / 2)
+                = 4 (Phi * Phi)(2 u, t)
+
+    -- in space the product of the two legs at the two face points (integrated over their
+    separation), in time their convolution. CDT's Phi * Phi instead puts the confocal point
+    at r1 + r2 - r0. Phi(rho, t) = T(0, t) exp(-rho^2 / (4 D v t)), and in the time
+    convolution the two legs' Gaussian widths add up to that of the total lag (4 D v t1 +
+    4 D v t2 = 4 D v t), so (Phi * Phi)(u, t) = P2(t) exp(-u^2 / (4 D v t)) / (4 pi D v t)
+    with P2 the laterally integrated P * P, and
+
+        K(u, t) = P2(t) exp(-u^2 / (D v t)) / (pi D v t):
+
+    the same energy per lag as CDT's kernel, half its lateral width (standard deviation
+    sqrt(D v t / 2) per axis against sqrt(2 D v t)). Built here as the lateral sum of
+    :func:`confocal_psf` per lag (the exact P2 on this grid, bin-averaged as it is) times
+    the cell-averaged Gaussian of that width at the lag's centre k dt, normalised to unit
+    lateral sum (a narrow kernel keeps its energy when it is narrower than a cell).
+    """
+    from scipy.special import erf
+
+    phi2 = confocal_psf(slab, shape, bin_width_s=bin_width_s, pitch_m=pitch_m,
+                        n_dipoles=n_dipoles, periodic_xy=periodic_xy, dtype=dtype,
+                        queue=queue).get().astype(np.float64)
+    energy = phi2.sum(axis=(1, 2))
+    b = slab.D * slab.v * np.arange(phi2.shape[0]) * float(bin_width_s)  # D v t, m^2
+
+    def cells(n: int) -> np.ndarray:
+        off = grid_offsets(n, pitch_m)[None, :]
+        sb = np.sqrt(np.maximum(b, 1e-300))[:, None]
+        g = erf((off + pitch_m / 2) / sb) - erf((off - pitch_m / 2) / sb)
+        return g / g.sum(axis=1, keepdims=True)
+
+    gy, gx = cells(phi2.shape[1]), cells(phi2.shape[2])
+    return (energy[:, None, None] * gy[:, :, None] * gx[:, None, :]).astype(phi2.dtype)
+
+
+def check_kernel(kernel: str) -> str:
+    """The hidden-face kernel name, checked against KERNELS."""
+    if kernel not in KERNELS:
+        raise ParameterError("kernel", kernel, " or ".join(repr(k) for k in KERNELS))
+    return kernel
+
+
 def lateral_reach_m(slab: Slab, *, window_s: float, pitch_m: float, tol: float = 1e-3,
                     n_dipoles: int | None = None, queue=None) -> float:
     """Radius R (m) outside which the confocal blur holds less than ``tol`` of its energy.
@@ -239,15 +298,22 @@ def lateral_reach_m(slab: Slab, *, window_s: float, pitch_m: float, tol: float =
 def slab_blur(slab: Slab, shape, *, bin_width_s: float, pitch_m: float, mode: str = "convolve",
               snr: float | None = None, n_dipoles: int | None = None,
               lateral_pad: str = "zero", periodic_xy: bool = False, dtype=np.float32,
-              queue=None, scratch=None, cache=None) -> SpectralFilter:
+              queue=None, scratch=None, cache=None, kernel: str = "cdt") -> SpectralFilter:
     """The confocal blur as an operator on transients of ``shape`` [t, y, x].
 
     ``mode="convolve"``: the forward model tau = (Phi * Phi) * I in physical units (the DC
     gain is the squared slab transmittance). ``mode="wiener"``: the deconvolution
     conj(H)/(|H|^2 + 1/SNR) with H normalised to unit DC gain. ``scratch``: work buffers
     shared with a plan's other stages (:class:`clnlos.runtime.Scratch`); ``cache``: an
-    on-disk :class:`clnlos.spectrum_cache.SpectrumCache` for the spectrum.
+    on-disk :class:`clnlos.spectrum_cache.SpectrumCache` for the spectrum. ``kernel``:
+    ``"cdt"`` (Phi * Phi, :func:`confocal_psf`) or ``"eq8"`` (:func:`eq8_psf`, not cached).
     """
+    if check_kernel(kernel) == "eq8":
+        psf = eq8_psf(slab, shape, bin_width_s=bin_width_s, pitch_m=pitch_m,
+                      n_dipoles=n_dipoles, periodic_xy=periodic_xy, dtype=dtype, queue=queue)
+        return SpectralFilter(psf, shape, mode=mode, snr=snr, normalize=(mode == "wiener"),
+                              lateral_pad=lateral_pad, dtype=dtype, queue=queue,
+                              scratch=scratch)
     spec, folded = confocal_spectrum(slab, shape, bin_width_s=bin_width_s, pitch_m=pitch_m,
                                      n_dipoles=n_dipoles, periodic_xy=periodic_xy,
                                      dtype=dtype, queue=queue, cache=cache)
