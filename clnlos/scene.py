@@ -42,6 +42,17 @@ Every error names the field, its value and the allowed range; numbers must be TO
     splat_order = 1         # 0: nearest bin, 1: linear between bin centres
     blur_reach_tol = 1e-3   # with a slab: I is computed past the scan border as far as the
                             # blur carries more than this fraction of its energy
+    [transport]             # how light crosses the slab and meets the target (clnlos.bistatic)
+    model = "confocal"      # "confocal": seed Eq. 9, tau = (Phi * Phi) * I, I read at r1 = r2
+                            # (the retro slice f(w, w)); "bistatic": Eq. 8 in full (light leaves
+                            # the face at r1, returns at r2, full BRDF f(w1, w2); needs a [slab]);
+                            # "auto": bistatic where a material's lobe is narrower than the
+                            # angular spread of the slab's footprint seen from the target
+                            # (clnlos.bistatic.auto_choice), else confocal
+    face_rings = 4          # bistatic: annuli of equal slab energy on the face
+    face_angles = 8         # bistatic: samples per annulus (cost ~ (rings x angles)^2)
+    texture_theta = 64      # bistatic: BRDF texture nodes over theta_i, theta_s in [0, 90] deg
+    texture_dphi = 64       # bistatic: ... over delta_phi in [0, 180] deg
 
 Materials (``material``, case-insensitive): "lambertian"; the analytic presets "matte-dark",
 "glossy-paint", "brushed-metal", "mirror-like"; the ten measured-data presets of the seed
@@ -62,6 +73,7 @@ from pathlib import Path
 
 import numpy as np
 
+from .bistatic import TransportSettings
 from .checks import choice, integer, positive
 from .brdf.data import TEXT_ENCODING
 from .config import check_keys, load_toml, slab_from_table
@@ -132,6 +144,7 @@ class Scene:
     blur_reach_tol: float = 1e-3
     base_dir: Path = field(default_factory=Path.cwd)
     text: str = ""
+    transport: TransportSettings = field(default_factory=TransportSettings)
 
     @property
     def pitch_m(self) -> float:
@@ -149,7 +162,7 @@ class Scene:
     @classmethod
     def from_dict(cls, d: dict, *, base_dir: Path | None = None, text: str = "") -> Scene:
         check_keys("", d, {"scan", "time", "objects", "slab", "laser", "detector", "sampling",
-                           "seed"})
+                           "seed", "transport"})
         for sec in ("scan", "time", "objects"):
             if sec not in d:
                 raise ParameterError(sec, None, "a required section")
@@ -190,9 +203,14 @@ class Scene:
         reach_tol = positive("sampling.blur_reach_tol", smp.get("blur_reach_tol", 1e-3),
                              upper=1.0)
         seed = integer("seed", d.get("seed", 0), 0, 2**63 - 1)
+        transport = TransportSettings.from_table(d.get("transport", {}))
+        if transport.model == "bistatic" and slab is None:
+            raise ParameterError("transport.model", "bistatic", "'confocal' or 'auto' without "
+                                 "a [slab] (Eq. 8 needs the slab's face; without one r1 = r2 "
+                                 "and it is the confocal model)")
         return cls(width, points, bw, bins, float(start), objects, slab, nd, pulse, det, dens,
                    splat, seed, blur_reach_tol=reach_tol, base_dir=base_dir or Path.cwd(),
-                   text=text)
+                   text=text, transport=transport)
 
 
 def _object(i: int, o: dict) -> SceneObject:
