@@ -330,3 +330,21 @@ def test_bistatic_needs_a_slab_and_a_full_brdf(tmp_path):
     rc, err = _run(["simulate", str(tmp_path / "b.toml"), "-o", str(tmp_path / "b.h5")])
     assert rc == 2 and "brdf_retro_csv" in err and err.count("\n") == 1, err
     assert not (tmp_path / "b.h5").exists()
+
+
+# ------------------------------------------------------------------ bench rows (item 4)
+def test_bench_rows_for_the_bistatic_stage(queue):
+    from clnlos.bench.harness import Bench
+    from clnlos.bench.sections import bench_bistatic
+
+    b = Bench(queue, "tiny")
+    bench_bistatic(b)
+    rows = {(r["knob"], r["value"]): r for r in b.rows if r["kernel"] == "bistatic"}
+    assert {("face_samples", "1x1"), ("face_samples", "2x4"), ("texture", 16),
+            ("texture", 32), ("transport", "confocal (Eq. 9)")} <= set(rows)
+    assert rows[("face_samples", "2x4")]["error"] < 0.1 * rows[("face_samples", "1x1")]["error"]
+    assert rows[("texture", 32)]["error"] < rows[("texture", 16)]["error"]
+    # the confocal approximation is further from Eq. 8 than the coarse quadratures
+    assert rows[("transport", "confocal (Eq. 9)")]["error"] > 10 * rows[
+        ("face_samples", "2x4")]["error"]
+    assert all(r["median_s"] > 0 and r["pairs"] >= 1 for r in rows.values())
