@@ -41,7 +41,7 @@ import numpy as np
 import pyopencl as cl
 import pyopencl.array as cla
 
-from .checks import choice, integer
+from .checks import integer
 from .diffusion import SlabTransmittance, bin_time_nodes, support_of
 from .errors import ParameterError
 from .runtime import (
@@ -56,14 +56,17 @@ from .runtime import (
     round_up,
     zeros,
 )
+from .scene import (  # noqa: F401 (the [transport] table: defaults and limits live there)
+    FACE_ANGLES,
+    FACE_RINGS,
+    MAX_FACE_ANGLES,
+    MAX_FACE_RINGS,
+    TEXTURE_DPHI,
+    TEXTURE_THETA,
+    TRANSPORT_MODELS,
+    TransportSettings,
+)
 
-TRANSPORT_MODELS = ("confocal", "bistatic", "auto")
-FACE_RINGS = 4        # annuli of the face quadrature (default)
-FACE_ANGLES = 8       # samples per annulus (default); compiled in (private arrays)
-MAX_FACE_ANGLES = 32
-MAX_FACE_RINGS = 16
-TEXTURE_THETA = 64    # BRDF texture nodes over theta_i and theta_s in [0, pi/2] (default)
-TEXTURE_DPHI = 64     # ... over delta_phi in [0, pi]
 HIST_BYTES = 64 << 20  # class histograms per chunk of scan points
 MAX_SLICES = 16       # element slices per scan point on GPUs (more work-items)
 # "auto": bistatic where the lobe (half width at half maximum in the outgoing direction)
@@ -75,35 +78,6 @@ MAX_SLICES = 16       # element slices per scan point on GPUs (more work-items)
 # materials; 4 x 4.08 = 16.3 deg separates them.
 AUTO_FACTOR = 4.0
 LOBE_CONTRAST = 2.0   # a retro slice whose peak is under this x its floor has no lobe
-
-
-@dataclass(frozen=True)
-class TransportSettings:
-    """The scene's ``[transport]`` table (defaults: this module's constants)."""
-
-    model: str = "confocal"
-    face_rings: int = FACE_RINGS
-    face_angles: int = FACE_ANGLES
-    texture_theta: int = TEXTURE_THETA
-    texture_dphi: int = TEXTURE_DPHI
-
-    @classmethod
-    def from_table(cls, t: dict) -> TransportSettings:
-        from .config import check_keys
-
-        if not isinstance(t, dict):
-            raise ParameterError("transport", t, "a table")
-        check_keys("transport", t, set(cls.__dataclass_fields__))
-        return cls(
-            model=choice("transport.model", t.get("model", "confocal"), TRANSPORT_MODELS),
-            face_rings=integer("transport.face_rings", t.get("face_rings", FACE_RINGS), 1,
-                               MAX_FACE_RINGS),
-            face_angles=integer("transport.face_angles", t.get("face_angles", FACE_ANGLES),
-                                1, MAX_FACE_ANGLES),
-            texture_theta=integer("transport.texture_theta",
-                                  t.get("texture_theta", TEXTURE_THETA), 2, 1024),
-            texture_dphi=integer("transport.texture_dphi", t.get("texture_dphi", TEXTURE_DPHI),
-                                 2, 1024))
 
 
 # ------------------------------------------------------------------ face quadrature

@@ -73,7 +73,6 @@ from pathlib import Path
 
 import numpy as np
 
-from .bistatic import TransportSettings
 from .checks import choice, integer, positive
 from .brdf.data import TEXT_ENCODING
 from .config import check_keys, load_toml, slab_from_table
@@ -81,6 +80,42 @@ from .slab import Slab
 from .errors import InputFileError, ParameterError
 
 SHAPES = ("letters", "rectangle", "sphere", "mesh")
+
+# [transport] (clnlos.bistatic): models, defaults and limits of the bistatic quadrature
+TRANSPORT_MODELS = ("confocal", "bistatic", "auto")
+FACE_RINGS = 4        # annuli of the face quadrature (default)
+FACE_ANGLES = 8       # samples per annulus (default); compiled in (private arrays)
+MAX_FACE_ANGLES = 32
+MAX_FACE_RINGS = 16
+TEXTURE_THETA = 64    # BRDF texture nodes over theta_i and theta_s in [0, pi/2] (default)
+TEXTURE_DPHI = 64     # ... over delta_phi in [0, pi]
+
+
+@dataclass(frozen=True)
+class TransportSettings:
+    """The scene's ``[transport]`` table (defaults: this module's constants)."""
+
+    model: str = "confocal"
+    face_rings: int = FACE_RINGS
+    face_angles: int = FACE_ANGLES
+    texture_theta: int = TEXTURE_THETA
+    texture_dphi: int = TEXTURE_DPHI
+
+    @classmethod
+    def from_table(cls, t: dict) -> TransportSettings:
+        if not isinstance(t, dict):
+            raise ParameterError("transport", t, "a table")
+        check_keys("transport", t, set(cls.__dataclass_fields__))
+        return cls(
+            model=choice("transport.model", t.get("model", "confocal"), TRANSPORT_MODELS),
+            face_rings=integer("transport.face_rings", t.get("face_rings", FACE_RINGS), 1,
+                               MAX_FACE_RINGS),
+            face_angles=integer("transport.face_angles", t.get("face_angles", FACE_ANGLES),
+                                1, MAX_FACE_ANGLES),
+            texture_theta=integer("transport.texture_theta",
+                                  t.get("texture_theta", TEXTURE_THETA), 2, 1024),
+            texture_dphi=integer("transport.texture_dphi", t.get("texture_dphi", TEXTURE_DPHI),
+                                 2, 1024))
 
 
 def _vec3(name, v) -> tuple[float, float, float]:
