@@ -39,8 +39,7 @@ from clnlos.slab import CDT_SLAB
 BINS, DT = 128, 32e-12
 DEPTH, TILT = 0.35, 5.0
 GGX = {"kd": 0.0, "ks": 1.0, "alpha": 0.1, "f0": 0.9}
-# the mirror direction of the tilted patch's centre meets the face at x = 0 (scan column 2)
-MIRROR_SHIFT_M = DEPTH * np.tan(np.radians(TILT))
+# patches are shifted so that the mirror direction of their centre meets the face at x = 0
 SCAN_XY = [(0.0, 0.0), (0.03, 0.0), (0.06, 0.0)]  # on the mirror point, 3 and 6 cm off
 COLUMNS = [2, 3, 4]
 TOL_TOTAL, TOL_SHAPE = 0.03, 0.04
@@ -78,7 +77,7 @@ def ggx_pairs(n, w, kd, ks, alpha, f0):
         4 * c[:, :, None] * c[:, None, :])
 
 
-def reference_tau(slab, el, albedo, brdf, scan_xy, *, face_pitch_m=0.0133,
+def reference_tau(slab, el, albedo, brdf, scan_xy, *, bins=BINS, dt=DT, face_pitch_m=0.0133,
                   face_half_m=0.08, fine=4, f_max_hz=6e9):
     """Eq. 8 by direct sums over a regular face grid, float64: tau [scan point, bin].
 
@@ -89,16 +88,16 @@ def reference_tau(slab, el, albedo, brdf, scan_xy, *, face_pitch_m=0.0133,
     u = (np.arange(int(round(2 * face_half_m / h))) + 0.5) * h - face_half_m
     ox, oy = np.meshgrid(u, u, indexing="ij")
     off = np.column_stack([ox.ravel(), oy.ravel()])
-    period = 2 * BINS * DT
-    tf = (np.arange(2 * BINS * fine) + 0.5) * (DT / fine)
+    period = 2 * bins * dt
+    tf = (np.arange(2 * bins * fine) + 0.5) * (dt / fine)
     omega = 2 * np.pi * np.arange(int(f_max_hz * period) + 1) / period
-    phi_hat = (h * h * DT / fine) * dipole_t(slab, np.hypot(*off.T)[:, None], tf[None]) @ \
+    phi_hat = (h * h * dt / fine) * dipole_t(slab, np.hypot(*off.T)[:, None], tf[None]) @ \
         np.exp(-1j * np.outer(tf, omega))
-    tc = (np.arange(BINS) + 0.5) * DT
-    basis = np.exp(1j * np.outer(omega, tc)) * (DT / period) * np.sinc(omega * DT / 2 / np.pi)[
+    tc = (np.arange(bins) + 0.5) * dt
+    basis = np.exp(1j * np.outer(omega, tc)) * (dt / period) * np.sinc(omega * dt / 2 / np.pi)[
         :, None]
     basis[1:] *= 2
-    out = np.zeros((len(scan_xy), BINS))
+    out = np.zeros((len(scan_xy), bins))
     for s, (sx, sy) in enumerate(scan_xy):
         face = np.column_stack([sx + off[:, 0], sy + off[:, 1], np.zeros(len(off))])
         dvec = face[None] - el.pos[:, None]
@@ -115,11 +114,13 @@ def reference_tau(slab, el, albedo, brdf, scan_xy, *, face_pitch_m=0.0133,
     return out
 
 
-def patch_scene(material, *, transport=None, points=5, width=0.15, **extra):
+def patch_scene(material, *, transport=None, points=5, width=0.15, depth=DEPTH, size=0.04,
+                bins=BINS, dt=DT, **extra):
+    shift = depth * np.tan(np.radians(TILT))
     d = {"scan": {"width_m": width, "points": points},
-         "time": {"bin_width_s": DT, "bins": BINS},
-         "objects": [{"shape": "rectangle", "size_m": [0.04, 0.04],
-                      "translate_m": [MIRROR_SHIFT_M, 0.0, DEPTH], "rotate_deg": [0, TILT, 0],
+         "time": {"bin_width_s": dt, "bins": bins},
+         "objects": [{"shape": "rectangle", "size_m": [size, size],
+                      "translate_m": [shift, 0.0, depth], "rotate_deg": [0, TILT, 0],
                       "material": material}],
          "slab": slab_table(CDT_SLAB), "sampling": {"density_per_m2": 1.6e4}, **extra}
     if transport is not None:
@@ -150,9 +151,13 @@ def _bistatic(scene, smp, queue, dtype=np.float32):
 
 
 def test_bistatic_ggx_patch_matches_float64_quadrature(ggx_case, queue, dtype):
-    """Tilted GGX patch (alpha 0.1, F0 0.9), scan points on and off the mirror direction."""
+    """Tilted GGX patch (alpha 0.1, F0 0.9), scan points on and off the mirror direction:
+    the forward model of ``clnlos simulate`` with model = "bistatic"."""
     scene, smp, ref = ggx_case
-    tau = _bistatic(scene, smp, queue, dtype)
+    bist = patch_scene({"model": "microfacet", **GGX}, transport={"model": "bistatic"})
+    fm = ForwardModel(bist, dtype=dtype, queue=queue)
+    assert np.array_equal(fm.samples.elements.pos, smp.elements.pos)
+    tau = fm.run()
     for i, col in enumerate(COLUMNS):
         got = tau[:, 2, col]
         assert abs(got.sum() / ref[i].sum() - 1) < TOL_TOTAL, (i, got.sum(), ref[i].sum())
@@ -194,6 +199,27 @@ def test_face_quadrature_carries_the_slab_energy(queue):
     assert np.all(np.diff(q.edges[:-1]) > 0) and np.all(np.diff(q.radius) > 0)
     i, j = q.classes[3]
     assert np.allclose(q.kernels[3], np.convolve(q.mass[i], q.mass[j])[:q.kernels.shape[1]])
+
+
+@pytest.mark.slow
+@pytest.mark.parametrize("material", ["ggx", "lambertian"])
+def test_issue_geometry_matches_float64_quadrature(queue, material):
+    """The issue's scenes: a 6 cm GGX patch (alpha 0.1, F0 0.9) tilted 5 deg and a 4 cm
+    Lambertian patch, 0.5 m behind the CDT slab, 16 ps bins; scan points on the mirror
+    point and 3, 6, 9 cm from it; the issue's tolerances (5% total, 8% shape)."""
+    mat, size = ({"model": "microfacet", **GGX}, 0.06) if material == "ggx" else (
+        "lambertian", 0.04)
+    kw = {"points": 7, "width": 0.21, "depth": 0.5, "size": size, "bins": 384, "dt": 16e-12}
+    fm = ForwardModel(patch_scene(mat, transport={"model": "bistatic"}, **kw), queue=queue)
+    brdf = (lambda n, w: ggx_pairs(n, w, **GGX)) if material == "ggx" else (
+        lambda n, w: np.full((len(n), w.shape[1], w.shape[1]), 1 / np.pi))
+    xy = [(0.0, 0.0), (0.03, 0.0), (0.06, 0.0), (0.09, 0.0)]
+    ref = reference_tau(CDT_SLAB, fm.samples.elements, fm.samples.albedo, brdf, xy,
+                        bins=384, dt=16e-12)
+    tau = fm.run()
+    for i, col in enumerate((3, 4, 5, 6)):
+        assert abs(tau[:, 3, col].sum() / ref[i].sum() - 1) < 0.05, i
+        assert _shape_err(tau[:, 3, col], ref[i]) < 0.08, i
 
 
 # ------------------------------------------------------------------ (c) Lambertian limit
