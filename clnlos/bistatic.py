@@ -72,10 +72,10 @@ MAX_SLICES = 16       # element slices per scan point on GPUs (more work-items)
 # "auto": bistatic where the lobe (half width at half maximum in the outgoing direction)
 # is narrower than AUTO_FACTOR x the angular spread of the slab's footprint seen from the
 # target (rms angle between w1 and w2). See :func:`auto_choice`. Calibrated on the ten
-# presets at the study geometry (tools/confocal_error.py, spread 4.08 deg at 0.5 m): the
-# confocal model is off by more than 5% (relative L2) for lobes up to 14.2 deg (fuchsia
-# lacquer, 6.0%) and by 3.4% at 21.1 deg (black anode), against a 1.7% floor for diffuse
-# materials; 4 x 4.08 = 16.3 deg separates them.
+# presets at the study geometry (tools/results/confocal_error.csv, spread 4.08 deg at
+# 0.5 m): the confocal model is off by more than 5% (relative L2) for lobes up to 14.1 deg
+# (fuchsia lacquer, 6.3%) and by 3.5% at 21.1 deg (black anode), against a 0.9% floor for
+# diffuse materials; 4 x 4.08 = 16.3 deg separates them.
 AUTO_FACTOR = 4.0
 LOBE_CONTRAST = 2.0   # a retro slice whose peak is under this x its floor has no lobe
 
