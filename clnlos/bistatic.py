@@ -330,7 +330,13 @@ def auto_choice(scene, samples, rms_m: float) -> tuple[str, str]:
 
     Rule: bistatic when some object's lobe half width (:func:`lobe_halfwidth_rad`) is under
     AUTO_FACTOR x the footprint spread (:func:`footprint_spread_rad`) at the object's
-    nearest element depth; confocal otherwise, and always without a slab."""
+    nearest element depth; confocal otherwise, and always without a slab. Numbers: the CDT
+    slab's window-integrated footprint has an rms radius of 2.5 cm, a spread of 4.08 deg
+    seen from 0.5 m, so bistatic for lobes under 16.3 deg there: quartz glass (0.75 deg),
+    aluminium alloy (2.63), painted steel (3.49), gold-plated film (10.1), fuchsia lacquer
+    (14.1), the analytic mirror-like (0.75), brushed metal (11.3) and glossy paint (12.3);
+    confocal for black anode (21.1), the aluminium diffuse plate (34.7), glass fibre,
+    standard white plate, cement board, matte-dark and Lambertian (no lobe)."""
     from .forward import material_retro
 
     if scene.slab is None:
