@@ -341,6 +341,9 @@ def auto_choice(scene, samples, rms_m: float) -> tuple[str, str]:
 
     if scene.slab is None:
         return "confocal", "no slab"
+    for i, obj in enumerate(scene.objects):
+        if obj.brdf_retro_csv is not None:
+            return "confocal", f"objects[{i}] has only a confocal slice (brdf_retro_csv)"
     z_all = samples.elements.pos[:, 2]
     for i, obj in enumerate(scene.objects):
         retro = material_retro(obj, scene.base_dir)

@@ -301,6 +301,16 @@ def test_auto_picks_bistatic_for_narrow_lobes_only(queue):
                       "matte-dark": "lightcone:brdf-table"}
 
 
+def test_auto_keeps_confocal_for_a_retro_slice_material(tmp_path, queue):
+    (tmp_path / "f.csv").write_text("theta_deg,brdf\n0,100.0\n1,0.1\n90,0.1\n")
+    text = _write_scene(tmp_path / "s.toml", "auto").read_text().replace(
+        'material = "lambertian"', 'brdf_retro_csv = "f.csv"').replace("points = 8",
+                                                                        "points = 2")
+    (tmp_path / "s.toml").write_text(text)
+    fm = ForwardModel(Scene.from_toml(tmp_path / "s.toml"), queue=queue)
+    assert fm.transport == "confocal" and "brdf_retro_csv" in fm.transport_reason
+
+
 def test_lobe_halfwidth_of_a_ggx_lobe():
     """GGX D falls to half its peak where cos^2 th = (1 - sqrt(2) a^2) / (1 - a^2) (th the
     half-vector angle); the retro slice's 1/cos^2 and G^2 move that by under 5% for small
