@@ -12,9 +12,12 @@ albedo f_r cos^2 cos^2 / r^4 dA summed per bin); with a detector, photon counts,
 eta = photons emitted x efficiency x etendue (m^2 sr) and dark = rate x exposure x
 bin width x repetition rate per bin.
 
-Left out: occlusion between elements (no visibility test), interreflections, non-confocal
-illumination (r1 != r2, seed Eq. 8 in full) -- the stage list is built so such a level can be
-added as another stage.
+With ``[transport] model = "bistatic"`` (or "auto" choosing it) the light cone and the slab
+blur are one stage, the seed's Eq. 8 in full (:mod:`clnlos.bistatic`, kernels/bistatic.cl):
+light leaves the slab's face at r1 != r2, with the full BRDF f(w1, w2); its stage is named
+``lightcone:bistatic(rings=..,angles=..,texture=..)`` and no ``slab_blur`` follows.
+
+Left out: occlusion between elements (no visibility test), interreflections.
 """
 
 from __future__ import annotations
@@ -359,6 +362,58 @@ class ForwardModel:
         self.warnings = check_scene_geometry(scene)
         self.samples = sample_scene(scene)
         s = scene
+        self.margin = 0
+        self.blur = self.pulse = None
+        self.transport, self.transport_reason = self._transport_model()
+        if self.transport == "bistatic":
+            self._build_bistatic()
+        else:
+            self._build_confocal()
+        if s.pulse_width_s is not None:
+            self.pulse = PulseBlur(self.lightcone.shape, s.pulse_width_s, s.bin_width_s,
+                                   self.dtype, self.queue)
+            self.stages.append("pulse_blur")
+        if s.detector is not None:
+            self.stages.append("photon_noise")
+
+    def _transport_model(self) -> tuple[str, str]:
+        """The scene's ``[transport] model``, "auto" resolved (:func:`clnlos.bistatic.
+        auto_choice`): ("confocal" or "bistatic", why)."""
+        from .bistatic import auto_choice, face_quadrature
+
+        s = self.scene
+        model = s.transport.model
+        if model != "auto":
+            return model, "requested"
+        if s.slab is None:
+            return "confocal", "auto: no slab"
+        quad = face_quadrature(s.slab, bins=s.bins, bin_width_s=s.bin_width_s, rings=1,
+                               angles=1, n_dipoles=s.n_dipoles, queue=self.queue)
+        choice, why = auto_choice(s, self.samples, quad.rms_m)
+        return choice, f"auto: {why}"
+
+    def _build_bistatic(self) -> None:
+        """Eq. 8 (clnlos.bistatic): one stage carries the light through the slab and back."""
+        from .bistatic import BistaticTransport, scene_textures
+
+        s, t = self.scene, self.scene.transport
+        if s.slab is None:
+            raise ParameterError("transport.model", "bistatic", "'confocal' or 'auto' without "
+                                 "a [slab]")
+        if s.start_s != 0:
+            raise ParameterError("time.start_s", s.start_s,
+                                 "0 when a [slab] is given (the slab blur is causal from t = 0)")
+        self.reach_covered = True  # no lateral grid: every face sample is evaluated exactly
+        self.lightcone = BistaticTransport(
+            slab=s.slab, points=s.points, width_m=s.width_m, bins=s.bins,
+            bin_width_s=s.bin_width_s, start_s=s.start_s, textures=scene_textures(s, t),
+            rings=t.face_rings, angles=t.face_angles, n_dipoles=s.n_dipoles,
+            splat_order=s.splat_order, dtype=self.dtype, queue=self.queue)
+        self.stages = [self.lightcone.stage]
+
+    def _build_confocal(self) -> None:
+        """Eq. 9: the confocal light cone, then the slab blur Phi * Phi when there is a slab."""
+        s = self.scene
         self.stages = ["lightcone:" + ("brdf-table" if self.samples.retro_tables is not None
                                        else "lambertian")]
         # Light diffuses through the slab sideways: a scan point also sees the hidden-side
@@ -376,7 +431,6 @@ class ForwardModel:
                                    bin_width_s=s.bin_width_s, start_s=s.start_s,
                                    retro=self.samples.retro_tables is not None,
                                    splat_order=s.splat_order, dtype=self.dtype, queue=self.queue)
-        self.blur = self.pulse = None
         if s.slab is not None:
             if s.start_s != 0:
                 raise ParameterError("time.start_s", s.start_s,
@@ -385,12 +439,6 @@ class ForwardModel:
             self.blur = _forward_blur(s.slab, self.lightcone.shape, s.bin_width_s, s.pitch_m,
                                       s.n_dipoles, covered, self.dtype.str, self.queue)
             self.stages.append("slab_blur")
-        if s.pulse_width_s is not None:
-            self.pulse = PulseBlur(self.lightcone.shape, s.pulse_width_s, s.bin_width_s,
-                                   self.dtype, self.queue)
-            self.stages.append("pulse_blur")
-        if s.detector is not None:
-            self.stages.append("photon_noise")
 
     def setup_attrs(self) -> dict:
         """What a capture of this model records about its setup (see io.Capture)."""
@@ -400,7 +448,9 @@ class ForwardModel:
 
         s = self.scene
         a = {"scene": s.text, "stages": json.dumps(self.stages),
-             "elements": len(self.samples.elements)}
+             "elements": len(self.samples.elements),
+             "transport": json.dumps({"model": self.transport,
+                                      "reason": self.transport_reason})}
         if s.slab is not None:
             t = slab_table(s.slab)
             if s.n_dipoles is not None:

@@ -42,6 +42,17 @@ Every error names the field, its value and the allowed range; numbers must be TO
     splat_order = 1         # 0: nearest bin, 1: linear between bin centres
     blur_reach_tol = 1e-3   # with a slab: I is computed past the scan border as far as the
                             # blur carries more than this fraction of its energy
+    [transport]             # how light crosses the slab and meets the target (clnlos.bistatic)
+    model = "confocal"      # "confocal": seed Eq. 9, tau = (Phi * Phi) * I, I read at r1 = r2
+                            # (the retro slice f(w, w)); "bistatic": Eq. 8 in full (light leaves
+                            # the face at r1, returns at r2, full BRDF f(w1, w2); needs a [slab]);
+                            # "auto": bistatic where a material's lobe is narrower than the
+                            # angular spread of the slab's footprint seen from the target
+                            # (clnlos.bistatic.auto_choice), else confocal
+    face_rings = 4          # bistatic: annuli of equal slab energy on the face
+    face_angles = 8         # bistatic: samples per annulus (cost ~ (rings x angles)^2)
+    texture_theta = 64      # bistatic: BRDF texture nodes over theta_i, theta_s in [0, 90] deg
+    texture_dphi = 64       # bistatic: ... over delta_phi in [0, 180] deg
 
 Materials (``material``, case-insensitive): "lambertian"; the analytic presets "matte-dark",
 "glossy-paint", "brushed-metal", "mirror-like"; the ten measured-data presets of the seed
@@ -73,6 +84,42 @@ SHAPES = ("letters", "rectangle", "sphere", "mesh")
 # longer than Linux's PATH_MAX cannot be opened
 MAX_TEXT_CHARS = 256
 MAX_PATH_CHARS = 4096
+
+# [transport] (clnlos.bistatic): models, defaults and limits of the bistatic quadrature
+TRANSPORT_MODELS = ("confocal", "bistatic", "auto")
+FACE_RINGS = 4        # annuli of the face quadrature (default)
+FACE_ANGLES = 8       # samples per annulus (default); compiled in (private arrays)
+MAX_FACE_ANGLES = 32
+MAX_FACE_RINGS = 16
+TEXTURE_THETA = 64    # BRDF texture nodes over theta_i and theta_s in [0, pi/2] (default)
+TEXTURE_DPHI = 64     # ... over delta_phi in [0, pi]
+
+
+@dataclass(frozen=True)
+class TransportSettings:
+    """The scene's ``[transport]`` table (defaults: this module's constants)."""
+
+    model: str = "confocal"
+    face_rings: int = FACE_RINGS
+    face_angles: int = FACE_ANGLES
+    texture_theta: int = TEXTURE_THETA
+    texture_dphi: int = TEXTURE_DPHI
+
+    @classmethod
+    def from_table(cls, t: dict) -> TransportSettings:
+        if not isinstance(t, dict):
+            raise ParameterError("transport", t, "a table")
+        check_keys("transport", t, set(cls.__dataclass_fields__))
+        return cls(
+            model=choice("transport.model", t.get("model", "confocal"), TRANSPORT_MODELS),
+            face_rings=integer("transport.face_rings", t.get("face_rings", FACE_RINGS), 1,
+                               MAX_FACE_RINGS),
+            face_angles=integer("transport.face_angles", t.get("face_angles", FACE_ANGLES),
+                                1, MAX_FACE_ANGLES),
+            texture_theta=integer("transport.texture_theta",
+                                  t.get("texture_theta", TEXTURE_THETA), 2, 1024),
+            texture_dphi=integer("transport.texture_dphi", t.get("texture_dphi", TEXTURE_DPHI),
+                                 2, 1024))
 
 
 MAX_ROTATE_DEG = 360.0  # |rotate_deg| per axis at most (a turn; beyond it sin/cos lose digits)
@@ -144,6 +191,7 @@ class Scene:
     blur_reach_tol: float = 1e-3
     base_dir: Path = field(default_factory=Path.cwd)
     text: str = ""
+    transport: TransportSettings = field(default_factory=TransportSettings)
 
     @property
     def pitch_m(self) -> float:
@@ -171,7 +219,7 @@ class Scene:
     @classmethod
     def from_dict(cls, d: dict, *, base_dir: Path | None = None, text: str = "") -> Scene:
         check_keys("", d, {"scan", "time", "objects", "slab", "laser", "detector", "sampling",
-                           "seed"})
+                           "seed", "transport"})
         for sec in ("scan", "time", "objects"):
             if sec not in d:
                 raise ParameterError(sec, None, "a required section")
@@ -212,9 +260,14 @@ class Scene:
         reach_tol = positive("sampling.blur_reach_tol", smp.get("blur_reach_tol", 1e-3),
                              upper=1.0)
         seed = integer("seed", d.get("seed", 0), 0, 2**63 - 1)
+        transport = TransportSettings.from_table(d.get("transport", {}))
+        if transport.model == "bistatic" and slab is None:
+            raise ParameterError("transport.model", "bistatic", "'confocal' or 'auto' without "
+                                 "a [slab] (Eq. 8 needs the slab's face; without one r1 = r2 "
+                                 "and it is the confocal model)")
         return cls(width, points, bw, bins, float(start), objects, slab, nd, pulse, det, dens,
                    splat, seed, blur_reach_tol=reach_tol, base_dir=base_dir or Path.cwd(),
-                   text=text)
+                   text=text, transport=transport)
 
 
 def _object(i: int, o: dict) -> SceneObject:

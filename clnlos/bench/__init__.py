@@ -24,6 +24,7 @@ from .harness import ROW_KEYS, Bench, print_table  # noqa: F401 (ROW_KEYS: row s
 from .report import recommendations, write_html
 from .sections import (
     bench_auto_params,
+    bench_bistatic,
     bench_brdf,
     bench_diffusion,
     bench_end_to_end,
@@ -35,7 +36,8 @@ from .sections import (
 )
 
 SECTIONS = {"diffusion": bench_diffusion, "lightcone": bench_lightcone, "brdf": bench_brdf,
-            "forward": bench_model_level, "reconstruction": bench_reconstruction,
+            "forward": bench_model_level, "bistatic": bench_bistatic,
+            "reconstruction": bench_reconstruction,
             "iterative": bench_iterative, "end_to_end": bench_end_to_end,
             "auto_params": bench_auto_params}
 

@@ -134,6 +134,58 @@ def bench_model_level(b: Bench):
         b.add("forward", "model_level", level, np.float32, fm.run, err)
 
 
+def bench_bistatic(b: Bench):
+    """Eq. 8 (the bistatic stage, kernels/bistatic.cl) beside Eq. 9 (confocal light cone +
+    slab blur) on the study patch of a GGX lobe (alpha 0.1, F0 0.9: the issue's specular
+    case, 0.5 m behind the CDT slab): face samples (rings x angles) and texture resolution
+    against a float64 Eq. 8 at 8 x 16 samples and a 128^3 texture of the same scene. The
+    ``transport`` row is the confocal model itself: its error is that of the approximation.
+    Time grows with (rings x angles)^2 (pairs per element and scan point)."""
+    from ..bistatic import (FACE_ANGLES, FACE_RINGS, TEXTURE_THETA, BistaticTransport,
+                            scene_textures, study_patch_scene)
+    from ..forward import ForwardModel, sample_scene
+
+    # the study's 9.4 mm pitch (the confocal blur samples Phi on the scan grid: a coarser
+    # pitch than the slab's few-cm footprint is a different error); full = the study scan
+    pts, bins, bw = {"tiny": (2, 160, 48e-12), "quick": (8, 160, 48e-12),
+                     "full": (32, 512, 16e-12)}[b.size]
+    width = pts * 0.3 / 32
+    faces = {"tiny": ((1, 1), (2, 4)), "quick": ((1, 1), (2, 4), (4, 8), (6, 12)),
+             "full": ((1, 1), (2, 4), (4, 8), (6, 12))}[b.size]
+    ref_face, ref_tex = {"tiny": ((4, 8), 64), "quick": ((8, 16), 128),
+                         "full": ((8, 16), 128)}[b.size]
+    textures = (16, 32) if b.size == "tiny" else (16, 32, 128)
+    mat = {"model": "microfacet", "kd": 0.0, "ks": 1.0, "alpha": 0.1, "f0": 0.9}
+    scene = study_patch_scene(mat, "bistatic", points=pts, bins=bins, bin_width_s=bw,
+                              width_m=width)
+    smp = sample_scene(scene)
+
+    def plan(rings, angles, res, dt):
+        t = scene.transport
+        tex = scene_textures(scene, type(t)(model="bistatic", texture_theta=res,
+                                            texture_dphi=res))
+        return BistaticTransport(slab=scene.slab, points=pts, width_m=scene.width_m,
+                                 bins=bins, bin_width_s=bw, textures=tex, rings=rings,
+                                 angles=angles, dtype=dt, queue=b.q)
+
+    ref = plan(*ref_face, ref_tex, b.dtypes[-1])(smp).get()
+    grid = f"{pts}x{pts}x{bins}"
+    settings = [("face_samples", (r, a, 64)) for r, a in faces]
+    settings += [("texture", (FACE_RINGS, FACE_ANGLES, res)) for res in textures]
+    for knob, (r, a, res) in settings:
+        default = (r, a, res) == (FACE_RINGS, FACE_ANGLES, TEXTURE_THETA)
+        for dt in b.dtypes if default else [np.float32]:
+            bt = plan(r, a, res, dt)
+            b.add("bistatic", knob, f"{r}x{a}" if knob == "face_samples" else res, dt,
+                  lambda bt=bt: bt(smp), _rel(bt(smp).get(), ref), grid=grid,
+                  elements=len(smp.elements), pairs=(r * a) ** 2, texture=res)
+    conf = ForwardModel(study_patch_scene(mat, "confocal", points=pts, bins=bins,
+                                          bin_width_s=bw, width_m=width), queue=b.q)
+    b.add("bistatic", "transport", "confocal (Eq. 9)", np.float32, conf.run,
+          _rel(conf.run(), ref), grid=grid, elements=len(smp.elements), pairs=1,
+          sync=False)
+
+
 def bench_reconstruction(b: Bench):
     from ..blur import slab_blur
     from ..fk import FKMigration
