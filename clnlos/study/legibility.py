@@ -111,7 +111,8 @@ def wilson_interval(k: int, n: int, level: float = 0.95) -> list[float]:
     d = 1 + z * z / n
     centre = (p + z * z / (2 * n)) / d
     half = z * math.sqrt(p * (1 - p) / n + z * z / (4 * n * n)) / d
-    return [max(0.0, centre - half), min(1.0, centre + half)]
+    # the interval holds p itself (rounding could put an end a hair past it at k = 0 or n)
+    return [max(0.0, min(p, centre - half)), min(1.0, max(p, centre + half))]
 
 
 def identification_summary(hits, chance: float) -> dict:

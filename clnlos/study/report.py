@@ -144,9 +144,8 @@ def fig_identification(results):
     width = 0.8 / len(geos)
     for k, g in enumerate(geos):
         acc = np.array([m["identification"]["accuracy"] for m in g["materials"]])
-        lo = acc - np.array([m["identification"]["ci"][0] for m in g["materials"]])
-        hi = np.array([m["identification"]["ci"][1] for m in g["materials"]]) - acc
-        ax[0].bar(x + (k - (len(geos) - 1) / 2) * width, acc, width, yerr=[lo, hi],
+        ax[0].bar(x + (k - (len(geos) - 1) / 2) * width, acc, width,
+                  yerr=_ci_err(acc, g["materials"]),
                   capsize=2, label=f"{g['name']} (stroke/res {g['stroke_over_resolution']:.1f})")
         box = [m["iou_box_baseline"] for m in g["materials"]]
         ax[1].scatter(box, [m["iou"] for m in g["materials"]], label=g["name"], s=18)
@@ -178,8 +177,7 @@ def fig_legibility_sweeps(results):
                         key=lambda r: r["value"])
             x = [r["value"] for r in rs]
             y = np.array([r["identification"]["accuracy"] for r in rs])
-            err = [y - [r["identification"]["ci"][0] for r in rs],
-                   [r["identification"]["ci"][1] for r in rs] - y]
+            err = _ci_err(y, rs)
             a.errorbar(x, y, yerr=err, fmt="o-", capsize=3, label=_short(m, 22))
         a.axhline(0.9, color="gray", ls="--", lw=0.8, label="legible (0.9)")
         if rows:
@@ -297,8 +295,7 @@ def fig_sweeps(results):
                         key=lambda r: r["value"])
             x = [r["value"] for r in rs]
             y = np.array([r["identification"]["accuracy"] for r in rs])
-            err = [y - [r["identification"]["ci"][0] for r in rs],
-                   [r["identification"]["ci"][1] for r in rs] - y]
+            err = _ci_err(y, rs)
             ax[0, j].errorbar(x, y, yerr=err, fmt="o-", capsize=3, label=_short(m, 22))
             ax[1, j].plot(x, [r["iou_excess"] for r in rs], "o-", label=_short(m, 22))
         ax[0, j].axhline(rows[0]["identification"]["chance"], color="gray", ls=":", lw=0.8)
@@ -328,6 +325,14 @@ td:first-child, th:first-child {{ text-align: left; }}
 """
 OVERFLOW_PROBE = ("<script>addEventListener('load', function () {document.body.dataset.overflow"
                   " = String(document.documentElement.scrollWidth > innerWidth);});</script>")
+
+
+def _ci_err(values, rows, key="identification"):
+    """errorbar's [below, above] of each row's 95% interval around ``values`` (never < 0)."""
+    y = np.asarray(values, float)
+    lo = np.array([r[key]["ci"][0] for r in rows])
+    hi = np.array([r[key]["ci"][1] for r in rows])
+    return [np.clip(y - lo, 0, None), np.clip(hi - y, 0, None)]
 
 
 def _pct(v) -> str:
