@@ -114,6 +114,8 @@ def fig_figure8(results, plan, res, geometry: str):
             a = a / a.max() if a.max() > 0 else a
             im = ax.imshow(a, origin="lower", aspect="auto", extent=ext, cmap=cmap,
                            vmin=0, vmax=1)
+            if j == 0:
+                first = im
             if j == 3:
                 _outline(ax, r["truth"], w)
             if j in (4, 5):
@@ -126,6 +128,8 @@ def fig_figure8(results, plan, res, geometry: str):
             ax.set_ylabel({0: f"{_short(m['name'], 16)}\ny (m)", 1: "t (ns)", 2: "t (ns)",
                            3: "y (m)", 4: "z (m)", 5: "z (m)"}[j], fontsize=7)
         if i == 0:
+            fig.colorbar(first, ax=axes[:, 0], shrink=0.3, location="left",
+                         label="counts / max")
             fig.colorbar(im, ax=axes[:, 5], shrink=0.3, label="/ max (a.u.)")
     fig.suptitle(f"glyph {glyph}, geometry {geometry}: {geo['description']} "
                  f"(c t / 2 at the window end: {C0 * t_ns * 1e-9 / 2:.2f} m)", fontsize=8)
@@ -232,7 +236,7 @@ def fig_metrics(results, plan, res):
         a.scatter(v[ok], iou[ok], s=6, c="tab:green", label="identified")
         a.scatter(v[~ok], iou[~ok], s=6, c="tab:red", label="not identified")
         a.set(xlabel=name + (" (log10)" if name == "fft_clarity" else " (0..1)"),
-              ylabel="IoU", title=f"{name}: r = {val[name]['iou']:+.2f} with IoU, "
+              ylabel="IoU", title=f"{name}: r = {val[name]['iou']:+.2f} with IoU,\n"
                                   f"{val[name]['identified']:+.2f} with identified")
         a.legend(fontsize=7)
     return fig
