@@ -213,6 +213,14 @@ class SpectralFilter(LinearOperator):
         zeroed = True
         if write_input is None:
             write_input, nonzero, zeroed = self._padder(x_g)
+        _, spec = self._forward_padded(write_input, nonzero, zeroed)
+        s = spec.get()
+        return (s.real * s.real + s.imag * s.imag).astype(np.float32, copy=False)
+
+    def _forward_padded(self, write_input, nonzero, zeroed: bool):
+        """(the padded grid, its half spectrum): ``write_input(buf)`` into the padded grid
+        (zeroed first if ``zeroed``; data in its low-corner ``nonzero`` block, default
+        ``in_shape``), then the forward FFT into scratch slot "b"."""
         buf = self._buf
         if zeroed:
             fill_zero(self.queue, buf)
@@ -220,8 +228,7 @@ class SpectralFilter(LinearOperator):
         spec = self.fft.forward(buf, self.scratch.array("b", self.fft.spec_shape,
                                                         self.fft.cdtype),
                                 nonzero=self.in_shape if nonzero is None else nonzero)
-        s = spec.get()
-        return (s.real * s.real + s.imag * s.imag).astype(np.float32, copy=False)
+        return buf, spec
 
     def filter_padded(self, write_input, read_output, *, adjoint: bool = False,
                       nonzero=None, zeroed: bool = True):
@@ -231,13 +238,7 @@ class SpectralFilter(LinearOperator):
         ``in_shape``), ``read_output(buf)`` reads the result from its ``in_shape`` block
         (the rest of ``buf`` is not computed). A resampling that writes straight into the
         padded grid saves the separate pad and crop passes (LCT's t -> v and u -> z)."""
-        buf = self._buf
-        if zeroed:
-            fill_zero(self.queue, buf)
-        write_input(buf)
-        spec = self.fft.forward(buf, self.scratch.array("b", self.fft.spec_shape,
-                                                        self.fft.cdtype),
-                                nonzero=self.in_shape if nonzero is None else nonzero)
+        buf, spec = self._forward_padded(write_input, nonzero, zeroed)
         multiply_spectrum(self._k, self.H, spec, h_scale=self.h_scale, adjoint=adjoint,
                           folded=self.folded,
                           inv_snr=self.inv_snr if self.mode == "wiener" else None)

@@ -176,12 +176,7 @@ def fig_legibility_sweeps(results):
     fig, ax = plt.subplots(1, 2, figsize=(11.5, 3.8), constrained_layout=True)
     for a, var, xlabel in ((ax[0], "letter_height_m", "letter height (m; strokes scaled)"),
                            (ax[1], "exposure_s", "exposure per scan point (s)")):
-        for m in dict.fromkeys(r["material"] for r in rows if r["variable"] == var):
-            rs = sorted((r for r in rows if r["variable"] == var and r["material"] == m),
-                        key=lambda r: r["value"])
-            x = [r["value"] for r in rs]
-            y = np.array([r["identification"]["accuracy"] for r in rs])
-            err = _ci_err(y, rs)
+        for m, x, y, err, _ in _sweep_series(rows, var):
             a.errorbar(x, y, yerr=err, fmt="o-", capsize=3, label=_short(m, 22))
         a.axhline(0.9, color="gray", ls="--", lw=0.8, label="legible (0.9)")
         if rows:
@@ -294,12 +289,7 @@ def fig_sweeps(results):
     fig, ax = plt.subplots(2, len(variables), figsize=(11.5, 6.4), squeeze=False,
                            constrained_layout=True)
     for j, var in enumerate(variables):
-        for m in dict.fromkeys(r["material"] for r in rows if r["variable"] == var):
-            rs = sorted((r for r in rows if r["variable"] == var and r["material"] == m),
-                        key=lambda r: r["value"])
-            x = [r["value"] for r in rs]
-            y = np.array([r["identification"]["accuracy"] for r in rs])
-            err = _ci_err(y, rs)
+        for m, x, y, err, rs in _sweep_series(rows, var):
             ax[0, j].errorbar(x, y, yerr=err, fmt="o-", capsize=3, label=_short(m, 22))
             ax[1, j].plot(x, [r["iou_excess"] for r in rs], "o-", label=_short(m, 22))
         ax[0, j].axhline(rows[0]["identification"]["chance"], color="gray", ls=":", lw=0.8)
@@ -337,6 +327,16 @@ def _ci_err(values, rows, key="identification"):
     lo = np.array([r[key]["ci"][0] for r in rows])
     hi = np.array([r[key]["ci"][1] for r in rows])
     return [np.clip(y - lo, 0, None), np.clip(hi - y, 0, None)]
+
+
+def _sweep_series(rows, var):
+    """(material, values, identification accuracies, their interval bars, rows) of each
+    material of sweep variable ``var``, in value order."""
+    for m in dict.fromkeys(r["material"] for r in rows if r["variable"] == var):
+        rs = sorted((r for r in rows if r["variable"] == var and r["material"] == m),
+                    key=lambda r: r["value"])
+        y = np.array([r["identification"]["accuracy"] for r in rs])
+        yield m, [r["value"] for r in rs], y, _ci_err(y, rs), rs
 
 
 def _pct(v) -> str:
