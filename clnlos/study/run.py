@@ -756,7 +756,8 @@ def make_findings(geometries, legibility_rows, geometry_rows, validation, label_
         "diffuse ones at the legible geometry"
         + (": a mirror-like surface returns light only to the scan points it faces, so its "
            "data hold a direct image that the reconstruction, which assumes diffuse "
-           "scattering, smears. " if _gains(main["measurement_identification_strong_specular"],
+           "scattering, smears (simulated with the confocal transport, the seed's Eq. 9). "
+           if _gains(main["measurement_identification_strong_specular"],
                                             sp) else ". ")
         + f"Smallest legible letters (identification >= {LEGIBLE_ACCURACY:g}): {costs}. "
         f"Exposure per scan point needed: {expo}. "
