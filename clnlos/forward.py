@@ -281,6 +281,11 @@ def _forward_blur(slab, shape, bin_width_s, pitch_m, n_dipoles, periodic, dtype_
         queue)
 
 
+FRONT_MIN_Z_M = 1e-6  # elements nearer the relay plane than this return no light: the light
+#                      cone's cosines (z / r at both ends) vanish there (a plate at z = 0
+#                      turned by 1e-298 deg sat at z ~ 1e-300 m and simulated all zero)
+
+
 def check_scene_geometry(scene: Scene) -> list[str]:
     """Objects must lie in front of the relay plane (z > 0) and return light inside the time
     window: an object with no element in front, or whose every round trip falls outside
@@ -297,14 +302,15 @@ def check_scene_geometry(scene: Scene) -> list[str]:
             continue
         z = el.pos[:, 2]
         name = f"objects[{i}] ({obj.shape})"
-        if not np.any(z > 0):
+        front_mask = z > FRONT_MIN_Z_M
+        if not np.any(front_mask):
             raise ParameterError(f"objects[{i}].translate_m", list(obj.translate_m),
                                  f"a position in front of the relay plane (z > 0): {name} "
                                  "lies entirely behind it and returns no light")
-        if np.any(z <= 0):
+        if not np.all(front_mask):
             notes.append(f"{name} is partly behind the relay plane (z <= 0); that part "
                          "returns no light")
-        front = el.pos[z > 0]
+        front = el.pos[front_mask]
         dx = np.maximum(np.abs(front[:, 0]) - w, 0)
         dy = np.maximum(np.abs(front[:, 1]) - w, 0)
         t_near = 2 * np.sqrt(dx**2 + dy**2 + front[:, 2] ** 2) / C0
@@ -317,7 +323,7 @@ def check_scene_geometry(scene: Scene) -> list[str]:
         if t_far.max() >= t1 or t_near.min() < t0:
             notes.append(f"{name} returns light partly outside the time window "
                          f"[{t0:.3g}, {t1:.3g}) s")
-        why = _no_light(i, obj, el.pos[z > 0], el.normal[z > 0], scene.scan_centres())
+        why = _no_light(i, obj, front, el.normal[front_mask], scene.scan_centres())
         if why is not None:
             dark.append(why)
             notes.append(f"{why[2]}: it returns no light")
