@@ -1,6 +1,6 @@
 """The slab diffusion model against measured time-resolved transmittance (real calibration data).
 
-The CDT calibration captures (Lindell & Wetzstein 2020; ``../shared/data/cdt/calibration``)
+The CDT calibration captures (Lindell & Wetzstein 2020; the data's ``cdt/calibration`` folder)
 are photon-count histograms of a pencil beam sent through 1.0 ... 8.0 inches of the same
 foam, detected on axis on the far face, plus the system impulse response without the slab.
 The model of a capture is the on-axis diffuse transmittance T(rho = 0, t) of

@@ -501,6 +501,7 @@ def cmd_study(args) -> int:
     if args.method is not None:
         opts.grid = replace(opts.grid, method=args.method)
     opts.labels = args.labels
+    opts.real_data = args.real_data
     res = run_study(out, opts.validate(), workers=args.workers, scheduler=args.scheduler,
                     device=args.device)
     for geo in res["geometries"]:
@@ -551,6 +552,12 @@ def register_study(sub, add_device) -> None:
                    help="local Dask worker processes (default: CPU count; 1 = serial)")
     w.add_argument("--scheduler", default=None, help="address of an existing Dask scheduler, "
                    "e.g. tcp://HOST:8786 (default: none, local workers)")
+    s.add_argument("--real-data", type=Path, default=None, metavar="DIR",
+                   help="folder whose cdt/ holds the real CDT captures (letters_ut.mat, "
+                        "letter_s.mat, resolution_70.mat): the report adds the real capture "
+                        "beside its simulation, the real chart's resolved features and the "
+                        "CNN's verdict on them; a folder without them is noted and skipped "
+                        "(default: none)")
     s.add_argument("--n-dataset", type=int, default=None, help=argparse.SUPPRESS)
     _add_force(s)
     add_device(s)

@@ -136,7 +136,7 @@ TINY = StudyOptions(
     glyphs=("E", "H", "T", "U"), sweep_glyphs=("E", "T"),
     grid=replace(StudyGrid(), points=12, bin_width_s=64e-12, iterations=10,
                  density_per_m2=2e4),
-    real_data=False, label="tiny")
+    label="tiny")
 
 
 def _check_contract(res, opts):
@@ -265,3 +265,18 @@ def test_findings_name_the_sweep_condition_in_words():
     assert sweep_condition("slab_thickness_m", 0.0) == "without the slab"
     assert sweep_condition("slab_thickness_m", 0.0254) == "behind a 2.54 cm slab"
     assert sweep_condition("depth_m", 0.9) == "at a target depth of 0.9 m"
+
+
+def test_real_data_folder_is_named_not_searched(tmp_path, shared_data):
+    """The study reads real captures only from the folder it is given (--real-data): none
+    by default, a folder without them is one warning and the study goes on."""
+    import warnings
+
+    from clnlos.study.run import real_capture_dir
+
+    assert real_capture_dir(None) is None
+    with warnings.catch_warnings(record=True) as caught:
+        warnings.simplefilter("always")
+        assert real_capture_dir(tmp_path) is None
+    assert len(caught) == 1 and "--real-data" in str(caught[0].message)
+    assert real_capture_dir(shared_data) == shared_data / "cdt"

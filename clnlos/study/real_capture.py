@@ -44,7 +44,7 @@ from ..errors import ParameterError
 from ..slab import CDT_SLAB
 from .resolution import ResolutionGeometry, fwhm_1d
 
-# Published acquisition parameters of the shared CDT captures (../shared/data/cdt/README.md)
+# Published acquisition parameters of the real CDT captures (the data's cdt/README.md)
 PUBLISHED_SCAN_WIDTH_M = {"letters_ut": 0.7, "letter_s": 0.6, "resolution_70": 0.7}
 PUBLISHED_ZE_M = 0.0036   # the published reconstructions' extrapolation distance
 PUBLISHED_SNR = 1e4       # the published Wiener SNR (deconvolution and inversion)

@@ -421,7 +421,8 @@ def _geometry_table(g) -> str:
 def _real_html(results) -> str:
     rc = results.get("real_capture")
     if not rc:
-        return "<p>../shared/data not present: no real capture.</p>"
+        return ("<p>No real capture: run the study with <code>--real-data DIR</code>, the "
+                "folder whose <code>cdt/</code> holds the real CDT captures.</p>")
     keys = ("photons", "peak_time_s", "temporal_fwhm_s")
     rows = [[k, f"{rc[k]:.4g}", f"{rc['simulated'][k]:.4g}",
              f"{rc['simulated'][k] / rc[k]:.3g}" if rc[k] else "-"] for k in keys]

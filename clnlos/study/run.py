@@ -19,7 +19,8 @@ The question is answered with legibility, not with how well a blob covers the ta
 4. The geometry sweeps (scan width, depth, slab thickness) at the seed's letter size,
    scored the same way.
 5. Measured resolution (:mod:`clnlos.study.resolution`) and a real capture beside its
-   simulation (:mod:`clnlos.study.real_capture`), when ../shared/data is present.
+   simulation (:mod:`clnlos.study.real_capture`), when a folder of the real CDT captures
+   is given (``real_data``, ``--real-data DIR``: its ``cdt/*.mat``).
 6. CNN (torch, CPU, seeded) trained on reconstructions with ground truth to predict
    legibility (``--labels legibility``: 1 identified with IoU above its box baseline,
    2 one of the two, 3 neither), validated on held-out glyphs and a held-out letter size,
@@ -115,7 +116,7 @@ class StudyOptions:
     labels: str = "legibility"
     seed: int = 0
     label: str = "full"
-    real_data: bool = True              # the shared real captures, when present
+    real_data: Path | None = None       # folder holding cdt/*.mat (the real CDT captures)
 
     @classmethod
     def quick(cls) -> StudyOptions:
@@ -446,30 +447,37 @@ def train_cnn(plan, results, opts: StudyOptions, label_metric: str, thresholds):
     return predict, report, labels
 
 
-def shared_data_dir() -> Path | None:
-    """../shared/data beside the working directory or beside the source checkout, if there."""
-    here = Path(__file__).resolve().parents[2]
-    for base in (Path.cwd(), here):
-        d = base.parent / "shared" / "data"
-        if (d / "cdt").is_dir():
-            return d
+def real_capture_dir(root: Path | None) -> Path | None:
+    """``root/cdt`` when it holds at least one of the real CDT captures, else None (with a
+    one-line warning when ``root`` was given: the study goes on without the real data)."""
+    import warnings
+
+    from .real_capture import PUBLISHED_SCAN_WIDTH_M
+
+    if root is None:
+        return None
+    cdt = Path(root) / "cdt"
+    if any((cdt / f"{n}.mat").is_file() for n in PUBLISHED_SCAN_WIDTH_M):
+        return cdt
+    warnings.warn(f"--real-data {root}: no real CDT capture ({', '.join(PUBLISHED_SCAN_WIDTH_M)}"
+                  ".mat) in its cdt/ folder; the report goes without the real captures",
+                  UserWarning, stacklevel=2)
     return None
 
 
-def real_captures_cnn(predict, grid: StudyGrid, device=None) -> list[dict]:
-    """The CNN's legibility class of each shared real capture, reconstructed with the study's
-    method and the default (auto) parameters (:func:`clnlos.study.real_capture.
-    capture_config`); [] without the data. MIPs are resampled to the CNN's input size."""
+def real_captures_cnn(cdt: Path, predict, grid: StudyGrid, device=None) -> list[dict]:
+    """The CNN's legibility class of each real capture in ``cdt``, reconstructed with the
+    study's method and the default (auto) parameters (:func:`clnlos.study.real_capture.
+    capture_config`). MIPs are resampled to the CNN's input size."""
     from scipy.ndimage import zoom
 
     from ..io import read_capture
     from ..reconstruct import reconstruct
     from .real_capture import PUBLISHED_SCAN_WIDTH_M, capture_config
 
-    root = shared_data_dir()
     out = []
-    for name in PUBLISHED_SCAN_WIDTH_M if root is not None else ():
-        path = root / "cdt" / f"{name}.mat"
+    for name in PUBLISHED_SCAN_WIDTH_M:
+        path = cdt / f"{name}.mat"
         if not path.is_file():
             continue
         cfg = capture_config(name, grid.method, iterations=grid.iterations)
@@ -484,16 +492,12 @@ def real_captures_cnn(predict, grid: StudyGrid, device=None) -> list[dict]:
     return out
 
 
-def real_data_study(predict, grid: StudyGrid, device=None) -> dict | None:
-    """The shared real captures (None without ../shared/data): letters_ut beside a simulation
-    of a comparable scene (:func:`clnlos.study.real_capture.compare_real_capture`, its
-    figure), the resolution chart's resolved features, and the CNN's verdict on each."""
+def real_data_study(cdt: Path, predict, grid: StudyGrid, device=None) -> dict:
+    """The real captures in ``cdt``: letters_ut beside a simulation of a comparable scene
+    (:func:`clnlos.study.real_capture.compare_real_capture`, its figure), the resolution
+    chart's resolved features, and the CNN's verdict on each."""
     from .real_capture import compare_real_capture, real_capture_figure, reconstruct_chart
 
-    root = shared_data_dir()
-    if root is None:
-        return None
-    cdt = root / "cdt"
     out: dict = {"summary": None, "figure": None, "chart": None}
     if (cdt / "letters_ut.mat").is_file():
         cmp = compare_real_capture(cdt / "letters_ut.mat", grid.method,
@@ -505,7 +509,7 @@ def real_data_study(predict, grid: StudyGrid, device=None) -> dict | None:
         chart = reconstruct_chart(cdt / "resolution_70.mat", "lct", queue=device)
         chart.pop("arrays", None)
         out["chart"] = chart
-    out["cnn"] = real_captures_cnn(predict, grid, device)
+    out["cnn"] = real_captures_cnn(cdt, predict, grid, device)
     return out
 
 
@@ -581,7 +585,8 @@ def run_study(out_dir: Path, opts: StudyOptions, *, workers: int | None = None,
 
     # -- real captures (shared data): the simulated twin, the CNN's verdict
     t0 = time.perf_counter()
-    real = real_data_study(predict, opts.grid, device) if opts.real_data else None
+    cdt = real_capture_dir(opts.real_data)
+    real = None if cdt is None else real_data_study(cdt, predict, opts.grid, device)
     if real is not None and real["chart"] is not None:
         resolution["real_chart"] = real["chart"]
     timings["real_capture_s"] = time.perf_counter() - t0
