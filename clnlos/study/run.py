@@ -597,7 +597,8 @@ def run_study(out_dir: Path, opts: StudyOptions, *, workers: int | None = None,
     hist, edges = np.histogram(ious, bins=10, range=(0, 1))
     results_json = {
         "study": opts.label,
-        "options": {**asdict(opts), "grid": asdict(opts.grid), "workers": nw},
+        "options": {**asdict(opts), "grid": asdict(opts.grid), "workers": nw,
+                    "real_data": None if opts.real_data is None else str(opts.real_data)},
         "materials": per_material,
         "geometries": geometries, "legible_geometry": LEGIBLE_GEOMETRY,
         "seed_geometry": next((g["name"] for g in geometries if g["name"] == SEED_GEOMETRY),
