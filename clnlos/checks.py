@@ -13,7 +13,7 @@ import os
 from pathlib import Path
 from typing import Any
 
-from .errors import InputFileError, ParameterError
+from clnlos.errors import InputFileError, ParameterError
 
 
 def _is_real(v: Any) -> bool:

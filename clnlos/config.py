@@ -47,8 +47,8 @@ import dataclasses
 import tomllib
 from dataclasses import asdict, dataclass
 
-from . import C0
-from .checks import (
+from clnlos import C0
+from clnlos.checks import (
     auto_or_positive,
     choice,
     did_you_mean,
@@ -57,8 +57,8 @@ from .checks import (
     positive,
     real,
 )
-from .errors import InputFileError, ParameterError
-from .slab import Slab
+from clnlos.errors import InputFileError, ParameterError
+from clnlos.physics.slab import Slab
 
 METHODS = ("lct", "fk", "iterative")
 # falloff = None: the method's own radiometric exponent p of (t/T)^p (clnlos.lct, clnlos.fk):

@@ -27,11 +27,11 @@ import math
 import numpy as np
 import pyopencl.array as cla
 
-from .checks import positive
-from .errors import ParameterError
-from .grid import grid_offsets
-from .slab import Slab, effective_reflection  # noqa: F401 (re-exported)
-from .runtime import (
+from clnlos.checks import positive
+from clnlos.errors import ParameterError
+from clnlos.physics.grid import grid_offsets
+from clnlos.physics.slab import Slab, effective_reflection  # noqa: F401 (re-exported)
+from clnlos.runtime.device import (
     get_kernels,
     get_queue,
     kernel_int,

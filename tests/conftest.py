@@ -6,7 +6,7 @@ from pathlib import Path
 import numpy as np
 import pytest
 
-from clnlos import runtime
+from clnlos.runtime import device as runtime
 
 SHARED = Path(__file__).resolve().parents[1].parent / "shared" / "data"
 

@@ -10,7 +10,7 @@ import numpy as np
 from hypothesis import HealthCheck, given, settings
 from hypothesis import strategies as st
 
-from clnlos.cli import main
+from clnlos.app.cli import main
 
 SETTINGS = settings(max_examples=25, deadline=None,
                     suppress_health_check=[HealthCheck.function_scoped_fixture])
@@ -176,7 +176,7 @@ def test_invalid_cli_arguments(tmp_path_factory, args):
 
 # ------------------------------------------------------------------ output paths
 def _capture(d):
-    from clnlos.io import write_capture
+    from clnlos.io.files import write_capture
 
     return write_capture(d / "c.h5", np.ones((40, 4, 4), np.float32), bin_width_s=2e-11,
                          start_s=0.0, scan_width_m=0.3)
@@ -313,7 +313,7 @@ def test_scene_sanity_and_empty_captures(tmp_path_factory, case):
     d = tmp_path_factory.mktemp("sane")
     out = d / "o.h5"
     if case == "zero_capture":
-        from clnlos.io import write_capture
+        from clnlos.io.files import write_capture
 
         cap = write_capture(d / "z.h5", np.zeros((40, 4, 4), np.float32), bin_width_s=2e-11,
                             start_s=0.0, scan_width_m=0.3)
@@ -391,7 +391,7 @@ def test_sizes_beyond_the_kernel_index_range():
     import pytest
 
     from clnlos.errors import DeviceCapabilityError
-    from clnlos.runtime import kernel_int
+    from clnlos.runtime.device import kernel_int
 
     assert kernel_int(2**31 - 1) == 2**31 - 1
     with pytest.raises(DeviceCapabilityError, match="32-bit"):

@@ -11,11 +11,11 @@ import pytest
 from reference.scene_ref import points_transient
 
 from clnlos.config import ReconstructionConfig
-from clnlos.io import Capture
-from clnlos.plans import PIPELINES
-from clnlos.reconstruct import reconstruct
-from clnlos.slab import CDT_SLAB
-from clnlos.spectrum_cache import HEADER, SUFFIX
+from clnlos.io.files import Capture
+from clnlos.runtime.caches import PIPELINES
+from clnlos.inverse.pipeline import reconstruct
+from clnlos.physics.slab import CDT_SLAB
+from clnlos.runtime.spectrum_cache import HEADER, SUFFIX
 
 SHAPE_T, WIDTH, DT = 96, 0.5, 48e-12  # 4.6 ns: every arrival inside (no tail fill)
 
@@ -268,8 +268,8 @@ def _write_capture(path, kind):
     import h5py
     import scipy.io
 
-    from clnlos.formats.tal import write_tal
-    from clnlos.io import write_capture
+    from clnlos.io.formats.tal import write_tal
+    from clnlos.io.files import write_capture
 
     tau = np.random.default_rng(0).random((NT, NY, NX)).astype(np.float32)
     if kind == "clnlos":
@@ -295,7 +295,7 @@ SUFFIXES = {"clnlos": ".h5", "tal": ".hdf5", "npy": ".npy"}
 
 def _never_read(monkeypatch):
     """Make every reader's validation (which sees the data) fail the test."""
-    from clnlos.formats import clnlos_h5, mat, npy_array, tal
+    from clnlos.io.formats import clnlos_h5, mat, npy_array, tal
 
     def boom(*a, **k):
         raise AssertionError("the data were read")
@@ -307,9 +307,9 @@ def _never_read(monkeypatch):
 @pytest.mark.parametrize("kind", FORMATS)
 def test_capture_size_is_checked_against_host_memory_before_reading(tmp_path, monkeypatch,
                                                                     kind):
-    from clnlos import limits
+    from clnlos.runtime import limits as limits
     from clnlos.errors import MemoryLimitError
-    from clnlos.formats import read_capture
+    from clnlos.io.formats import read_capture
 
     path = _write_capture(tmp_path / f"c{SUFFIXES.get(kind, '.mat')}", kind)
     seen = []
@@ -334,7 +334,7 @@ def test_capture_declaring_a_huge_transient_is_refused_before_it_is_read(tmp_pat
     GiB: more than any host this runs on, so the old code's read fails at once too)."""
     import h5py
 
-    from clnlos.cli import main
+    from clnlos.app.cli import main
 
     path = tmp_path / "huge.h5"
     with h5py.File(path, "w") as f:
@@ -365,10 +365,10 @@ def test_reconstruction_buffers_are_checked_against_the_device_before_reading(tm
     """The pipeline's spectrum of a 512 x 128 x 128 capture (2 x 1024 x 256 x 129 complex,
     258 MiB) does not fit a 64 MiB allocation: refused with the declared shape; with
     --bins 64 it does (33 MiB)."""
-    from clnlos.cli_commands import _pipeline_fits
+    from clnlos.app.commands import _pipeline_fits
     from clnlos.errors import DeviceMemoryError
-    from clnlos.limits import capture_use
-    from clnlos.reconstruct import device_bytes_needed
+    from clnlos.runtime.limits import capture_use
+    from clnlos.inverse.pipeline import device_bytes_needed
 
     cfg = ReconstructionConfig(method="lct").validate()
     total, largest = device_bytes_needed((512, 128, 128), bin_width_s=DT, start_s=0.0,
@@ -385,7 +385,7 @@ def test_reconstruction_buffers_are_checked_against_the_device_before_reading(tm
     tiny = type("Tiny", (), {"device": type("D", (), {"name": "tiny",
                                                       "max_mem_alloc_size": 4096,
                                                       "global_mem_size": 8192})()})()
-    from clnlos.formats import read_capture
+    from clnlos.io.formats import read_capture
 
     with capture_use(_pipeline_fits(path, cfg, tiny, np.float32)):
         with pytest.raises(DeviceMemoryError, match=f"{NT} x {NY} x {NX}"):
@@ -397,10 +397,10 @@ def test_legitimate_large_sizes_pass_the_checks(queue):
     scenes, textures of 64 and 128 nodes: nothing refused."""
     from importlib import resources
 
-    from clnlos.cli_commands import _pipeline_fits
-    from clnlos.forward import check_scene_size
-    from clnlos.limits import declared_capture
-    from clnlos.scene import Scene
+    from clnlos.app.commands import _pipeline_fits
+    from clnlos.forward.model import check_scene_size
+    from clnlos.runtime.limits import declared_capture
+    from clnlos.forward.scene import Scene
     from clnlos.study.dataset import StudyGrid, dataset_samples, scene_dict
 
     declared_capture("c.h5", (512, 128, 128), 4)
@@ -426,8 +426,8 @@ translate_m = [0.0, 0.0, 0.5]
 
 def test_scene_surface_elements_are_bounded_before_sampling(tmp_path, monkeypatch, capsys):
     """10 m x 10 m at 1e10 per m^2: 1e12 elements, refused before any is built."""
-    from clnlos import forward
-    from clnlos.cli import main
+    from clnlos.forward import model as forward
+    from clnlos.app.cli import main
 
     def boom(*a, **k):
         raise AssertionError("sampled")
@@ -448,8 +448,8 @@ def test_scene_surface_elements_are_bounded_before_sampling(tmp_path, monkeypatc
     ('shape = "sphere"\nradius_m = 0.1', round(4 * np.pi * 0.01 * 1e6)),
     ('shape = "letters"\ntext = "UT"\nheight_m = 0.15\nstroke_m = 0.04', None)])
 def test_element_count_bounds_what_sampling_builds(tmp_path, shape, count):
-    from clnlos.forward import element_count, sample_object
-    from clnlos.scene import Scene
+    from clnlos.forward.model import element_count, sample_object
+    from clnlos.forward.scene import Scene
 
     scene = tmp_path / "s.toml"
     scene.write_text(SCENE + shape + "\n[sampling]\ndensity_per_m2 = 1e6\n")
@@ -462,7 +462,7 @@ def test_element_count_bounds_what_sampling_builds(tmp_path, shape, count):
 
 
 def test_scene_strings_are_bounded_and_not_echoed(tmp_path, capsys):
-    from clnlos.cli import main
+    from clnlos.app.cli import main
 
     scene = tmp_path / "s.toml"
     # sizes the old code survives: 300 letters at a low density, a 1 MB file name
@@ -489,7 +489,7 @@ def _phong_model(tmp_path):
 
 
 def test_texture_resolution_is_bounded_before_allocating(tmp_path, capsys):
-    from clnlos.cli import main
+    from clnlos.app.cli import main
 
     model = _phong_model(tmp_path)
     out = tmp_path / "t.h5"
@@ -532,7 +532,7 @@ def test_texture_file_declaring_a_huge_grid_is_refused_before_reading(tmp_path):
 
 
 def test_host_memory_comes_from_meminfo_capped_by_the_cgroup(tmp_path, monkeypatch):
-    from clnlos import limits
+    from clnlos.runtime import limits as limits
 
     info = tmp_path / "meminfo"
     info.write_text("MemTotal:       24000000 kB\nMemAvailable:    2000000 kB\n")
@@ -553,7 +553,7 @@ def test_host_memory_comes_from_meminfo_capped_by_the_cgroup(tmp_path, monkeypat
 def test_a_group_where_the_dataset_belongs_is_still_one_line(tmp_path, capsys, name, suffix):
     import h5py
 
-    from clnlos.cli import main
+    from clnlos.app.cli import main
 
     path = tmp_path / f"g{suffix}"
     with h5py.File(path, "w") as f:

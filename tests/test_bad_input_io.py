@@ -17,7 +17,7 @@ import h5py
 import numpy as np
 import pytest
 
-from clnlos.cli import main
+from clnlos.app.cli import main
 
 CSV_HEADER = "theta_i_deg,phi_i_deg,theta_s_deg,phi_s_deg,brdf\n"
 SCENE = ("[scan]\nwidth_m = 0.3\npoints = 4\n[time]\nbin_width_s = 2e-11\nbins = 64\n"
@@ -52,7 +52,7 @@ def _no_temporaries(d: Path):
 
 
 def _capture(d: Path) -> Path:
-    from clnlos.io import write_capture
+    from clnlos.io.files import write_capture
 
     return write_capture(d / "c.h5", np.ones((40, 4, 4), np.float32), bin_width_s=2e-11,
                          start_s=0.0, scan_width_m=0.3)
@@ -191,7 +191,7 @@ def test_implied_output_never_replaces_a_foreign_file(tmp_path, case):
 
 
 def test_force_replaces_a_foreign_figure_and_reruns_replace_their_own(tmp_path):
-    from clnlos.outputs import written_by_clnlos
+    from clnlos.io.outputs import written_by_clnlos
 
     cap = _capture(tmp_path)
     out, png = tmp_path / "r.h5", tmp_path / "r.png"
@@ -208,7 +208,7 @@ def test_force_replaces_a_foreign_figure_and_reruns_replace_their_own(tmp_path):
 
 
 def test_written_by_clnlos_recognises_only_its_own_markers(tmp_path):
-    from clnlos.outputs import HTML_GENERATOR, stamp, written_by_clnlos
+    from clnlos.io.outputs import HTML_GENERATOR, stamp, written_by_clnlos
 
     own_json, other_json = tmp_path / "a.json", tmp_path / "b.json"
     own_json.write_text(json.dumps(stamp({"x": 1})))
@@ -228,17 +228,17 @@ def test_written_by_clnlos_recognises_only_its_own_markers(tmp_path):
 # ------------------------------------------------------------------ SIGTERM
 CHILD_RECONSTRUCT = """
 import sys, time
-import clnlos.io
-from clnlos.cli import main
+import clnlos.io.files
+from clnlos.app.cli import main
 
-real = clnlos.io.write_h5_file
+real = clnlos.io.files.write_h5_file
 
 def slow_write(path, datasets, attrs):
     real(path, datasets, attrs)           # the temporary is complete on disk ...
     print("writing", path, flush=True)    # ... and the run is stopped before the rename
     time.sleep(60)
 
-clnlos.io.write_h5_file = slow_write
+clnlos.io.files.write_h5_file = slow_write
 sys.exit(main(sys.argv[1:]))
 """
 
@@ -271,7 +271,7 @@ def test_sigterm_during_a_write_leaves_no_temporary(tmp_path):
 CHILD_WORKER = """
 import sys, time
 from pathlib import Path
-from clnlos.outputs import install_sigterm_cleanup, write_group
+from clnlos.io.outputs import install_sigterm_cleanup, write_group
 
 install_sigterm_cleanup(chain=True)  # a worker process: remove, then die as before
 with write_group([Path(sys.argv[1])]) as (tmp,):
@@ -300,7 +300,7 @@ def test_sigterm_in_a_worker_removes_its_temporaries_and_still_ends_it(tmp_path)
 
 
 def test_live_temporaries_are_removed_by_the_exit_backstop(tmp_path):
-    from clnlos import outputs
+    from clnlos.io import outputs as outputs
 
     cm = outputs.write_group([tmp_path / "a.h5", tmp_path / "a.png"])
     tmps = cm.__enter__()
@@ -332,7 +332,7 @@ def _full_disk(message_of):
 
 @pytest.mark.parametrize("kind", ["errno", "h5py_text"])
 def test_full_disk_names_the_users_path_in_one_line(tmp_path, monkeypatch, kind):
-    import clnlos.io
+    import clnlos.io.files
 
     make = {"errno": lambda tmp: OSError(errno.ENOSPC, "No space left on device", tmp),
             "h5py_text": lambda tmp: OSError(

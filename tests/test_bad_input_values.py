@@ -17,7 +17,7 @@ from hypothesis import event, given, settings
 from hypothesis import strategies as st
 
 from clnlos import C0
-from clnlos.cli import main
+from clnlos.app.cli import main
 from clnlos.config import GEOMETRY_LIMITS, MAX_BINS
 from tests.test_bad_input import SETTINGS, _assert_clean_failure, _toml_value
 
@@ -43,7 +43,7 @@ def _one_error_line(rc, err) -> str:
 
 def _capture(path, *, nt=64, n=4, attrs=None, **geometry):
     """A clnlos capture with one bright time bin; ``geometry`` overrides the attributes."""
-    from clnlos.io import capture_attrs
+    from clnlos.io.files import capture_attrs
 
     arr = np.zeros((nt, n, n), np.float32)
     arr[nt // 2] = 1.0
@@ -95,7 +95,7 @@ def test_capture_geometry_uses_the_flags_range(tmp_path, field, value):
 def test_the_range_table_limits_are_the_boundaries(tmp_path):
     """Just inside each limit a capture is read; just outside it is refused."""
     from clnlos.errors import InputFileError
-    from clnlos.io import read_capture
+    from clnlos.io.files import read_capture
 
     for field, (lo, hi, lo_ok) in GEOMETRY_LIMITS.items():
         inside = [hi, lo] if lo_ok else [hi, hi * 1e-9]
@@ -176,7 +176,7 @@ def test_fk_tofgrid_out_of_range(tmp_path, tof):
 
 
 def test_shift_past_the_window_empties_the_column():
-    from clnlos.formats.common import shift_earlier
+    from clnlos.io.formats.common import shift_earlier
 
     arr = np.ones((8, 1, 2), np.float32)
     out = shift_earlier(arr, np.array([[1e300, 1.0]]))
@@ -198,7 +198,7 @@ def test_deeply_nested_toml(tmp_path, text):
 
 @pytest.mark.parametrize("t_start", [float("nan"), float("inf"), 1e6])
 def test_tal_t_start_out_of_range(tmp_path, t_start):
-    from clnlos.formats.tal import write_tal
+    from clnlos.io.formats.tal import write_tal
 
     tau = np.zeros((32, 4, 4), np.float32)
     tau[16] = 1
@@ -492,8 +492,8 @@ def test_fuzz_recorded_slab(slab_capture, tmp_path_factory, record):
 def _first_arrival_s(scene_path):
     """The earliest round trip (s) from a scan point to an element whose front faces it,
     computed here from the scene's sampled elements (None: no element faces a point)."""
-    from clnlos.forward import sample_object
-    from clnlos.scene import Scene
+    from clnlos.forward.model import sample_object
+    from clnlos.forward.scene import Scene
 
     sc = Scene.from_toml(scene_path)
     el = sample_object(sc.objects[0], sc.density_per_m2, sc.base_dir)

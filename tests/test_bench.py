@@ -6,7 +6,7 @@ import json
 import pytest
 
 from clnlos import bench
-from clnlos.cli import main as cli_main
+from clnlos.app.cli import main as cli_main
 
 pytestmark = pytest.mark.slow  # runs the benchmark harness
 

@@ -22,19 +22,19 @@ import numpy as np
 import pytest
 
 from clnlos import C0
-from clnlos.bistatic import (
+from clnlos.forward.bistatic import (
     BistaticTransport,
     TransportSettings,
     face_quadrature,
     lobe_halfwidth_rad,
     scene_textures,
 )
-from clnlos.cli import main
+from clnlos.app.cli import main
 from clnlos.config import slab_table
 from clnlos.diffusion import diffusion_psf
-from clnlos.forward import ForwardModel, sample_scene
-from clnlos.scene import Scene
-from clnlos.slab import CDT_SLAB
+from clnlos.forward.model import ForwardModel, sample_scene
+from clnlos.forward.scene import Scene
+from clnlos.physics.slab import CDT_SLAB
 
 BINS, DT = 128, 32e-12
 DEPTH, TILT = 0.35, 5.0

@@ -18,7 +18,7 @@ from clnlos.brdf.mlp import MLPConfig, train_mlp
 from clnlos.brdf.models import BRDFModel, retro_slice
 from clnlos.brdf.store import load_model
 from clnlos.brdf.texture import TextureLookup, lookup_numpy, read_texture, tabulate, write_texture
-from clnlos.cli import main
+from clnlos.app.cli import main
 from clnlos.errors import InputFileError, ParameterError
 
 HEADER = "theta_i_deg,phi_i_deg,theta_s_deg,phi_s_deg,brdf\n"
@@ -302,8 +302,8 @@ def test_brdf_cli_fit_texture_plot(tmp_path, capsys):
 
 
 def test_texture_material_in_scene(queue, tmp_path):
-    from clnlos.forward import ForwardModel
-    from clnlos.scene import Scene
+    from clnlos.forward.model import ForwardModel
+    from clnlos.forward.scene import Scene
 
     m = BRDFModel("phong", {"kd": 0.2, "ks": 0.8, "shininess": 40.0})
     write_texture(tmp_path / "t.h5", tabulate(m, 8, 8, 256))
@@ -325,8 +325,8 @@ def test_measured_ptfe_five_param_fit(shared_data):
 
 def test_ten_presets_in_four_classes(queue):
     from clnlos.brdf.presets import CLASSES, preset_model, preset_table
-    from clnlos.forward import ForwardModel
-    from clnlos.scene import Scene
+    from clnlos.forward.model import ForwardModel
+    from clnlos.forward.scene import Scene
 
     t = preset_table()
     assert len(t) == 10 and {v["class"] for v in t.values()} == set(CLASSES)

@@ -6,9 +6,9 @@ import h5py
 import numpy as np
 import pytest
 
-from clnlos import calibration as cal
+from clnlos.forward import calibration as cal
 from clnlos.errors import InputFileError
-from clnlos.slab import Slab
+from clnlos.physics.slab import Slab
 
 DT = cal.BIN_WIDTH_S
 
@@ -116,7 +116,7 @@ def test_real_five_inch(shared_data):
 # --- the hidden-face kernel (clnlos.blur.eq8_psf) -------------------------------------------
 
 def _f64(queue):
-    from clnlos.runtime import has_fp64
+    from clnlos.runtime.device import has_fp64
 
     if not has_fp64(queue.device):
         pytest.skip("device has no fp64")
@@ -125,9 +125,9 @@ def _f64(queue):
 def test_eq8_psf_energy_per_lag_and_width(queue):
     """Same energy per lag as CDT's Phi * Phi; per-axis variance D v t / 2 (CDT's 2 D v t),
     plus the cell's p^2 / 12."""
-    from clnlos.blur import confocal_psf, eq8_psf
-    from clnlos.grid import grid_offsets
-    from clnlos.slab import CDT_SLAB
+    from clnlos.forward.blur import confocal_psf, eq8_psf
+    from clnlos.physics.grid import grid_offsets
+    from clnlos.physics.slab import CDT_SLAB
 
     _f64(queue)
     shape, dt, p = (40, 16, 16), 16e-12, 0.004
@@ -153,9 +153,9 @@ def test_eq8_kernel_is_the_far_target_limit_of_eq8(queue, z):
     other's approximation."""
     from scipy.signal import fftconvolve
 
-    from clnlos.blur import confocal_psf, eq8_psf
+    from clnlos.forward.blur import confocal_psf, eq8_psf
     from clnlos.diffusion import diffusion_psf
-    from clnlos.slab import CDT_SLAB
+    from clnlos.physics.slab import CDT_SLAB
     from tests.reference import eq8_ref as ref
 
     _f64(queue)
@@ -187,9 +187,9 @@ def test_slab_blur_kernel_choice(queue):
     """slab_blur(kernel="eq8") convolves by eq8_psf; an unknown kernel is refused by name."""
     import pyopencl.array as cla
 
-    from clnlos.blur import eq8_psf, slab_blur
+    from clnlos.forward.blur import eq8_psf, slab_blur
     from clnlos.errors import ParameterError
-    from clnlos.slab import CDT_SLAB
+    from clnlos.physics.slab import CDT_SLAB
 
     _f64(queue)
     shape, dt, p = (32, 6, 6), 16e-12, 0.01

@@ -12,7 +12,7 @@ from reference.diffusion_ref import (
 )
 
 from clnlos.config import slab_table
-from clnlos.slab import CDT_SLAB
+from clnlos.physics.slab import CDT_SLAB
 from clnlos.diffusion import (
     Slab,
     SlabTransmittance,

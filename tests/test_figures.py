@@ -5,8 +5,8 @@ import h5py
 import numpy as np
 import pytest
 
-from clnlos.deflate import DeflatedArray, chunk_shape, write_dataset
-from clnlos.raster import Panel, RasterFigure, colormap_lut, nice_ticks, tick_label
+from clnlos.io.deflate import DeflatedArray, chunk_shape, write_dataset
+from clnlos.io.raster import Panel, RasterFigure, colormap_lut, nice_ticks, tick_label
 
 
 # ------------------------------------------------------------------ ticks and colours
@@ -70,8 +70,8 @@ def test_raster_figure_draws_images_with_origin_lower(tmp_path):
 
 
 def test_volume_figure_png(tmp_path):
-    from clnlos.figures import volume_figure
-    from clnlos.io import save_figure_file
+    from clnlos.io.figures import volume_figure
+    from clnlos.io.files import save_figure_file
 
     vol = np.zeros((32, 12, 12), np.float32)
     vol[10, 3:8, 4:6] = 1.0

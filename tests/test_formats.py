@@ -13,14 +13,14 @@ import pytest
 import scipy.io
 
 from clnlos import C0
-from clnlos.cli import main
+from clnlos.app.cli import main
 from clnlos.config import ReconstructionConfig
 from clnlos.errors import InputFileError
-from clnlos.formats import read_capture, sniff
-from clnlos.formats.common import shift_earlier
-from clnlos.formats.tal import GRID_FORMAT, H_FORMAT, write_tal
-from clnlos.io import write_capture
-from clnlos.reconstruct import reconstruct
+from clnlos.io.formats import read_capture, sniff
+from clnlos.io.formats.common import shift_earlier
+from clnlos.io.formats.tal import GRID_FORMAT, H_FORMAT, write_tal
+from clnlos.io.files import write_capture
+from clnlos.inverse.pipeline import reconstruct
 
 NT, NY, NX = 96, 6, 8  # a rectangular scan on purpose: x and y cannot be swapped unnoticed
 

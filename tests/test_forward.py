@@ -7,18 +7,18 @@ import pytest
 from helpers import rel_l2
 from reference.lightcone_ref import lightcone_ref
 
-from clnlos.slab import CDT_SLAB
+from clnlos.physics.slab import CDT_SLAB
 from clnlos import C0
 from clnlos.brdf.models import BRDFModel, retro_slice
-from clnlos.cli import main
+from clnlos.app.cli import main
 from clnlos.config import ReconstructionConfig, slab_table
 from clnlos.errors import ParameterError
-from clnlos.forward import N_THETA, ForwardModel, LightCone, SurfaceSamples, pulse_taps
-from clnlos.geometry import Elements, read_mesh, sample_mesh, sample_rectangle, sample_sphere
-from clnlos.io import read_capture
-from clnlos.metrics import letters_truth_mask, mip_iou, peak_depth_m
-from clnlos.reconstruct import reconstruct
-from clnlos.scene import Scene
+from clnlos.forward.model import N_THETA, ForwardModel, LightCone, SurfaceSamples, pulse_taps
+from clnlos.forward.geometry import Elements, read_mesh, sample_mesh, sample_rectangle, sample_sphere
+from clnlos.io.files import read_capture
+from clnlos.study.metrics import letters_truth_mask, mip_iou, peak_depth_m
+from clnlos.inverse.pipeline import reconstruct
+from clnlos.forward.scene import Scene
 
 # float32: the sub-bin position r * 2/(c dt) ~ 300 bins carries ~2e-5 bins of rounding
 TOL = {np.float32: 1e-4, np.float64: 1e-12}
@@ -45,7 +45,7 @@ def _samples(el, albedo=None, tables=None, material=None):
 def test_kernel_vs_reference(queue, dtype, splat, brdf, variant):
     """Both kernel shapes (work-item per scan point for CPUs, work-group per scan point with
     a local histogram for GPUs) against the float64 reference."""
-    from clnlos.forward import choose_lightcone_variant
+    from clnlos.forward.model import choose_lightcone_variant
 
     if variant == "group":
         try:
@@ -297,7 +297,7 @@ def test_pulse_blur_kernel_vs_numpy(queue, dtype):
     """kernels/temporal.cl (time_convolve) against numpy's convolution, float64 reference."""
     import pyopencl.array as cla
 
-    from clnlos.forward import PulseBlur
+    from clnlos.forward.model import PulseBlur
 
     rng = np.random.default_rng(7)
     x = rng.random((90, 3, 4))

@@ -11,18 +11,18 @@ from helpers import rel_l2
 
 from clnlos import C0
 from clnlos.config import ReconstructionConfig, slab_table
-from clnlos.forward import ForwardModel, LightCone, SurfaceSamples
-from clnlos.geometry import Elements
-from clnlos.iterative import IterativeInversion
-from clnlos.metrics import mip_iou, truth_mask
-from clnlos.noise import K_SNR, SNR_MAX, estimate_noise, is_counts
-from clnlos.operators import dot_test
-from clnlos.reconstruct import reconstruct
-from clnlos.resample import AxisResample
-from clnlos.scene import Scene
-from clnlos.slab import CDT_SLAB
-from clnlos.solvers import ProxKernels, fista, lipschitz
-from clnlos.transport import LightConeTransport
+from clnlos.forward.model import ForwardModel, LightCone, SurfaceSamples
+from clnlos.forward.geometry import Elements
+from clnlos.inverse.iterative import IterativeInversion
+from clnlos.study.metrics import mip_iou, truth_mask
+from clnlos.inverse.snr import K_SNR, SNR_MAX, estimate_noise, is_counts
+from clnlos.operators.base import dot_test
+from clnlos.inverse.pipeline import reconstruct
+from clnlos.operators.resample import AxisResample
+from clnlos.forward.scene import Scene
+from clnlos.physics.slab import CDT_SLAB
+from clnlos.inverse.solvers import ProxKernels, fista, lipschitz
+from clnlos.forward.transport import LightConeTransport
 
 TOL = {np.dtype(np.float32): 1e-6, np.dtype(np.float64): 1e-13}
 
@@ -276,7 +276,7 @@ def test_cli_iterative_uses_recorded_slab(tmp_path, capsys, queue):
     estimate and the solver's report are stored; --no-slab opts out."""
     import h5py
 
-    from clnlos.cli import main
+    from clnlos.app.cli import main
 
     scene = tmp_path / "s.toml"
     scene.write_text("""seed = 2

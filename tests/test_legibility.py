@@ -6,7 +6,7 @@ import pytest
 from scipy.ndimage import gaussian_filter
 from scipy.stats import binomtest
 
-from clnlos.metrics import iou, letters_truth_mask
+from clnlos.study.metrics import iou, letters_truth_mask
 from clnlos.study.legibility import (
     GLYPHS,
     box_baseline_iou,

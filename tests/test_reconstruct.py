@@ -10,21 +10,21 @@ from helpers import rel_l2
 from reference.recon_ref import confocal_psf_ref, fk_ref, lct_ref, pad_filter, resample_cumsum
 from reference.scene_ref import patch_points, points_transient, scan_centres
 
-from clnlos.slab import CDT_SLAB
+from clnlos.physics.slab import CDT_SLAB
 from clnlos import C0
-from clnlos.blur import confocal_psf, slab_blur
-from clnlos.cli import main
+from clnlos.forward.blur import confocal_psf, slab_blur
+from clnlos.app.cli import main
 from clnlos.config import ReconstructionConfig, slab_table
 from clnlos.diffusion import Slab
-from clnlos.fft import ComplexFFT3, RealFFT3
-from clnlos.fk import FKMigration
-from clnlos.io import Capture, read_capture, write_capture
-from clnlos.lct import LCT
-from clnlos.operators import dot_test
-from clnlos.reconstruct import preprocess_matrix, reconstruct
-from clnlos.pulse import PulseBlur
-from clnlos.resample import AxisResample, overlap_matrix, rebin_matrix
-from clnlos.transport import LightConeTransport
+from clnlos.runtime.fft import ComplexFFT3, RealFFT3
+from clnlos.inverse.fk import FKMigration
+from clnlos.io.files import Capture, read_capture, write_capture
+from clnlos.inverse.lct import LCT
+from clnlos.operators.base import dot_test
+from clnlos.inverse.pipeline import preprocess_matrix, reconstruct
+from clnlos.forward.pulse import PulseBlur
+from clnlos.operators.resample import AxisResample, overlap_matrix, rebin_matrix
+from clnlos.forward.transport import LightConeTransport
 
 CDT = slab_table(CDT_SLAB)
 # Stated tolerances (relative L2 against the float64 numpy reference)
@@ -43,12 +43,12 @@ def _use_fft_backend(queue, backend: str, monkeypatch) -> str:
     ``host-public-api`` (the host path through scipy.fft's public functions, the fallback);
     returns the backend name the plans report."""
     if backend == "host-public-api":
-        import clnlos.fft
+        import clnlos.runtime.fft
 
-        monkeypatch.setattr(clnlos.fft, "_pocketfft", lambda: None)
+        monkeypatch.setattr(clnlos.runtime.fft, "_pocketfft", lambda: None)
         backend = "host"
     if backend == "vkfft":
-        from clnlos.runtime import pocl_version
+        from clnlos.runtime.device import pocl_version
 
         pytest.importorskip("pyvkfft.opencl")
         ver = pocl_version(queue.device)
@@ -111,7 +111,7 @@ def test_pruned_fft_vs_numpy(queue, dtype, backend, shape, block, monkeypatch):
 def test_fft_backend_per_device(queue, monkeypatch):
     """auto: host FFT on CPU devices, VkFFT on others; CLNLOS_FFT=vkfft forces VkFFT (where
     PoCL does not miscompile it)."""
-    from clnlos.runtime import cl, pocl_version
+    from clnlos.runtime.device import cl, pocl_version
 
     monkeypatch.delenv("CLNLOS_FFT", raising=False)
     p = RealFFT3((8, 8, 8), np.float32, queue)
@@ -235,7 +235,7 @@ def test_guard_bins_are_deconvolved_then_dropped(queue, dtype):
     """With capture bins past max_path the slab deconvolution runs on n_out + n_guard bins
     and only the first n_out reach the inversion: the pipeline equals its stages run by
     hand (preprocess with the guard rows, normalise, deconvolve, keep n_out rows, LCT)."""
-    from clnlos.reconstruct import ReconstructionPipeline
+    from clnlos.inverse.pipeline import ReconstructionPipeline
 
     nt_in, n, width, dt_in = 96, 8, 0.4, 32e-12
     pts = points_transient([(0.05, 0.0, 0.25), (-0.1, 0.05, 0.4)], [1, 1], nt_in, n, width,
@@ -481,7 +481,7 @@ def test_cli_bad_capture_files(tmp_path, capsys):
 def test_lightcone_psf_kernel_matches_numpy(queue, dtype, nt, n, pitch):
     """kernels/lct.cl's light cone against the float64 numpy table, including cones that
     leave the padded window (pitch 0.08 m: the outer cells' bins fall past 2 nt)."""
-    from clnlos.lct import lightcone_psf, lightcone_psf_device
+    from clnlos.inverse.lct import lightcone_psf, lightcone_psf_device
 
     ref = lightcone_psf(nt, n, n + 1, bin_width_s=32e-12, pitch_m=pitch)
     got, rows = lightcone_psf_device(nt, n, n + 1, bin_width_s=32e-12, pitch_m=pitch,
@@ -502,7 +502,7 @@ def test_phi_spectrum_is_the_3d_dft_of_the_psf_table(queue, dtype, shape, period
     numpy's float64 rfftn of the diffusion_psf table on the padded grid, zero past its
     temporal support -- odd and even sizes, one-row grids, periodic and padded laterally;
     squared too."""
-    from clnlos.blur import phi_spectrum
+    from clnlos.forward.blur import phi_spectrum
     from clnlos.diffusion import diffusion_psf, lateral_integral_profile, support_of
 
     slab, dt, pitch = CDT_SLAB, 48e-12, 0.02
@@ -530,8 +530,8 @@ def test_folded_slab_spectrum_filters_like_the_whole_one(queue, dtype, shape, pe
     """The slab spectrum stored folded (w <= n0/2, ky <= n1/2) is that quarter of the whole
     one, and filtering with it (convolve, adjoint, Wiener) equals filtering with the whole
     spectrum -- odd and even lateral sizes."""
-    from clnlos.blur import phi_spectrum
-    from clnlos.wiener import SpectralFilter, folded_shape
+    from clnlos.forward.blur import phi_spectrum
+    from clnlos.operators.spectral import SpectralFilter, folded_shape
 
     kw = dict(bin_width_s=48e-12, pitch_m=0.02, n_dipoles=None, periodic_xy=periodic,
               square=True, dtype=dtype, queue=queue)
@@ -556,9 +556,9 @@ def test_slab_blur_from_its_spectrum_equals_the_psf_route(queue, dtype, nt):
     """slab_blur squares Phi's spectrum directly when Phi * Phi holds nothing that matters at
     lags >= nt (nt = 512 at 32 ps) and goes back to the lag domain to cut it otherwise
     (nt = 96): both equal filtering by confocal_psf."""
-    from clnlos.blur import confocal_tail_fraction
+    from clnlos.forward.blur import confocal_tail_fraction
     from clnlos.diffusion import SUPPORT_TOL, lateral_integral_profile, support_of
-    from clnlos.wiener import SpectralFilter
+    from clnlos.operators.spectral import SpectralFilter
 
     slab = CDT_SLAB
     prof = lateral_integral_profile(slab, nt=nt, bin_width_s=32e-12, queue=queue)

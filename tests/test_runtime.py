@@ -10,8 +10,8 @@ from pathlib import Path
 import numpy as np
 import pytest
 
-from clnlos import runtime
-from clnlos.cli import main
+from clnlos.runtime import device as runtime
+from clnlos.app.cli import main
 from clnlos.errors import DeviceCapabilityError, DeviceError, KernelBuildError
 
 ROOT = Path(__file__).resolve().parents[1]
@@ -205,7 +205,7 @@ def test_host_copies_respect_offsets_and_keep_no_events(queue):
     import pyopencl.array as cla
 
     from clnlos.errors import ShapeError
-    from clnlos.runtime import download, upload_into
+    from clnlos.runtime.device import download, upload_into
 
     a = cla.to_device(queue, np.arange(24, dtype=np.float32).reshape(4, 6))
     a.finish()
@@ -229,7 +229,7 @@ def test_plan_cache_budget_clear_and_threads(queue, monkeypatch):
     import pyopencl.array as cla
 
     from clnlos.errors import ParameterError
-    from clnlos.plans import ENV_BUDGET, PlanCache, device_bytes
+    from clnlos.runtime.caches import ENV_BUDGET, PlanCache, device_bytes
 
     class Plan:
         def __init__(self, n):
@@ -238,7 +238,7 @@ def test_plan_cache_budget_clear_and_threads(queue, monkeypatch):
 
     assert device_bytes(Plan(100)) == 100 * 4 + 100 * 8
     # shared work buffers count with their reserved size, before and after allocation
-    from clnlos.runtime import Scratch
+    from clnlos.runtime.device import Scratch
 
     plan = Plan(100)
     plan.scratch = Scratch(queue)
@@ -282,7 +282,7 @@ def test_scratch_slots_are_shared_views_that_grow_to_the_largest_need(queue):
     """Stages that reserve the same slot get views of one buffer (a write through one view
     is seen through another of another dtype); a need larger than the buffer gives a new,
     larger buffer."""
-    from clnlos.runtime import Scratch
+    from clnlos.runtime.device import Scratch
 
     s = Scratch(queue)
     s.reserve("a", (4, 8), np.float32)

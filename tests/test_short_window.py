@@ -11,16 +11,16 @@ import pyopencl.array as cla
 import pytest
 from reference.scene_ref import patch_points, points_transient
 
-from clnlos.blur import (TailFilledDeconvolution, blur_time_scales, lateral_integral_profile,
+from clnlos.forward.blur import (TailFilledDeconvolution, blur_time_scales, lateral_integral_profile,
                          slab_blur)
-from clnlos.cli import main
+from clnlos.app.cli import main
 from clnlos.config import ReconstructionConfig
-from clnlos.io import Capture, read_capture
-from clnlos.metrics import letters_truth_mask, mip_iou, peak_depth_m
-from clnlos.reconstruct import cut_level, reconstruct, window_end_level
-from clnlos.scene import Scene
-from clnlos.simulate import simulate_to_file
-from clnlos.slab import CDT_SLAB
+from clnlos.io.files import Capture, read_capture
+from clnlos.study.metrics import letters_truth_mask, mip_iou, peak_depth_m
+from clnlos.inverse.pipeline import cut_level, reconstruct, window_end_level
+from clnlos.forward.scene import Scene
+from clnlos.app.simulate import simulate_to_file
+from clnlos.physics.slab import CDT_SLAB
 
 DT = 16e-12
 
@@ -185,7 +185,7 @@ def test_guard_bins_hold_the_cut(queue, patch_transient):
     max_path (the real CDT captures' case): the plain filter runs, its ringing at the cut
     stays in the dropped guard bins, and the patch is at 0.5 m."""
     from clnlos import C0
-    from clnlos.reconstruct import GUARD_PEAKS
+    from clnlos.inverse.pipeline import GUARD_PEAKS
 
     tau, width = patch_transient
     sc = blur_time_scales(CDT_SLAB, bin_width_s=DT, queue=queue)

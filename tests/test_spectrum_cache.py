@@ -4,13 +4,13 @@ import numpy as np
 import pytest
 from reference.scene_ref import points_transient
 
-from clnlos.cli import main
+from clnlos.app.cli import main
 from clnlos.config import ReconstructionConfig
-from clnlos.io import Capture, write_capture
-from clnlos.plans import PIPELINES
-from clnlos.reconstruct import reconstruct
-from clnlos.slab import CDT_SLAB, Slab
-from clnlos.spectrum_cache import SUFFIX
+from clnlos.io.files import Capture, write_capture
+from clnlos.runtime.caches import PIPELINES
+from clnlos.inverse.pipeline import reconstruct
+from clnlos.physics.slab import CDT_SLAB, Slab
+from clnlos.runtime.spectrum_cache import SUFFIX
 
 SHAPE_T, WIDTH, DT = 96, 0.5, 48e-12  # 4.6 ns: every arrival inside (no tail fill)
 
@@ -34,14 +34,14 @@ def test_spectra_are_stored_then_read_back_instead_of_recomputed(queue, tmp_path
     files = sorted((tmp_path / "spectra").glob(f"*{SUFFIX}"))
     assert len(files) == 2  # the slab's and the light cone's
     # a hit computes neither spectrum: make both builders fail
-    import clnlos.blur
-    import clnlos.lct
+    import clnlos.forward.blur
+    import clnlos.inverse.lct
 
     def boom(*a, **k):
         raise AssertionError("recomputed a cached spectrum")
 
-    monkeypatch.setattr(clnlos.blur, "phi_spectrum", boom)
-    monkeypatch.setattr(clnlos.lct, "lightcone_psf_device", boom)
+    monkeypatch.setattr(clnlos.forward.blur, "phi_spectrum", boom)
+    monkeypatch.setattr(clnlos.inverse.lct, "lightcone_psf_device", boom)
     np.testing.assert_array_equal(_run(queue), first)
     monkeypatch.undo()
     # another slab is another entry; a truncated entry is recomputed and replaced

@@ -11,14 +11,14 @@ import pytest
 from helpers import rel_l2
 from reference.lightcone_ref import lightcone_ref
 
-from clnlos.slab import CDT_SLAB
-from clnlos.blur import slab_blur
+from clnlos.physics.slab import CDT_SLAB
+from clnlos.forward.blur import slab_blur
 from clnlos.brdf.models import BRDFModel, retro_slice
-from clnlos.fk import FKMigration
-from clnlos.forward import N_THETA, LightCone, SurfaceSamples
-from clnlos.geometry import Elements
-from clnlos.lct import LCT
-from clnlos.wiener import SpectralFilter
+from clnlos.inverse.fk import FKMigration
+from clnlos.forward.model import N_THETA, LightCone, SurfaceSamples
+from clnlos.forward.geometry import Elements
+from clnlos.inverse.lct import LCT
+from clnlos.operators.spectral import SpectralFilter
 
 CDT = CDT_SLAB
 # float32 tolerance relative to the float64 result of the same plan

@@ -13,7 +13,7 @@ import numpy as np
 import pytest
 from scipy.ndimage import gaussian_filter
 
-from clnlos.geometry import letters_mask
+from clnlos.forward.geometry import letters_mask
 from clnlos.study.clarity import clarity_label, clarity_score, label_thresholds
 from clnlos.study.classify import dihedral
 from clnlos.study.dataset import StudyGrid, dataset_samples, scene_dict, window_m
@@ -107,7 +107,7 @@ def test_specular_fraction_orders_models():
 
 def test_dataset_design_and_scenes():
     from clnlos.brdf.presets import preset_names
-    from clnlos.scene import Scene
+    from clnlos.forward.scene import Scene
 
     s = dataset_samples(60, preset_names(), 3)
     assert len({x["material"] for x in s}) >= 8

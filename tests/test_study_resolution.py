@@ -107,7 +107,7 @@ def _finite(v):
 def test_measure_resolution_contract_on_a_small_grid(queue, tmp_path):
     import json
 
-    from clnlos.io import save_figure
+    from clnlos.io.files import save_figure
 
     geo = rs.ResolutionGeometry(points=8, bin_width_s=48e-12, iterations=5, scan_width_m=0.3)
     r = rs.measure_resolution(geo, exposure_s=0.1, methods=("lct", "fk"), queue=queue)
@@ -230,7 +230,7 @@ def test_real_capture_contract(queue, shared_data, tmp_path):
 def test_resolution_chart_features(queue, shared_data, tmp_path):
     import json
 
-    from clnlos.io import save_figure
+    from clnlos.io.files import save_figure
 
     r = rc.reconstruct_chart(shared_data / "cdt" / "resolution_70.mat", queue=queue)
     json.dumps(rs.json_ready(r))

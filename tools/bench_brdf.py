@@ -27,7 +27,7 @@ from clnlos.brdf.fit import fit_analytic  # noqa: E402
 from clnlos.brdf.mlp import MLPConfig, train_mlp  # noqa: E402
 from clnlos.brdf.models import BRDFModel  # noqa: E402
 from clnlos.brdf.texture import TextureLookup, lookup_numpy, tabulate  # noqa: E402
-from clnlos.runtime import get_queue  # noqa: E402
+from clnlos.runtime.device import get_queue  # noqa: E402
 
 MEASURED = ["nist_ptfe_white_532nm", "pbrt_cayman_550nm", "pbrt_krylon_blue_550nm",
             "starlink_chassis_532nm"]

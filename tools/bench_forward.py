@@ -24,9 +24,9 @@ sys.path.insert(0, str(Path(__file__).resolve().parent))
 from benchlib import device_meta, print_table, timeit, write_rows  # noqa: E402
 
 from clnlos.bench.baselines import numpy_lightcone, ut_scene  # noqa: E402
-from clnlos.forward import LightCone, sample_scene  # noqa: E402
-from clnlos.runtime import get_queue, has_fp64  # noqa: E402
-from clnlos.scene import Scene  # noqa: E402
+from clnlos.forward.model import LightCone, sample_scene  # noqa: E402
+from clnlos.runtime.device import get_queue, has_fp64  # noqa: E402
+from clnlos.forward.scene import Scene  # noqa: E402
 
 
 def blur_reach_rows(q, meta, quick: bool) -> list[dict]:
@@ -36,7 +36,7 @@ def blur_reach_rows(q, meta, quick: bool) -> list[dict]:
     import importlib.resources
     import tomllib
 
-    from clnlos.forward import ForwardModel
+    from clnlos.forward.model import ForwardModel
 
     base = tomllib.loads(importlib.resources.files("clnlos").joinpath(
         "data/demo_scene.toml").read_text())

@@ -25,9 +25,9 @@ import numpy as np
 sys.path.insert(0, str(Path(__file__).resolve().parent))
 from benchlib import device_meta, print_table, timeit, write_rows  # noqa: E402
 
-from clnlos import C0  # noqa: E402
+from clnlos import C0# noqa: E402
 from clnlos.config import slab_table  # noqa: E402
-from clnlos.slab import CDT_SLAB  # noqa: E402
+from clnlos.physics.slab import CDT_SLAB  # noqa: E402
 
 SIZES = {32: (128, 32, 32), 64: (256, 64, 64), 128: (512, 128, 128)}
 SLAB = slab_table(CDT_SLAB)
@@ -51,10 +51,10 @@ def worker(impl: str, size: int, device: str | None, repeat: int) -> dict:
     if impl.startswith("opencl"):
         import pyopencl.array as cla
 
-        from clnlos.blur import slab_blur
-        from clnlos.fk import FKMigration
-        from clnlos.lct import LCT
-        from clnlos.runtime import get_queue
+        from clnlos.forward.blur import slab_blur
+        from clnlos.inverse.fk import FKMigration
+        from clnlos.inverse.lct import LCT
+        from clnlos.runtime.device import get_queue
 
         q = get_queue(device)
         row.update(device_meta(q))
@@ -73,7 +73,7 @@ def worker(impl: str, size: int, device: str | None, repeat: int) -> dict:
     else:
         from clnlos.bench.baselines import NumpyReconstruction, TorchReconstruction
 
-        from clnlos.runtime import get_queue
+        from clnlos.runtime.device import get_queue
 
         q = get_queue(device)
         if impl == "torch":

@@ -52,7 +52,7 @@ def _ref():
 def _phi(nt, queue):
     """Phi per face cell, centred [lag, 2 h + 1, 2 h + 1], float64."""
     from clnlos.diffusion import diffusion_psf
-    from clnlos.slab import CDT_SLAB
+    from clnlos.physics.slab import CDT_SLAB
 
     g, h = GRID, GRID["phi_half"]
     phi = diffusion_psf(CDT_SLAB, nt=nt, bin_width_s=g["bin_width_s"], ny=2 * h + 2,
@@ -70,8 +70,8 @@ def _corr(a, b):
 
 
 def _kernel(name, shape, queue):
-    from clnlos.blur import confocal_psf, eq8_psf
-    from clnlos.slab import CDT_SLAB
+    from clnlos.forward.blur import confocal_psf, eq8_psf
+    from clnlos.physics.slab import CDT_SLAB
 
     kw = dict(bin_width_s=GRID["bin_width_s"], pitch_m=GRID["pitch_m"], dtype=np.float64,
               queue=queue)
@@ -85,8 +85,8 @@ def simulated_depth(z: float, nt: int, queue) -> dict:
     from scipy.ndimage import gaussian_filter1d
     from scipy.signal import fftconvolve
 
-    from clnlos.blur import KERNELS, slab_blur
-    from clnlos.slab import CDT_SLAB
+    from clnlos.forward.blur import KERNELS, slab_blur
+    from clnlos.physics.slab import CDT_SLAB
 
     ref, g = _ref(), GRID
     n, phi = g["n"], _phi(nt, queue)
@@ -133,7 +133,7 @@ def simulated(queue) -> dict:
 
 
 def _mip_metrics(mip: np.ndarray) -> dict:
-    from clnlos.metrics import otsu_threshold
+    from clnlos.study.metrics import otsu_threshold
 
     m = mip / max(float(mip.max()), 1e-30)
     th = otsu_threshold(m)
@@ -145,12 +145,12 @@ def _mip_metrics(mip: np.ndarray) -> dict:
 
 
 def real(shared: Path) -> dict:
-    import clnlos.blur as blur
-    import clnlos.reconstruct as rec
+    import clnlos.forward.blur as blur
+    import clnlos.inverse.pipeline as rec
     from clnlos.config import ReconstructionConfig
-    from clnlos.io import read_capture
+    from clnlos.io.files import read_capture
 
-    from clnlos.plans import PIPELINES
+    from clnlos.runtime.caches import PIPELINES
 
     out = {}
     original = blur.slab_blur
@@ -173,8 +173,8 @@ def real(shared: Path) -> dict:
 
 
 def main(argv=None) -> int:
-    from clnlos.outputs import write_group
-    from clnlos.runtime import get_queue
+    from clnlos.io.outputs import write_group
+    from clnlos.runtime.device import get_queue
 
     ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     ap.add_argument("--shared", default=str(SHARED), help="the shared data folder")

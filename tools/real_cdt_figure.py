@@ -23,8 +23,8 @@ def main() -> int:
     from matplotlib.figure import Figure
 
     from clnlos.config import ReconstructionConfig
-    from clnlos.io import read_capture
-    from clnlos.reconstruct import reconstruct
+    from clnlos.io.files import read_capture
+    from clnlos.inverse.pipeline import reconstruct
 
     ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     ap.add_argument("--shared", default=str(ROOT.parent / "shared" / "data"))

@@ -122,8 +122,8 @@ def figure(cal, res, path: Path) -> None:
 
 
 def main(argv=None) -> int:
-    from clnlos import calibration as cal
-    from clnlos.outputs import write_group
+    from clnlos.forward import calibration as cal
+    from clnlos.io.outputs import write_group
 
     ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     ap.add_argument("--shared", default=str(SHARED), help="the shared data folder")

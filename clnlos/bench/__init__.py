@@ -18,11 +18,11 @@ import json
 import time
 from pathlib import Path
 
-from ..outputs import stamp, write_group
-from ..runtime import get_queue
-from .harness import ROW_KEYS, Bench, print_table  # noqa: F401 (ROW_KEYS: row schema)
-from .report import recommendations, write_html
-from .sections import (
+from clnlos.io.outputs import stamp, write_group
+from clnlos.runtime.device import get_queue
+from clnlos.bench.harness import ROW_KEYS, Bench, print_table  # noqa: F401 (ROW_KEYS: row schema)
+from clnlos.bench.report import recommendations, write_html
+from clnlos.bench.sections import (
     bench_auto_params,
     bench_bistatic,
     bench_brdf,
@@ -44,7 +44,7 @@ SECTIONS = {"diffusion": bench_diffusion, "lightcone": bench_lightcone, "brdf": 
 
 def sections_of(only: str) -> list[str]:
     """The section names of a comma-separated ``--only``, each checked (ParameterError)."""
-    from ..checks import choice
+    from clnlos.checks import choice
 
     return [choice("--only", name.strip(), tuple(SECTIONS)) for name in only.split(",")]
 

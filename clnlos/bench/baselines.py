@@ -10,11 +10,11 @@ import warnings
 import numpy as np
 import scipy.sparse as sp
 
-from .. import C0
-from ..blur import confocal_psf
-from ..lct import lightcone_psf, t_to_v_matrix, u_to_z_matrix
-from ..scene import Scene
-from ..slab import Slab
+from clnlos import C0
+from clnlos.forward.blur import confocal_psf
+from clnlos.inverse.lct import lightcone_psf, t_to_v_matrix, u_to_z_matrix
+from clnlos.forward.scene import Scene
+from clnlos.physics.slab import Slab
 
 
 def numpy_transmittance(slab: Slab, rho, t, n_dipoles: int) -> np.ndarray:

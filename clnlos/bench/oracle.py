@@ -24,10 +24,10 @@ from pathlib import Path
 
 import numpy as np
 
-from ..config import ReconstructionConfig, slab_table
-from ..metrics import mip_iou, truth_mask
-from ..noise import combined_snr, lightcone_snr
-from ..slab import CDT_SLAB
+from clnlos.config import ReconstructionConfig, slab_table
+from clnlos.study.metrics import mip_iou, truth_mask
+from clnlos.inverse.snr import combined_snr, lightcone_snr
+from clnlos.physics.slab import CDT_SLAB
 
 SLAB_SNRS = (1e2, 1e3, 1e4, 1e5)
 INVERSION_SNRS = (1e2, 1e3, 1e4)
@@ -95,8 +95,8 @@ ORACLE_CASES = (
 
 def simulate_case(case: OracleCase, queue=None):
     """(capture, true mask [y, x]) of a case (:class:`clnlos.forward.ForwardModel`)."""
-    from ..forward import ForwardModel
-    from ..scene import Scene
+    from clnlos.forward.model import ForwardModel
+    from clnlos.forward.scene import Scene
 
     scene = Scene.from_dict(case.scene_dict())
     fm = ForwardModel(scene, queue=queue)
@@ -104,7 +104,7 @@ def simulate_case(case: OracleCase, queue=None):
 
 
 def _run(capture, mask, config: ReconstructionConfig, queue) -> tuple[float, dict]:
-    from ..reconstruct import reconstruct
+    from clnlos.inverse.pipeline import reconstruct
 
     rec = reconstruct(capture, config, device=queue)
     return mip_iou(rec.volume, mask)[0], rec
@@ -206,7 +206,7 @@ def sweep_summary(rows: list[dict]) -> list[dict]:
 
 def write_rows(rows: list[dict], stem) -> tuple[Path, Path]:
     """``stem``.csv and ``stem``.json, written atomically (:func:`clnlos.io.atomic_path`)."""
-    from ..io import atomic_path
+    from clnlos.io.files import atomic_path
 
     stem = Path(stem)
     stem.parent.mkdir(parents=True, exist_ok=True)

@@ -8,7 +8,7 @@ import io
 import json
 from pathlib import Path
 
-from ..outputs import HTML_GENERATOR
+from clnlos.io.outputs import HTML_GENERATOR
 
 # ------------------------------------------------------------------ report
 def recommendations(rows) -> list[dict]:

@@ -1,5 +1,5 @@
 """BRDF models and materials (analytic models; the confocal retro-reflection slice)."""
 
-from .models import MODELS, BRDFModel, make_model, retro_slice
+from clnlos.brdf.models import MODELS, BRDFModel, make_model, retro_slice
 
 __all__ = ["MODELS", "BRDFModel", "make_model", "retro_slice"]

@@ -15,8 +15,8 @@ from dataclasses import dataclass, field
 
 import numpy as np
 
-from ..checks import input_file
-from ..errors import InputFileError
+from clnlos.checks import input_file
+from clnlos.errors import InputFileError
 
 CSV_COLUMNS = ["theta_i_deg", "phi_i_deg", "theta_s_deg", "phi_s_deg", "brdf"]
 # Values below this (1/sr) are not used to judge a fit, whatever a file's precision: relative

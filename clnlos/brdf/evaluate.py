@@ -20,8 +20,8 @@ from pathlib import Path
 
 import numpy as np
 
-from ..errors import InputFileError
-from .data import BRDFSamples, read_gonio_csv
+from clnlos.errors import InputFileError
+from clnlos.brdf.data import BRDFSamples, read_gonio_csv
 
 MODELS = ("mlp", "mlp-seed", "five-param", "torrance-sparrow")
 MODES = ("interp", "extrap")
@@ -101,18 +101,18 @@ def fit_model(name: str, train: BRDFSamples, seed: int = 0):
     """A fitted model (callable f(ti, pi, ts, ps) in 1/sr) for ``name`` in MODELS or any
     analytic model of :mod:`clnlos.brdf.fit`."""
     if name in ("mlp", "mlp-seed"):
-        from .mlp import MLPConfig, train_mlp
+        from clnlos.brdf.mlp import MLPConfig, train_mlp
 
         return train_mlp(train, MLPConfig(recipe="seed" if name == "mlp-seed" else "improved",
                                           seed=seed))[0]
-    from .fit import fit_analytic
+    from clnlos.brdf.fit import fit_analytic
 
     return fit_analytic(name, train, seed=seed).model
 
 
 def evaluate(directory, models=MODELS, modes=MODES, splits=(0,), materials=None,
              progress=None) -> list[EvalRow]:
-    from .fit import metrics_for
+    from clnlos.brdf.fit import metrics_for
 
     names = measured_sets(directory)
     if materials:
@@ -161,7 +161,7 @@ def write_rows(rows: list[EvalRow], csv_path, json_path=None) -> None:
     import json
     from dataclasses import asdict, fields
 
-    from ..io import atomic_path
+    from clnlos.io.files import atomic_path
 
     buf = io.StringIO()
     w = csv.DictWriter(buf, fieldnames=[f.name for f in fields(EvalRow)])

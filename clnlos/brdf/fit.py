@@ -13,10 +13,10 @@ from dataclasses import dataclass, field
 import numpy as np
 from scipy.optimize import least_squares
 
-from ..errors import ParameterError
-from .data import (MIN_SIGNIFICANT, BRDFSamples, agreement, relative_error,
+from clnlos.errors import ParameterError
+from clnlos.brdf.data import (MIN_SIGNIFICANT, BRDFSamples, agreement, relative_error,
                    significance_floor)
-from .models import BRDFModel
+from clnlos.brdf.models import BRDFModel
 
 # (parameter, lower, upper) per model; parameters not listed keep their defaults.
 FIT_SPACE = {
@@ -42,7 +42,7 @@ def check_fit_samples(model_name: str, train: BRDFSamples, test: BRDFSamples | N
     """Enough samples at or above the significance floor (where the metrics are computed):
     min_fit_samples for the training set, one for a test set; else an InputFileError
     naming the file, the count and the floor (an all-zero BRDF has none)."""
-    from ..errors import InputFileError
+    from clnlos.errors import InputFileError
 
     checks = (("training", train, min_fit_samples(model_name), f"the {model_name} fit needs"),
               ("test", test, 1, "its metrics need"))
@@ -173,12 +173,12 @@ def fit_to_file(model_name: str, train, test, out, *, seed: int = 0,
     an analytic model (:func:`fit_analytic`)."""
     import json
 
-    from ..io import atomic_path
-    from .store import save_model
+    from clnlos.io.files import atomic_path
+    from clnlos.brdf.store import save_model
 
     check_fit_samples(model_name, train, test)
     if model_name in ("mlp", "mlp-seed"):
-        from .mlp import MLPConfig, train_mlp
+        from clnlos.brdf.mlp import MLPConfig, train_mlp
 
         import time
 

@@ -29,7 +29,7 @@ from dataclasses import dataclass, field
 
 import numpy as np
 
-from ..errors import ParameterError
+from clnlos.errors import ParameterError
 
 
 def _cos_mirror(ti, pi_, ts, ps):

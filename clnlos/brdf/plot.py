@@ -11,7 +11,7 @@ PLANE_SIN_TOL = 0.05  # and |sin(phi_s - phi_i)| below this (in the plane of inc
 
 def read_samples(path):
     """Measured samples: pbrt-v2 ``.brdf`` (by content of its name) or gonioreflectometer CSV."""
-    from .data import read_gonio_csv, read_pbrt_brdf
+    from clnlos.brdf.data import read_gonio_csv, read_pbrt_brdf
 
     p = str(path)
     return read_pbrt_brdf(p) if p.endswith(".brdf") else read_gonio_csv(p)

@@ -11,15 +11,15 @@ import json
 
 import numpy as np
 
-from ..errors import InputFileError
-from .models import BRDFModel
+from clnlos.errors import InputFileError
+from clnlos.brdf.models import BRDFModel
 
 FORMAT = "clnlos-brdf-model"
 
 
 def save_model(path, model, metrics: dict, provenance: dict) -> None:
-    from ..io import write_h5
-    from .mlp import NeuralBRDF
+    from clnlos.io.files import write_h5
+    from clnlos.brdf.mlp import NeuralBRDF
 
     attrs = {"format": FORMAT, "version": 1, "metrics": json.dumps(metrics),
              "provenance": json.dumps(provenance)}
@@ -35,8 +35,8 @@ def save_model(path, model, metrics: dict, provenance: dict) -> None:
 def load_model(path):
     import h5py
 
-    from ..checks import input_file
-    from .mlp import NeuralBRDF
+    from clnlos.checks import input_file
+    from clnlos.brdf.mlp import NeuralBRDF
 
     path = input_file(path, "BRDF model ")
     try:

@@ -20,9 +20,9 @@ import numpy as np
 import pyopencl as cl
 import pyopencl.array as cla
 
-from ..errors import InputFileError, ParameterError
-from ..limits import check_memory
-from ..runtime import (
+from clnlos.errors import InputFileError, ParameterError
+from clnlos.runtime.limits import check_memory
+from clnlos.runtime.device import (
     get_kernels,
     get_queue,
     kernel_int,
@@ -79,7 +79,7 @@ def tabulate(model, n_theta: int = 64, n_dphi: int = 64, n_retro: int = 256,
 
 
 def write_texture(path, tex: BRDFTexture) -> None:
-    from ..io import write_h5
+    from clnlos.io.files import write_h5
 
     write_h5(path, {"texture": tex.texture, "retro": tex.retro},
              {"format": FORMAT, "version": VERSION, "theta_range_rad": [0.0, np.pi / 2],
@@ -90,7 +90,7 @@ def write_texture(path, tex: BRDFTexture) -> None:
 def read_texture(path) -> BRDFTexture:
     import h5py
 
-    from ..checks import input_file
+    from clnlos.checks import input_file
 
     path = input_file(path, "BRDF texture ")
     try:

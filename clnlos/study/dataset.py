@@ -30,12 +30,12 @@ from pathlib import Path
 
 import numpy as np
 
-from .. import C0
-from ..config import ReconstructionConfig
-from ..metrics import coverage_image, iou, otsu_threshold, peak_depth_m
-from ..slab import CDT_SLAB
-from .legibility import box_baseline_iou
-from .quality import METRICS, quality_metrics
+from clnlos import C0
+from clnlos.config import ReconstructionConfig
+from clnlos.study.metrics import coverage_image, iou, otsu_threshold, peak_depth_m
+from clnlos.physics.slab import CDT_SLAB
+from clnlos.study.legibility import box_baseline_iou
+from clnlos.study.quality import METRICS, quality_metrics
 
 
 @dataclass(frozen=True)
@@ -65,7 +65,7 @@ def code_version() -> str:
     metrics): part of each cache key, so results computed by other code are never reused."""
     from importlib import resources
 
-    from .. import __version__
+    from clnlos import __version__
 
     h = hashlib.sha256(__version__.encode())
     files = []
@@ -166,10 +166,10 @@ def scene_dict(sample: dict, grid: StudyGrid) -> dict:
 
 def render_sample(sample: dict, grid: StudyGrid, device: str | None = None) -> dict:
     """Simulate, reconstruct and score one sample; returns arrays and numbers."""
-    from ..forward import ForwardModel
-    from ..reconstruct import reconstruct
-    from ..runtime import get_queue
-    from ..scene import Scene
+    from clnlos.forward.model import ForwardModel
+    from clnlos.inverse.pipeline import reconstruct
+    from clnlos.runtime.device import get_queue
+    from clnlos.forward.scene import Scene
 
     queue = get_queue(device)
     scene = Scene.from_dict(scene_dict(sample, grid))
@@ -295,7 +295,7 @@ def _cached(sample: dict, grid: StudyGrid, cache: Path, version: str,
     if res is not None:
         return res, None
     res = render_sample(sample, grid, device)
-    from ..io import atomic_path
+    from clnlos.io.files import atomic_path
 
     entry = {k: np.asarray(v) for k, v in res.items()}
     entry[ENTRY_CHECKSUM] = np.asarray(result_checksum(entry))
@@ -361,13 +361,13 @@ def run_samples(samples: list[dict], grid: StudyGrid, cache: Path, *, workers: i
         try:
             client = Client(scheduler)
         except (OSError, TimeoutError, ValueError) as exc:  # nothing there, refused, ...
-            from ..errors import ParameterError
+            from clnlos.errors import ParameterError
 
             why = str(exc).splitlines()[0] if str(exc) else type(exc).__name__
             raise ParameterError("--scheduler", scheduler, "the address of a running Dask "
                                  f"scheduler (connecting failed: {why})") from None
     try:
-        from ..outputs import install_sigterm_cleanup
+        from clnlos.io.outputs import install_sigterm_cleanup
 
         # a worker stopped by SIGTERM removes the cache entry it was writing
         client.run(install_sigterm_cleanup, chain=True)
@@ -428,7 +428,7 @@ MAX_WORKERS = 256  # local worker processes at most
 def check_scheduler_address(name: str, address) -> str:
     """A Dask scheduler address: ``[tcp://|tls://]host:port`` (port 1-65535; ``inproc://``,
     ``ucx://`` and ``ws[s]://`` addresses as Dask writes them); else a ParameterError."""
-    from ..errors import ParameterError
+    from clnlos.errors import ParameterError
 
     allowed = "a Dask scheduler address such as tcp://host:8786"
     if not isinstance(address, str) or not address.strip() or any(c.isspace()

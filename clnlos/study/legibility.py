@@ -30,7 +30,7 @@ import numpy as np
 from scipy.ndimage import gaussian_filter
 from scipy.stats import norm
 
-from ..geometry import letters_mask
+from clnlos.forward.geometry import letters_mask
 
 GLYPHS = ("E", "F", "H", "L", "P", "T", "U", "X")
 COVERAGE_SUBSAMPLES = 4   # per scan cell and axis, for the true coverage of a glyph

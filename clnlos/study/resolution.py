@@ -40,9 +40,9 @@ from dataclasses import asdict, dataclass, replace
 
 import numpy as np
 
-from .. import C0
-from ..config import METHODS, ReconstructionConfig
-from ..slab import CDT_SLAB, Slab
+from clnlos import C0
+from clnlos.config import METHODS, ReconstructionConfig
+from clnlos.physics.slab import CDT_SLAB, Slab
 
 CONTRAST_RESOLVED = 0.2   # dip between two maxima, as a fraction of the lower one
 PEAK_FLOOR = 0.25         # chart maxima below this fraction of the image maximum are ignored
@@ -91,7 +91,7 @@ class ResolutionGeometry:
 
     def resolve(self, grid) -> ResolutionGeometry:
         """A copy with every None field taken from the study ``grid``."""
-        from .dataset import window_m
+        from clnlos.study.dataset import window_m
 
         fill = {f: getattr(grid, f) for f in ("scan_width_m", "points", "bin_width_s",
                                               "pulse_width_s", "iterations")
@@ -230,7 +230,7 @@ def stroke_over_resolution(stroke_m: float, lateral_fwhm_m: float | None) -> flo
 
 def letters_area_m2(text: str, height_m: float, stroke_m: float) -> float:
     """Area (m^2) of the stroked letters (:func:`clnlos.geometry.sample_letters`)."""
-    from ..geometry import sample_letters
+    from clnlos.forward.geometry import sample_letters
 
     return float(sample_letters(text, height_m, stroke_m, 1e6).area.sum())
 
@@ -238,8 +238,8 @@ def letters_area_m2(text: str, height_m: float, stroke_m: float) -> float:
 def patch_scene(geometry: ResolutionGeometry):
     """The noise-free scene of the patch (:class:`clnlos.scene.Scene`) of a resolved
     geometry (:meth:`ResolutionGeometry.resolve`)."""
-    from ..config import slab_table
-    from ..scene import Scene
+    from clnlos.config import slab_table
+    from clnlos.forward.scene import Scene
 
     g = geometry
     c = g.patch_centre_m()
@@ -268,9 +268,9 @@ def budget_capture(noise_free, scene, geometry: ResolutionGeometry, grid, exposu
     """Photon counts of the patch at ``exposure_s``: the noise-free capture scaled by the
     albedo that gives the patch the photons of ``budget_area_m2`` (default: the letters'
     area), then Poisson noise and dark counts (:func:`clnlos.forward.photon_counts`)."""
-    from ..forward import photon_counts
-    from ..io import Capture
-    from ..scene import Detector
+    from clnlos.forward.model import photon_counts
+    from clnlos.io.files import Capture
+    from clnlos.forward.scene import Detector
 
     g = geometry
     area = (g.budget_area_m2 if g.budget_area_m2 is not None
@@ -287,7 +287,7 @@ def budget_capture(noise_free, scene, geometry: ResolutionGeometry, grid, exposu
 def _measure(capture, geometry: ResolutionGeometry, methods, queue) -> dict:
     """FWHMs of each method's reconstruction of one capture, the effective temporal FWHM
     of its deconvolved transient over the patch and the bounds from it."""
-    from ..reconstruct import reconstruct
+    from clnlos.inverse.pipeline import reconstruct
 
     g = geometry
     iy = ix = g.points // 2
@@ -325,9 +325,9 @@ def measure_resolution(geometry: ResolutionGeometry = ResolutionGeometry(), *,
     ``geometry`` echoes the geometry resolved against the grid. A FWHM is None where the
     profile stays above half its peak across the volume. Each method's entry also holds
     ``profiles`` (arrays for :func:`resolution_figure`; :func:`json_ready` drops them)."""
-    from ..forward import ForwardModel
-    from ..runtime import get_queue
-    from .dataset import StudyGrid
+    from clnlos.forward.model import ForwardModel
+    from clnlos.runtime.device import get_queue
+    from clnlos.study.dataset import StudyGrid
 
     grid = StudyGrid() if grid is None else grid
     queue = get_queue(queue)
@@ -446,7 +446,7 @@ def resolution_figure(result: dict, title: str = ""):
     """The profiles through the patch's peak (matplotlib Figure): lateral (x, m, centred on
     the peak) and axial (z, m) for every method, noise-free and at the budget, each with its
     FWHM in the legend and the lateral bound drawn as a bar at half maximum."""
-    from ..figures import new_figure
+    from clnlos.io.figures import new_figure
 
     cases = [("noise-free", result)] + ([("budget", result["budget"])]
                                         if "budget" in result else [])
@@ -486,7 +486,7 @@ def chart_figure(result: dict, title: str = ""):
     """The chart image (x, y in m, colour bar) with its spots marked and each neighbouring
     pair joined: solid green where resolved, dashed red where not, labelled with its dip
     contrast (matplotlib Figure)."""
-    from ..figures import new_figure
+    from clnlos.io.figures import new_figure
 
     e = result["arrays"]["extents"]
     fig, ax = new_figure(1, 1, (7, 6))

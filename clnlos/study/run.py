@@ -44,14 +44,14 @@ from pathlib import Path
 
 import numpy as np
 
-from ..errors import ParameterError
-from .clarity import label_thresholds
-from .dataset import StudyGrid, cpu_workers, dataset_samples, run_samples
-from .legibility import (GLYPHS, LEGIBLE_ACCURACY, glyph_templates, identification_summary,
+from clnlos.errors import ParameterError
+from clnlos.study.clarity import label_thresholds
+from clnlos.study.dataset import StudyGrid, cpu_workers, dataset_samples, run_samples
+from clnlos.study.legibility import (GLYPHS, LEGIBLE_ACCURACY, glyph_templates, identification_summary,
                          identify)
-from .resolution import (ResolutionGeometry, json_ready, measure_resolution,
+from clnlos.study.resolution import (ResolutionGeometry, json_ready, measure_resolution,
                          otoole_lateral_bound_m)
-from .quality import DEFAULT_LABEL_METRIC, METRICS, pearson, validate_metrics
+from clnlos.study.quality import DEFAULT_LABEL_METRIC, METRICS, pearson, validate_metrics
 
 # The seed's Figure 9 grouping of its ten materials (1 clear, 2 medium, 3 fuzzy).
 SEED_FIGURE9 = {
@@ -156,7 +156,7 @@ class StudyOptions:
 def specular_fraction(model, theta_i_deg: float = 45.0, n: int = 64) -> float:
     """Share of the directional-hemispherical reflectance at theta_i not from the kd term
     (0 for Lambertian/Minnaert, 1 for a pure microfacet model)."""
-    from ..brdf.models import BRDFModel
+    from clnlos.brdf.models import BRDFModel
 
     if model is None:
         return 0.0
@@ -280,7 +280,7 @@ def material_class(ident: dict) -> int:
 def resolution_geometry(geo: Geometry, grid: StudyGrid) -> ResolutionGeometry:
     """Where :func:`~clnlos.study.resolution.measure_resolution` measures a study geometry:
     its scan, depth, slab and letters on the study's grid (bins, pulse, window, iterations)."""
-    from .dataset import window_m
+    from clnlos.study.dataset import window_m
 
     return ResolutionGeometry(
         scan_width_m=geo.scan_width_m, points=grid.points, depth_m=geo.depth_m,
@@ -317,8 +317,8 @@ def identification_of(plan, results, opts: StudyOptions, gamma_s: float,
     result: its MIP matched to the closest of the K templates blurred to the lateral
     resolution (measured at the study's geometries, O'Toole's bound with the measured
     temporal FWHM elsewhere)."""
-    from ..scene import Scene
-    from .dataset import scene_dict
+    from clnlos.forward.scene import Scene
+    from clnlos.study.dataset import scene_dict
 
     measured = {(g.scan_width_m, g.depth_m): lateral[g.name] for g in opts.geometries}
     templates = {}
@@ -354,7 +354,7 @@ def _summary(rows: list[dict], chance: float) -> dict:
 
 def material_entries(materials, plan, results, geo: Geometry, opts: StudyOptions, table,
                      label_metric: str, thresholds, fft_thresholds, predict) -> list[dict]:
-    from ..brdf.presets import preset_model
+    from clnlos.brdf.presets import preset_model
 
     chance = 1.0 / len(opts.glyphs)
     out = []
@@ -423,8 +423,8 @@ def _samples_labels(results, idx, label_metric, thresholds) -> np.ndarray:
 def train_cnn(plan, results, opts: StudyOptions, label_metric: str, thresholds):
     """The CNN on every glyph reconstruction (and the random extras for the metric labels):
     validation on the held-out glyphs and letter size."""
-    from ..progress import counter, progress_bar
-    from .classify import train_classifier
+    from clnlos.app.progress import counter, progress_bar
+    from clnlos.study.classify import train_classifier
 
     use = [i for i, (meta, _) in enumerate(plan)
            if meta["set"] != "dataset" or label_metric != "identification"]
@@ -452,7 +452,7 @@ def real_capture_dir(root: Path | None) -> Path | None:
     one-line warning when ``root`` was given: the study goes on without the real data)."""
     import warnings
 
-    from .real_capture import PUBLISHED_SCAN_WIDTH_M
+    from clnlos.study.real_capture import PUBLISHED_SCAN_WIDTH_M
 
     if root is None:
         return None
@@ -471,9 +471,9 @@ def real_captures_cnn(cdt: Path, predict, grid: StudyGrid, device=None) -> list[
     capture_config`). MIPs are resampled to the CNN's input size."""
     from scipy.ndimage import zoom
 
-    from ..io import read_capture
-    from ..reconstruct import reconstruct
-    from .real_capture import PUBLISHED_SCAN_WIDTH_M, capture_config
+    from clnlos.io.files import read_capture
+    from clnlos.inverse.pipeline import reconstruct
+    from clnlos.study.real_capture import PUBLISHED_SCAN_WIDTH_M, capture_config
 
     out = []
     for name in PUBLISHED_SCAN_WIDTH_M:
@@ -496,7 +496,7 @@ def real_data_study(cdt: Path, predict, grid: StudyGrid, device=None) -> dict:
     """The real captures in ``cdt``: letters_ut beside a simulation of a comparable scene
     (:func:`clnlos.study.real_capture.compare_real_capture`, its figure), the resolution
     chart's resolved features, and the CNN's verdict on each."""
-    from .real_capture import compare_real_capture, real_capture_figure, reconstruct_chart
+    from clnlos.study.real_capture import compare_real_capture, real_capture_figure, reconstruct_chart
 
     out: dict = {"summary": None, "figure": None, "chart": None}
     if (cdt / "letters_ut.mat").is_file():
@@ -515,10 +515,10 @@ def real_data_study(cdt: Path, predict, grid: StudyGrid, device=None) -> dict:
 
 def run_study(out_dir: Path, opts: StudyOptions, *, workers: int | None = None,
               scheduler: str | None = None, device: str | None = None) -> dict:
-    from ..brdf.presets import preset_table
-    from ..io import atomic_path
-    from ..outputs import stamp
-    from .report import write_report
+    from clnlos.brdf.presets import preset_table
+    from clnlos.io.files import atomic_path
+    from clnlos.io.outputs import stamp
+    from clnlos.study.report import write_report
 
     opts = opts.validate()
     out_dir.mkdir(parents=True, exist_ok=True)

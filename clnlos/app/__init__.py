@@ -1,0 +1,1 @@
+"""The command line and the fronts it calls: simulate, reconstruct, demo, progress bars."""

@@ -1,0 +1,607 @@
+"""Sub-commands of the clnlos CLI beyond ``devices``: each one parses, checks its inputs, its
+output paths and its optional dependencies before any work, calls one library function, and
+prints what it wrote."""
+
+from __future__ import annotations
+
+import argparse
+import sys
+from pathlib import Path
+
+import numpy as np
+
+from clnlos.io.outputs import HDF5_SUFFIXES, check_outputs
+
+DTYPES = {"float32": np.float32, "float64": np.float64}
+
+# optional dependencies: import name -> (extra, what needs it)
+EXTRAS = {"torch": ("ml", "the torch CPU wheel: pip install torch==2.13.0"),
+          "dask": ("study", "dask[distributed]"),
+          "distributed": ("study", "dask[distributed]")}
+
+
+def require(module: str, what: str) -> None:
+    """One line naming the extra when an optional dependency is missing."""
+    import importlib.util
+
+    from clnlos.errors import MissingDependencyError
+
+    if importlib.util.find_spec(module) is None:
+        extra, hint = EXTRAS[module]
+        raise MissingDependencyError(
+            f"{what} needs {module!r}, which is not installed: pip install 'clnlos[{extra}]' "
+            f"({hint})")
+
+
+def _add_force(p) -> None:
+    p.add_argument("--force", action="store_true",
+                   help="replace an existing file at a path written beside the output (or "
+                        "in the output folder) that clnlos did not write; inputs are never "
+                        "replaced")
+
+
+def _add_precision(p) -> None:
+    p.add_argument("--dtype", choices=sorted(DTYPES), default="float32",
+                   help="kernel precision (default %(default)s)")
+
+
+# ------------------------------------------------------------------ reconstruct
+# CLI flag -> ReconstructionConfig field (error messages name the flag the user typed)
+RECON_FLAGS = {"scan_width": ("scan_width_m", "--scan-width"),
+               "bin_width": ("bin_width_s", "--bin-width"),
+               "snr": ("snr", "--snr"), "inversion_snr": ("inversion_snr", "--inversion-snr"),
+               "falloff": ("falloff", "--falloff"), "max_path": ("max_path_m", "--max-path"),
+               "bins": ("bins", "--bins"), "method": ("method", "--method"),
+               "iterations": ("iterations", "--iterations"),
+               "tv_weight": ("tv_weight", "--tv-weight"),
+               "l1_weight": ("l1_weight", "--l1-weight"),
+               "depth_min": ("depth_min_m", "--depth-min")}
+SLAB_FLAGS = {"slab_thickness": ("thickness_m", "--slab-thickness"), "mu_a": ("mu_a", "--mu-a"),
+              "mu_s_prime": ("mu_s_prime", "--mu-s-prime"), "n": ("n", "--n")}
+
+
+def number_or_auto(text: str):
+    """argparse type: "auto" or a float (validated later with the flag's name)."""
+    if text.strip().lower() == "auto":
+        return "auto"
+    try:
+        return float(text)
+    except ValueError:
+        raise argparse.ArgumentTypeError(f"expected a number or 'auto', got {text!r}") from None
+
+
+def flag_names(args) -> dict[str, str]:
+    """Config field -> the flag the user typed, for the flags given (error messages)."""
+    return {field: flag for dest, (field, flag) in RECON_FLAGS.items()
+            if getattr(args, dest, None) is not None}
+
+
+def config_from_args(args, capture=None):
+    """The reconstruction config: TOML file (if any), overridden by flags; validated with
+    the flags' names in error messages. Without slab flags, --no-slab or a [slab] in the
+    config, the slab a clnlos capture recorded is used (:func:`clnlos.reconstruct.setup_slab`).
+    """
+    from clnlos.config import ReconstructionConfig, slab_from_table, slab_table
+    from clnlos.inverse.pipeline import setup_slab
+
+    cfg = ReconstructionConfig.from_toml(args.config) if args.config else ReconstructionConfig()
+    names = flag_names(args)
+    changes = {field: getattr(args, dest) for dest, (field, _) in RECON_FLAGS.items()
+               if getattr(args, dest, None) is not None}
+    slab_given = {k: getattr(args, dest) for dest, (k, _) in SLAB_FLAGS.items()
+                  if getattr(args, dest) is not None}
+    if args.no_slab:
+        changes["slab"] = None
+    elif slab_given:
+        base = {} if cfg.slab is None else slab_table(cfg.slab)
+        base.update(slab_given)
+        changes["slab"], _ = slab_from_table(
+            base, names={k: flag for k, flag in SLAB_FLAGS.values()})
+    cfg = cfg.replace(**changes).validate(names)
+    if capture is not None and not args.no_slab and cfg.slab is None:
+        cfg, note = setup_slab(cfg, capture)
+        print(f"clnlos: note: {note}", file=sys.stderr)
+    return cfg
+
+
+def _pipeline_fits(capture, cfg, queue, dtype):
+    """The check a capture reader runs with the declared size (:func:`clnlos.limits.
+    capture_use`): the reconstruction's device buffers fit the device (a time axis the file
+    does not store, or stores as no valid number, is left to the later checks)."""
+    from clnlos.config import check_geometry
+    from clnlos.errors import ParameterError
+    from clnlos.runtime.limits import check_memory
+    from clnlos.inverse.pipeline import device_bytes_needed
+
+    def check(shape, bin_width_s, start_s):
+        bw = cfg.bin_width_s if cfg.bin_width_s is not None else bin_width_s
+        start = cfg.start_s if cfg.start_s is not None else start_s
+        try:  # values outside the range table are named by the reader, not sized here
+            check_geometry("bin_width_s", bw)
+            check_geometry("start_s", start)
+        except ParameterError:
+            return
+        try:
+            total, largest = device_bytes_needed(shape, bin_width_s=bw, start_s=start,
+                                                 config=cfg, dtype=dtype)
+        except ParameterError:  # a window that keeps nothing: reported with the capture read
+            return
+        check_memory(f"reconstructing {capture} (transient {' x '.join(map(str, shape))} "
+                     "[t, y, x])", device=queue.device, device_total=total,
+                     device_buffer=largest)
+
+    return check
+
+
+def cmd_reconstruct(args) -> int:
+    from clnlos.config import check_light_in_window
+    from clnlos.io.files import read_capture
+    from clnlos.runtime.limits import capture_use
+    from clnlos.inverse.pipeline import reconstruct_to_files, resolve_geometry
+    from clnlos.runtime.device import get_queue
+
+    out = Path(args.output)
+    cfg = config_from_args(args)  # parameter errors before reading anything
+    check_outputs({"-o": out, "figure": out.with_suffix(".png")},
+                  inputs=[args.capture, args.config], suffixes={"-o": HDF5_SUFFIXES},
+                  implied={"figure": None}, force=args.force)
+    queue = get_queue(args.device)
+    names = flag_names(args)
+    with capture_use(_pipeline_fits(args.capture, cfg, queue, DTYPES[args.dtype])):
+        capture = read_capture(args.capture)  # the pipeline's size checked before the data
+    bw, start, _ = resolve_geometry(capture, cfg, names=names)  # before the slab note
+    if not np.any(capture.transient):
+        from clnlos.errors import InputFileError
+
+        raise InputFileError(f"{args.capture}: the capture holds no signal (all zero): "
+                             "nothing to reconstruct")
+    check_light_in_window(capture.transient, bw, start, cfg, names=names,
+                          source=str(args.capture))
+    cfg = config_from_args(args, capture)
+    rec = reconstruct_to_files(capture, out, cfg, dtype=DTYPES[args.dtype], queue=queue)
+    for note in rec.notes:
+        print(f"clnlos: note: {note}", file=sys.stderr)
+    total = sum(rec.timings_s.values())
+    print(f"wrote {out} volume {rec.volume.shape} [z, y, x], depth 0-"
+          f"{rec.extents['depth_max_m']:.3f} m; stages {', '.join(rec.stages)}; "
+          f"{total:.3f} s on {queue.device.name.strip()}")
+    print(f"wrote {out.with_suffix('.png')}")
+    return 0
+
+
+def register_reconstruct(sub, add_device) -> None:
+    from clnlos.config import DEPTH_GUARD_M, METHOD_FALLOFF, METHODS, ReconstructionConfig as C
+
+    r = sub.add_parser("reconstruct", help="reconstruct a hidden volume from a capture")
+    r.add_argument("capture", help="capture: clnlos or y-tal HDF5, MATLAB .mat (CDT, LCT, "
+                                   "f-k layouts), NumPy .npy [t, y, x]")
+    r.add_argument("-o", "--output", required=True,
+                   help="output volume (.h5; a PNG is written beside)")
+    r.add_argument("--config", help="reconstruction parameters (TOML, see clnlos/config.py); "
+                   "flags override its values (default: none, the built-in defaults)")
+    r.add_argument("--method", choices=["lct", "fk", "iterative"], default=None,
+                   help="inversion: lct (light-cone transform), fk (f-k migration) or "
+                        "iterative (regularised, warm-started from LCT) (default: the "
+                        f"config's [inversion] method, else {C.method})")
+    from_file = "(default: from the capture file, else the config's [capture])"
+    r.add_argument("--scan-width", type=float,
+                   help=f"side of the scanned square (m) {from_file}")
+    r.add_argument("--bin-width", type=float, help=f"histogram bin width (s) {from_file}")
+    r.add_argument("--snr", type=number_or_auto,
+                   help="Wiener SNR of the slab deconvolution (dimensionless), or auto: chosen "
+                        "from the capture by generalised cross-validation, at most the slab "
+                        f"model's accuracy (default {C.snr})")
+    r.add_argument("--inversion-snr", type=number_or_auto,
+                   help="Wiener SNR of the LCT filter (and of the iterative warm start), or "
+                        "auto: by generalised cross-validation on the deconvolved transient "
+                        f"(default {C.inversion_snr})")
+    r.add_argument("--falloff", type=float,
+                   help="radiometric exponent p (dimensionless) of the (t/T)^p weighting "
+                        "before the inversion (default: the method's own, " + ", ".join(
+                            f"{m} {p:g}" for m, p in METHOD_FALLOFF.items()) + "; "
+                        + ", ".join(m for m in METHODS if m not in METHOD_FALLOFF)
+                        + " models the falloff itself and ignores it)")
+    r.add_argument("--max-path", type=float,
+                   help="keep round-trip path lengths c t below this (m) (default: the "
+                        "capture's whole time window)")
+    r.add_argument("--bins", type=int, help="rebin the kept window to this many bins, "
+                   "mass-conserving (default: keep the capture's bin width)")
+    r.add_argument("--iterations", type=int,
+                   help=f"iterative: iterations at most (default {C.iterations})")
+    r.add_argument("--tv-weight", type=float,
+                   help="iterative: total-variation weight, relative to max(L^T I) "
+                        f"(default {C.tv_weight:g})")
+    r.add_argument("--l1-weight", type=float,
+                   help="iterative: L1 (sparsity) weight, relative to max(L^T I) "
+                        f"(default {C.l1_weight:g})")
+    r.add_argument("--depth-min", type=number_or_auto,
+                   help="iterative: shallowest depth of the volume (m), or auto: the "
+                        f"capture's first arrival less {DEPTH_GUARD_M:g} m "
+                        f"(default {C.depth_min_m})")
+    slab = ("(default: the config's [slab]; with no slab flag and no [slab], the slab a "
+            "clnlos capture recorded)")
+    r.add_argument("--slab-thickness", type=float, help=f"slab thickness (m) {slab}")
+    r.add_argument("--mu-a", type=float, help=f"slab absorption coefficient (1/m) {slab}")
+    r.add_argument("--mu-s-prime", type=float,
+                   help=f"slab reduced scattering coefficient (1/m) {slab}")
+    r.add_argument("--n", type=float, help=f"slab refractive index (relative) {slab}")
+    r.add_argument("--no-slab", action="store_true",
+                   help="skip the slab deconvolution (also of a slab the capture recorded)")
+    _add_force(r)
+    _add_precision(r)
+    add_device(r)
+    r.set_defaults(func=cmd_reconstruct)
+
+
+# ------------------------------------------------------------------ plot
+def cmd_plot(args) -> int:
+    from clnlos.io.figures import volume_figure
+    from clnlos.io.files import read_volume, save_figure
+
+    out = Path(args.output) if args.output else Path(args.volume).with_suffix(".png")
+    check_outputs({"-o": out}, inputs=[args.volume], suffixes={"-o": (".png",)},
+                  implied={} if args.output else {"-o": None}, force=args.force)
+    if args.gamma is not None and not (np.isfinite(args.gamma) and 0 < args.gamma <= 10):
+        from clnlos.errors import ParameterError
+
+        raise ParameterError("--gamma", args.gamma, "a number > 0 and <= 10")
+    volume, extents, attrs = read_volume(args.volume)
+    save_figure(volume_figure(volume, extents, f"{Path(args.volume).name}",
+                              gamma=args.gamma, log=args.log), out)
+    print(f"wrote {out}")
+    return 0
+
+
+def register_plot(sub) -> None:
+    p = sub.add_parser("plot", help="re-render the figure of a reconstructed volume")
+    p.add_argument("volume", help="volume HDF5 written by clnlos reconstruct")
+    p.add_argument("-o", "--output", help="PNG (default: beside the volume)")
+    g = p.add_mutually_exclusive_group()
+    g.add_argument("--gamma", type=float, help="display (value / max)^gamma, e.g. 0.5 to "
+                   "lift faint parts (default: linear)")
+    g.add_argument("--log", action="store_true", help="display log10(value / max)")
+    _add_force(p)
+    p.set_defaults(func=cmd_plot)
+
+
+# ------------------------------------------------------------------ simulate, demo
+def cmd_simulate(args) -> int:
+    from clnlos.runtime.device import get_queue
+    from clnlos.forward.scene import Scene
+    from clnlos.app.simulate import figure_path, simulate_to_file
+
+    out = Path(args.output)
+    scene = Scene.from_toml(args.scene)
+    check_outputs({"-o": out, "figure": figure_path(out)},
+                  inputs=[args.scene, *scene.input_paths()], suffixes={"-o": HDF5_SUFFIXES},
+                  implied={"figure": None}, force=args.force)
+    queue = get_queue(args.device)
+    sim = simulate_to_file(scene, out, fmt=args.format, dtype=DTYPES[args.dtype], queue=queue)
+    print(f"wrote {out} ({args.format}) transient {sim.transient.shape} [t, y, x]; stages "
+          f"{', '.join(sim.stages)}; {sim.seconds:.2f} s on {queue.device.name.strip()}")
+    print(f"wrote {sim.figure}")
+    return 0
+
+
+def cmd_demo(args) -> int:
+    from clnlos.app.demo import DEMO_FILES, demo_inputs, run_demo
+    from clnlos.runtime.device import get_queue
+
+    out = Path(args.output)
+    if out.exists() and not out.is_dir():
+        from clnlos.errors import OutputFileError
+
+        raise OutputFileError(f"-o {out}: is a file; the demo writes a folder")
+    scene, cfg = demo_inputs(args.scene, args.config)
+    outs = {f"-o {name}": out / name for name in DEMO_FILES}
+    check_outputs(outs, inputs=[args.scene, args.config, *scene.input_paths()],
+                  implied=dict.fromkeys(outs), force=args.force)
+    run_demo(out, scene, cfg, queue=get_queue(args.device))
+    return 0
+
+
+def register_forward(sub, add_device) -> None:
+    s = sub.add_parser("simulate", help="simulate a confocal capture from a scene TOML")
+    s.add_argument("scene", help="scene description (TOML)")
+    s.add_argument("-o", "--output", required=True,
+                   help="output capture (.h5; a PNG is written beside)")
+    s.add_argument("--format", choices=["clnlos", "tal"], default="clnlos",
+                   help="capture format: clnlos (clnlos HDF5) or tal (y-tal HDF5) "
+                        "(default %(default)s)")
+    _add_force(s)
+    _add_precision(s)
+    add_device(s)
+    s.set_defaults(func=cmd_simulate)
+    d = sub.add_parser("demo", help="simulate 'UT' behind the slab, reconstruct with LCT, f-k "
+                                    "and the iterative method, score")
+    d.add_argument("-o", "--output", default="out/demo",
+                   help="output folder (default %(default)s)")
+    d.add_argument("--scene", help="scene TOML with letters as objects[0] (default: built-in)")
+    d.add_argument("--config", help="reconstruction TOML (default: built-in; its slab "
+                   "defaults to the scene's)")
+    _add_force(d)
+    add_device(d)
+    d.set_defaults(func=cmd_demo)
+
+
+# ------------------------------------------------------------------ brdf
+BRDF_MODELS = ["mlp", "mlp-seed", "five-param", "torrance-sparrow", "phong", "minnaert",
+               "lambert"]
+
+
+def cmd_brdf_fit(args) -> int:
+    from clnlos.brdf.fit import fit_to_file
+    from clnlos.brdf.plot import read_samples
+
+    if args.model in ("mlp", "mlp-seed"):
+        require("torch", f"brdf fit --model {args.model}")
+    outs = {"-o": Path(args.output)}
+    if args.metrics_json:
+        outs["--metrics-json"] = Path(args.metrics_json)
+    check_outputs(outs, inputs=[args.data, args.test], suffixes={"-o": HDF5_SUFFIXES})
+    from clnlos.app.progress import counter, progress_bar
+
+    train = read_samples(args.data)
+    test = read_samples(args.test) if args.test else None
+    unit = "epoch" if args.model in ("mlp", "mlp-seed") else "start"
+    with progress_bar(None, f"brdf fit {args.model}", unit) as bar:
+        metrics = fit_to_file(args.model, train, test, args.output, seed=args.seed,
+                              metrics_json=args.metrics_json, progress=counter(bar))
+    for k, v in metrics.items():
+        if k != "loss_log":
+            print(f"{k}: {v:.4g}" if isinstance(v, float) else f"{k}: {v}")
+    print(f"wrote {args.output}")
+    return 0
+
+
+def cmd_brdf_texture(args) -> int:
+    from clnlos.brdf.store import load_model
+    from clnlos.brdf.texture import MAX_NODES, MIN_NODES, tabulate, write_texture
+    from clnlos.checks import integer
+
+    for flag, v in (("--resolution", args.resolution), ("--dphi", args.dphi),
+                    ("--retro", args.retro)):
+        if v is not None:
+            integer(flag, v, MIN_NODES, MAX_NODES)
+    check_outputs({"-o": Path(args.output)}, inputs=[args.model],
+                  suffixes={"-o": HDF5_SUFFIXES})
+    model, meta = load_model(args.model)
+    tex = tabulate(model, args.resolution, args.dphi or args.resolution, args.retro,
+                   provenance={"model_file": str(args.model), **meta})
+    write_texture(args.output, tex)
+    print(f"wrote {args.output} texture {tex.shape} [theta_i, theta_s, dphi], "
+          f"retro slice {len(tex.retro)}")
+    return 0
+
+
+def cmd_brdf_plot(args) -> int:
+    from clnlos.brdf.plot import brdf_figure, read_samples
+    from clnlos.brdf.store import load_model
+    from clnlos.io.files import save_figure
+
+    out = Path(args.output) if args.output else Path(args.model).with_suffix(".png")
+    check_outputs({"-o": out}, inputs=[args.model, args.data], suffixes={"-o": (".png",)},
+                  implied={} if args.output else {"-o": None}, force=args.force)
+    model, meta = load_model(args.model)
+    data = read_samples(args.data) if args.data else None
+    save_figure(brdf_figure(model, f"{args.model}: {meta['metrics'].get('model', '')}", data),
+                out)
+    print(f"wrote {out}")
+    return 0
+
+
+def cmd_brdf_evaluate(args) -> int:
+    from tqdm import tqdm
+
+    from clnlos.brdf.evaluate import evaluate, is_rows_json, measured_files, summary_table, write_rows
+
+    if any(m in ("mlp", "mlp-seed") for m in args.models):
+        require("torch", "brdf evaluate with an MLP model")
+    if args.splits < 1 or args.splits > 100:
+        from clnlos.errors import ParameterError
+
+        raise ParameterError("--splits", args.splits, "an integer from 1 to 100")
+    out = Path(args.output)
+    outs = {"-o": out, "(json)": out.with_suffix(".json")}
+    check_outputs(outs, inputs=measured_files(args.directory), suffixes={"-o": (".csv",)},
+                  implied={"(json)": is_rows_json}, force=args.force)
+    rows = evaluate(args.directory, models=args.models, modes=args.modes,
+                    splits=tuple(range(args.splits)), materials=args.material,
+                    progress=lambda jobs: tqdm(jobs, desc="brdf evaluate", unit="fit"))
+    write_rows(rows, out, out.with_suffix(".json"))
+    print(summary_table(rows))
+    print(f"wrote {out} and {out.with_suffix('.json')}")
+    return 0
+
+
+def register_brdf(sub, add_device) -> None:
+    from clnlos.brdf.data import CSV_COLUMNS
+    from clnlos.brdf.evaluate import MODELS as EVAL_MODELS, MODES as EVAL_MODES, TRAIN_FRACTION
+
+    b = sub.add_parser("brdf", help="fit, tabulate and plot BRDF models")
+    bs = b.add_subparsers(dest="brdf_command", required=True)
+    f = bs.add_parser("fit", help="fit a model to measured data (CSV or pbrt .brdf)")
+    data = (f"measured samples: CSV with columns {','.join(CSV_COLUMNS)} (angles in degrees, "
+            "BRDF in 1/sr; # comment lines) or pbrt-v2 .brdf")
+    f.add_argument("data", help=data)
+    f.add_argument("--model", required=True, choices=BRDF_MODELS,
+                   help="mlp: the peak-keeping neural BRDF; mlp-seed: the seed's MLP recipe "
+                        "(both need torch); five-param, torrance-sparrow, phong, minnaert, "
+                        "lambert: analytic models fitted by least squares in log space")
+    f.add_argument("-o", "--output", required=True, help="fitted model (.h5)")
+    f.add_argument("--test", help="held-out data (same formats) for the test metrics "
+                   "(default: none, training metrics only)")
+    f.add_argument("--metrics-json", help="also write the metrics to this JSON file "
+                   "(default: printed only)")
+    f.add_argument("--seed", type=int, default=0,
+                   help="random seed: the networks' initialisation and validation split, or "
+                        "the analytic fits' random starts (default %(default)s)")
+    f.set_defaults(func=cmd_brdf_fit)
+    t = bs.add_parser("texture", help="tabulate a model to a BRDF texture (HDF5)")
+    t.add_argument("model", help="fitted model (.h5) written by clnlos brdf fit")
+    t.add_argument("-o", "--output", required=True,
+                   help="output texture (.h5): the [theta_i, theta_s, delta-phi] table and "
+                        "the retro slice")
+    t.add_argument("--resolution", type=int, default=64,
+                   help="theta_i and theta_s nodes over 0-90 deg (default %(default)s)")
+    t.add_argument("--dphi", type=int, default=None,
+                   help="delta-phi nodes over 0-180 deg (default: --resolution)")
+    t.add_argument("--retro", type=int, default=256,
+                   help="nodes of the retro slice f(w, w) over 0-90 deg, what the light-cone "
+                        "kernel reads (default %(default)s)")
+    t.set_defaults(func=cmd_brdf_texture)
+    p = bs.add_parser("plot", help="in-plane curves at theta_i 30/45/60 with the data")
+    p.add_argument("model", help="fitted model (.h5) written by clnlos brdf fit")
+    p.add_argument("--data", help="measured CSV or .brdf to overlay (default: none)")
+    p.add_argument("-o", "--output", help="PNG (default: beside the model)")
+    _add_force(p)
+    p.set_defaults(func=cmd_brdf_plot)
+    e = bs.add_parser("evaluate", help="interpolation and extrapolation scores of models on "
+                      "every NAME_gonio.csv/NAME_test.csv pair in a directory")
+    e.add_argument("directory", help="folder of NAME_gonio.csv / NAME_test.csv pairs")
+    e.add_argument("-o", "--output", required=True, help="rows as CSV (JSON beside it)")
+    e.add_argument("--models", nargs="+", default=list(EVAL_MODELS), choices=BRDF_MODELS,
+                   metavar="MODEL", help="models to score, of " + ", ".join(BRDF_MODELS)
+                   + " (default " + " ".join(EVAL_MODELS) + ")")
+    split = f"{TRAIN_FRACTION * 100:g}/{(1 - TRAIN_FRACTION) * 100:g}"
+    e.add_argument("--modes", nargs="+", default=list(EVAL_MODES), choices=list(EVAL_MODES),
+                   help=f"interp: fit and score a random {split} split of all directions; "
+                        "extrap: fit NAME_gonio.csv, score NAME_test.csv (default "
+                        + " ".join(EVAL_MODES) + ")")
+    e.add_argument("--splits", type=int, default=1,
+                   help="random interpolation splits, seeds 0 to N-1 (default %(default)s)")
+    e.add_argument("--material", nargs="+", help="only sets whose name contains one of these "
+                   "(default: every set)")
+    _add_force(e)
+    e.set_defaults(func=cmd_brdf_evaluate)
+
+
+# ------------------------------------------------------------------ study
+def cmd_study(args) -> int:
+    from dataclasses import replace
+
+    from clnlos.checks import integer
+    from clnlos.study.dataset import MAX_WORKERS, check_scheduler_address
+
+    if args.workers is not None:
+        integer("--workers", args.workers, 1, MAX_WORKERS)
+    if args.scheduler is not None:
+        check_scheduler_address("--scheduler", args.scheduler)
+    require("torch", "clnlos study (its CNN)")
+    if args.scheduler is not None or (args.workers or 2) > 1:
+        require("distributed", "clnlos study with worker processes")
+    from clnlos.study.run import StudyOptions, run_study
+
+    out = Path(args.output)
+    outs = {"-o report.html": out / "report.html", "-o results.json": out / "results.json"}
+    check_outputs(outs, implied=dict.fromkeys(outs), force=args.force)
+    opts = StudyOptions() if args.full else StudyOptions.quick()
+    if args.n_dataset is not None:
+        opts.n_dataset = args.n_dataset
+    if args.method is not None:
+        opts.grid = replace(opts.grid, method=args.method)
+    opts.labels = args.labels
+    opts.real_data = args.real_data
+    res = run_study(out, opts.validate(), workers=args.workers, scheduler=args.scheduler,
+                    device=args.device)
+    for geo in res["geometries"]:
+        print(f"geometry {geo['name']}: {geo['description']}; stroke / resolution "
+              f"{geo['stroke_over_resolution']:.2f}")
+        for m in geo["materials"]:
+            i = m["identification"]
+            print(f"  {m['name']:36s} {m['brdf_class']:26s} identification "
+                  f"{i['accuracy']:.2f} [{i['ci'][0]:.2f}, {i['ci'][1]:.2f}] (chance "
+                  f"{i['chance']:.3f}, n {i['n']}) IoU {m['iou']:.3f} (box "
+                  f"{m['iou_box_baseline']:.3f}) label {m['label']} CNN {m['cnn_label']} "
+                  f"seed {m['seed_label']}")
+    print(f"labels {res['labels']['source']}; CNN validation accuracy "
+          f"{res['cnn']['val_accuracy']:.3f} (majority {res['cnn']['majority_baseline']:.3f})")
+    print(res["findings"]["statement"])
+    print(f"wrote {out / 'report.html'} and results.json")
+    return 0
+
+
+def register_study(sub, add_device) -> None:
+    from clnlos.study.dataset import StudyGrid
+    from clnlos.study.run import LABEL_METRICS, StudyOptions
+
+    quick, full = StudyOptions.quick(), StudyOptions()
+    s = sub.add_parser("study", help="the material study (main job)")
+    g = s.add_mutually_exclusive_group()
+    g.add_argument("--quick", action="store_true", help=f"built-in default: "
+                   f"{len(quick.glyphs)} glyphs x {quick.seeds} noise realisation(s) per "
+                   f"material and geometry, {len(quick.sweep_glyphs)} glyphs per geometry-"
+                   f"sweep point, {quick.n_dataset} extra random samples (within 4 minutes on "
+                   "2 cores)")
+    g.add_argument("--full", action="store_true", help=f"{len(full.glyphs)} glyphs x "
+                   f"{full.seeds} noise realisations per material and geometry, "
+                   f"{len(full.sweep_glyphs)} glyphs per geometry-sweep point, "
+                   f"{full.n_dataset} extra random samples (within 20 minutes on 2 cores)")
+    s.add_argument("-o", "--output", default="out/study",
+                   help="output folder: report.html, results.json and the sample cache "
+                        "(default %(default)s)")
+    s.add_argument("--method", choices=["lct", "fk", "iterative"], default=None,
+                   help=f"reconstruction method (default {StudyGrid.method})")
+    s.add_argument("--labels", choices=list(LABEL_METRICS), default=full.labels,
+                   help="what the CNN learns: legibility (glyph identified and IoU above "
+                        "its box baseline: ground truth), nr (the no-reference metric "
+                        f"{LABEL_METRICS['nr']}) or fft (the seed's FFT clarity "
+                        f"{LABEL_METRICS['fft']}, the seed's recipe) (default %(default)s)")
+    w = s.add_mutually_exclusive_group()
+    w.add_argument("--workers", type=int, default=None,
+                   help="local Dask worker processes (default: CPU count; 1 = serial)")
+    w.add_argument("--scheduler", default=None, help="address of an existing Dask scheduler, "
+                   "e.g. tcp://HOST:8786 (default: none, local workers)")
+    s.add_argument("--real-data", type=Path, default=None, metavar="DIR",
+                   help="folder whose cdt/ holds the real CDT captures (letters_ut.mat, "
+                        "letter_s.mat, resolution_70.mat): the report adds the real capture "
+                        "beside its simulation, the real chart's resolved features and the "
+                        "CNN's verdict on them; a folder without them is noted and skipped "
+                        "(default: none)")
+    s.add_argument("--n-dataset", type=int, default=None, help=argparse.SUPPRESS)
+    _add_force(s)
+    add_device(s)
+    s.set_defaults(func=cmd_study)
+
+
+# ------------------------------------------------------------------ bench
+def cmd_bench(args) -> int:
+    """Thin front of :func:`clnlos.bench.main` (runs from an installed package)."""
+    from clnlos.bench import main as bench_main, sections_of
+
+    if args.only is not None:
+        sections_of(args.only)  # an unknown section: one line before any work
+    out = Path(args.output)
+    outs = {"-o bench.json": out / "bench.json", "-o bench.html": out / "bench.html"}
+    check_outputs(outs, implied=dict.fromkeys(outs), force=args.force)
+    argv = ["-o", args.output] + (["--quick"] if args.quick else []) + (
+        ["--tiny"] if args.tiny else []) + (["--only", args.only] if args.only else []) + (
+        ["--device", args.device] if args.device else [])
+    bench_main(argv)
+    return 0
+
+
+def register_bench(sub, add_device) -> None:
+    b = sub.add_parser("bench", help="accuracy versus time of every kernel knob (bench.json, "
+                                     "bench.html)")
+    g = b.add_mutually_exclusive_group()
+    g.add_argument("--quick", action="store_true", help="under 5 minutes on 2 CPU cores")
+    g.add_argument("--tiny", action="store_true", help=argparse.SUPPRESS)
+    b.add_argument("-o", "--output", default="out/bench",
+                   help="output folder: bench.json and bench.html (default %(default)s)")
+    b.add_argument("--only", default=None, help="comma-separated sections (diffusion, "
+                   "lightcone, brdf, forward, reconstruction, iterative, end_to_end) "
+                   "(default: all)")
+    _add_force(b)
+    add_device(b)
+    b.set_defaults(func=cmd_bench)
+
+
+def register(sub, add_device) -> None:
+    """Add the pipeline sub-commands to the parser ``sub``."""
+    register_reconstruct(sub, add_device)
+    register_plot(sub)
+    register_forward(sub, add_device)
+    register_brdf(sub, add_device)
+    register_study(sub, add_device)
+    register_bench(sub, add_device)

@@ -1,0 +1,434 @@
+"""The confocal slab blur Phi * Phi on the zero-padded measurement grid.
+
+Light crosses the slab twice in a confocal CDT capture (laser in, return out), so the
+measurement is tau = (Phi * Phi) * I with * a 3D convolution over (t, y, x) and Phi the
+slab transmittance of :mod:`clnlos.diffusion` on the scan grid (Lindell & Wetzstein 2020,
+Eq. 11). Grid conventions are those of :func:`clnlos.diffusion.diffusion_psf`: zero lag and
+zero offset at index [0, 0, 0], wrap order, no half-pixel shift.
+
+Left out: the lateral tails of Phi * Phi beyond one scan width (they alias on the 2N
+padded grid; the CDT slab's blur is a few cm against scan widths of tens of cm).
+:func:`lateral_reach_m` says how far the blur reaches, so that a forward model can compute
+the hidden-side transient I on a grid that extends that far past the scan area.
+"""
+
+from __future__ import annotations
+
+import dataclasses
+import math
+
+import numpy as np
+import pyopencl.array as cla
+import scipy.fft as sfft
+
+from clnlos.diffusion import (SUPPORT_TOL, SlabTransmittance, bin_time_nodes, diffusion_psf,
+                        lateral_integral_profile, support_of)
+from clnlos.physics.grid import grid_offsets
+from clnlos.errors import ParameterError
+from clnlos.physics.slab import Slab
+from clnlos.runtime.fft import COMPLEX_OF, RealFFT3
+from clnlos.runtime.device import (
+    copy_rows,
+    fill_zero,
+    get_queue,
+    has_fp64,
+    host_threads,
+    host_view,
+    require_dtype,
+)
+from clnlos.operators.spectral import SpectralFilter, folded_shape
+
+
+def _padded_grid(shape, periodic_xy: bool) -> tuple[int, int, int]:
+    nt, ny, nx = (int(s) for s in shape)
+    return (2 * nt, ny, nx) if periodic_xy else (2 * nt, 2 * ny, 2 * nx)
+
+
+def phi_lateral_factors(plan: SlabTransmittance, *, lags: int, bin_width_s: float,
+                        pitch_m: float, ny: int, nx: int, time_nodes: int = 4
+                        ) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+    """(c [lag, node], Gy [lag, node, ny], Gx [lag, node, nx // 2 + 1]), float64: the 2D
+    lateral DFT of Phi at lag k is sum_j c[k, j] Gy[k, j, :, None] Gx[k, j, None, :].
+
+    Phi[k, y, x] = dt p^2 sum_j w_j T(rho_yx, t_kj) (:func:`~clnlos.diffusion.diffusion_psf`,
+    physical units) and T(rho, t) = T(0, t) g_t(y) g_t(x) with g_t(u) = exp(-u^2 / (4 D v t)):
+    each time node is a separable Gaussian, whose 2D DFT is the product of two 1D DFTs --
+    real, because g_t is circularly even on the wrap-order grid. So the lateral transform of
+    the whole PSF table costs (lags x nodes) DFTs of length ny and nx.
+    """
+    t, w = bin_time_nodes(lags, bin_width_s, time_nodes)
+    log_t0 = plan.log_series(t)
+    alive = np.isfinite(log_t0) & (t > 0)
+    c = np.where(alive, w[None, :] * np.exp(np.where(alive, log_t0, 0.0)), 0.0)
+    c *= float(bin_width_s) * float(pitch_m) ** 2
+    a = 4.0 * plan.slab.D * plan.slab.v * np.where(alive, t, 1.0)  # 4 D v t (m^2)
+
+    def dft_of_gaussian(n: int, half: bool) -> np.ndarray:
+        g = np.exp(-grid_offsets(n, pitch_m)[None, None, :] ** 2 / a[:, :, None])
+        return (sfft.rfft(g, axis=-1) if half else sfft.fft(g, axis=-1)).real
+
+    return c, dft_of_gaussian(ny, False), dft_of_gaussian(nx, True)
+
+
+def _write_phi_spectrum(out: np.ndarray, factors, *, square: bool, rows: int = 16) -> None:
+    """out[w, ky, kx] <- F[Phi] (or F[Phi]^2), the 3D half spectrum of Phi zero past its
+    lags, from :func:`phi_lateral_factors`: the lateral spectra are built ``rows`` ky-rows
+    at a time and transformed along t. Each (ky, kx) column is a real sequence, so the
+    frequencies past n0 / 2 are the conjugates of those below; ``out`` is either the whole
+    (n0, n1, n2h) spectrum or its folded (n0 / 2 + 1, n1 / 2 + 1, n2h) quarter
+    (:func:`clnlos.wiener.folded_shape`: Phi is even in y too), told apart by its shape
+    given n1 = Gy's length."""
+    c, gy, gx = factors
+    n1 = gy.shape[-1]
+    folded = out.shape[1] != n1
+    nh = out.shape[0] if folded else out.shape[0] // 2 + 1
+    n0 = 2 * (nh - 1) if folded else out.shape[0]
+    mirror = n0 - np.arange(nh, n0)  # F[n0 - w] = conj(F[w]) along t
+    real = np.float32 if out.dtype == np.complex64 else np.float64
+    for y0 in range(0, out.shape[1], rows):
+        lat = np.matmul((gy[:, :, y0:y0 + rows] * c[:, :, None]).transpose(0, 2, 1), gx)
+        if folded:
+            lat = lat[:, :out.shape[1] - y0]
+        spec = sfft.rfft(lat.astype(real, copy=False), n=n0, axis=0, workers=host_threads())
+        if square:
+            spec *= spec
+        out[:nh, y0:y0 + rows] = spec
+        if not folded:
+            out[nh:, y0:y0 + rows] = np.conj(spec[mirror])
+
+
+def phi_spectrum(slab: Slab, shape, *, bin_width_s: float, pitch_m: float, n_dipoles,
+                 periodic_xy: bool, square: bool, dtype, queue, folded: bool = False,
+                 profile: np.ndarray | None = None) -> tuple[RealFFT3, cla.Array, float]:
+    """(FFT plan of the padded grid, F[Phi] or F[Phi]^2 on it -- whole, or ``folded`` to
+    the quarter :func:`clnlos.wiener.folded_shape` keeps --, the energy fraction of
+    Phi * Phi at lags >= nt). ``profile``: :func:`~clnlos.diffusion.lateral_integral_profile`
+    for these nt and bin width when the caller has it.
+
+    Phi is taken over its temporal support only (:func:`~clnlos.diffusion.support_of`, all
+    but SUPPORT_TOL of its energy; zero after) and transformed without a PSF table: its
+    lateral DFT is analytic per time node (:func:`phi_lateral_factors`), so only the 1D
+    transform along t remains (0.2 s instead of 0.8 s for a table and a 3D FFT at
+    1024 x 256 x 256). Equal to the DFT of :func:`~clnlos.diffusion.diffusion_psf` on the
+    padded grid up to rounding (tested)."""
+    q = get_queue(queue)
+    dt = require_dtype(q.device, dtype)
+    nt = int(shape[0])
+    pad = _padded_grid(shape, periodic_xy)
+    prof = (lateral_integral_profile(slab, nt=nt, bin_width_s=bin_width_s, queue=q)
+            if profile is None else profile)
+    lags = support_of(prof)
+    plan = SlabTransmittance(slab, n_dipoles=n_dipoles, dtype=dt, queue=q)
+    factors = phi_lateral_factors(plan, lags=lags, bin_width_s=bin_width_s, pitch_m=pitch_m,
+                                  ny=pad[1], nx=pad[2])
+    fft = RealFFT3(pad, dt, q)
+    spec = (cla.empty(q, folded_shape(fft.spec_shape), fft.cdtype) if folded
+            else fft.empty_spectrum())
+    with host_view(spec, write=True, read=False) as out:
+        _write_phi_spectrum(out, factors, square=square)
+    return fft, spec, confocal_tail_fraction(prof[:lags], nt)
+
+
+def confocal_tail_fraction(prof: np.ndarray, nt: int) -> float:
+    """Energy fraction of Phi * Phi at lags >= nt, from the laterally integrated profile
+    (lateral integration commutes with the convolution: it is prof * prof in time)."""
+    p2 = np.convolve(prof, prof)
+    total = p2.sum()
+    return float(p2[nt:].sum() / total) if total > 0 else 0.0
+
+
+def _cut_at_window(fft: RealFFT3, spec: cla.Array, out_g: cla.Array, nt: int) -> cla.Array:
+    """Phi * Phi in the lag domain (into ``out_g``), zero at lags >= nt."""
+    phi2 = fft.inverse(spec, out_g)
+    fill_zero(phi2.queue, phi2,
+              offset_bytes=nt * phi2.shape[1] * phi2.shape[2] * phi2.dtype.itemsize)
+    return phi2
+
+
+def confocal_spectrum(slab: Slab, shape: tuple[int, int, int], *, bin_width_s: float,
+                      pitch_m: float, n_dipoles: int | None = None, periodic_xy: bool = False,
+                      dtype=np.float32, queue=None, cache=None) -> tuple[cla.Array, bool]:
+    """(F[Phi * Phi] on the padded grid, whether it is stored folded): the spectrum of
+    :func:`confocal_psf` without going to the lag domain when it need not.
+
+    When Phi * Phi holds less than SUPPORT_TOL of its energy at lags >= nt
+    (:func:`confocal_tail_fraction`), the cut at nt changes nothing that matters and the
+    spectrum is F[Phi]^2, stored folded (a quarter: :func:`clnlos.wiener.folded_shape`);
+    otherwise it is F of :func:`confocal_psf` (an inverse and a forward FFT more), whole.
+    ``cache``: a :class:`clnlos.spectrum_cache.SpectrumCache` to read the spectrum from, or
+    store it in."""
+    q = get_queue(queue)
+    dt = require_dtype(q.device, dtype)
+    nt = int(shape[0])
+    prof = lateral_integral_profile(slab, nt=nt, bin_width_s=bin_width_s, queue=q)
+    folded = confocal_tail_fraction(prof[:support_of(prof)], nt) < SUPPORT_TOL
+    key = None
+    if cache is not None:
+        key = cache.key("slab-confocal", slab=dataclasses.asdict(slab), n_dipoles=n_dipoles,
+                        shape=[int(v) for v in shape], bin_width_s=float(bin_width_s),
+                        pitch_m=float(pitch_m), periodic_xy=bool(periodic_xy),
+                        dtype=dt.name, folded=folded)
+        full = RealFFT3(_padded_grid(shape, periodic_xy), dt, q).spec_shape
+        spec = cla.empty(q, folded_shape(full) if folded else full, COMPLEX_OF[dt])
+        if cache.load(key, spec):
+            return spec, folded
+    fft, spec, _ = phi_spectrum(slab, shape, bin_width_s=bin_width_s, pitch_m=pitch_m,
+                                n_dipoles=n_dipoles, periodic_xy=periodic_xy, square=True,
+                                dtype=dt, queue=q, folded=folded, profile=prof)
+    if not folded:
+        lag_g = cla.empty(fft.queue, fft.shape, fft.dtype)
+        spec = fft.forward(_cut_at_window(fft, spec, lag_g, nt), spec)
+    if cache is not None:
+        cache.store(key, spec)
+    return spec, folded
+
+
+def confocal_psf(slab: Slab, shape: tuple[int, int, int], *, bin_width_s: float,
+                 pitch_m: float, n_dipoles: int | None = None, periodic_xy: bool = False,
+                 dtype=np.float32, queue=None) -> cla.Array:
+    """Phi * Phi on the padded grid (2 nt, 2 ny, 2 nx) for transients of ``shape``.
+
+    ``periodic_xy``: the grid is (2 nt, ny, nx), a convolution that wraps laterally -- for
+    a forward model whose input already extends past the kept area by the blur's reach
+    (:func:`lateral_reach_m`), where the wrapped border is cropped away.
+
+    Phi is :func:`~clnlos.diffusion.diffusion_psf` with ``normalize="physical"`` (so the
+    sum of Phi * Phi approximates the squared total transmittance) over its temporal
+    support (all but SUPPORT_TOL of its energy; zero after), transformed by
+    :func:`phi_spectrum`; the self-convolution is exact on the 2 nt grid and is then cut to
+    lags 0..nt-1, the only ones that reach the time window from inside it -- longer lags
+    would wrap around the padded FFT.
+    """
+    fft, spec, _ = phi_spectrum(slab, shape, bin_width_s=bin_width_s, pitch_m=pitch_m,
+                                n_dipoles=n_dipoles, periodic_xy=periodic_xy, square=True,
+                                dtype=dtype, queue=queue)
+    return _cut_at_window(fft, spec, cla.empty(fft.queue, fft.shape, fft.dtype),
+                          int(shape[0]))
+
+
+KERNELS = ("cdt", "eq8")  # hidden-face kernels: CDT's Phi * Phi, the far-target Eq. 8 one
+
+
+def eq8_psf(slab: Slab, shape: tuple[int, int, int], *, bin_width_s: float, pitch_m: float,
+            n_dipoles: int | None = None, periodic_xy: bool = False, dtype=np.float32,
+            queue=None) -> np.ndarray:
+    """The hidden-face kernel K that Eq. 8 gives for a target far from the face, on the grid
+    and in the conventions of :func:`confocal_psf` (host array, shape of the padded grid).
+
+    Eq. 8: tau(r0, t) = sum_{r1, r2} Phi(r1 - r0) (x)_t Phi(r2 - r0) (x)_t I(r1, r2, t). For a
+    target at z >> |r1 - r2| (a few cm), |x - r1| + |x - r2| = 2 |x - m| + O(|r1 - r2|^2 / z)
+    with m = (r1 + r2) / 2, and the cosines and distances are those of the confocal point
+    m: I(r1, r2, t) = I_c(m, t). With r1 = m + delta / 2, r2 = m - delta / 2 (unit Jacobian)
+
+        tau(r0, t) = sum_m K(m - r0, t) (x)_t I_c(m, t),
+        K(u, t) = int d^2 delta Phi(u + delta / 2) (x)_t Phi(u - delta / 2)
+                = 4 (Phi * Phi)(2 u, t)
+
+    -- in space the product of the two legs at the two face points (integrated over their
+    separation), in time their convolution. CDT's Phi * Phi instead puts the confocal point
+    at r1 + r2 - r0. Phi(rho, t) = T(0, t) exp(-rho^2 / (4 D v t)), and in the time
+    convolution the two legs' Gaussian widths add up to that of the total lag (4 D v t1 +
+    4 D v t2 = 4 D v t), so (Phi * Phi)(u, t) = P2(t) exp(-u^2 / (4 D v t)) / (4 pi D v t)
+    with P2 the laterally integrated P * P, and
+
+        K(u, t) = P2(t) exp(-u^2 / (D v t)) / (pi D v t):
+
+    the same energy per lag as CDT's kernel, half its lateral width (standard deviation
+    sqrt(D v t / 2) per axis against sqrt(2 D v t)). Built here as the lateral sum of
+    :func:`confocal_psf` per lag (the exact P2 on this grid, bin-averaged as it is) times
+    the cell-averaged Gaussian of that width at the lag's centre k dt, normalised to unit
+    lateral sum (a narrow kernel keeps its energy when it is narrower than a cell).
+    """
+    from scipy.special import erf
+
+    phi2 = confocal_psf(slab, shape, bin_width_s=bin_width_s, pitch_m=pitch_m,
+                        n_dipoles=n_dipoles, periodic_xy=periodic_xy, dtype=dtype,
+                        queue=queue).get().astype(np.float64)
+    energy = phi2.sum(axis=(1, 2))
+    b = slab.D * slab.v * np.arange(phi2.shape[0]) * float(bin_width_s)  # D v t, m^2
+
+    def cells(n: int) -> np.ndarray:
+        off = grid_offsets(n, pitch_m)[None, :]
+        sb = np.sqrt(np.maximum(b, 1e-300))[:, None]
+        g = erf((off + pitch_m / 2) / sb) - erf((off - pitch_m / 2) / sb)
+        return g / g.sum(axis=1, keepdims=True)
+
+    gy, gx = cells(phi2.shape[1]), cells(phi2.shape[2])
+    return (energy[:, None, None] * gy[:, :, None] * gx[:, None, :]).astype(phi2.dtype)
+
+
+def check_kernel(kernel: str) -> str:
+    """The hidden-face kernel name, checked against KERNELS."""
+    if kernel not in KERNELS:
+        raise ParameterError("kernel", kernel, " or ".join(repr(k) for k in KERNELS))
+    return kernel
+
+
+def lateral_reach_m(slab: Slab, *, window_s: float, pitch_m: float, tol: float = 1e-3,
+                    n_dipoles: int | None = None, queue=None) -> float:
+    """Radius R (m) outside which the confocal blur holds less than ``tol`` of its energy.
+
+    With P(rho) = integral of Phi(t, rho) over lags 0..window_s (the light that can reach the
+    time window), the confocal blur integrated over time is about P * P (2D convolution);
+    R is the smallest offset with sum_{|rho| > R} (P * P) < tol * sum (P * P). The profile is
+    computed on a grid of at most 256 cells per side reaching 20 (d + 2 z_e), a bound well
+    past the lateral decay length (d + 2 z_e) / pi of the slab's diffuse spot.
+    """
+    from scipy.signal import fftconvolve
+
+    r_max = 20.0 * (slab.thickness_m + 2.0 * slab.ze)
+    pitch = max(float(pitch_m), 2.0 * r_max / 256)
+    n = 2 * int(math.ceil(r_max / pitch))
+    nt = 64
+    q = get_queue(queue)
+    phi = diffusion_psf(slab, nt=nt, bin_width_s=window_s / nt, ny=n, nx=n, pitch_m=pitch,
+                        n_dipoles=n_dipoles, dtype=np.float64 if has_fp64(q.device) else
+                        np.float32, queue=q)
+    p = np.fft.fftshift(phi.astype(np.float64).sum(axis=0))  # centre (zero offset) at n/2
+    pp = fftconvolve(p, p, mode="full")  # zero offset at index n
+    off = (np.arange(2 * n - 1) - n) * pitch
+    rho = np.hypot(off[:, None], off[None, :]).ravel()
+    e = np.clip(pp.ravel(), 0, None)
+    order = np.argsort(rho)
+    outside = 1.0 - np.cumsum(e[order]) / e.sum()
+    k = int(np.argmax(outside < tol))
+    return float(rho[order][k])
+
+
+def slab_blur(slab: Slab, shape, *, bin_width_s: float, pitch_m: float, mode: str = "convolve",
+              snr: float | None = None, n_dipoles: int | None = None,
+              lateral_pad: str = "zero", periodic_xy: bool = False, dtype=np.float32,
+              queue=None, scratch=None, cache=None, kernel: str = "cdt") -> SpectralFilter:
+    """The confocal blur as an operator on transients of ``shape`` [t, y, x].
+
+    ``mode="convolve"``: the forward model tau = (Phi * Phi) * I in physical units (the DC
+    gain is the squared slab transmittance). ``mode="wiener"``: the deconvolution
+    conj(H)/(|H|^2 + 1/SNR) with H normalised to unit DC gain. ``scratch``: work buffers
+    shared with a plan's other stages (:class:`clnlos.runtime.Scratch`); ``cache``: an
+    on-disk :class:`clnlos.spectrum_cache.SpectrumCache` for the spectrum. ``kernel``:
+    ``"cdt"`` (Phi * Phi, :func:`confocal_psf`) or ``"eq8"`` (:func:`eq8_psf`, not cached).
+    """
+    if check_kernel(kernel) == "eq8":
+        psf = eq8_psf(slab, shape, bin_width_s=bin_width_s, pitch_m=pitch_m,
+                      n_dipoles=n_dipoles, periodic_xy=periodic_xy, dtype=dtype, queue=queue)
+        return SpectralFilter(psf, shape, mode=mode, snr=snr, normalize=(mode == "wiener"),
+                              lateral_pad=lateral_pad, dtype=dtype, queue=queue,
+                              scratch=scratch)
+    spec, folded = confocal_spectrum(slab, shape, bin_width_s=bin_width_s, pitch_m=pitch_m,
+                                     n_dipoles=n_dipoles, periodic_xy=periodic_xy,
+                                     dtype=dtype, queue=queue, cache=cache)
+    return SpectralFilter(_padded_grid(shape, periodic_xy), shape, mode=mode, snr=snr,
+                          normalize=(mode == "wiener"), lateral_pad=lateral_pad, dtype=dtype,
+                          queue=queue, spectrum=spec, spectrum_folded=folded, scratch=scratch)
+
+
+# The slab blur's time scales, from the laterally integrated profile P of Phi: the confocal
+# blur integrated over the plane is P * P (lateral integration commutes with the convolution).
+BLUR_REACH_TOL = 1e-3  # the blur's reach: all but this fraction of the energy of P * P
+
+
+@dataclasses.dataclass(frozen=True)
+class BlurTimeScales:
+    """Time scales of the confocal slab blur Phi * Phi, in bins of ``bin_width_s``.
+
+    ``peak_lags``: the lag of its maximum (an arrival at t is seen at its brightest at
+    t + peak * dt); ``reach_lags``: the lag by which all but BLUR_REACH_TOL of its energy
+    has arrived (light entering the time window at t leaves the slab by t + reach * dt)."""
+
+    peak_lags: int
+    reach_lags: int
+
+
+def blur_time_scales(slab: Slab, *, bin_width_s: float, tol: float = BLUR_REACH_TOL,
+                     queue=None) -> BlurTimeScales:
+    """:class:`BlurTimeScales` of ``slab`` at ``bin_width_s`` (s), from P * P with P the
+    laterally integrated transmittance (:func:`~clnlos.diffusion.lateral_integral_profile`)
+    on a grid long enough to hold all but SUPPORT_TOL of P."""
+    nt = 256
+    while True:
+        prof = lateral_integral_profile(slab, nt=nt, bin_width_s=bin_width_s, queue=queue)
+        if support_of(prof) < nt or nt >= 1 << 16:
+            break
+        nt *= 4
+    p2 = np.convolve(prof, prof)
+    arrived = np.cumsum(p2) / p2.sum()
+    return BlurTimeScales(peak_lags=int(np.argmax(p2)),
+                          reach_lags=int(np.argmax(arrived >= 1.0 - tol)) + 1)
+
+
+TAIL_FILL_ITERATIONS = 12    # at most this many fills of the unseen tail
+TAIL_FILL_RTOL = 1e-3        # ... stopping when the fill changes by less than this (rel. L2)
+
+
+class TailFilledDeconvolution:
+    """Wiener deconvolution of a transient whose time window ends before the slab's blur of
+    its latest arrivals has decayed.
+
+    Deconvolving the window as it is treats the light still leaving the slab at its end as
+    a step down to zero, which the inverse filter turns into the brightest feature of the
+    volume, near its end (a target at 0.5 m placed at 0.76 m with a 5.1 ns window). Here the
+    time axis is padded by the blur's reach R (:class:`BlurTimeScales`) and the unseen tail
+    is filled in with the model's own prediction: with M the window [0, n) and
+    x_k = W y_k (W the Wiener filter on the n + R grid),
+
+        y_0 = (tau, 0),    y_{k+1} = (tau, [H P x_k]_{t >= n}),
+
+    H the blur and P the restriction of x to t < n - peak (arrivals whose brightest part
+    lies inside the window; later ones are not determined by the data). This is the
+    Gerchberg-Papoulis / EM fill of missing samples; it converges in a few iterations
+    (TAIL_FILL_RTOL) because P removes what the tail alone would explain. The result is
+    P x_K on [0, n): arrivals in the last ``peak`` bins are left out (zero), since only the
+    rise of their response is in the window and the inverse filter would turn it into the
+    brightest voxels of the volume.
+    """
+
+    name = "tail_filled_wiener"
+
+    def __init__(self, slab: Slab, shape, *, bin_width_s: float, pitch_m: float,
+                 scales: BlurTimeScales, snr: float = 1.0, n_dipoles=None,
+                 lateral_pad: str = "zero", dtype=np.float32, queue=None, scratch=None,
+                 cache=None):
+        n, ny, nx = (int(v) for v in shape)
+        self.in_shape = self.out_shape = (n, ny, nx)
+        self.scales = scales
+        self.n_ext = n + scales.reach_lags
+        self.n_known = max(0, n - scales.peak_lags)  # arrivals the window determines
+        self.W = slab_blur(slab, (self.n_ext, ny, nx), bin_width_s=bin_width_s,
+                           pitch_m=pitch_m, mode="wiener", snr=snr, n_dipoles=n_dipoles,
+                           lateral_pad=lateral_pad, dtype=dtype, queue=queue,
+                           scratch=scratch, cache=cache)
+        self.H = SpectralFilter.from_spectrum(self.W, self.W.H, mode="convolve")
+        self.queue = self.W.queue
+        self.iterations_run = 0
+
+    def set_snr(self, snr: float) -> None:
+        self.W.set_snr(snr)
+
+    def __call__(self, tau_g: cla.Array) -> cla.Array:
+        n = self.in_shape[0]
+        plane = self.in_shape[1] * self.in_shape[2]
+        item = tau_g.dtype.itemsize
+        y = cla.empty(self.queue, (self.n_ext,) + self.in_shape[1:], tau_g.dtype)
+        copy_rows(self.queue, tau_g, y, rows=n)
+        fill_zero(self.queue, y, offset_bytes=n * plane * item)
+        tail_old = None
+        for k in range(TAIL_FILL_ITERATIONS):
+            x = self.W(y)
+            self.iterations_run = k + 1
+            if k == TAIL_FILL_ITERATIONS - 1:
+                break
+            fill_zero(self.queue, x, offset_bytes=self.n_known * plane * item)
+            hx = self.H(x)
+            copy_rows(self.queue, hx, y, rows=self.n_ext - n, src_row=n, dst_row=n)
+            with host_view(y) as yh:  # the fill's change (small reductions on the host)
+                tail = np.array(yh[n:], dtype=np.float64)
+            if tail_old is not None:
+                scale = max(float(np.linalg.norm(tail)), 1e-300)
+                if float(np.linalg.norm(tail - tail_old)) < TAIL_FILL_RTOL * scale:
+                    x = self.W(y)
+                    self.iterations_run = k + 2
+                    break
+            tail_old = tail
+        # arrivals past n - peak are seen only by the rise of their response: not determined
+        fill_zero(self.queue, x, offset_bytes=self.n_known * plane * item)
+        return x[:n]

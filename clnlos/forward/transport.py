@@ -1,0 +1,179 @@
+"""Confocal light-cone transport as a linear operator: albedo volume -> hidden-side transient.
+
+The physics of ``clnlos simulate`` (:mod:`clnlos.forward`, ``kernels/lightcone.cl``) for a
+volume of Lambertian voxels facing the scan plane: a voxel at depth z with albedo-weighted
+coverage rho (albedo x fraction of the voxel's lateral cell covered, dimensionless) sends to
+the scan point at distance r
+
+    I(t, s) += rho * p^2 * f_r cos^2(theta_relay) cos^2(theta_obj) / r^4
+             = rho * p^2 * z^4 / (pi r^8)          at t = 2 r / c        (1/(m^2 sr) per bin)
+
+(p the lateral pitch, cos = z / r for both angles, f_r = 1/pi). With u = z^2 and v = r^2 the
+sum over voxels is a 3D convolution in (v, y, x) with the light cone h(v, y, x) =
+delta(v - x^2 - y^2) (O'Toole et al. 2018), so the operator is
+
+    I = W_t R_{v->t} (h * R_{z->u} W_z rho)
+
+with mass-conserving bin-overlap resamplings R (``kernels/resample.cl``), W_z = p^2 z^4 / pi
+(times an optional ``depth_weight``), W_t = r^-8 at the bin centres, and the convolution on a
+zero-padded FFT grid (``kernels/wiener.cl``; no wrap-around). The light cone is splatted
+linearly between v bins, each lateral offset carrying unit weight.
+
+Grids: volume [z, y, x] with depth bin k spanning [k, k+1) c dt / 2 (the reconstruction
+volume); transient [t, y', x'] with bin k spanning [k, k+1) dt, on the scan grid widened by
+``margin`` cells per side (for a slab blur that reaches past the scan border). Voxels
+shallower than ``depth_min_m`` are outside the support (zero columns) and transient rows
+that only such voxels reach are exactly zero, which also keeps the r^-8 weight's range
+(and float32 round-off) bounded. Left out: occlusion, surface orientation other than facing
+the scan plane, BRDFs other than Lambertian, interreflections.
+"""
+
+from __future__ import annotations
+
+import math
+
+import numpy as np
+import pyopencl.array as cla
+import scipy.fft as sfft
+import scipy.sparse as sp
+
+from clnlos import C0
+from clnlos.errors import ParameterError
+from clnlos.runtime.fft import RealFFT3
+from clnlos.operators.base import LinearOperator
+from clnlos.operators.resample import AxisResample, overlap_matrix
+from clnlos.operators.spectral import multiply_spectrum
+from clnlos.runtime.device import (
+    Scratch,
+    fill_zero,
+    get_kernels,
+    get_queue,
+    real_defines,
+    require_dtype,
+)
+
+
+def signed_offsets(n: int, shift: int = 0) -> np.ndarray:
+    """Lateral offset (cells) that index j of an n-cell FFT grid stands for when the kernel is
+    stored shifted by ``shift`` cells: h'[j] = h[(j - shift) mod n], offsets in [-n/2, n/2)."""
+    j = (np.arange(n) - int(shift)) % n
+    return np.where(j < (n + 1) // 2, j, j - n)
+
+
+def lightcone_kernel(nv: int, pad_t: int, py: int, px: int, *, dv_m2: float, pitch_m: float,
+                     shift: int = 0) -> np.ndarray:
+    """Light cone on a (pad_t, py, px) grid (float64): for each lateral offset d (cells) the
+    v-shift s = |d|^2 p^2 / dv in bins, split linearly between bins floor(s) and floor(s)+1,
+    unit weight per offset. Shifts that cannot reach v bins 0..nv-1 from inside, or that would
+    wrap around the padded time axis, are dropped."""
+    oy, ox = signed_offsets(py, shift) * pitch_m, signed_offsets(px, shift) * pitch_m
+    s = (oy[:, None] ** 2 + ox[None, :] ** 2) / dv_m2
+    k0 = np.floor(s).astype(np.int64)
+    f = s - k0
+    h = np.zeros((pad_t, py, px))
+    yy, xx = np.indices(s.shape)
+    k_max = min(nv - 1, pad_t - nv)
+    for kk, w in ((k0, 1.0 - f), (k0 + 1, f)):
+        ok = kk <= k_max
+        np.add.at(h, (kk[ok], yy[ok], xx[ok]), w[ok])
+    return h
+
+
+class LightConeTransport(LinearOperator):
+    """Plan: rho [nz, ny, nx] -> I [nt, ny + 2 margin, nx + 2 margin] (see module docstring).
+
+    Parameters
+    ----------
+    shape : (nt, ny, nx)
+        Time bins (= depth bins) and scan points; the scan is square cells of
+        ``scan_width_m / nx``.
+    bin_width_s : float
+        Transient bin width dt (s); depth bins are c dt / 2.
+    scan_width_m : float
+        Side of the scanned area (m), points at cell centres.
+    margin : int
+        Cells added per side of the output grid.
+    depth_min_m : float
+        Shallowest depth of the volume's support (m).
+    depth_weight : array (nz,) or None
+        Extra factor per depth bin on the input (a column scaling for solvers).
+    scratch : :class:`clnlos.runtime.Scratch`, optional
+        Work buffers shared with a plan's other stages (a private one by default).
+    """
+
+    name = "lightcone_transport"
+
+    def __init__(self, shape, *, bin_width_s: float, scan_width_m: float, margin: int = 0,
+                 depth_min_m: float = 0.0, depth_weight=None, dtype=np.float32, queue=None,
+                 scratch: Scratch | None = None):
+        self.queue = get_queue(queue)
+        self.dtype = require_dtype(self.queue.device, dtype)
+        nt, ny, nx = (int(v) for v in shape)
+        if min(nt, ny, nx) < 1 or margin < 0:
+            raise ParameterError("shape", shape, "three sizes >= 1 (and margin >= 0)")
+        self.margin = m = int(margin)
+        self.bin_width_s, self.scan_width_m = float(bin_width_s), float(scan_width_m)
+        self.pitch_m = pitch = self.scan_width_m / nx
+        dz = C0 * self.bin_width_s / 2
+        R = nt * dz
+        self.depth_m = (np.arange(nt) + 0.5) * dz
+        self.k_min = k_min = min(nt - 1, max(0, int(math.floor(depth_min_m / dz + 1e-9))))
+        dv = R * R / nt
+        j0 = int(math.floor((k_min * dz) ** 2 / dv + 1e-9))  # first v (and u) bin used
+        nv = nt - j0
+        self.in_shape = (nt, ny, nx)
+        self.out_shape = (nt, ny + 2 * m, nx + 2 * m)
+        # z -> u with weights, written into the padded FFT grid (rows 0..nv-1 = bins j0..)
+        z_edges = np.arange(nt + 1) * dz
+        v_edges = np.sqrt(j0 * dv + np.arange(nv + 1) * dv)  # v-bin edges as distances r
+        w_z = pitch * pitch * self.depth_m**4 / math.pi
+        if depth_weight is not None:
+            w_z = w_z * np.asarray(depth_weight, np.float64)
+        w_z[:k_min] = 0.0
+        to_u = (overlap_matrix(z_edges**2, v_edges**2) @ sp.diags(w_z)).tocsr()
+        w_t = np.zeros(nt)
+        w_t[k_min:] = self.depth_m[k_min:] ** -8.0
+        to_t = (sp.diags(w_t) @ overlap_matrix(v_edges**2, z_edges**2)).tocsr()
+        # grid: lateral offsets up to (n - 1 + m) either way; time up to the largest shift
+        py = sfft.next_fast_len(2 * ny + 2 * m - 1, real=True)
+        px = sfft.next_fast_len(2 * nx + 2 * m - 1, real=True)
+        q_max = ((ny - 1 + m) ** 2 + (nx - 1 + m) ** 2) * pitch * pitch
+        s_max = min(nv, int(math.ceil(q_max / dv)) + 2)
+        pad_t = sfft.next_fast_len(nv + s_max, real=True)
+        self.pad_shape = (pad_t, py, px)
+        self.nv = nv
+        self._pre = AxisResample(to_u, (ny, nx), out_plane=(py, px), out_rows=pad_t,
+                                 dtype=self.dtype, queue=self.queue)
+        to_t_pad = sp.hstack([to_t, sp.csr_matrix((nt, pad_t - nv))]).tocsr()
+        self._post = AxisResample(to_t_pad, self.out_shape[1:], in_plane=(py, px),
+                                  dtype=self.dtype, queue=self.queue)
+        self.fft = RealFFT3(self.pad_shape, self.dtype, self.queue)
+        h = lightcone_kernel(nv, pad_t, py, px, dv_m2=dv, pitch_m=pitch, shift=m)
+        self.H = self.fft.forward(cla.to_device(self.queue, h.astype(self.dtype)))
+        self.scratch = Scratch(self.queue) if scratch is None else scratch
+        self.scratch.reserve("a", self.pad_shape, self.dtype)
+        self.scratch.reserve("b", self.fft.spec_shape, self.fft.cdtype)
+        self._k = get_kernels(self.queue, "wiener", real_defines(self.dtype))
+        # blocks of the padded grid that hold data: what the model writes and reads
+        self._in_block = (nv, ny, nx)
+        self._out_block = (nv,) + self.out_shape[1:]
+
+    def _convolve(self, buf, conjugate: bool, nonzero, needed) -> None:
+        spec = self.fft.forward(buf, self.scratch.array("b", self.fft.spec_shape,
+                                                        self.fft.cdtype), nonzero=nonzero)
+        multiply_spectrum(self._k, self.H, spec, h_scale=1.0, adjoint=conjugate)
+        self.fft.inverse(spec, buf, needed=needed)
+
+    def _apply(self, x_g):
+        buf = self.scratch.array("a", self.pad_shape, self.dtype)
+        fill_zero(self.queue, buf)
+        self._pre.apply_into(x_g, buf)
+        self._convolve(buf, False, self._in_block, self._out_block)
+        return self._post._apply(buf)
+
+    def _adjoint(self, y_g):
+        buf = self.scratch.array("a", self.pad_shape, self.dtype)
+        fill_zero(self.queue, buf)
+        self._post.adjoint_into(y_g, buf)
+        self._convolve(buf, True, self._out_block, self._in_block)
+        return self._pre._adjoint(buf)

@@ -1,0 +1,149 @@
+"""Regularised iterative inversion of the confocal light-cone model (``method = "iterative"``).
+
+Given the hidden-side transient I [t, y, x] (the capture after the slab's Wiener
+deconvolution, :mod:`clnlos.blur`; the capture itself without a slab), solve
+
+    min_{rho >= 0}  1/2 || L rho - I ||^2  +  l1 sum(rho)  +  tv TV(rho)
+
+with L the light-cone transport of :mod:`clnlos.transport` (the physics of
+``clnlos simulate``: Lambertian voxels facing the scan plane, z^4 / (pi r^8) falloff), by
+FISTA with gradient restart (:mod:`clnlos.solvers`), warm-started from LCT. The solver's
+variable is xi = rho / (z / R)^4 (R the deepest depth), which gives every depth a column of
+similar norm; the volume returned is rho >= 0 on the reconstruction grid [z, y, x].
+
+Regularisation weights are relative: l1 = ``l1_weight`` * max(L^T I) and
+tv = ``tv_weight`` * max(L^T I) on the support (max(L^T I) is the smallest L1 weight for
+which rho = 0 is the solution), so they do not depend on the units or the scale of I. The
+support starts at ``depth_min_m`` (the reconstruction pipeline takes it from the capture's
+first arrival, :mod:`clnlos.noise`).
+
+Left out: the surface orientation (voxels face the scan plane), BRDFs other than Lambertian,
+occlusion -- as in LCT.
+"""
+
+from __future__ import annotations
+
+import math
+from dataclasses import dataclass
+
+import numpy as np
+import pyopencl.array as cla
+
+from clnlos import C0
+from clnlos.errors import ParameterError
+from clnlos.inverse.lct import LCT
+from clnlos.operators.base import LinearOperator
+from clnlos.runtime.device import Scratch, get_queue, require_dtype
+from clnlos.inverse.solvers import fista, lipschitz
+from clnlos.forward.transport import LightConeTransport
+
+DEPTH_QUANTUM_M = 0.05  # support starts are rounded down to this, so plans are reused
+
+
+@dataclass
+class SolveReport:
+    iterations: int
+    restarts: int
+    lipschitz: float
+    l1: float
+    tv: float
+    depth_min_m: float
+    objective: list
+    change: list
+
+    def as_dict(self) -> dict:
+        return {k: getattr(self, k) for k in self.__dataclass_fields__}
+
+
+class IterativeInversion:
+    """Plan for transients of one shape [t, y, x] (bin 0 at t = 0), precision and device.
+
+    Parameters: shape; bin_width_s; scan_width_m; iterations (at most); l1_weight and
+    tv_weight (relative, see module docstring; their defaults are those of
+    :class:`clnlos.config.ReconstructionConfig`); tv_depth_scale (weight of the depth
+    difference in TV; 0 = lateral TV only); warm_snr (Wiener SNR of the LCT warm start);
+    tol (relative change that stops the solver, :mod:`clnlos.solvers`); scratch (work
+    buffers shared with a plan's other stages, :class:`clnlos.runtime.Scratch`); cache
+    (on-disk spectra of the warm start, :class:`clnlos.spectrum_cache.SpectrumCache`).
+    """
+
+    def __init__(self, shape, *, bin_width_s: float, scan_width_m: float,
+                 iterations: int, l1_weight: float, tv_weight: float,
+                 tv_depth_scale: float = 1.0, warm_snr: float = 1e4, tol: float = 1e-4,
+                 dtype=np.float32, queue=None, scratch=None, cache=None):
+        self.queue = get_queue(queue)
+        self.dtype = require_dtype(self.queue.device, dtype)
+        self.shape = tuple(int(s) for s in shape)
+        self.bin_width_s, self.scan_width_m = float(bin_width_s), float(scan_width_m)
+        if int(iterations) != iterations or not 0 <= iterations <= 100_000:
+            raise ParameterError("iterations", iterations, "an integer from 0 to 100000")
+        for name, v in (("l1_weight", l1_weight), ("tv_weight", tv_weight),
+                        ("tv_depth_scale", tv_depth_scale)):
+            if not (math.isfinite(v) and 0 <= v <= 1e3):
+                raise ParameterError(name, v, "0 to 1000")
+        self.iterations, self.tol = int(iterations), float(tol)
+        self.l1_weight, self.tv_weight = float(l1_weight), float(tv_weight)
+        self.tv_depth_scale = float(tv_depth_scale)
+        nt = self.shape[0]
+        dz = C0 * self.bin_width_s / 2
+        self.depth_m = (np.arange(nt) + 0.5) * dz
+        self.scale = (self.depth_m / (nt * dz)) ** 4  # rho = xi * scale
+        self.scratch = Scratch(self.queue) if scratch is None else scratch
+        self.warm = LCT(self.shape, bin_width_s=bin_width_s, scan_width_m=scan_width_m,
+                        snr=warm_snr, dtype=self.dtype, queue=self.queue,
+                        scratch=self.scratch, cache=cache)
+        self._ops: dict[int, tuple[LightConeTransport, float]] = {}
+        self.report: SolveReport | None = None
+
+    def operator(self, depth_min_m: float, setup=None) -> tuple[LinearOperator, int, float]:
+        """(model in xi, first support row, Lipschitz constant) for a support from
+        ``depth_min_m``, built once per DEPTH_QUANTUM_M step; ``setup(step)`` names each
+        step of a build as it starts."""
+        key = int(math.floor(max(0.0, depth_min_m) / DEPTH_QUANTUM_M))
+        hit = self._ops.get(key)
+        if hit is None:
+            if setup is not None:
+                setup("light-cone operator")
+            lc = LightConeTransport(self.shape, bin_width_s=self.bin_width_s,
+                                    scan_width_m=self.scan_width_m, margin=0,
+                                    depth_min_m=key * DEPTH_QUANTUM_M,
+                                    depth_weight=self.scale, dtype=self.dtype,
+                                    queue=self.queue, scratch=self.scratch)
+            power = None if setup is None else (
+                lambda k, n: setup(f"step size (power iteration {k}/{n})"))
+            hit = (lc, lc.k_min, lipschitz(lc, progress=power))
+            self._ops[key] = hit
+        return hit
+
+    def __call__(self, tau, *, depth_min_m: float = 0.0, callback=None, setup=None):
+        """Albedo volume rho [z, y, x] >= 0 from a transient [t, y, x] (device or numpy).
+        ``callback(k, x)`` follows the solver's iterations (:func:`clnlos.solvers.fista`),
+        ``setup(step)`` the steps before them (operator, step size, warm start)."""
+        on_device = isinstance(tau, cla.Array)
+        q, dt = self.queue, self.dtype
+        y = tau if on_device else cla.to_device(q, np.ascontiguousarray(tau, dt))
+        op, row_min, L = self.operator(depth_min_m, setup)
+        if setup is not None:
+            setup("LCT warm start")
+        # warm start: LCT, rescaled to xi and to the best fit along its direction
+        x0 = self.warm(y).get().astype(np.float64)
+        x0[:row_min] = 0.0
+        x0 /= self.scale[:, None, None]
+        x0_g = cla.to_device(q, x0.astype(dt))
+        ax = op._apply(x0_g)
+        den = float(cla.dot(ax, ax).get())
+        alpha = float(cla.dot(ax, y).get()) / den if den > 0 else 0.0
+        x0_g *= dt.type(max(alpha, 0.0))
+        lam_max = float(cla.max(op._adjoint(y)).get())
+        l1 = self.l1_weight * max(lam_max, 0.0)
+        tv = self.tv_weight * max(lam_max, 0.0)
+        res = fista(op, y, x0_g, l1=l1, tv=tv, wz=self.tv_depth_scale, row_min=row_min,
+                    iterations=self.iterations, tol=self.tol, lipschitz_const=L,
+                    callback=callback)
+        self.report = SolveReport(res.iterations, res.restarts, L, l1, tv,
+                                  row_min * C0 * self.bin_width_s / 2, res.objective,
+                                  res.change)
+        vol = res.x
+        vol *= cla.to_device(q, np.broadcast_to(self.scale[:, None, None],
+                                                 self.shape).astype(dt))
+        return vol if on_device else vol.get()

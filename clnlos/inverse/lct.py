@@ -1,0 +1,214 @@
+"""Confocal inversion by the light-cone transform (O'Toole, Lindell & Wetzstein, Nature 2018).
+
+With r = c t / 2, v = r^2 and u = z^2, the confocal measurement of an albedo volume
+rho(x, y, z) (Lambertian falloff 1/r^4)::
+
+    r^4 tau(x, y, r) = 2 r iiint rho(x', y', z) delta(r^2 - |x-x'|^2 - |y-y'|^2 - z^2)
+
+becomes a 3D convolution in (v, y, x): v^{3/2} tau(sqrt v) = h * [rho(sqrt u) / sqrt u] with
+the light cone h(x, y, v) = delta(v - x^2 - y^2). The inverse:
+
+1. weight tau by (t/T)^p (p = ``falloff``: 4 for diffuse, 2 for retroreflective surfaces) and
+   resample t -> v with mass-conserving bin overlaps (density 1/(2r): together r^3 tau);
+2. Wiener-filter in (v, y, x) with the light cone: conj(H)/(|H|^2 + 1/SNR), zero padded to
+   (2M, 2Ny, 2Nx), light cone splatted linearly between v bins (no aliasing);
+3. resample u -> z (mass-conserving), clamp at 0.
+
+Input: transient [t, y, x], bin 0 starting at t = 0 (round trip from the scan plane), nt bins
+of ``bin_width_s``, scan of width ``scan_width_m`` (cell centres). Output: albedo volume
+[z, y, x], depth bin k covering [k, k+1) * c * bin_width_s / 2, same lateral grid.
+Left out: surface normals and BRDF (assumed isotropic scatterers), occlusions.
+"""
+
+from __future__ import annotations
+
+import numpy as np
+import pyopencl.array as cla
+import scipy.sparse as sp
+
+from clnlos import C0
+from clnlos.config import METHOD_FALLOFF
+from clnlos.physics.grid import grid_offsets
+from clnlos.errors import ParameterError, ShapeError
+from clnlos.runtime.fft import RealFFT3
+from clnlos.operators.base import LinearOperator
+from clnlos.operators.resample import AxisResample, overlap_matrix
+from clnlos.runtime.device import Scratch, get_kernels, get_queue, real_defines, require_dtype, round_up
+from clnlos.operators.spectral import SpectralFilter
+
+
+DEFAULT_FALLOFF = METHOD_FALLOFF["lct"]  # diffuse (Lambertian) surfaces
+DEFAULT_SNR = 1e2  # light-cone Wiener SNR when none is given
+
+
+def check_inversion_args(shape, falloff: float) -> tuple[int, int, int]:
+    """Validated (nt, ny, nx) and radiometric exponent of a confocal inversion plan."""
+    nt, ny, nx = (int(s) for s in shape)
+    if min(nt, ny, nx) < 1:
+        raise ParameterError("shape", shape, "three sizes >= 1")
+    if not np.isfinite(falloff) or not 0 <= falloff <= 8:
+        raise ParameterError("falloff", falloff, "0 to 8")
+    return nt, ny, nx
+
+
+def lightcone_psf(nt: int, ny: int, nx: int, *, bin_width_s: float, pitch_m: float
+                  ) -> np.ndarray:
+    """Light cone h on the padded (2nt, 2ny, 2nx) v-grid in wrap order, unit sum (float64).
+
+    For a lateral offset q = (dy^2 + dx^2) pitch^2 the response sits at v-shift
+    s = q / R^2 * nt bins (R = nt c dt / 2), split linearly between bins floor(s), floor(s)+1.
+    """
+    R = nt * C0 * bin_width_s / 2
+    oy, ox = grid_offsets(2 * ny, pitch_m), grid_offsets(2 * nx, pitch_m)
+    q = oy[:, None] ** 2 + ox[None, :] ** 2
+    s = q / R**2 * nt
+    k0 = np.floor(s).astype(np.int64)
+    f = s - k0
+    psf = np.zeros((2 * nt, 2 * ny, 2 * nx))
+    yy, xx = np.indices(q.shape)
+    for kk, w in ((k0, 1 - f), (k0 + 1, f)):
+        ok = kk < 2 * nt
+        np.add.at(psf, (kk[ok], yy[ok], xx[ok]), w[ok])
+    return psf / psf.sum()
+
+
+def lightcone_psf_device(nt: int, ny: int, nx: int, *, bin_width_s: float, pitch_m: float,
+                         dtype=np.float32, queue=None, out_g=None):
+    """(:func:`lightcone_psf` built by ``kernels/lct.cl`` on the device (no host table), the
+    number of leading v rows that hold it): into ``out_g`` (a (2 nt, 2 ny, 2 nx) array)
+    when given; the normalisation (sum of the kept weights) is computed on the host in
+    float64. The cone reaches v = (largest lateral offset / R)^2 nt: about half the padded
+    rows stay zero, which the FFT of the plan skips."""
+    from clnlos.runtime.device import fill_zero, kernel_int
+
+    q = get_queue(queue)
+    dt = require_dtype(q.device, dtype)
+    R = nt * C0 * bin_width_s / 2
+    c = pitch_m**2 / R**2 * nt  # v-shift (bins) per squared cell offset
+    j_y, j_x = grid_offsets(2 * ny, 1.0), grid_offsets(2 * nx, 1.0)
+    s = (j_y[:, None] ** 2 + j_x[None, :] ** 2) * c
+    k0, f = np.floor(s), s - np.floor(s)
+    total = float(np.sum(np.where(k0 < 2 * nt, 1 - f, 0) + np.where(k0 + 1 < 2 * nt, f, 0)))
+    psf = cla.empty(q, (2 * nt, 2 * ny, 2 * nx), dt) if out_g is None else out_g
+    fill_zero(q, psf)
+    k = get_kernels(q, "lct", real_defines(dt))
+    k.lightcone_psf(q, (round_up(2 * nx, 16), round_up(2 * ny, 4)), None, psf.data,
+                    kernel_int(2 * nt), kernel_int(2 * ny), kernel_int(2 * nx), dt.type(c),
+                    dt.type(1.0 / total))
+    rows = int(min(2 * nt, k0.max() + 2))  # bins floor(s) and floor(s) + 1
+    return psf, rows
+
+
+def t_to_v_matrix(nt: int, falloff: float) -> sp.csr_matrix:
+    """Radiometric weight (t/T)^p then mass-conserving resampling t -> v = t^2 (normalised)."""
+    t_edges = np.linspace(0.0, 1.0, nt + 1)
+    v_edges_in_t = np.sqrt(np.linspace(0.0, 1.0, nt + 1))
+    centres = (np.arange(nt) + 0.5) / nt
+    return (overlap_matrix(t_edges, v_edges_in_t) @ sp.diags(centres**falloff)).tocsr()
+
+
+def u_to_z_matrix(nt: int) -> sp.csr_matrix:
+    """Mass-conserving resampling u = z^2 -> z (normalised)."""
+    u_edges_in_z = np.sqrt(np.linspace(0.0, 1.0, nt + 1))
+    return overlap_matrix(u_edges_in_z, np.linspace(0.0, 1.0, nt + 1))
+
+
+class LCT:
+    """LCT plan for transients of one shape, precision and device.
+
+    Parameters: shape (nt, ny, nx); bin_width_s; scan_width_m (side of the scanned square,
+    so the lateral pitch is scan_width_m / nx); snr of the light-cone Wiener filter;
+    falloff exponent p; scratch: work buffers shared with a plan's other stages
+    (:class:`clnlos.runtime.Scratch`); cache: an on-disk
+    :class:`clnlos.spectrum_cache.SpectrumCache` for the light cone's spectrum.
+    """
+
+    def __init__(self, shape, *, bin_width_s: float, scan_width_m: float,
+                 snr: float = DEFAULT_SNR, falloff: float = DEFAULT_FALLOFF, dtype=np.float32,
+                 queue=None, scratch: Scratch | None = None, cache=None):
+        self.queue = get_queue(queue)
+        self.dtype = require_dtype(self.queue.device, dtype)
+        nt, ny, nx = self.shape = check_inversion_args(shape, falloff)
+        self.bin_width_s, self.scan_width_m = float(bin_width_s), float(scan_width_m)
+        pitch = self.scan_width_m / nx
+        self.to_v = AxisResample(t_to_v_matrix(nt, falloff), (ny, nx), dtype=self.dtype,
+                                 queue=self.queue)
+        self.to_v.name = "lct_t_to_v"
+        # the same resamplings writing into / reading from the padded (2 nt, 2 ny, 2 nx)
+        # grid of the Wiener filter: no separate pad and crop passes
+        self._to_v_padded = AxisResample(self.to_v.matrix, (ny, nx), dtype=self.dtype,
+                                         queue=self.queue, out_plane=(2 * ny, 2 * nx),
+                                         out_rows=2 * nt)
+        scratch = Scratch(self.queue) if scratch is None else scratch
+        self.cone = self._cone_filter(pitch, scratch, cache)
+
+        self.cone.name = "lct_lightcone"
+        self.inverse_filter = SpectralFilter.from_spectrum(self.cone, self.cone.H,
+                                                           mode="wiener", snr=snr)
+        self.to_z = AxisResample(u_to_z_matrix(nt), (ny, nx), dtype=self.dtype,
+                                 queue=self.queue)
+        self.to_z.name = "lct_u_to_z"
+        self._to_z_padded = AxisResample(self.to_z.matrix, (ny, nx), dtype=self.dtype,
+                                         queue=self.queue, in_plane=(2 * ny, 2 * nx))
+        self._k = get_kernels(self.queue, "resample", real_defines(self.dtype))
+        self._gcv_bins = None  # clnlos.gcv.GcvBins of the light cone, built on first use
+
+    def _cone_filter(self, pitch: float, scratch: Scratch, cache) -> SpectralFilter:
+        """The light-cone convolution on the (2 nt, 2 ny, 2 nx) grid: its spectrum from the
+        on-disk cache, else from :func:`lightcone_psf_device` (stored when a cache is
+        given)."""
+        nt, ny, nx = self.shape
+        pad = (2 * nt, 2 * ny, 2 * nx)
+        kw = dict(mode="convolve", dtype=self.dtype, queue=self.queue, scratch=scratch)
+        key = None
+        if cache is not None:
+            key = cache.key("lightcone", shape=[nt, ny, nx], bin_width_s=self.bin_width_s,
+                            pitch_m=pitch, dtype=self.dtype.name)
+            spec = RealFFT3(pad, self.dtype, self.queue).empty_spectrum()
+            if cache.load(key, spec):
+                return SpectralFilter(pad, self.shape, spectrum=spec, **kw)
+        psf, rows = lightcone_psf_device(nt, ny, nx, bin_width_s=self.bin_width_s,
+                                         pitch_m=pitch, dtype=self.dtype, queue=self.queue,
+                                         out_g=scratch.array("a", pad, self.dtype))
+        cone = SpectralFilter(psf, self.shape, psf_support=(rows,) + pad[1:], **kw)
+        del psf  # slot "a" is the filter's work buffer from now on
+        if cache is not None:
+            cache.store(key, cone.H)
+        return cone
+
+    def set_snr(self, snr: float) -> None:
+        """Change the SNR of the light-cone Wiener filter (no rebuild)."""
+        self.inverse_filter.set_snr(snr)
+
+    def gcv_snr(self, tau: cla.Array, snr_min: float, snr_max: float) -> float:
+        """The light-cone Wiener SNR in [snr_min, snr_max] that generalised cross-validation
+        (:mod:`clnlos.gcv`) picks for the transient ``tau`` [t, y, x] (device): V evaluated
+        on the filter's own (v, y, x) grid, where the light cone is a convolution."""
+        from clnlos.inverse.gcv import GcvBins
+
+        if self._gcv_bins is None:
+            self._gcv_bins = GcvBins.from_gain(self.inverse_filter.gain_squared(),
+                                               self.inverse_filter.pad_shape[2])
+        power = self.inverse_filter.power_spectrum(
+            write_input=lambda buf: self._to_v_padded.apply_into(tau, buf))
+        return self._gcv_bins.snr(power, snr_min, snr_max)
+
+    @property
+    def forward_operator(self) -> LinearOperator:
+        """The linear model in the (v, y, x) domain used by the inverse: light-cone convolution."""
+        return self.cone
+
+    def __call__(self, tau):
+        """Albedo volume [z, y, x] (clamped at 0) from a transient [t, y, x]."""
+        on_device = isinstance(tau, cla.Array)
+        x = tau if on_device else cla.to_device(self.queue,
+                                                np.ascontiguousarray(tau, self.dtype))
+        if tuple(x.shape) != self.shape:
+            raise ShapeError(f"LCT input: expected shape {self.shape}, got {tuple(x.shape)}")
+        vol = cla.empty(self.queue, self.shape, self.dtype)
+        self.inverse_filter.filter_padded(
+            lambda buf: self._to_v_padded.apply_into(x, buf),
+            lambda buf: self._to_z_padded.apply_into(buf, vol))
+        self._k.clamp_nonnegative(self.queue, (round_up(vol.size, 256),), None, vol.data,
+                                  np.int64(vol.size))
+        return vol if on_device else vol.get()

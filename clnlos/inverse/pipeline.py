@@ -1,0 +1,519 @@
+"""Reconstruction pipeline: capture -> preprocess -> [slab deconvolution] -> confocal inverse.
+
+Stages (each a plan built once for the capture's shape, dtype and device):
+
+1. ``preprocess``: one mass-conserving resampling of the time axis that aligns bin 0 to
+   t = 0 (using ``start_s``), crops to ``max_path_m`` of round-trip path and rebins to
+   ``bins`` bins (sums of overlapping bins, never point samples); then normalisation.
+2. ``deconvolve`` (only with a slab): Wiener deconvolution of Phi * Phi (:mod:`clnlos.blur`).
+3. ``invert``: LCT (:mod:`clnlos.lct`), f-k migration (:mod:`clnlos.fk`) or the regularised
+   iterative inversion (:mod:`clnlos.iterative`).
+
+SNRs given as "auto" are chosen from the data by generalised cross-validation
+(:mod:`clnlos.gcv`), each on its own filter's grid: the slab's on the preprocessed
+transient, the light cone's on the deconvolved one; the slab's is then combined with the
+model's accuracy (:func:`model_snr_for`). On noise-free data
+(:attr:`clnlos.noise.NoiseEstimate.noise_free`: nothing to cross-validate against) the
+rule of :mod:`clnlos.noise` stands in, which there gives the caps SNR_MAX and
+LIGHTCONE_SNR_MAX (it is also what :func:`auto_snrs` gives when no data SNR is passed).
+
+Output volume [z, y, x]: depth bin k spans [k, k+1) * c * dt / 2 behind the scan plane
+(the slab's hidden face), x and y the scan-cell centres, x increasing with the column
+index and y with the row index (images are drawn with +x to the right and +y up).
+"""
+
+from __future__ import annotations
+
+import math
+import time
+from dataclasses import dataclass, field
+
+import numpy as np
+import pyopencl.array as cla
+
+from clnlos import C0
+from clnlos.forward.blur import TailFilledDeconvolution, blur_time_scales, slab_blur
+from clnlos.config import DEPTH_GUARD_M, ReconstructionConfig, check_window
+from clnlos.errors import InputFileError, ParameterError
+from clnlos.inverse.fk import FKMigration
+from clnlos.io.files import Capture
+from clnlos.inverse.iterative import IterativeInversion
+from clnlos.inverse.lct import LCT
+from clnlos.inverse.gcv import GcvBins
+from clnlos.inverse.snr import (
+    ARRIVAL_SIGMAS,
+    LIGHTCONE_SNR_MAX,
+    LIGHTCONE_SNR_MIN,
+    MEASURED_MODEL_SNR,
+    SNR_MAX,
+    SNR_MIN,
+    NoiseEstimate,
+    combined_snr,
+    estimate_noise,
+    lightcone_snr,
+)
+from clnlos.operators.resample import AxisResample, overlap_matrix
+from clnlos.runtime.spectrum_cache import SpectrumCache
+from clnlos.runtime.device import (
+    Scratch,
+    get_kernels,
+    get_queue,
+    host_view,
+    real_defines,
+    require_dtype,
+    round_up,
+)
+
+
+@dataclass
+class Reconstruction:
+    volume: np.ndarray
+    bin_width_s: float
+    scan_width_m: float
+    stages: list[str]
+    timings_s: dict[str, float]
+    params: dict
+    transient: np.ndarray | None = None
+    extents: dict = field(default_factory=dict)
+    noise: dict = field(default_factory=dict)      # clnlos.noise.NoiseEstimate of the capture
+    solver: dict | None = None                     # iterative: the solver's report
+    notes: list[str] = field(default_factory=list)  # one line each, for the user
+
+
+def preprocess_matrix(nt_in: int, bin_width_s: float, start_s: float, max_path_m: float | None,
+                      bins: int | None, guard_fraction: float = 0.0):
+    """(matrix, new bin width, n_out): align to t = 0, crop to max path, rebin -- one resampling.
+
+    The matrix has ``n_out + n_guard`` rows: up to ``guard_fraction * n_out`` extra bins past
+    the kept window, taken from the capture where it extends that far. The slab
+    deconvolution runs on them (light that entered the window late leaves the slab after
+    it), then they are dropped, so the deconvolution's edge effects fall outside the volume.
+    """
+    src_edges = start_s + bin_width_s * np.arange(nt_in + 1)
+    n_keep, n_out = preprocess_bins(nt_in, bin_width_s, start_s, max_path_m, bins)
+    t_keep = n_keep * bin_width_s
+    dt_out = t_keep / n_out
+    n_avail = int(np.floor((src_edges[-1] - t_keep) / dt_out + 1e-9))
+    n_guard = max(0, min(n_avail, int(np.ceil(guard_fraction * n_out))))
+    dst_edges = np.linspace(0.0, t_keep + n_guard * dt_out, n_out + n_guard + 1)
+    return overlap_matrix(src_edges, dst_edges), dt_out, n_out
+
+
+GUARD_PEAKS = 2.0  # a cut is harmless behind this many blur peak lags of guard bins (the
+#                   deconvolved bins past the volume): the inverse filter's ringing stays there
+
+
+def cut_level(snr: float) -> float:
+    """The light still arriving at a window's end (fraction of the peak) above which the cut
+    matters to a Wiener deconvolution of SNR ``snr``: 1 / sqrt(snr), the amplitude the
+    filter itself treats as noise (1e-2 at SNR 1e4; 1e-5 for a noise-free capture at the
+    SNR cap, whose inverse filter turns even a 0.3% step into the brightest voxels)."""
+    return 1.0 / math.sqrt(snr)
+
+
+def window_end_level(profile: np.ndarray, *, background: float, end_bins: int,
+                     photon_counts: bool, sigma: float, n_scan: int) -> float:
+    """How much light still arrives at the end of the time window: the mean of the scan-summed
+    transient ``profile`` over its last ``end_bins`` bins above ``background`` (per bin of
+    the profile), as a fraction of its peak above the background; 0 where that excess is
+    within ARRIVAL_SIGMAS standard deviations of the mean's noise (Poisson for counts,
+    ``sigma`` per bin and scan point otherwise)."""
+    m = max(1, min(int(end_bins), profile.size))
+    excess = float(profile[-m:].mean()) - background
+    top = float(profile.max()) - background
+    if not top > 0:
+        return 0.0
+    std = (math.sqrt(max(float(profile[-m:].mean()), 1.0) / m) if photon_counts
+           else sigma * math.sqrt(n_scan / m))
+    return max(0.0, excess / top) if excess > ARRIVAL_SIGMAS * std else 0.0
+
+
+def preprocess_bins(nt_in: int, bin_width_s: float, start_s: float,
+                    max_path_m: float | None, bins: int | None) -> tuple[int, int]:
+    """(capture bins kept from t = 0, bins after rebinning) of :func:`preprocess_matrix`,
+    from the capture's time axis alone."""
+    t_end = start_s + bin_width_s * nt_in
+    if max_path_m is not None:
+        t_end = min(t_end, max_path_m / C0)
+    if t_end <= 0:
+        raise ParameterError("preprocess.max_path_m", max_path_m,
+                             "a path length that keeps some of the capture's time window")
+    n_keep = max(1, int(round(t_end / bin_width_s)))
+    return n_keep, n_keep if bins is None else int(bins)
+
+
+def device_bytes_needed(shape_in, *, bin_width_s: float, start_s: float,
+                        config: ReconstructionConfig, dtype=np.float32) -> tuple[int, int]:
+    """(device bytes in all, bytes of the largest buffer) that a pipeline for captures of
+    ``shape_in`` [t, y, x] allocates at least: the capture, and twice (the filter's and
+    the work buffer) the half spectrum of the inversion's padded grid (2 n, 2 ny, 2 nx),
+    n the bins after preprocessing. Lower bounds, from the declared sizes alone: a check
+    before a capture is read (:func:`clnlos.limits.capture_use`) never refuses one that
+    fits."""
+    nt_in, ny, nx = (int(v) for v in shape_in)
+    _, n = preprocess_bins(nt_in, bin_width_s, start_s, config.max_path_m, config.bins)
+    item = np.dtype(dtype).itemsize
+    spectrum = 2 * n * 2 * ny * (nx + 1) * 2 * item  # (2n, 2ny, 2nx) real -> half, complex
+    return nt_in * ny * nx * item + 2 * spectrum, spectrum
+
+
+def model_snr_for(capture: Capture, config: ReconstructionConfig) -> float:
+    """The slab model's accuracy as an SNR (:mod:`clnlos.noise`): the configured number, or
+    for "auto" infinite when the capture was simulated by clnlos with this very slab (the
+    model made the data) and MEASURED_MODEL_SNR otherwise."""
+    if config.model_snr != "auto":
+        return float(config.model_snr)
+    if config.slab is None:  # no deconvolution: the recorded slab is not read (--no-slab)
+        return math.inf
+    recorded = capture.recorded_slab()
+    if recorded is not None and recorded[0] == config.slab:
+        return math.inf
+    return MEASURED_MODEL_SNR
+
+
+def auto_snrs(noise: NoiseEstimate, config: ReconstructionConfig,
+              model_snr: float = math.inf, *, data_snr: float | None = None,
+              data_inversion_snr: float | None = None) -> tuple[float, float]:
+    """(deconvolution SNR, light-cone SNR) of a capture: the configured numbers, or for
+    "auto" the data's own (``data_snr`` for the slab, combined with ``model_snr``;
+    ``data_inversion_snr`` for the light cone: :mod:`clnlos.gcv`) where given, else the
+    photon rule of :mod:`clnlos.noise` (photon count and model accuracy;
+    :func:`lightcone_snr`)."""
+    if config.snr != "auto":
+        snr = float(config.snr)
+    else:
+        snr = combined_snr(noise.snr if data_snr is None else data_snr, model_snr)
+    if config.inversion_snr != "auto":
+        inv = float(config.inversion_snr)
+    else:
+        inv = lightcone_snr(snr) if data_inversion_snr is None else float(data_inversion_snr)
+    return snr, inv
+
+
+def support_depth_m(noise: NoiseEstimate, config: ReconstructionConfig) -> float:
+    """Shallowest depth of the iterative method's support (m)."""
+    if config.depth_min_m != "auto":
+        return float(config.depth_min_m)
+    first = noise.nearest_depth_m
+    return 0.0 if first is None else max(0.0, first - DEPTH_GUARD_M)
+
+
+class ReconstructionPipeline:
+    """The composed stages for one capture geometry (shape, bin width, scan width);
+    ``setup(step)`` names each step of the construction as it starts."""
+
+    def __init__(self, shape_in, *, bin_width_s: float, start_s: float, scan_width_m: float,
+                 config: ReconstructionConfig, dtype=np.float32, queue=None, setup=None):
+        setup = setup or (lambda step: None)
+        self.queue = get_queue(queue)
+        self.dtype = require_dtype(self.queue.device, dtype)
+        self.config = config
+        nt_in, ny, nx = shape_in
+        guard = config.guard_fraction if config.slab is not None else 0.0
+        A, self.bin_width_s, n_out = preprocess_matrix(nt_in, bin_width_s, start_s,
+                                                       config.max_path_m, config.bins, guard)
+        self.scan_width_m = scan_width_m
+        self.shape = (n_out, ny, nx)
+        self.n_guard = A.shape[0] - n_out
+        # the raw bins inside the kept window [0, n_out * dt): the noise is estimated on them
+        # (resampling would turn counts into non-integers and change their statistics)
+        self.raw_bin_width_s, self.raw_start_s = float(bin_width_s), float(start_s)
+        t_keep = n_out * self.bin_width_s
+        self.raw_window = (max(0, int(np.floor(-start_s / bin_width_s))),
+                           min(nt_in, int(np.ceil((t_keep - start_s) / bin_width_s))))
+        self.stages = ["preprocess"]
+        setup("preprocess")
+        self.pre = AxisResample(A, (ny, nx), dtype=self.dtype, queue=self.queue)
+        self.pre.name = "preprocess"
+        self._rk = get_kernels(self.queue, "resample", real_defines(self.dtype))
+        pitch = scan_width_m / nx
+        snr0 = 1.0 if config.snr == "auto" else float(config.snr)  # set per capture if auto
+        isnr0 = 1.0 if config.inversion_snr == "auto" else float(config.inversion_snr)
+        self.deconv = None
+        self._gcv_slab: GcvBins | None = None  # the slab filter's GCV bins, on first use
+        self.scratch = Scratch(self.queue)  # work buffers shared by the stages below
+        cache = SpectrumCache.from_env()  # CLNLOS_SPECTRUM_CACHE: spectra kept on disk
+        if config.slab is not None:
+            setup("slab PSF")
+            self.deconv = slab_blur(config.slab, (A.shape[0], ny, nx),
+                                    bin_width_s=self.bin_width_s, pitch_m=pitch, mode="wiener",
+                                    snr=snr0, n_dipoles=config.n_dipoles,
+                                    lateral_pad=config.lateral_pad, dtype=self.dtype,
+                                    queue=self.queue, scratch=self.scratch, cache=cache)
+            self.stages.append(f"deconvolve:slab({describe_slab(config.slab)})")
+            self.blur_scales = blur_time_scales(config.slab, bin_width_s=self.bin_width_s,
+                                                queue=self.queue)
+            self._deconv_args = dict(bin_width_s=self.bin_width_s, pitch_m=pitch,
+                                     n_dipoles=config.n_dipoles, scales=self.blur_scales,
+                                     lateral_pad=config.lateral_pad, dtype=self.dtype,
+                                     queue=self.queue, scratch=self.scratch, cache=cache)
+            self._tail_deconv = None
+        geo = dict(bin_width_s=self.bin_width_s, scan_width_m=scan_width_m, dtype=self.dtype,
+                   queue=self.queue, scratch=self.scratch)
+        falloff = {} if config.falloff is None else {"falloff": config.falloff}
+        setup(f"{config.method} plan")
+        if config.method == "lct":
+            self.invert = LCT(self.shape, snr=isnr0, **falloff, **geo, cache=cache)
+        elif config.method == "fk":
+            self.invert = FKMigration(self.shape, **falloff, **geo)
+        else:
+            self.invert = IterativeInversion(self.shape, iterations=config.iterations,
+                                             l1_weight=config.l1_weight,
+                                             tv_weight=config.tv_weight, warm_snr=isnr0,
+                                             cache=cache, **geo)
+        self.stages.append(f"invert:{config.method}")
+
+    def slab_gcv_snr(self, tau: cla.Array) -> float:
+        """The slab Wiener SNR in [SNR_MIN, SNR_MAX] that generalised cross-validation
+        (:mod:`clnlos.gcv`) picks for the preprocessed transient ``tau`` (device, guard
+        bins included): V on the deconvolution's padded grid, padded as it pads."""
+        if self._gcv_slab is None:
+            self._gcv_slab = GcvBins.from_gain(self.deconv.gain_squared(),
+                                               self.deconv.pad_shape[2])
+        return self._gcv_slab.snr(self.deconv.power_spectrum(tau), SNR_MIN, SNR_MAX)
+
+    def _timed(self, timings, name, fn, *a, **kw):
+        self.queue.finish()
+        t0 = time.perf_counter()
+        out = fn(*a, **kw)
+        self.queue.finish()
+        timings[name] = timings.get(name, 0.0) + time.perf_counter() - t0
+        return out
+
+    def run(self, transient: np.ndarray, *, keep_transient: bool = False,
+            progress=None, model_snr: float = math.inf, setup=None) -> Reconstruction:
+        """Reconstruct one capture. ``progress(k, n)`` is called during the iterative
+        method's iterations, ``setup(step)`` as each of its set-up steps before them starts;
+        ``model_snr`` is the slab model's accuracy (:func:`model_snr_for`)."""
+        timings: dict[str, float] = {}
+        x = cla.to_device(self.queue, np.ascontiguousarray(transient, self.dtype))
+        tau = self._timed(timings, "preprocess", self.pre, x)
+        with host_view(tau) as t_host:  # small reductions on the host: no kernel builds
+            profile = t_host.reshape(t_host.shape[0], -1).sum(axis=1, dtype=np.float64)
+            peak, total = float(t_host.max()), float(profile.sum())
+        if not peak > 0:
+            raise InputFileError("the capture holds no signal in the kept time window "
+                                 "(all zero): nothing to reconstruct")
+        k0, k1 = self.raw_window
+        noise = estimate_noise(np.asarray(transient)[k0:k1], self.raw_bin_width_s,
+                               self.raw_start_s + k0 * self.raw_bin_width_s)
+        norm = self.config.normalize
+        if norm != "none":
+            s = peak if norm == "max" else total
+            if s > 0:
+                self._rk.scale_inplace(self.queue, (round_up(tau.size, 256),), None, tau.data,
+                                       self.dtype.type(1.0 / s), np.int64(tau.size))
+        data_snr = None
+        if self.deconv is not None and self.config.snr == "auto" and not noise.noise_free:
+            data_snr = self._timed(timings, "choose_snr", self.slab_gcv_snr, tau)
+        snr, inv_snr = auto_snrs(noise, self.config, model_snr, data_snr=data_snr)
+        params = self.config.as_attrs()
+        notes: list[str] = []
+        if self.deconv is not None:
+            deconv = self._deconvolution_for(profile, noise, snr, params, notes)
+            deconv.set_snr(snr)
+            params["snr_used"] = snr
+            if data_snr is not None:
+                params["snr_data"] = data_snr  # cross-validation's, before the model's share
+            params["model_snr_used"] = model_snr
+            tau = self._timed(timings, "deconvolve", deconv, tau)
+        if self.n_guard:
+            tau = tau[:self.shape[0]]  # the guard bins dropped: a view of the leading rows
+        method = self.config.method
+        if method != "fk" and self.config.inversion_snr == "auto" and not noise.noise_free:
+            lct = self.invert if method == "lct" else self.invert.warm
+            inv_snr = self._timed(timings, "choose_inversion_snr", lct.gcv_snr, tau,
+                                  LIGHTCONE_SNR_MIN, LIGHTCONE_SNR_MAX)
+        solve = None
+        if method == "lct":
+            self.invert.set_snr(inv_snr)
+            params["inversion_snr_used"] = inv_snr
+            vol = self._timed(timings, "invert:lct", self.invert, tau)
+        elif method == "fk":
+            vol = self._timed(timings, "invert:fk", self.invert, tau)
+        else:
+            self.invert.warm.set_snr(inv_snr)
+            params["inversion_snr_used"] = inv_snr
+            depth_min = support_depth_m(noise, self.config)
+            cb = None if progress is None else (lambda k, _x: progress(k + 1,
+                                                                       self.config.iterations))
+            vol = self._timed(timings, "invert:iterative", self.invert, tau,
+                              depth_min_m=depth_min, callback=cb, setup=setup)
+            solve = self.invert.report.as_dict()
+        volume = vol.get()
+        nt, ny, nx = self.shape
+        dz = C0 * self.bin_width_s / 2
+        w = self.scan_width_m
+        extents = {"depth_min_m": 0.0, "depth_max_m": nt * dz, "voxel_depth_m": dz,
+                   "x_min_m": -w / 2, "x_max_m": w / 2, "y_min_m": -w * ny / nx / 2,
+                   "y_max_m": w * ny / nx / 2, "voxel_lateral_m": w / nx}
+        return Reconstruction(volume=volume, bin_width_s=self.bin_width_s, scan_width_m=w,
+                              stages=list(self.stages), timings_s=timings, params=params,
+                              transient=tau.get() if keep_transient else None, extents=extents,
+                              noise=noise.as_dict(), solver=solve, notes=notes)
+
+    def _deconvolution_for(self, profile, noise: NoiseEstimate, snr: float, params: dict,
+                           notes: list[str]):
+        """The slab deconvolution for this capture: the plain Wiener filter, or where the
+        time window ends before the blur of its latest arrivals has decayed (more than
+        :func:`cut_level` of the peak still arriving in its last ``peak`` bins, and fewer
+        than GUARD_PEAKS peak lags of guard bins between the volume's end and the cut) the
+        :class:`~clnlos.blur.TailFilledDeconvolution` on the window padded by the blur's
+        reach (built on first use), with a note saying which depths rest on the rise of
+        their response only."""
+        scales = self.blur_scales
+        n_scan = self.shape[1] * self.shape[2]
+        background = noise.background_per_bin * n_scan * self.bin_width_s / self.raw_bin_width_s
+        level = window_end_level(profile, background=background, end_bins=scales.peak_lags,
+                                 photon_counts=noise.photon_counts, sigma=noise.sigma,
+                                 n_scan=n_scan)
+        params["window_end_level"] = level
+        if level <= cut_level(snr) or self.n_guard >= GUARD_PEAKS * scales.peak_lags:
+            return self.deconv
+        if self._tail_deconv is None:
+            self._tail_deconv = TailFilledDeconvolution(self.config.slab, (profile.size,)
+                                                        + self.shape[1:], **self._deconv_args)
+        dt, dz = self.bin_width_s, C0 * self.bin_width_s / 2
+        n_data, n_out = profile.size, self.shape[0]
+        params["tail_fill_bins"] = scales.reach_lags
+        trusted = min(n_out, n_data - scales.peak_lags)
+        msg = (f"the time window ends {n_data * dt * 1e9:.3g} ns after t = 0 with "
+               f"{100 * level:.2g}% of the peak still arriving: the slab blur's unseen tail "
+               f"({scales.reach_lags * dt * 1e9:.3g} ns) is predicted from the model")
+        if trusted < n_out:
+            msg += (f"; depths past {max(trusted, 0) * dz:.3g} m (of {n_out * dz:.3g} m) are "
+                    f"left empty: only the rise of their response is inside the window (a "
+                    f"longer capture, or --max-path {2 * max(trusted, 1) * dz:.3g} to stop "
+                    f"the volume there)")
+        notes.append(msg)
+        return self._tail_deconv
+
+
+def setup_slab(config: ReconstructionConfig, capture: Capture
+               ) -> tuple[ReconstructionConfig, str]:
+    """For a config without a slab: the slab the capture recorded (a clnlos simulation), with
+    a one-line note of what was chosen."""
+    recorded = capture.recorded_slab()
+    if recorded is None:
+        return config, ("no slab given (--slab-* flags or [slab]) or recorded in the capture: "
+                        "no deconvolution runs (plain NLOS)")
+    slab, nd = recorded
+    cfg = config.replace(slab=slab, n_dipoles=config.n_dipoles if nd is None else nd)
+    return cfg, f"using the slab recorded in the capture: {describe_slab(slab)} (--no-slab " \
+                "to skip the deconvolution)"
+
+
+def describe_slab(slab) -> str:
+    return (f"d = {slab.thickness_m:g} m, mu_a = {slab.mu_a:g} 1/m, mu_s' = "
+            f"{slab.mu_s_prime:g} 1/m, n = {slab.n:g}")
+
+
+def resolve_geometry(capture: Capture, config: ReconstructionConfig, *,
+                     names: dict[str, str] | None = None) -> tuple[float, float, float]:
+    """(bin_width_s, start_s, scan_width_m): the config overrides the file; the time window
+    is checked (:func:`clnlos.config.check_window`, errors naming ``names`` or the TOML
+    fields)."""
+    bw = config.bin_width_s if config.bin_width_s is not None else capture.bin_width_s
+    if bw is None:
+        raise ParameterError("--bin-width", None, "> 0: the capture does not store its bin "
+                             "width; give --bin-width or [capture] bin_width_s")
+    sw = config.scan_width_m if config.scan_width_m is not None else capture.scan_width_m
+    if sw is None:
+        raise ParameterError("--scan-width", None, "> 0: the capture does not store the scan "
+                             "width; give --scan-width or [capture] scan_width_m")
+    start = config.start_s if config.start_s is not None else capture.start_s
+    check_window(capture.transient.shape[0], float(bw), float(start), config, names=names,
+                 source=capture.source or "the capture")
+    return float(bw), float(start), float(sw)
+
+
+def reconstruct(capture: Capture, config: ReconstructionConfig, *, dtype=np.float32,
+                device=None, keep_transient: bool = False, progress=None,
+                setup=None) -> Reconstruction:
+    """Reconstruct an albedo volume from a capture with the given configuration.
+
+    Pipelines (PSFs, spectra, FFT plans) are kept in :data:`clnlos.plans.PIPELINES` (LRU
+    under a byte budget), so many captures of one geometry (a study) pay the set-up once.
+    ``progress(k, n)`` follows the iterative method's iterations and ``setup(step)`` names
+    each set-up step (pipeline, operator, step size, warm start) as it starts.
+    """
+    from clnlos.runtime.caches import PIPELINES
+
+    import json
+
+    bw, start, sw = resolve_geometry(capture, config)
+    queue = get_queue(device)
+    key = (capture.transient.shape, bw, start, sw, json.dumps(config.as_attrs(), sort_keys=True),
+           np.dtype(dtype).str, queue)
+    pipe = PIPELINES.get(key, lambda: ReconstructionPipeline(
+        capture.transient.shape, bin_width_s=bw, start_s=start, scan_width_m=sw,
+        config=config, dtype=dtype, queue=queue, setup=setup), queue)
+    return pipe.run(capture.transient, keep_transient=keep_transient, progress=progress,
+                    model_snr=model_snr_for(capture, config), setup=setup)
+
+
+def volume_figure(rec: Reconstruction, title: str = ""):
+    """The figure of a reconstruction (:func:`clnlos.figures.volume_figure`)."""
+    from clnlos.io.figures import volume_figure as figure
+
+    return figure(rec.volume, rec.extents, title)
+
+
+def volume_attrs(rec: Reconstruction) -> dict:
+    """The HDF5 attributes of a volume file (format clnlos-volume-1)."""
+    import json
+
+    return {**rec.extents, "bin_width_s": rec.bin_width_s, "scan_width_m": rec.scan_width_m,
+            "stages": json.dumps(rec.stages), "timings_s": json.dumps(rec.timings_s),
+            "params": json.dumps(rec.params), "noise": json.dumps(rec.noise),
+            "solver": json.dumps(rec.solver), "notes": json.dumps(rec.notes),
+            "axes": "volume[z, y, x]; +x with column index, +y with row index",
+            "format": "clnlos-volume-1"}
+
+
+def _iteration(bar) -> None:
+    """One iteration done: the set-up note (if any) goes, the bar moves."""
+    if bar.postfix:
+        bar.set_postfix_str("", refresh=False)
+    bar.update(1)
+
+
+def reconstruct_to_files(capture: Capture, out, config: ReconstructionConfig, *,
+                         dtype=np.float32, queue=None, title_extra: str = "",
+                         show_progress: bool = True) -> Reconstruction:
+    """Reconstruct and write the volume (HDF5) and its figure (PNG beside it) together,
+    atomically, with the provenance of the result; the iterative method shows a progress
+    bar (:mod:`clnlos.progress`), its set-up steps beside it, then its iterations."""
+    from pathlib import Path
+
+    from clnlos.io.deflate import DeflatedArray
+    from clnlos.io.figures import volume_figure as figure
+    from clnlos.io.files import save_figure_file, write_h5_file
+    from clnlos.io.outputs import provenance, write_group
+    from clnlos.app.progress import progress_bar, stage
+
+    out = Path(out)
+    queue = get_queue(queue)
+    bar = None
+    if show_progress and config.method == "iterative":
+        bar = progress_bar(config.iterations, "iterative", "it")
+    try:
+        rec = reconstruct(capture, config, dtype=dtype, device=queue,
+                          progress=None if bar is None else (lambda k, n: _iteration(bar)),
+                          setup=None if bar is None else (
+                              lambda step: stage(bar, f"setup: {step}")))
+    finally:
+        if bar is not None:
+            bar.close()
+    attrs = {**volume_attrs(rec), "dtype": np.dtype(dtype).name,
+             **provenance(capture=capture.source if capture.source and
+                          Path(capture.source).exists() else None,
+                          device=queue.device.name.strip())}
+    name = Path(capture.source).name if capture.source else "capture"
+    title = f"{title_extra + ': ' if title_extra else ''}{name} ({config.method})"
+    volume = DeflatedArray(rec.volume.astype(np.float32))  # compressed while the figure draws
+    fig = figure(rec.volume, rec.extents, title)
+    with write_group([out, out.with_suffix(".png")]) as (tmp_h5, tmp_png):
+        write_h5_file(tmp_h5, {"volume": volume}, attrs)
+        save_figure_file(fig, tmp_png)
+    return rec

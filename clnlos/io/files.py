@@ -1,0 +1,239 @@
+"""Captures in memory, and writing results (HDF5, PNG), atomically.
+
+:class:`Capture` is the one in-memory contract every reader returns (:mod:`clnlos.formats`,
+one module per file format, chosen by content): transient [t, y, x], bin width, start of bin
+0 (round trip from the scan plane), scan width, and the file's attributes (a clnlos
+simulation records its scene and slab there).
+
+Every output is written to a temporary file in the target folder and renamed into place, so
+an interrupted or failed run leaves nothing half-written.
+"""
+
+from __future__ import annotations
+
+import contextlib
+import json
+import os
+from dataclasses import dataclass, field
+from pathlib import Path
+
+import numpy as np
+
+from clnlos.errors import ClnlosError, InputFileError, ParameterError
+
+
+# how a capture format names the geometry it stores, when not by the Capture field's name
+# (error messages name what the file holds)
+GEOMETRY_SOURCES = {
+    "y-tal": {"bin_width_s": "delta_t / c", "start_s": "t_start / c",
+              "scan_width_m": "the scan grid's pitch x points"},
+    "lct-mat": {"bin_width_s": "variable 'bin_resolution'", "scan_width_m": "2 x variable "
+                "'width'"},
+}
+
+
+@dataclass
+class Capture:
+    """A confocal transient [t, y, x] with its time and scan geometry (SI units).
+
+    The geometry is checked on construction against the one range table the flags use
+    (:data:`clnlos.config.GEOMETRY_LIMITS`): a value out of range is an InputFileError that
+    names the source, what in it gave the value, and the allowed range."""
+
+    transient: np.ndarray
+    bin_width_s: float | None
+    start_s: float
+    scan_width_m: float | None
+    source: str = ""
+    attrs: dict = field(default_factory=dict)
+
+    def __post_init__(self):
+        from clnlos.config import check_geometry
+
+        fmt = self.attrs.get("format") if isinstance(self.attrs, dict) else None
+        labels = GEOMETRY_SOURCES.get(fmt, {})
+        for f in ("bin_width_s", "start_s", "scan_width_m"):
+            v = getattr(self, f)
+            if v is None:
+                continue
+            what = f"{labels[f]} gives {f}" if f in labels else f"attribute {f!r}"
+            try:
+                setattr(self, f, check_geometry(f, v, f))
+            except ParameterError as exc:
+                raise InputFileError(f"{self.source or 'capture'}: {what} = {v!r}: allowed "
+                                     f"{exc.allowed}") from None
+
+    def recorded_scene(self) -> dict | None:
+        """The scene a clnlos simulation recorded in the file (parsed TOML), else None; a
+        recorded scene that is not valid TOML is an InputFileError."""
+        from clnlos.config import parse_toml
+
+        text = self.attrs.get("scene")
+        if not isinstance(text, str) or not text.strip():
+            return None
+        try:
+            return parse_toml(text)
+        except ValueError as exc:
+            raise InputFileError(f"{self.source or 'capture'}: attribute 'scene' is not a "
+                                 f"valid TOML scene ({exc})") from None
+
+    def recorded_slab(self):
+        """(Slab, n_dipoles) of the slab a clnlos simulation recorded (attribute ``slab``, a
+        JSON [slab] table, or the [slab] of the recorded scene), else None. A recorded slab
+        that is not a table or does not validate is an InputFileError naming the attribute
+        (never silently "no slab")."""
+        from clnlos.config import slab_from_table
+
+        src = self.source or "capture"
+        raw = self.attrs.get("slab")
+        if raw is not None and not (isinstance(raw, str) and raw.strip().lower()
+                                    in NO_SLAB_ATTRS):
+            where, shown = "attribute 'slab'", raw
+            try:
+                table = json.loads(raw) if isinstance(raw, str) else raw
+            except (json.JSONDecodeError, RecursionError):
+                table = None
+        else:
+            scene = self.recorded_scene()
+            if not scene or "slab" not in scene:
+                return None
+            where, table = "the [slab] of attribute 'scene'", scene["slab"]
+            shown = table
+        if not isinstance(table, dict):
+            raise InputFileError(f"{src}: {where} = {_short(shown)}"
+                                 " is not a [slab] table (JSON object with thickness_m, "
+                                 "mu_a, mu_s_prime, n)")
+        try:
+            return slab_from_table(table, section="slab")
+        except ClnlosError as exc:
+            raise InputFileError(f"{src}: {where}: {exc}") from None
+
+
+NO_SLAB_ATTRS = ("", "none")  # a ``slab`` attribute that records "no slab" (None is written so)
+
+
+def _short(v, n: int = 60) -> str:
+    """repr of ``v`` cut to ``n`` characters, for error messages."""
+    r = repr(v)
+    return r if len(r) <= n else r[:n - 3] + "..."
+
+
+def read_capture(path: str | os.PathLike) -> Capture:
+    """Read a capture of any supported format (:func:`clnlos.formats.read_capture`)."""
+    from clnlos.io.formats import read_capture as read
+
+    return read(path)
+
+
+def plain_attr(v):
+    """An HDF5 attribute as a plain Python value."""
+    if isinstance(v, bytes):
+        return v.decode("utf-8", "replace")
+    if isinstance(v, np.generic):
+        return v.item()
+    if isinstance(v, np.ndarray):
+        return v.tolist()
+    return v
+
+
+@contextlib.contextmanager
+def atomic_path(path: str | os.PathLike):
+    """Yield a temporary path beside ``path``; rename it onto ``path`` (with the mode the
+    umask gives a new file) only on success."""
+    from clnlos.io.outputs import write_group
+
+    with write_group([Path(path)]) as (tmp,):
+        yield tmp
+
+
+def _attr_value(v):
+    if v is None:
+        return "none"
+    if isinstance(v, dict | list | tuple):
+        return json.dumps(v)
+    return v
+
+
+def write_h5_file(path, datasets: dict, attrs: dict) -> Path:
+    """Write datasets (arrays, or :class:`clnlos.deflate.DeflatedArray` already being
+    compressed) and file attributes to ``path`` (not atomic: see write_h5); gzip + shuffle,
+    large arrays compressed in parallel (:mod:`clnlos.deflate`)."""
+    import h5py
+
+    from clnlos.io.deflate import write_dataset
+
+    with h5py.File(path, "w") as f:
+        for name, arr in datasets.items():
+            write_dataset(f, name, arr)
+        for k, v in attrs.items():
+            f.attrs[k] = _attr_value(v)
+    return Path(path)
+
+
+def write_h5(path, datasets: dict[str, np.ndarray], attrs: dict) -> Path:
+    """Write datasets and file attributes to ``path`` atomically."""
+    with atomic_path(path) as tmp:
+        write_h5_file(tmp, datasets, attrs)
+    return Path(path)
+
+
+def capture_attrs(*, bin_width_s: float, start_s: float, scan_width_m: float,
+                  attrs: dict | None = None) -> dict:
+    """Attributes of the clnlos capture format (see clnlos.formats.clnlos_h5)."""
+    a = {"bin_width_s": float(bin_width_s), "start_s": float(start_s),
+         "scan_width_m": float(scan_width_m), "format": "clnlos-capture-1"}
+    a.update(attrs or {})
+    return a
+
+
+def write_capture(path, transient: np.ndarray, *, bin_width_s: float, start_s: float,
+                  scan_width_m: float, attrs: dict | None = None) -> Path:
+    """Write the clnlos capture format atomically."""
+    return write_h5(path, {"transient": np.asarray(transient, np.float32)},
+                    capture_attrs(bin_width_s=bin_width_s, start_s=start_s,
+                                  scan_width_m=scan_width_m, attrs=attrs))
+
+
+def save_figure_file(fig, path) -> Path:
+    """Save a figure (matplotlib, or :class:`clnlos.raster.RasterFigure`) as PNG to
+    ``path``, marked as clnlos's (:func:`clnlos.outputs.png_metadata`), and close it (not
+    atomic)."""
+    from clnlos.io.figures import close_figure
+    from clnlos.io.outputs import png_metadata
+
+    fig.savefig(path, format="png", dpi=110, bbox_inches="tight", metadata=png_metadata())
+    close_figure(fig)
+    return Path(path)
+
+
+def save_figure(fig, path) -> Path:
+    """Save a matplotlib figure to PNG atomically and close it."""
+    with atomic_path(path) as tmp:
+        save_figure_file(fig, tmp)
+    return Path(path)
+
+
+def read_volume(path) -> tuple[np.ndarray, dict, dict]:
+    """(volume [z, y, x], extents, attributes) of a volume file written by reconstruct."""
+    import h5py
+
+    from clnlos.errors import InputFileError
+
+    path = Path(path)
+    if not path.is_file():
+        raise InputFileError(f"{path}: no such file")
+    keys = ("depth_min_m", "depth_max_m", "voxel_depth_m", "x_min_m", "x_max_m", "y_min_m",
+            "y_max_m", "voxel_lateral_m")
+    try:
+        with h5py.File(path, "r") as f:
+            if "volume" not in f:
+                raise InputFileError(f"{path}: no dataset 'volume' (not a clnlos volume file)")
+            vol = np.asarray(f["volume"][()], np.float32)
+            attrs = {k: plain_attr(v) for k, v in f.attrs.items()}
+    except OSError as exc:
+        raise InputFileError(f"{path}: not a readable HDF5 file ({exc})") from None
+    missing = [k for k in keys if k not in attrs]
+    if vol.ndim != 3 or missing:
+        raise InputFileError(f"{path}: a volume [z, y, x] with its extents is needed "
+                             f"(missing {', '.join(missing) or 'a 3D volume'})")
+    return vol, {k: float(attrs[k]) for k in keys}, attrs

@@ -1,0 +1,66 @@
+"""Helpers shared by the capture readers: validation and per-pixel time alignment."""
+
+from __future__ import annotations
+
+import numpy as np
+
+from clnlos.errors import InputFileError
+
+
+def validate_transient(arr, path) -> np.ndarray:
+    """A finite, non-negative float32 [t, y, x] array, else a one-line InputFileError."""
+    arr = np.asarray(arr)
+    if arr.ndim != 3:
+        raise InputFileError(f"{path}: transient must be 3D [t, y, x], got shape {arr.shape}")
+    if min(arr.shape) < 1:
+        raise InputFileError(f"{path}: transient is empty, shape {arr.shape}")
+    if not np.issubdtype(arr.dtype, np.number) or np.iscomplexobj(arr):
+        raise InputFileError(f"{path}: transient must be real numbers, got dtype {arr.dtype}")
+    arr = np.ascontiguousarray(arr, np.float32)
+    if not np.all(np.isfinite(arr)):
+        raise InputFileError(f"{path}: transient holds NaN or Inf values")
+    if np.any(arr < 0):
+        raise InputFileError(f"{path}: transient holds negative counts (min {arr.min():.3g})")
+    return arr
+
+
+def declared_dataset(ds, path, *, order=(0, 1, 2), bin_width_s=None, start_s=0.0) -> None:
+    """Check an HDF5 dataset's declared shape and dtype before it is read
+    (:func:`clnlos.limits.declared_capture`); ``order``: the dataset's axes that become
+    [t, y, x]. A dataset that is not 3D or not numeric (or a group) is left to the reader's
+    own checks."""
+    import h5py
+
+    from clnlos.runtime.limits import declared_capture
+
+    if not isinstance(ds, h5py.Dataset):
+        return
+    shape = ds.shape
+    if shape is None or len(shape) != len(order) or ds.dtype.kind not in "biuf":
+        return
+    declared_capture(path, [shape[a] for a in order], ds.dtype.itemsize,
+                     bin_width_s=bin_width_s, start_s=start_s)
+
+
+def shift_earlier(arr: np.ndarray, shift_bins: np.ndarray) -> np.ndarray:
+    """Move each column of [t, y, x] earlier by ``shift_bins[y, x]`` (>= 0, fractional) bins.
+
+    The histogram of each column is shifted and re-binned by bin overlaps (a fractional shift
+    f splits each bin between two neighbours with weights 1 - f and f), so counts are
+    conserved except those moved before bin 0; bins past the end are filled with 0.
+    """
+    nt = arr.shape[0]
+    s = np.asarray(shift_bins, np.float64)
+    if s.shape != arr.shape[1:] or np.any(~np.isfinite(s)) or np.any(s < 0):
+        raise InputFileError("time offsets must be finite, >= 0 and one per scan point")
+    s = np.minimum(s, nt)  # a shift past the window's end empties the column (no overflow)
+    k0 = np.floor(s).astype(np.int64)
+    f = s - k0
+    t = np.arange(nt)[:, None, None]
+    out = np.zeros(arr.shape, np.float64)
+    for off, w in ((k0, 1.0 - f), (k0 + 1, f)):
+        src = t + off[None]
+        ok = src < nt
+        vals = np.take_along_axis(arr, np.minimum(src, nt - 1), axis=0)
+        out += np.where(ok, vals, 0.0) * w[None]
+    return out.astype(np.float32)

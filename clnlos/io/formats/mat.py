@@ -1,0 +1,165 @@
+"""MATLAB captures: v7.3 (HDF5, read with h5py) and v5/v7 (read with scipy.io.loadmat).
+
+Layouts, told apart by their variables (MATLAB index order (i, j, k) = numpy order of
+``loadmat``; h5py reverses it):
+
+* CDT (Lindell & Wetzstein 2020): ``meas`` of MATLAB size (T, N, N) = (t, y running down,
+  x), 16 ps bins (``CDT_MAT_BIN_WIDTH_S``), bin 0 at t = 0; the scan width is not stored.
+  Checked on the published letters: they read "UT", U on the left.
+* LCT (O'Toole, Lindell & Wetzstein 2018): ``rect_data`` of size (N, N, T) = (y, x, t), both
+  increasing with index (the axes the published code labels), ``width`` = half the scan width
+  (m), ``bin_resolution`` (s).
+* f-k (Lindell, Wetzstein & O'Toole 2019): ``meas`` of size (N, N, T) = (y, x, t) and
+  ``tofgrid`` (N, N), the time of flight (ps) from the laser and detector to each scan
+  point, which is removed (each column moved earlier by it, fractionally, counts
+  conserved); 32 ps bins (the published code's ``bin_resolution``), scan width not stored.
+  A ``meas`` of size (N, N, T) without ``tofgrid`` is read the same way, already aligned.
+"""
+
+from __future__ import annotations
+
+import numpy as np
+
+from clnlos.errors import InputFileError
+from clnlos.io.files import Capture
+from clnlos.runtime.limits import declared_capture
+from clnlos.io.formats.common import declared_dataset, shift_earlier, validate_transient
+
+CDT_MAT_BIN_WIDTH_S = 16e-12  # the CDT capture format's histogram bin
+FK_MAT_BIN_WIDTH_S = 32e-12   # bin_resolution of the f-k data files
+
+
+def _scalar(v, name, path) -> float:
+    try:
+        x = float(np.asarray(v, np.float64).reshape(()))
+    except (TypeError, ValueError):
+        raise InputFileError(f"{path}: variable {name!r} must be a number") from None
+    if not np.isfinite(x) or x <= 0:
+        raise InputFileError(f"{path}: variable {name!r} = {x} must be > 0 and finite")
+    return x
+
+
+def _time_last(meas, path, name) -> bool:
+    if meas.ndim != 3:
+        raise InputFileError(f"{path}: {name!r} must be 3D, got shape {meas.shape}")
+    return meas.shape[2] > max(meas.shape[0], meas.shape[1])
+
+
+def from_lct(rect_data, width, bin_resolution, path) -> Capture:
+    if rect_data.ndim != 3:
+        raise InputFileError(f"{path}: 'rect_data' must be 3D (N, N, T), got {rect_data.shape}")
+    arr = validate_transient(np.transpose(rect_data, (2, 0, 1)), path)
+    return Capture(arr, _scalar(bin_resolution, "bin_resolution", path), 0.0,
+                   2.0 * _scalar(width, "width", path), str(path), {"format": "lct-mat"})
+
+
+def from_fk(meas, tofgrid, path) -> Capture:
+    arr = validate_transient(np.transpose(meas, (2, 0, 1)), path)
+    attrs = {"format": "fk-mat"}
+    if tofgrid is not None:
+        try:
+            tof = np.asarray(tofgrid, np.float64)
+        except (TypeError, ValueError):
+            raise InputFileError(f"{path}: 'tofgrid' must be numbers (ps)") from None
+        if tof.shape != arr.shape[1:]:
+            raise InputFileError(f"{path}: 'tofgrid' must be {arr.shape[1:]} like the scan, "
+                                 f"got {tof.shape}")
+        window_ps = arr.shape[0] * FK_MAT_BIN_WIDTH_S * 1e12
+        bad = ~(np.isfinite(tof) & (tof >= 0) & (tof < window_ps))
+        if bad.any():
+            v = float(tof[bad].flat[0])
+            raise InputFileError(f"{path}: 'tofgrid' holds {v:g} ps: allowed 0 to below "
+                                 f"{window_ps:g} ps (the capture's time window, "
+                                 f"{arr.shape[0]} bins of {FK_MAT_BIN_WIDTH_S * 1e12:g} ps)")
+        arr = shift_earlier(arr, tof * 1e-12 / FK_MAT_BIN_WIDTH_S)
+        attrs["tofgrid_removed"] = True
+    return Capture(arr, FK_MAT_BIN_WIDTH_S, 0.0, None, str(path), attrs)
+
+
+def from_cdt(meas_t_y_x, path) -> Capture:
+    """(t, y running down, x) -> [t, y, x] with +y up."""
+    arr = validate_transient(meas_t_y_x[:, ::-1, :], path)
+    return Capture(arr, CDT_MAT_BIN_WIDTH_S, 0.0, None, str(path), {"format": "cdt-mat"})
+
+
+def _declared_mat73(f, path) -> None:
+    """Declare the capture variable's size before it is read (h5py's shape is MATLAB's
+    reversed; the time axis as :func:`read_mat73` will take it)."""
+    import h5py
+
+    if "rect_data" in f:  # MATLAB (N, N, T)
+        declared_dataset(f["rect_data"], path)
+    elif isinstance(f.get("meas"), h5py.Dataset) and len(f["meas"].shape or ()) == 3:
+        m = f["meas"].shape[::-1]  # MATLAB's order
+        t_last = "tofgrid" in f or m[2] > max(m[0], m[1])  # as _time_last decides
+        declared_dataset(f["meas"], path, order=(0, 1, 2) if t_last else (2, 1, 0),
+                         bin_width_s=FK_MAT_BIN_WIDTH_S if t_last else CDT_MAT_BIN_WIDTH_S)
+
+
+def read_mat73(f, path) -> Capture:
+    """MATLAB v7.3 (h5py's axis order is MATLAB's reversed)."""
+    _declared_mat73(f, path)
+    try:
+        if "rect_data" in f:
+            return from_lct(np.transpose(f["rect_data"][()]), f["width"][()],
+                            f["bin_resolution"][()], path)
+        meas = np.transpose(f["meas"][()])  # back to MATLAB's order
+    except KeyError as exc:
+        raise InputFileError(f"{path}: missing variable {exc}") from None
+    if "tofgrid" in f or _time_last(meas, path, "meas"):
+        tof = np.transpose(f["tofgrid"][()]) if "tofgrid" in f else None
+        return from_fk(meas, tof, path)
+    return from_cdt(meas, path)
+
+
+# bytes per value of MATLAB's numeric classes (whosmat); anything else counted as double
+MAT_CLASS_BYTES = {"double": 8, "single": 4, "int8": 1, "uint8": 1, "int16": 2, "uint16": 2,
+                   "int32": 4, "uint32": 4, "int64": 8, "uint64": 8, "logical": 1}
+
+
+def _declared_mat5(path) -> None:
+    """Declare the capture variable's size from the file's variable headers
+    (scipy.io.whosmat) before loadmat reads everything. A file whose headers cannot be
+    listed is left to :func:`read_mat5`'s own error."""
+    import scipy.io
+
+    try:
+        info = {name: (shape, cls) for name, shape, cls in scipy.io.whosmat(path)}
+    except Exception:  # any failure is reported by loadmat below
+        return
+    name = "rect_data" if "rect_data" in info else "meas" if "meas" in info else None
+    if name is None or len(info[name][0]) != 3:
+        return
+    shape, cls = info[name]
+    t_last = name == "rect_data" or "tofgrid" in info or shape[2] > max(shape[0], shape[1])
+    bin_width = (None if name == "rect_data" else FK_MAT_BIN_WIDTH_S if t_last
+                 else CDT_MAT_BIN_WIDTH_S)
+    declared_capture(path, (shape[2], shape[0], shape[1]) if t_last else shape,
+                     MAT_CLASS_BYTES.get(cls, 8), bin_width_s=bin_width)
+
+
+def read_mat5(path) -> Capture:
+    import struct
+
+    import scipy.io
+
+    _declared_mat5(path)
+    try:
+        d = scipy.io.loadmat(path)
+    except (ValueError, TypeError, NotImplementedError, OSError, IndexError, KeyError,
+            EOFError, OverflowError, AttributeError, struct.error) as exc:
+        # a corrupt or truncated file ends in any of these inside scipy's parser
+        raise InputFileError(f"{path}: not a readable MATLAB v5/v7 file ({exc})") from None
+    if "rect_data" in d:
+        missing = [k for k in ("width", "bin_resolution") if k not in d]
+        if missing:
+            raise InputFileError(f"{path}: LCT layout ('rect_data') without {missing[0]!r}")
+        return from_lct(d["rect_data"], d["width"], d["bin_resolution"], path)
+    if "meas" in d:
+        meas = np.asarray(d["meas"])
+        if "tofgrid" in d or _time_last(meas, path, "meas"):
+            return from_fk(meas, d.get("tofgrid"), path)
+        return from_cdt(meas, path)
+    names = sorted(k for k in d if not k.startswith("__"))
+    raise InputFileError(f"{path}: no 'meas' (CDT, f-k) or 'rect_data' (LCT) variable; "
+                         f"found {names}")

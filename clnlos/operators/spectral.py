@@ -1,0 +1,254 @@
+"""Spectral filters on zero-padded 3D grids: convolution, its adjoint, Wiener deconvolution.
+
+For a real volume x of shape (n0, n1, n2) and a PSF h on the padded grid P (wrap order:
+zero lag/offset at index [0, 0, 0], see :func:`clnlos.diffusion.grid_offsets`)::
+
+    convolve:  y = crop(F^-1[ H . F[pad(x)] ])
+    wiener:    y = crop(F^-1[ conj(H) / (|H|^2 + 1/SNR) . F[pad(x)] ])
+
+H = F[h] / H(0) (unit DC gain: 1/SNR is relative to |H(0)|^2 = 1) unless
+``normalize=False``; the factor 1/H(0) is passed to the multiply kernels (``h_scale``), the
+stored spectrum F[h] is never rescaled in a pass of its own. The multiply runs in
+``kernels/wiener.cl``; FFTs from :mod:`clnlos.fft` (pyvkfft, host fallback) on the same
+queue; the work buffers come from a :class:`clnlos.runtime.Scratch`. Padding the time axis to at
+least twice the causal PSF support keeps the circular convolution from wrapping.
+"""
+
+from __future__ import annotations
+
+import numpy as np
+import pyopencl.array as cla
+import scipy.sparse as sp
+
+from clnlos.errors import ParameterError, ShapeError
+from clnlos.runtime.fft import RealFFT3
+from clnlos.operators.base import LinearOperator
+from clnlos.operators.resample import AxisResample
+from clnlos.runtime.device import (
+    fill_zero,
+    get_kernels,
+    get_queue,
+    kernel_int,
+    real_defines,
+    Scratch,
+    require_dtype,
+    round_up,
+)
+
+
+def folded_shape(spec_shape) -> tuple[int, int, int]:
+    """Shape of a folded half spectrum (``kernels/wiener.cl``): w <= n0 / 2, ky <= n1 / 2."""
+    n0, n1, n2h = (int(v) for v in spec_shape)
+    return (n0 // 2 + 1, n1 // 2 + 1, n2h)
+
+
+def multiply_spectrum(kernels, H: cla.Array, X: cla.Array, *, h_scale: float,
+                      adjoint: bool, folded: bool = False, inv_snr: float | None = None):
+    """X <- (h_scale H) X, its conjugate (``adjoint``), or the Wiener filter of it when
+    ``inv_snr`` is given (``kernels/wiener.cl``; H whole or ``folded``), on X's
+    (n0, n1, n2h) half-spectrum grid."""
+    n0, n1, n2h = X.shape
+    real = np.float32 if X.dtype == np.complex64 else np.float64
+    gsize = (round_up(n2h, 8), n1, n0)
+    tail = (np.int32(folded), kernel_int(n0), kernel_int(n1), kernel_int(n2h))
+    if inv_snr is None:
+        kernels.spectral_multiply(X.queue, gsize, None, H.data, X.data, real(h_scale),
+                                  np.int32(adjoint), *tail)
+    else:
+        kernels.wiener_apply(X.queue, gsize, None, H.data, X.data, real(h_scale),
+                             real(inv_snr), np.int32(adjoint), *tail)
+    return X
+
+
+class SpectralFilter(LinearOperator):
+    """Padded convolution (``mode="convolve"``) or Wiener deconvolution (``mode="wiener"``).
+
+    Parameters
+    ----------
+    psf : ndarray or pyopencl Array, shape ``pad_shape``, real
+        PSF on the padded grid in wrap order.
+    in_shape : (n0, n1, n2)
+        Shape of the volumes filtered (placed at the low corner of the padded grid).
+    snr : float, for ``mode="wiener"``: 1/SNR regularises the inverse.
+    psf_support : (n0, n1, n2), optional
+        The PSF is zero outside its low-corner block of this shape (the FFT skips the rest).
+    scratch : :class:`clnlos.runtime.Scratch`, optional
+        Work buffers shared with the other stages of a plan (slots ``"a"``: the padded
+        real grid, ``"b"``: its spectrum); a private one by default.
+    spectrum : pyopencl Array, optional
+        F[psf] already computed on this grid (half spectrum, complex); ``psf`` is then the
+        padded shape (a tuple).
+    spectrum_folded : bool
+        ``spectrum`` is stored folded (:func:`folded_shape`: a PSF real and even in y).
+    lateral_pad : ``"zero"`` (default; the operator has an exact adjoint) or ``"mirror"``
+        (even extension across the scan border, needs a (.., 2 ny, 2 nx) grid): for
+        deconvolving data whose blur reached past the scanned area, where zero padding puts
+        a step at the border and the inverse filter rings there.
+    """
+
+    name = "spectral_filter"
+
+    def __init__(self, psf, in_shape, *, mode: str = "convolve", snr: float | None = None,
+                 normalize: bool = True, lateral_pad: str = "zero", dtype=np.float32,
+                 queue=None, spectrum: cla.Array | None = None,
+                 scratch: Scratch | None = None, psf_support=None,
+                 spectrum_folded: bool = False):
+        self.queue = get_queue(queue)
+        self.dtype = require_dtype(self.queue.device, dtype)
+        if mode not in ("convolve", "wiener"):
+            raise ParameterError("mode", mode, "'convolve' or 'wiener'")
+        self.mode = mode
+        if mode == "wiener":
+            if snr is None or not np.isfinite(snr) or snr <= 0:
+                raise ParameterError("snr", snr, "> 0 and finite")
+            self.inv_snr = 1.0 / float(snr)
+        else:
+            self.inv_snr = 0.0
+        self.name = f"{mode}_filter"
+        pad_shape = tuple(int(s) for s in (psf.shape if hasattr(psf, "shape") else psf))
+        self.in_shape = self.out_shape = tuple(int(s) for s in in_shape)
+        if len(pad_shape) != 3 or any(p < n for p, n in zip(pad_shape, self.in_shape,
+                                                             strict=True)):
+            raise ShapeError(f"padded PSF shape {pad_shape} must cover the volume {in_shape}")
+        self.pad_shape = pad_shape
+        n0, n1, n2 = self.in_shape
+        if lateral_pad not in ("zero", "mirror"):
+            raise ParameterError("lateral_pad", lateral_pad, "'zero' or 'mirror'")
+        if lateral_pad == "mirror" and pad_shape[1:] != (2 * n1, 2 * n2):
+            raise ShapeError(f"mirror padding needs a (.., {2 * n1}, {2 * n2}) grid, "
+                             f"got {pad_shape}")
+        self.lateral_pad = lateral_pad
+        self._rk = get_kernels(self.queue, "resample", real_defines(self.dtype))
+        self._pad = AxisResample(sp.identity(n0, format="csr"), (n1, n2), dtype=self.dtype,
+                                 queue=self.queue, out_plane=pad_shape[1:],
+                                 out_rows=pad_shape[0])
+        self.fft = RealFFT3(pad_shape, self.dtype, self.queue)
+        self._k = get_kernels(self.queue, "wiener", real_defines(self.dtype))
+        self.folded = bool(spectrum is not None and spectrum_folded)
+        if spectrum is not None:
+            want = folded_shape(self.fft.spec_shape) if self.folded else self.fft.spec_shape
+            if tuple(spectrum.shape) != want:
+                raise ShapeError(f"spectrum of shape {tuple(spectrum.shape)}; the grid "
+                                 f"{pad_shape} needs {want}")
+            self.H = spectrum
+        else:
+            psf_g = psf if isinstance(psf, cla.Array) else cla.to_device(
+                self.queue, np.ascontiguousarray(psf, self.dtype))
+            if psf_g.dtype != self.dtype:
+                psf_g = psf_g.astype(self.dtype)
+            self.H = self.fft.forward(psf_g, nonzero=psf_support)
+        self.dc_gain = float(self.H[0, 0, 0].get().real) if self.H.size else 0.0
+        self.h_scale = 1.0  # the kernels multiply by h_scale * H
+        if normalize:
+            if not self.dc_gain > 0:
+                raise ParameterError("psf", f"sum {self.dc_gain}", "> 0 (a non-negative PSF)")
+            self.h_scale = 1.0 / self.dc_gain
+        self.scratch = Scratch(self.queue) if scratch is None else scratch
+        self.scratch.reserve("a", pad_shape, self.dtype)
+        self.scratch.reserve("b", self.fft.spec_shape, self.fft.cdtype)
+
+    @property
+    def _buf(self) -> cla.Array:
+        """The padded real grid (scratch slot "a"; every call overwrites all of it)."""
+        return self.scratch.array("a", self.pad_shape, self.dtype)
+
+    @classmethod
+    def from_spectrum(cls, base: SpectralFilter, H: cla.Array, *, mode: str,
+                      snr: float | None = None, h_scale: float | None = None
+                      ) -> SpectralFilter:
+        """A filter sharing ``base``'s grid and plans with another spectrum, applied as
+        ``h_scale * H`` (default: ``base``'s normalisation when H is ``base.H``, else 1)."""
+        new = object.__new__(cls)
+        new.__dict__.update(base.__dict__)
+        new.mode, new.name = mode, f"{mode}_filter"
+        new.inv_snr = 0.0 if mode == "convolve" else 1.0 / float(snr)
+        new.H = H
+        new.h_scale = (base.h_scale if H is base.H else 1.0) if h_scale is None else h_scale
+        new.folded = base.folded if H is base.H else False
+        return new
+
+    def set_snr(self, snr: float) -> None:
+        """Change the Wiener SNR of this filter (a per-capture choice; no rebuild)."""
+        if self.mode != "wiener":
+            raise ParameterError("snr", snr, "only for mode='wiener'")
+        if snr is None or not np.isfinite(snr) or snr <= 0:
+            raise ParameterError("snr", snr, "> 0 and finite")
+        self.inv_snr = 1.0 / float(snr)
+
+    def _padder(self, x_g: cla.Array, adjoint: bool = False):
+        """(write_input, nonzero, zeroed) of :meth:`filter_padded` for ``x_g``: the mirror
+        extension (forward filter with ``lateral_pad="mirror"``) or zero padding."""
+        n0, n1, n2 = self.in_shape
+        if self.lateral_pad == "mirror" and not adjoint:
+            p0, p1, p2 = self.pad_shape
+
+            def write(buf):
+                self._rk.pad_mirror_xy(self.queue, (round_up(p2, 8), round_up(p1, 8), p0),
+                                       None, x_g.data, buf.data, kernel_int(n0),
+                                       kernel_int(n1), kernel_int(n2), kernel_int(p0))
+            return write, (n0, p1, p2), False
+        return (lambda buf: self._pad.apply_into(x_g, buf)), None, True
+
+    def _filter(self, x_g: cla.Array, adjoint: bool) -> cla.Array:
+        write, nonzero, zeroed = self._padder(x_g, adjoint)
+        return self.filter_padded(write, self._pad._adjoint, adjoint=adjoint, nonzero=nonzero,
+                                  zeroed=zeroed)
+
+    def gain_squared(self) -> np.ndarray:
+        """|h_scale H|^2 on the (n0, n1, n2h) half-spectrum grid, unfolded (host, float64):
+        the squared gain of the filter's PSF at every frequency of :meth:`power_spectrum`."""
+        h = self.H.get()
+        g = (h.real.astype(np.float64) ** 2 + h.imag.astype(np.float64) ** 2) * self.h_scale**2
+        if not self.folded:
+            return g
+        n0, n1 = self.fft.spec_shape[:2]
+        w, ky = np.arange(n0), np.arange(n1)
+        return g[np.minimum(w, n0 - w)][:, np.minimum(ky, n1 - ky)]
+
+    def power_spectrum(self, x_g: cla.Array | None = None, *, write_input=None,
+                       nonzero=None) -> np.ndarray:
+        """|F[pad(x)]|^2 on the half-spectrum grid (host, float32): the power spectrum of
+        the input as this filter pads it (``x_g``), or as ``write_input(buf)`` writes it
+        into the zeroed padded grid (data in its low-corner ``nonzero`` block)."""
+        zeroed = True
+        if write_input is None:
+            write_input, nonzero, zeroed = self._padder(x_g)
+        _, spec = self._forward_padded(write_input, nonzero, zeroed)
+        s = spec.get()
+        return (s.real * s.real + s.imag * s.imag).astype(np.float32, copy=False)
+
+    def _forward_padded(self, write_input, nonzero, zeroed: bool):
+        """(the padded grid, its half spectrum): ``write_input(buf)`` into the padded grid
+        (zeroed first if ``zeroed``; data in its low-corner ``nonzero`` block, default
+        ``in_shape``), then the forward FFT into scratch slot "b"."""
+        buf = self._buf
+        if zeroed:
+            fill_zero(self.queue, buf)
+        write_input(buf)
+        spec = self.fft.forward(buf, self.scratch.array("b", self.fft.spec_shape,
+                                                        self.fft.cdtype),
+                                nonzero=self.in_shape if nonzero is None else nonzero)
+        return buf, spec
+
+    def filter_padded(self, write_input, read_output, *, adjoint: bool = False,
+                      nonzero=None, zeroed: bool = True):
+        """The filter with the padding and the crop done by the caller's own passes:
+        ``write_input(buf)`` writes the input into the padded grid ``buf`` (zeroed first
+        unless ``zeroed=False``; data only in its low-corner ``nonzero`` block, default
+        ``in_shape``), ``read_output(buf)`` reads the result from its ``in_shape`` block
+        (the rest of ``buf`` is not computed). A resampling that writes straight into the
+        padded grid saves the separate pad and crop passes (LCT's t -> v and u -> z)."""
+        buf, spec = self._forward_padded(write_input, nonzero, zeroed)
+        multiply_spectrum(self._k, self.H, spec, h_scale=self.h_scale, adjoint=adjoint,
+                          folded=self.folded,
+                          inv_snr=self.inv_snr if self.mode == "wiener" else None)
+        self.fft.inverse(spec, buf, needed=self.in_shape)
+        return read_output(buf)
+
+    def _apply(self, x_g):
+        return self._filter(x_g, adjoint=False)
+
+    def _adjoint(self, y_g):
+        if self.lateral_pad != "zero":
+            raise NotImplementedError("the adjoint is defined for zero padding only")
+        return self._filter(y_g, adjoint=True)

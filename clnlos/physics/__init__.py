@@ -1,0 +1,1 @@
+"""Pure physics and parameter types (no OpenCL): the slab, the grids the stages share, the one light-cone PSF."""

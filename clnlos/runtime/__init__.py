@@ -1,0 +1,1 @@
+"""The OpenCL runtime: devices, contexts and queues, programs, buffers, FFT plans, caches, limits."""

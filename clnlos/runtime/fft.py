@@ -1,0 +1,241 @@
+"""3D FFT plans on an OpenCL queue: pyvkfft where it is safe, a host FFT fallback elsewhere.
+
+The backend is chosen once per plan by :func:`clnlos.runtime.fft_backend` (host FFT on CPU
+devices and on PoCL >= 7, which miscompiles VkFFT, pocl issue 2069; VkFFT on GPUs;
+``CLNLOS_FFT=host|vkfft`` overrides, ``numpy`` is an alias of ``host``) and recorded in
+``plan.backend``. The host FFT is scipy.fft (pocketfft,
+all cores) on mapped device buffers (no copy on a CPU device; see
+:func:`clnlos.runtime.host_view`). Conventions are numpy's: forward
+unnormalised, inverse divided by N.
+
+``RealFFT3``: real (n0, n1, n2) <-> half spectrum (n0, n1, n2//2 + 1) (the spectral filters).
+``ComplexFFT3``: complex (n0, n1, n2) in place (f-k migration needs the full spectrum).
+"""
+
+from __future__ import annotations
+
+from functools import lru_cache
+
+import numpy as np
+import pyopencl.array as cla
+import scipy.fft as sfft
+
+from clnlos.runtime.device import (
+    host_threads,
+    host_view,
+    get_queue,
+    require_dtype,
+    require_memory,
+    fft_backend,
+    warn_once,
+)
+
+COMPLEX_OF = {np.dtype(np.float32): np.dtype(np.complex64),
+              np.dtype(np.float64): np.dtype(np.complex128)}
+
+
+@lru_cache(maxsize=64)
+def _vkfft_app(shape: tuple, dtype: np.dtype, queue, r2c: bool):
+    """VkFFT apps are costly to build (kernel generation and compilation): one per
+    (shape, dtype, queue, kind), shared by every plan, as pyvkfft's own fft module does."""
+    from pyvkfft.opencl import VkFFTApp
+
+    return VkFFTApp(shape, dtype, queue, ndim=3, inplace=not r2c, r2c=r2c, norm=1)
+
+
+def _backend(queue) -> str:
+    choice = fft_backend(queue)
+    if choice.warn:
+        warn_once(f"clnlos: host FFT fallback: {choice.reason}")
+    return choice.backend
+
+
+def _workers() -> int:
+    """Threads of the host FFT: ``CLNLOS_THREADS`` (a study worker pins it), else every core."""
+    return host_threads()
+
+
+def _pocketfft():
+    """scipy's pocketfft binding, whose r2c/c2r write into a given array (scipy.fft's public
+    functions do not take ``out=``: their result is a 270 MB temporary at 128 x 128 x 512,
+    then copied); None when this scipy does not have it (the public functions are used)."""
+    try:
+        from scipy.fft._pocketfft import pypocketfft as pp
+    except ImportError:
+        return None
+    return pp if hasattr(pp, "r2c") and hasattr(pp, "c2r") else None
+
+
+def _r2c_pruned(pp, x: np.ndarray, out: np.ndarray, n0: int, n1: int) -> None:
+    """rfftn of x that is zero outside x[:n0, :n1]: the transform along x only on the rows
+    that hold data, along y only on the planes that do, along t everywhere (a zero-padded
+    grid with data in its 1/8 costs about 0.58 of the full transform)."""
+    w = _workers()
+    pp.r2c(x[:n0, :n1], (2,), True, 0, out[:n0, :n1], w)
+    out[:n0, n1:] = 0
+    pp.c2c(out[:n0], (1,), True, 0, out[:n0], w)
+    out[n0:] = 0
+    pp.c2c(out, (0,), True, 0, out, w)
+
+
+def _c2r_pruned(pp, s: np.ndarray, n2: int, out: np.ndarray, n0: int, n1: int) -> None:
+    """out[:n0, :n1] <- irfftn(s)[:n0, :n1] (s overwritten; the rest of ``out`` untouched):
+    the inverse along t everywhere, along y only on the planes kept, along x only on the
+    rows kept."""
+    w = _workers()
+    pp.c2c(s, (0,), False, 2, s, w)
+    pp.c2c(s[:n0], (1,), False, 2, s[:n0], w)
+    pp.c2r(s[:n0, :n1], (2,), n2, False, 2, out[:n0, :n1], w)
+
+
+def _block(shape, block) -> tuple[int, int] | None:
+    """(n0, n1) of a low-corner block of ``shape`` that prunes something, else None."""
+    if block is None:
+        return None
+    n0, n1 = (min(int(b), int(s)) for b, s in zip(block[:2], shape[:2], strict=True))
+    return None if (n0, n1) == tuple(shape[:2]) else (n0, n1)
+
+
+def host_rfftn(x: np.ndarray, out: np.ndarray, nonzero=None) -> None:
+    """out <- rfftn(x) (unnormalised), written in place when the binding allows.
+
+    ``nonzero``: (n0, n1, ...) when x is zero outside x[:n0, :n1] (a zero-padded grid):
+    the transform skips the lines that are zero (:func:`_r2c_pruned`)."""
+    pp = _pocketfft()
+    block = _block(x.shape, nonzero)
+    if pp is not None:
+        try:
+            if block is None:
+                pp.r2c(x, (0, 1, 2), True, 0, out, _workers())
+            else:
+                _r2c_pruned(pp, x, out, *block)
+            return
+        except TypeError:
+            pass
+    out[...] = sfft.rfftn(x, workers=_workers())
+
+
+def host_irfftn(s: np.ndarray, shape, out: np.ndarray, needed=None) -> None:
+    """out <- irfftn(s, shape) (divided by N), written in place when the binding allows.
+
+    ``needed``: (n0, n1, ...) when only out[:n0, :n1] is used (a crop follows): only that
+    block is computed and written (:func:`_c2r_pruned`); ``s`` is then overwritten."""
+    pp = _pocketfft()
+    block = _block(shape, needed)
+    if pp is not None:
+        try:
+            if block is None:
+                pp.c2r(s, (0, 1, 2), int(shape[-1]), False, 2, out, _workers())
+            else:
+                _c2r_pruned(pp, s, int(shape[-1]), out, *block)
+            return
+        except TypeError:
+            pass
+    out[...] = sfft.irfftn(s, s=shape, axes=(0, 1, 2), workers=_workers())
+
+
+def host_fftn_inplace(a: np.ndarray, forward: bool, block=None) -> None:
+    """a <- fftn(a) or ifftn(a) (divided by N) in place; ``block`` = (n0, n1, ...): forward,
+    a is zero outside a[:n0, :n1]; inverse, only a[:n0, :n1] is used afterwards (the rest
+    is left partly transformed)."""
+    pp = _pocketfft()
+    b = _block(a.shape, block)
+    if pp is not None and b is not None:
+        try:
+            w, norm = _workers(), 0 if forward else 2
+            n0, n1 = b
+            passes = [(2, a[:n0, :n1]), (1, a[:n0]), (0, a)]  # the forward order
+            for axis, v in (passes if forward else passes[::-1]):
+                pp.c2c(v, (axis,), forward, norm, v, w)
+            return
+        except TypeError:
+            pass
+    f = sfft.fftn if forward else sfft.ifftn
+    _store(a, f(a, workers=_workers(), overwrite_x=True))
+
+
+def _store(a: np.ndarray, result: np.ndarray) -> None:
+    """Put an in-place transform's result in ``a`` (pocketfft already did when it could)."""
+    if not np.shares_memory(a, result):
+        a[...] = result
+
+
+class RealFFT3:
+    """Real-to-complex 3D FFT plan for a fixed shape and precision on one queue."""
+
+    def __init__(self, shape: tuple[int, int, int], dtype=np.float32, queue=None):
+        self.queue = get_queue(queue)
+        self.dtype = require_dtype(self.queue.device, dtype)
+        self.cdtype = COMPLEX_OF[self.dtype]
+        self.shape = tuple(int(s) for s in shape)
+        self.spec_shape = self.shape[:-1] + (self.shape[-1] // 2 + 1,)
+        require_memory(self.queue.device, int(np.prod(self.spec_shape)) * self.cdtype.itemsize,
+                       f"FFT of shape {self.shape}")
+        self.backend = _backend(self.queue)
+        self._app = None
+        if self.backend == "vkfft":
+            self._app = _vkfft_app(self.shape, self.dtype, self.queue, True)
+
+    def empty_spectrum(self) -> cla.Array:
+        return cla.empty(self.queue, self.spec_shape, self.cdtype)
+
+    def forward(self, x_g: cla.Array, out_g: cla.Array | None = None, *,
+                nonzero=None) -> cla.Array:
+        """Half spectrum of the real array ``x_g`` (not modified). ``nonzero`` = (n0, n1,
+        n2): x is zero outside its low-corner block of that shape (zero padding), which the
+        host FFT uses to skip lines of zeros."""
+        out_g = self.empty_spectrum() if out_g is None else out_g
+        if self._app is not None:
+            self._app.fft(x_g, out_g)
+        else:
+            with host_view(x_g) as x, host_view(out_g, write=True, read=False) as out:
+                host_rfftn(x, out, nonzero)
+        return out_g
+
+    def inverse(self, s_g: cla.Array, out_g: cla.Array | None = None, *,
+                needed=None) -> cla.Array:
+        """Real array from a half spectrum; ``s_g`` is overwritten (VkFFT C2R does).
+        ``needed`` = (n0, n1, n2): only the low-corner block of that shape is used (a crop
+        follows); the host FFT then writes only that block."""
+        out_g = cla.empty(self.queue, self.shape, self.dtype) if out_g is None else out_g
+        if self._app is not None:
+            self._app.ifft(s_g, out_g)
+        else:
+            with host_view(s_g) as s, host_view(out_g, write=True, read=False) as out:
+                host_irfftn(s, self.shape, out, needed)
+        return out_g
+
+
+class ComplexFFT3:
+    """In-place complex 3D FFT plan for a fixed shape and precision on one queue."""
+
+    def __init__(self, shape: tuple[int, int, int], dtype=np.float32, queue=None):
+        self.queue = get_queue(queue)
+        self.dtype = require_dtype(self.queue.device, dtype)
+        self.cdtype = COMPLEX_OF[self.dtype]
+        self.shape = tuple(int(s) for s in shape)
+        require_memory(self.queue.device, int(np.prod(self.shape)) * self.cdtype.itemsize,
+                       f"FFT of shape {self.shape}")
+        self.backend = _backend(self.queue)
+        self._app = None
+        if self.backend == "vkfft":
+            self._app = _vkfft_app(self.shape, self.cdtype, self.queue, False)
+
+    def forward(self, a_g: cla.Array, *, nonzero=None) -> cla.Array:
+        """In-place FFT; ``nonzero`` as for :meth:`RealFFT3.forward`."""
+        if self._app is not None:
+            self._app.fft(a_g)
+        else:
+            with host_view(a_g, write=True) as a:
+                host_fftn_inplace(a, True, nonzero)
+        return a_g
+
+    def inverse(self, a_g: cla.Array, *, needed=None) -> cla.Array:
+        """In-place inverse FFT (divided by N); ``needed`` as for :meth:`RealFFT3.inverse`
+        (outside that block the array holds partial transforms)."""
+        if self._app is not None:
+            self._app.ifft(a_g)
+        else:
+            with host_view(a_g, write=True) as a:
+                host_fftn_inplace(a, False, needed)
+        return a_g
