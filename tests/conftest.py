@@ -6,6 +6,8 @@ from pathlib import Path
 import numpy as np
 import pytest
 
+from clnlos import settings
+from clnlos.runtime import buffers, fft, programs
 from clnlos.runtime import device as runtime
 
 SHARED = Path(__file__).resolve().parents[1].parent / "shared" / "data"
@@ -14,7 +16,7 @@ SHARED = Path(__file__).resolve().parents[1].parent / "shared" / "data"
 @pytest.fixture(scope="session")
 def queue():
     """One queue on the test device: $CLNLOS_DEVICE, else PoCL if present, else the default."""
-    spec = os.environ.get(runtime.ENV_DEVICE) or None
+    spec = os.environ.get(settings.ENV_DEVICE) or None
     if spec is None and any("portable" in d.platform.lower() for d in runtime.list_devices()):
         spec = "pocl"
     return runtime.get_queue(spec)

@@ -391,7 +391,7 @@ def test_sizes_beyond_the_kernel_index_range():
     import pytest
 
     from clnlos.errors import DeviceCapabilityError
-    from clnlos.runtime.device import kernel_int
+    from clnlos.runtime.buffers import kernel_int
 
     assert kernel_int(2**31 - 1) == 2**31 - 1
     with pytest.raises(DeviceCapabilityError, match="32-bit"):

@@ -307,7 +307,7 @@ def _never_read(monkeypatch):
 @pytest.mark.parametrize("kind", FORMATS)
 def test_capture_size_is_checked_against_host_memory_before_reading(tmp_path, monkeypatch,
                                                                     kind):
-    from clnlos.runtime import limits as limits
+    from clnlos.runtime import limits
     from clnlos.errors import MemoryLimitError
     from clnlos.io.formats import read_capture
 
@@ -532,7 +532,7 @@ def test_texture_file_declaring_a_huge_grid_is_refused_before_reading(tmp_path):
 
 
 def test_host_memory_comes_from_meminfo_capped_by_the_cgroup(tmp_path, monkeypatch):
-    from clnlos.runtime import limits as limits
+    from clnlos.runtime import limits
 
     info = tmp_path / "meminfo"
     info.write_text("MemTotal:       24000000 kB\nMemAvailable:    2000000 kB\n")

@@ -339,7 +339,7 @@ def test_full_disk_names_the_users_path_in_one_line(tmp_path, monkeypatch, kind)
                 f"Can't write data (file write failed: name = '{tmp}', errno = 28, error "
                 "message = 'No space left on device')\n  (while closing the file)")}[kind]
     cap = _capture(tmp_path)
-    monkeypatch.setattr(clnlos.io, "write_h5_file", _full_disk(make))
+    monkeypatch.setattr(clnlos.io.files, "write_h5_file", _full_disk(make))
     out = tmp_path / "rec.h5"
     line = _one_error_line(*_run(["reconstruct", str(cap), "-o", str(out)]))
     assert line.startswith(f"clnlos: error: cannot write {out}: "), line

@@ -10,6 +10,8 @@ from pathlib import Path
 import numpy as np
 import pytest
 
+from clnlos import settings
+from clnlos.runtime import buffers, fft, programs
 from clnlos.runtime import device as runtime
 from clnlos.app.cli import main
 from clnlos.errors import DeviceCapabilityError, DeviceError, KernelBuildError
@@ -33,9 +35,9 @@ def test_select_device_specs(spec):
 
 
 def test_env_selects_device(monkeypatch):
-    monkeypatch.setenv(runtime.ENV_DEVICE, "0:0")
+    monkeypatch.setenv(settings.ENV_DEVICE, "0:0")
     assert runtime.select_device(None) == runtime.select_device("0:0")
-    monkeypatch.setenv(runtime.ENV_DEVICE, "no-such-device")
+    monkeypatch.setenv(settings.ENV_DEVICE, "no-such-device")
     with pytest.raises(DeviceError, match="no-such-device"):
         runtime.select_device(None)
 
@@ -47,17 +49,17 @@ def test_bad_device_spec_is_clear(spec):
 
 
 def test_program_cache_and_kernels_fetched_once(queue):
-    a = runtime.get_kernels(queue, "diffusion", runtime.real_defines(np.float32))
-    b = runtime.get_kernels(queue.context, "diffusion", runtime.real_defines(np.float32))
+    a = programs.get_kernels(queue, "diffusion", programs.real_defines(np.float32))
+    b = programs.get_kernels(queue.context, "diffusion", programs.real_defines(np.float32))
     assert a is b
     assert a.transmittance_pairs is b.transmittance_pairs  # same cl.Kernel object
-    c = runtime.get_kernels(queue, "diffusion", {"REAL_T": "float", "X_EXTRA": 3})
+    c = programs.get_kernels(queue, "diffusion", {"REAL_T": "float", "X_EXTRA": 3})
     assert c is not a and "-DX_EXTRA=3" in c.options
 
 
 def test_build_failure_names_file_options_device(queue):
     with pytest.raises(KernelBuildError) as ei:
-        runtime.get_kernels(queue, "diffusion", {"REAL_T": "no_such_type"})
+        programs.get_kernels(queue, "diffusion", {"REAL_T": "no_such_type"})
     msg = str(ei.value)
     assert "diffusion.cl" in msg and "-DREAL_T=no_such_type" in msg
     assert queue.device.name.strip() in msg
@@ -65,7 +67,7 @@ def test_build_failure_names_file_options_device(queue):
 
 def test_missing_kernel_family(queue):
     with pytest.raises(KernelBuildError, match="not found"):
-        runtime.get_kernels(queue, "no_such_family")
+        programs.get_kernels(queue, "no_such_family")
 
 
 class _NoFp64Device:
@@ -88,19 +90,19 @@ def test_memory_check_before_allocation(queue):
 
 
 def test_fft_backend_choice(queue, monkeypatch):
-    monkeypatch.delenv(runtime.ENV_FFT, raising=False)
-    monkeypatch.setattr(runtime, "pocl_version", lambda dev: (7, 0))
-    c = runtime.fft_backend(queue)
+    monkeypatch.delenv(settings.ENV_FFT, raising=False)
+    monkeypatch.setattr(fft, "pocl_version", lambda dev: (7, 0))
+    c = fft.fft_backend(queue)
     assert c.backend == "host" and "2069" in c.reason and c.warn
-    monkeypatch.setattr(runtime, "pocl_version", lambda dev: (3, 1))
-    c = runtime.fft_backend(queue)
+    monkeypatch.setattr(fft, "pocl_version", lambda dev: (3, 1))
+    c = fft.fft_backend(queue)
     if queue.device.type & runtime.cl.device_type.CPU:
         assert c.backend == "host" and "CPU" in c.reason and not c.warn
-    monkeypatch.setenv(runtime.ENV_FFT, "host")
-    assert runtime.fft_backend(queue) == runtime.FFTChoice("host", "CLNLOS_FFT=host")
-    monkeypatch.setenv(runtime.ENV_FFT, "bogus")
+    monkeypatch.setenv(settings.ENV_FFT, "host")
+    assert fft.fft_backend(queue) == fft.FFTChoice("host", "CLNLOS_FFT=host")
+    monkeypatch.setenv(settings.ENV_FFT, "bogus")
     with pytest.raises(DeviceError, match="CLNLOS_FFT"):
-        runtime.fft_backend(queue)
+        fft.fft_backend(queue)
 
 
 def test_forced_vkfft_without_pyvkfft_is_an_error(queue, monkeypatch):
@@ -114,11 +116,11 @@ def test_forced_vkfft_without_pyvkfft_is_an_error(queue, monkeypatch):
         return real_import(name, *a, **kw)
 
     monkeypatch.setattr(builtins, "__import__", no_vkfft)
-    monkeypatch.setenv(runtime.ENV_FFT, "vkfft")
+    monkeypatch.setenv(settings.ENV_FFT, "vkfft")
     with pytest.raises(DeviceError, match="pyvkfft"):
-        runtime.fft_backend(queue)
-    monkeypatch.setenv(runtime.ENV_FFT, "auto")
-    assert runtime.fft_backend(queue).backend == "host"
+        fft.fft_backend(queue)
+    monkeypatch.setenv(settings.ENV_FFT, "auto")
+    assert fft.fft_backend(queue).backend == "host"
 
 
 def test_cli_devices_lists_and_marks_default(capsys):
@@ -131,9 +133,9 @@ def test_cli_devices_lists_and_marks_default(capsys):
                                       ("gpu:7", None), (None, "9:9"), (None, "nosuch")])
 def test_cli_devices_spec_matching_nothing_is_an_error(capsys, monkeypatch, spec, env):
     if env is None:
-        monkeypatch.delenv(runtime.ENV_DEVICE, raising=False)
+        monkeypatch.delenv(settings.ENV_DEVICE, raising=False)
     else:
-        monkeypatch.setenv(runtime.ENV_DEVICE, env)
+        monkeypatch.setenv(settings.ENV_DEVICE, env)
     assert main(["devices"] + (["--device", spec] if spec else [])) == 2
     err = capsys.readouterr().err.strip().splitlines()
     assert len(err) == 1 and err[0].startswith("clnlos: error: no OpenCL device")
@@ -199,13 +201,13 @@ def test_wheel_ships_kernels_and_runs_them(tmp_path):
 
 
 def test_host_copies_respect_offsets_and_keep_no_events(queue):
-    """runtime.download / upload_into: a slice with an offset round-trips, and no event (each
+    """buffers.download / upload_into: a slice with an offset round-trips, and no event (each
     of which would hold a host buffer) is left on the array -- Array.get()/set() keep up to
     12 per array, which made the host-FFT path hold 12 copies of its plan buffers."""
     import pyopencl.array as cla
 
     from clnlos.errors import ShapeError
-    from clnlos.runtime.device import download, upload_into
+    from clnlos.runtime.buffers import download, upload_into
 
     a = cla.to_device(queue, np.arange(24, dtype=np.float32).reshape(4, 6))
     a.finish()
@@ -229,7 +231,8 @@ def test_plan_cache_budget_clear_and_threads(queue, monkeypatch):
     import pyopencl.array as cla
 
     from clnlos.errors import ParameterError
-    from clnlos.runtime.caches import ENV_BUDGET, PlanCache, device_bytes
+    from clnlos.runtime.caches import PlanCache, device_bytes
+    from clnlos.settings import ENV_PLAN_CACHE_MB as ENV_BUDGET
 
     class Plan:
         def __init__(self, n):
@@ -238,7 +241,7 @@ def test_plan_cache_budget_clear_and_threads(queue, monkeypatch):
 
     assert device_bytes(Plan(100)) == 100 * 4 + 100 * 8
     # shared work buffers count with their reserved size, before and after allocation
-    from clnlos.runtime.device import Scratch
+    from clnlos.runtime.buffers import Scratch
 
     plan = Plan(100)
     plan.scratch = Scratch(queue)
@@ -282,7 +285,7 @@ def test_scratch_slots_are_shared_views_that_grow_to_the_largest_need(queue):
     """Stages that reserve the same slot get views of one buffer (a write through one view
     is seen through another of another dtype); a need larger than the buffer gives a new,
     larger buffer."""
-    from clnlos.runtime.device import Scratch
+    from clnlos.runtime.buffers import Scratch
 
     s = Scratch(queue)
     s.reserve("a", (4, 8), np.float32)

@@ -114,7 +114,7 @@ def _main(argv: list[str] | None) -> int:
         if getattr(args, "func", None) is None:  # bare `clnlos` (or a bare group)
             parser.print_help()
             return 0
-        from clnlos.runtime.device import check_environment
+        from clnlos.runtime.environment import check_environment
 
         check_environment()
         return int(args.func(args) or 0)

@@ -22,14 +22,9 @@ import pyopencl.array as cla
 
 from clnlos.errors import InputFileError, ParameterError
 from clnlos.runtime.limits import check_memory
-from clnlos.runtime.device import (
-    get_kernels,
-    get_queue,
-    kernel_int,
-    real_defines,
-    require_dtype,
-    round_up,
-)
+from clnlos.runtime.programs import get_kernels, real_defines
+from clnlos.runtime.device import get_queue, require_dtype
+from clnlos.runtime.buffers import kernel_int, round_up
 
 FORMAT, VERSION = "clnlos-brdf-texture", 1
 # tabulate: nodes per model evaluation (bounds its temporaries), host bytes per node of the

@@ -47,18 +47,9 @@ import pyopencl.array as cla
 from clnlos.checks import integer
 from clnlos.diffusion import SlabTransmittance, bin_time_nodes, support_of
 from clnlos.errors import ParameterError
-from clnlos.runtime.device import (
-    fill_zero,
-    get_kernels,
-    get_queue,
-    has_fp64,
-    kernel_int,
-    real_defines,
-    require_dtype,
-    require_memory,
-    round_up,
-    zeros,
-)
+from clnlos.runtime.buffers import fill_zero, kernel_int, round_up, zeros
+from clnlos.runtime.programs import get_kernels, real_defines
+from clnlos.runtime.device import get_queue, has_fp64, require_dtype, require_memory
 from clnlos.forward.scene import (  # noqa: F401 (the [transport] table: defaults and limits live there)
     FACE_ANGLES,
     FACE_RINGS,

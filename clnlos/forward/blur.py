@@ -27,15 +27,8 @@ from clnlos.physics.grid import grid_offsets
 from clnlos.errors import ParameterError
 from clnlos.physics.slab import Slab
 from clnlos.runtime.fft import COMPLEX_OF, RealFFT3
-from clnlos.runtime.device import (
-    copy_rows,
-    fill_zero,
-    get_queue,
-    has_fp64,
-    host_threads,
-    host_view,
-    require_dtype,
-)
+from clnlos.runtime.buffers import copy_rows, fill_zero, host_view
+from clnlos.runtime.device import get_queue, has_fp64, host_threads, require_dtype
 from clnlos.operators.spectral import SpectralFilter, folded_shape
 
 

@@ -46,16 +46,9 @@ from clnlos.forward.geometry import (
     text_extent_bound,
     transform,
 )
-from clnlos.runtime.device import (
-    kernel_int,
-    get_kernels,
-    get_queue,
-    real_defines,
-    require_dtype,
-    require_memory,
-    round_up,
-    zeros,
-)
+from clnlos.runtime.buffers import kernel_int, round_up, zeros
+from clnlos.runtime.programs import get_kernels, real_defines
+from clnlos.runtime.device import get_queue, require_dtype, require_memory
 from clnlos.forward.scene import Scene, SceneObject, read_retro_csv
 
 N_THETA = 256  # samples of the retro-reflection tables over [0, 90] degrees

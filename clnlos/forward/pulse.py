@@ -15,14 +15,9 @@ import numpy as np
 import pyopencl.array as cla
 
 from clnlos.operators.base import LinearOperator
-from clnlos.runtime.device import (
-    get_kernels,
-    get_queue,
-    kernel_int,
-    real_defines,
-    require_dtype,
-    round_up,
-)
+from clnlos.runtime.programs import get_kernels, real_defines
+from clnlos.runtime.device import get_queue, require_dtype
+from clnlos.runtime.buffers import kernel_int, round_up
 
 
 def pulse_taps(pulse_width_s: float, bin_width_s: float) -> np.ndarray:

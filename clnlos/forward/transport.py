@@ -43,14 +43,9 @@ from clnlos.runtime.fft import RealFFT3
 from clnlos.operators.base import LinearOperator
 from clnlos.operators.resample import AxisResample, overlap_matrix
 from clnlos.operators.spectral import multiply_spectrum
-from clnlos.runtime.device import (
-    Scratch,
-    fill_zero,
-    get_kernels,
-    get_queue,
-    real_defines,
-    require_dtype,
-)
+from clnlos.runtime.buffers import Scratch, fill_zero
+from clnlos.runtime.programs import get_kernels, real_defines
+from clnlos.runtime.device import get_queue, require_dtype
 
 
 def signed_offsets(n: int, shift: int = 0) -> np.ndarray:

@@ -22,16 +22,9 @@ from clnlos import C0
 from clnlos.config import METHOD_FALLOFF
 from clnlos.runtime.fft import ComplexFFT3, RealFFT3
 from clnlos.inverse.lct import check_inversion_args
-from clnlos.runtime.device import (
-    Scratch,
-    fill_zero,
-    get_kernels,
-    get_queue,
-    kernel_int,
-    real_defines,
-    require_dtype,
-    round_up,
-)
+from clnlos.runtime.buffers import Scratch, fill_zero, kernel_int, round_up
+from clnlos.runtime.programs import get_kernels, real_defines
+from clnlos.runtime.device import get_queue, require_dtype
 
 
 # the square root of the (t/T)^p-weighted measurement is the wave

@@ -33,7 +33,8 @@ from clnlos import C0
 from clnlos.errors import ParameterError
 from clnlos.inverse.lct import LCT
 from clnlos.operators.base import LinearOperator
-from clnlos.runtime.device import Scratch, get_queue, require_dtype
+from clnlos.runtime.buffers import Scratch
+from clnlos.runtime.device import get_queue, require_dtype
 from clnlos.inverse.solvers import fista, lipschitz
 from clnlos.forward.transport import LightConeTransport
 

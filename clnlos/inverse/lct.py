@@ -33,7 +33,9 @@ from clnlos.errors import ParameterError, ShapeError
 from clnlos.runtime.fft import RealFFT3
 from clnlos.operators.base import LinearOperator
 from clnlos.operators.resample import AxisResample, overlap_matrix
-from clnlos.runtime.device import Scratch, get_kernels, get_queue, real_defines, require_dtype, round_up
+from clnlos.runtime.buffers import Scratch, round_up
+from clnlos.runtime.programs import get_kernels, real_defines
+from clnlos.runtime.device import get_queue, require_dtype
 from clnlos.operators.spectral import SpectralFilter
 
 
@@ -79,7 +81,7 @@ def lightcone_psf_device(nt: int, ny: int, nx: int, *, bin_width_s: float, pitch
     when given; the normalisation (sum of the kept weights) is computed on the host in
     float64. The cone reaches v = (largest lateral offset / R)^2 nt: about half the padded
     rows stay zero, which the FFT of the plan skips."""
-    from clnlos.runtime.device import fill_zero, kernel_int
+    from clnlos.runtime.buffers import fill_zero, kernel_int
 
     q = get_queue(queue)
     dt = require_dtype(q.device, dtype)

@@ -54,15 +54,9 @@ from clnlos.inverse.snr import (
 )
 from clnlos.operators.resample import AxisResample, overlap_matrix
 from clnlos.runtime.spectrum_cache import SpectrumCache
-from clnlos.runtime.device import (
-    Scratch,
-    get_kernels,
-    get_queue,
-    host_view,
-    real_defines,
-    require_dtype,
-    round_up,
-)
+from clnlos.runtime.buffers import Scratch, host_view, round_up
+from clnlos.runtime.programs import get_kernels, real_defines
+from clnlos.runtime.device import get_queue, require_dtype
 
 
 @dataclass
@@ -232,7 +226,7 @@ class ReconstructionPipeline:
         self.deconv = None
         self._gcv_slab: GcvBins | None = None  # the slab filter's GCV bins, on first use
         self.scratch = Scratch(self.queue)  # work buffers shared by the stages below
-        cache = SpectrumCache.from_env()  # CLNLOS_SPECTRUM_CACHE: spectra kept on disk
+        cache = SpectrumCache.from_settings()  # CLNLOS_SPECTRUM_CACHE: spectra kept on disk
         if config.slab is not None:
             setup("slab PSF")
             self.deconv = slab_blur(config.slab, (A.shape[0], ny, nx),

@@ -31,7 +31,8 @@ import numpy as np
 import pyopencl.array as cla
 
 from clnlos.operators.base import LinearOperator
-from clnlos.runtime.device import fill_zero, get_kernels, real_defines, round_up, zeros
+from clnlos.runtime.buffers import fill_zero, round_up, zeros
+from clnlos.runtime.programs import get_kernels, real_defines
 
 TV_INNER_ITERATIONS = 10  # FGP iterations per prox (warm-started from the last dual)
 POWER_ITERATIONS = 15

@@ -24,16 +24,9 @@ from clnlos.errors import ParameterError, ShapeError
 from clnlos.runtime.fft import RealFFT3
 from clnlos.operators.base import LinearOperator
 from clnlos.operators.resample import AxisResample
-from clnlos.runtime.device import (
-    fill_zero,
-    get_kernels,
-    get_queue,
-    kernel_int,
-    real_defines,
-    Scratch,
-    require_dtype,
-    round_up,
-)
+from clnlos.runtime.buffers import fill_zero, kernel_int, Scratch, round_up
+from clnlos.runtime.programs import get_kernels, real_defines
+from clnlos.runtime.device import get_queue, require_dtype
 
 
 def folded_shape(spec_shape) -> tuple[int, int, int]:

@@ -1,36 +1,62 @@
-"""One cache for plans: objects that hold device buffers (PSF spectra, FFT plans, scratch).
+"""Every in-memory cache of the package, registered with one owner (:data:`CACHES`).
 
-A plan is built once per key and reused while it fits the byte budget; the least recently
+:class:`CacheRegistry`: each cache (contexts, queues, built programs, VkFFT apps, the plan
+caches below, blur margins, ...) registers a ``clear`` function when its module is imported;
+``CACHES.clear()`` empties them all.
+
+:class:`PlanCache`: objects that hold device buffers (PSF spectra, FFT plans, scratch). A
+plan is built once per key and reused while it fits the byte budget; the least recently
 used plans are dropped first. Keys include the calling thread, because plans own scratch
-buffers (``SpectralFilter._buf``, the FFT work arrays) and must not run in two threads at
-once. ``clear()`` frees everything (and the program and VkFFT caches with
-:func:`clear_all`). The budget defaults to a quarter of the device's global memory, or
-``CLNLOS_PLAN_CACHE_MB``.
+buffers (the spectral filters' work arrays, the FFT work arrays) and must not run in two
+threads at once. The budget defaults to a quarter of the device's global memory, or
+``CLNLOS_PLAN_CACHE_MB`` (:mod:`clnlos.settings`).
 """
 
 from __future__ import annotations
 
-import os
 import threading
 from collections import OrderedDict
+from collections.abc import Callable
 
-ENV_BUDGET = "CLNLOS_PLAN_CACHE_MB"
+import pyopencl.array as cla
+
+from clnlos.settings import Settings, resolve
+
+
+class CacheRegistry:
+    """The one owner of the package's caches: ``register(name, clear)``; ``clear()`` calls
+    every registered ``clear`` (a process that wants its memory back, a test that wants a
+    cold start)."""
+
+    def __init__(self):
+        self._clear: dict[str, Callable[[], None]] = {}
+
+    def register(self, name: str, clear: Callable[[], None]) -> None:
+        self._clear[name] = clear
+
+    @property
+    def names(self) -> tuple[str, ...]:
+        return tuple(self._clear)
+
+    def clear(self) -> None:
+        for clear in self._clear.values():
+            clear()
+
+
+CACHES = CacheRegistry()
 
 
 def device_bytes(obj, _depth: int = 0, _seen=None) -> int:
     """Bytes of OpenCL device arrays reachable from ``obj``'s attributes (a few levels)."""
-    import pyopencl.array as cla
-
-    from clnlos.runtime.device import Scratch
-
     seen = set() if _seen is None else _seen
     if id(obj) in seen or _depth > 4:
         return 0
     seen.add(id(obj))
     if isinstance(obj, cla.Array):
         return int(obj.nbytes)
-    if isinstance(obj, Scratch):
-        return obj.nbytes  # its reserved work buffers (allocated at first use)
+    reserved = getattr(obj, "reserved_nbytes", None)  # a Scratch: its work buffers
+    if reserved is not None and not isinstance(obj, (dict, list, tuple)):
+        return int(reserved)
     if isinstance(obj, dict):
         items = obj.values()
     elif isinstance(obj, (list, tuple)):
@@ -51,20 +77,12 @@ class PlanCache:
         self._plans: OrderedDict = OrderedDict()  # key -> (plan, nbytes)
         self._lock = threading.Lock()
 
-    def budget(self, queue=None) -> int:
+    def budget(self, queue=None, settings: Settings | None = None) -> int:
         if self._budget is not None:
             return self._budget
-        env = os.environ.get(ENV_BUDGET)
-        if env:
-            from clnlos.errors import ParameterError
-
-            try:
-                mb = float(env)
-            except ValueError:
-                raise ParameterError(ENV_BUDGET, env, "a number of MiB >= 0") from None
-            if not mb >= 0:
-                raise ParameterError(ENV_BUDGET, env, "a number of MiB >= 0")
-            return int(mb * 2**20)
+        configured = resolve(settings).plan_cache_bytes
+        if configured is not None:
+            return configured
         if queue is not None:
             return int(queue.device.global_mem_size // 4)
         return 2**31
@@ -105,14 +123,5 @@ class PlanCache:
 
 PIPELINES = PlanCache("reconstruction pipelines")
 FORWARD_BLURS = PlanCache("forward-model slab blurs")
-
-
-def clear_all() -> None:
-    """Free every cached plan, VkFFT app and built program."""
-    from clnlos.runtime import fft as fft
-    from clnlos.runtime import device as runtime
-
-    PIPELINES.clear()
-    FORWARD_BLURS.clear()
-    fft._vkfft_app.cache_clear()
-    runtime._program_cache.clear()
+CACHES.register(PIPELINES.name, PIPELINES.clear)
+CACHES.register(FORWARD_BLURS.name, FORWARD_BLURS.clear)

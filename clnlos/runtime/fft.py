@@ -1,6 +1,6 @@
 """3D FFT plans on an OpenCL queue: pyvkfft where it is safe, a host FFT fallback elsewhere.
 
-The backend is chosen once per plan by :func:`clnlos.runtime.fft_backend` (host FFT on CPU
+The backend is chosen once per plan by :func:`fft_backend` (host FFT on CPU
 devices and on PoCL >= 7, which miscompiles VkFFT, pocl issue 2069; VkFFT on GPUs;
 ``CLNLOS_FFT=host|vkfft`` overrides, ``numpy`` is an alias of ``host``) and recorded in
 ``plan.backend``. The host FFT is scipy.fft (pocketfft,
@@ -14,21 +14,19 @@ unnormalised, inverse divided by N.
 
 from __future__ import annotations
 
+from dataclasses import dataclass
 from functools import lru_cache
 
 import numpy as np
+import pyopencl as cl
 import pyopencl.array as cla
 import scipy.fft as sfft
 
-from clnlos.runtime.device import (
-    host_threads,
-    host_view,
-    get_queue,
-    require_dtype,
-    require_memory,
-    fft_backend,
-    warn_once,
-)
+from clnlos.errors import DeviceError
+from clnlos.runtime.buffers import host_view
+from clnlos.runtime.caches import CACHES
+from clnlos.runtime.device import get_queue, pocl_version, require_dtype, require_memory, warn_once
+from clnlos.settings import ENV_FFT, Settings, resolve
 
 COMPLEX_OF = {np.dtype(np.float32): np.dtype(np.complex64),
               np.dtype(np.float64): np.dtype(np.complex128)}
@@ -43,6 +41,9 @@ def _vkfft_app(shape: tuple, dtype: np.dtype, queue, r2c: bool):
     return VkFFTApp(shape, dtype, queue, ndim=3, inplace=not r2c, r2c=r2c, norm=1)
 
 
+CACHES.register("VkFFT apps", _vkfft_app.cache_clear)
+
+
 def _backend(queue) -> str:
     choice = fft_backend(queue)
     if choice.warn:
@@ -52,7 +53,7 @@ def _backend(queue) -> str:
 
 def _workers() -> int:
     """Threads of the host FFT: ``CLNLOS_THREADS`` (a study worker pins it), else every core."""
-    return host_threads()
+    return resolve(None).host_threads()
 
 
 def _pocketfft():
@@ -239,3 +240,67 @@ class ComplexFFT3:
             with host_view(a_g, write=True) as a:
                 host_fftn_inplace(a, False, needed)
         return a_g
+
+
+POCL_VKFFT_ISSUE = "https://github.com/pocl/pocl/issues/2069"
+
+
+@dataclass(frozen=True)
+class FFTChoice:
+    """The FFT backend of a queue: ``"vkfft"`` (pyvkfft on the device) or ``"host"``
+    (scipy.fft on the host, on mapped buffers), why, and whether the reason deserves a warning."""
+
+    backend: str
+    reason: str
+    warn: bool = False
+
+
+def fft_backend(queue: cl.CommandQueue, settings: Settings | None = None) -> FFTChoice:
+    """The FFT backend for this queue's device.
+
+    ``CLNLOS_FFT`` (``auto`` by default) overrides: ``host`` (alias ``numpy``) or ``vkfft``
+    (an error when pyvkfft's OpenCL backend cannot be imported). ``auto``: the host FFT on CPU
+    devices (there the FFT runs on the same cores either way, and scipy's pocketfft measured
+    1.3-1.6x faster than VkFFT on PoCL, tools/results/bench_reconstruct.csv), and on PoCL >= 7,
+    which miscompiles VkFFT (pocl issue 2069); VkFFT elsewhere (GPUs), falling back to the host
+    with a warning when pyvkfft is missing.
+    """
+    s = resolve(settings)
+    choice = s.fft
+    if choice == "host":
+        return FFTChoice("host", f"{ENV_FFT}={s.fft_written}")
+    if choice == "auto":  # decided before importing pyvkfft (0.09 s) where it is not used
+        ver = pocl_version(queue.device)
+        if ver is not None and ver >= (7, 0):
+            return FFTChoice("host", f"PoCL {ver[0]}.{ver[1]} miscompiles VkFFT "
+                                     f"({POCL_VKFFT_ISSUE})", warn=True)
+        if queue.device.type & cl.device_type.CPU:
+            return FFTChoice("host", "CPU device: the host FFT is faster than VkFFT there")
+    try:
+        import pyvkfft.opencl  # noqa: F401
+
+        vk_error = None
+    except Exception as exc:  # not installed, or built without the OpenCL backend
+        vk_error = f"{type(exc).__name__}: {exc}"
+    if choice == "vkfft":
+        if vk_error is not None:
+            raise DeviceError(vkfft_missing(vk_error))
+        return FFTChoice("vkfft", f"{ENV_FFT}=vkfft")
+    if vk_error is not None:
+        return FFTChoice("host", f"pyvkfft (OpenCL backend) not importable: {vk_error}",
+                         warn=True)
+    return FFTChoice("vkfft", "pyvkfft on the device")
+
+
+def vkfft_missing(why: str) -> str:
+    """The one-line message of CLNLOS_FFT=vkfft without pyvkfft's OpenCL backend."""
+    return (f"{ENV_FFT}=vkfft but pyvkfft's OpenCL backend is not importable ({why}); install "
+            "the extra: pip install 'clnlos[vkfft]' (VKFFT_BACKEND=opencl), or unset " + ENV_FFT)
+
+
+def check_vkfft_importable() -> None:
+    """A DeviceError (one line) when pyvkfft's OpenCL backend cannot be imported."""
+    try:
+        import pyvkfft.opencl  # noqa: F401  (optional dependency, imported only when asked)
+    except Exception as exc:
+        raise DeviceError(vkfft_missing(f"{type(exc).__name__}: {exc}")) from None

@@ -1,14 +1,14 @@
 """Optional on-disk cache of PSF spectra: ``CLNLOS_SPECTRUM_CACHE=DIR``.
 
 A cold reconstruction builds one or two spectra on its padded grid: the slab's F[Phi * Phi]
-(:mod:`clnlos.blur`) and, for LCT, the light cone's (:mod:`clnlos.lct`), 270 MB each at
+(:mod:`clnlos.forward.blur`) and, for LCT, the light cone's (:mod:`clnlos.inverse.lct`), 270 MB each at
 128 x 128 x 512. With the cache set, each is stored as a raw file named by a SHA-256 of
 everything that shapes it -- its kind, grid, precision and physical parameters, the kernel
 sources and Python modules that compute it, and the clnlos version -- and a later process
 with the same geometry reads it instead of recomputing it. Off by default (it spends disk);
 the folder is kept under ``CLNLOS_SPECTRUM_CACHE_MB`` (default 4096 MiB) by deleting the
 least recently used files. Files are written atomically, with the mode the umask gives a
-new file (:func:`clnlos.outputs.file_mode`).
+new file (:func:`clnlos.io.outputs.file_mode`).
 
 Each entry is a header -- ``MAGIC``, its key, the payload's size in bytes and its checksum
 (:func:`payload_checksum`) -- then the spectrum's raw bytes. A read verifies all four; an
@@ -29,9 +29,12 @@ from pathlib import Path
 
 import numpy as np
 
-ENV_DIR = "CLNLOS_SPECTRUM_CACHE"
-ENV_BUDGET = "CLNLOS_SPECTRUM_CACHE_MB"
-DEFAULT_BUDGET_MB = 4096.0
+from clnlos.errors import ParameterError
+from clnlos.io.outputs import file_mode
+from clnlos.runtime.buffers import host_view
+from clnlos.runtime.programs import code_digest
+from clnlos.settings import ENV_SPECTRUM_CACHE, Settings, current, resolve
+
 SUFFIX = ".spectrum"
 # entry header: magic, key (KEY_CHARS ASCII hex), payload bytes, the checksum's two lanes
 MAGIC = b"CLNLOS-SPECTRUM-2\n"
@@ -39,72 +42,43 @@ KEY_CHARS = 40
 HEADER = struct.Struct(f"<{len(MAGIC)}s{KEY_CHARS}sQQQ")
 CHECK_BLOCK_WORDS = 512  # 4 KiB blocks of the checksum's positional lane
 # what computes the spectra (and lays out the entries): a change to any of these
-# invalidates every entry
-SOURCE_MODULES = ("blur.py", "diffusion.py", "grid.py", "lct.py", "slab.py", "fft.py",
-                  "spectrum_cache.py")
+# invalidates every entry. Packages count whole, so a new inversion module is covered.
+SOURCE_MODULES = ("clnlos.physics", "clnlos.diffusion", "clnlos.forward.blur",
+                  "clnlos.operators", "clnlos.inverse", "clnlos.runtime.fft",
+                  "clnlos.runtime.spectrum_cache")
 SOURCE_KERNELS = ("diffusion", "lct")
 
 
-def _code_digest() -> str:
-    from clnlos import __version__
-    from clnlos.runtime.device import _source_with_headers
-
-    h = hashlib.sha256(__version__.encode())
-    here = Path(__file__).resolve().parent
-    for name in SOURCE_MODULES:
-        h.update((here / name).read_bytes())
-    for family in SOURCE_KERNELS:
-        h.update(_source_with_headers(family)[1].encode())
-    return h.hexdigest()
-
-
-def budget_bytes() -> int:
-    """The folder's byte budget from ``CLNLOS_SPECTRUM_CACHE_MB`` (a ParameterError naming
-    the variable when it is not a number >= 0)."""
-    from clnlos.errors import ParameterError
-
-    raw = os.environ.get(ENV_BUDGET, "").strip()
-    if not raw:
-        return int(DEFAULT_BUDGET_MB * 2**20)
-    try:
-        mb = float(raw)
-    except ValueError:
-        raise ParameterError(ENV_BUDGET, raw, "a number of MiB >= 0") from None
-    if not np.isfinite(mb) or mb < 0:
-        raise ParameterError(ENV_BUDGET, raw, "a number of MiB >= 0")
-    return int(mb * 2**20)
-
-
 class SpectrumCache:
-    """A folder of spectra (see the module docstring); :meth:`from_env` gives None when
+    """A folder of spectra (see the module docstring); :meth:`from_settings` gives None when
     ``CLNLOS_SPECTRUM_CACHE`` is unset."""
 
     def __init__(self, root, budget: int | None = None):
         self.root = Path(root)
-        self.budget = budget_bytes() if budget is None else int(budget)
+        self.budget = current().spectrum_cache_bytes if budget is None else int(budget)
         self._code = None
 
     @classmethod
-    def from_env(cls) -> SpectrumCache | None:
-        raw = os.environ.get(ENV_DIR, "").strip()
-        return cls(raw) if raw else None
+    def from_settings(cls, settings: Settings | None = None) -> SpectrumCache | None:
+        s = resolve(settings)
+        if s.spectrum_cache_dir is None:
+            return None
+        return cls(s.spectrum_cache_dir, s.spectrum_cache_bytes)
 
     def check(self) -> None:
         """The folder exists (or is created) and is writable: else one ParameterError."""
-        from clnlos.errors import ParameterError
-
         try:
             self.root.mkdir(parents=True, exist_ok=True)
         except OSError as exc:
-            raise ParameterError(ENV_DIR, str(self.root), f"a folder that can be created "
+            raise ParameterError(ENV_SPECTRUM_CACHE, str(self.root), f"a folder that can be created "
                                  f"({exc.strerror or exc})") from None
         if not os.access(self.root, os.W_OK | os.X_OK):
-            raise ParameterError(ENV_DIR, str(self.root), "a writable folder")
+            raise ParameterError(ENV_SPECTRUM_CACHE, str(self.root), "a writable folder")
 
     def key(self, kind: str, **params) -> str:
         """The entry name of a spectrum of ``kind`` with these parameters (JSON-able)."""
         if self._code is None:
-            self._code = _code_digest()
+            self._code = code_digest(SOURCE_MODULES, SOURCE_KERNELS)
         text = json.dumps({"kind": kind, "code": self._code, **params}, sort_keys=True,
                           default=str)
         return hashlib.sha256(text.encode()).hexdigest()[:KEY_CHARS]
@@ -116,8 +90,6 @@ class SpectrumCache:
         """Read entry ``key`` into the device array ``out_g``: True when it is there and
         verified (header and checksum, see the module docstring); False when it is missing,
         or bad -- then it is deleted, with one warning naming the file."""
-        from clnlos.runtime.device import host_view
-
         path = self._path(key)
         try:
             f = open(path, "rb")
@@ -156,9 +128,6 @@ class SpectrumCache:
         """Write ``spec_g`` as entry ``key`` (header, then the bytes; atomically, with the
         umask's mode), then prune to the budget. A failure to write (disk full) leaves no
         file and is not an error of the reconstruction."""
-        from clnlos.io.outputs import file_mode
-        from clnlos.runtime.device import host_view
-
         if HEADER.size + spec_g.nbytes > self.budget:
             return
         try:

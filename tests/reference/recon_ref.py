@@ -7,7 +7,7 @@ edges (the package builds explicit overlap matrices instead).
 
 import numpy as np
 
-from diffusion_ref import slab_transmittance_ref
+from .diffusion_ref import slab_transmittance_ref
 
 C0 = 299_792_458.0
 
