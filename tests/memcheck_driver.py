@@ -15,7 +15,8 @@ from clnlos.brdf.models import BRDFModel
 from clnlos.brdf.texture import TextureLookup, tabulate
 from clnlos.diffusion import SlabTransmittance, diffusion_psf
 from clnlos.inverse.fk import FKMigration
-from clnlos.forward.model import N_THETA, LightCone, PulseBlur, SurfaceSamples
+from clnlos.forward.sampling import N_THETA
+from clnlos.forward.model import LightCone, PulseBlur, SurfaceSamples
 from clnlos.forward.geometry import Elements
 from clnlos.inverse.lct import LCT
 from clnlos.operators.resample import AxisResample, overlap_matrix

@@ -448,7 +448,7 @@ def test_scene_surface_elements_are_bounded_before_sampling(tmp_path, monkeypatc
     ('shape = "sphere"\nradius_m = 0.1', round(4 * np.pi * 0.01 * 1e6)),
     ('shape = "letters"\ntext = "UT"\nheight_m = 0.15\nstroke_m = 0.04', None)])
 def test_element_count_bounds_what_sampling_builds(tmp_path, shape, count):
-    from clnlos.forward.model import element_count, sample_object
+    from clnlos.forward.sampling import element_count, sample_object
     from clnlos.forward.scene import Scene
 
     scene = tmp_path / "s.toml"

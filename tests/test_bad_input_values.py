@@ -492,7 +492,7 @@ def test_fuzz_recorded_slab(slab_capture, tmp_path_factory, record):
 def _first_arrival_s(scene_path):
     """The earliest round trip (s) from a scan point to an element whose front faces it,
     computed here from the scene's sampled elements (None: no element faces a point)."""
-    from clnlos.forward.model import sample_object
+    from clnlos.forward.sampling import sample_object
     from clnlos.forward.scene import Scene
 
     sc = Scene.from_toml(scene_path)

@@ -13,7 +13,9 @@ from clnlos.brdf.models import BRDFModel, retro_slice
 from clnlos.app.cli import main
 from clnlos.config import ReconstructionConfig, slab_table
 from clnlos.errors import ParameterError
-from clnlos.forward.model import N_THETA, ForwardModel, LightCone, SurfaceSamples, pulse_taps
+from clnlos.forward.sampling import N_THETA
+from clnlos.forward.model import ForwardModel, LightCone, SurfaceSamples
+from clnlos.forward.pulse import pulse_taps
 from clnlos.forward.geometry import Elements, read_mesh, sample_mesh, sample_rectangle, sample_sphere
 from clnlos.io.files import read_capture
 from clnlos.study.metrics import letters_truth_mask, mip_iou, peak_depth_m
@@ -45,7 +47,7 @@ def _samples(el, albedo=None, tables=None, material=None):
 def test_kernel_vs_reference(queue, dtype, splat, brdf, variant):
     """Both kernel shapes (work-item per scan point for CPUs, work-group per scan point with
     a local histogram for GPUs) against the float64 reference."""
-    from clnlos.forward.model import choose_lightcone_variant
+    from clnlos.forward.lightcone import choose_lightcone_variant
 
     if variant == "group":
         try:

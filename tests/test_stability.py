@@ -15,7 +15,8 @@ from clnlos.physics.slab import CDT_SLAB
 from clnlos.forward.blur import slab_blur
 from clnlos.brdf.models import BRDFModel, retro_slice
 from clnlos.inverse.fk import FKMigration
-from clnlos.forward.model import N_THETA, LightCone, SurfaceSamples
+from clnlos.forward.sampling import N_THETA
+from clnlos.forward.model import LightCone, SurfaceSamples
 from clnlos.forward.geometry import Elements
 from clnlos.inverse.lct import LCT
 from clnlos.operators.spectral import SpectralFilter

@@ -14,7 +14,7 @@ import argparse
 from pathlib import Path
 
 from clnlos.bench.harness import print_table, write_rows
-from clnlos.forward.bistatic import confocal_error_table
+from clnlos.study.confocal_error import confocal_error_table
 from clnlos.runtime.device import get_queue
 
 OUT = Path(__file__).resolve().parent / "results"

@@ -141,8 +141,14 @@ def bench_bistatic(b: Bench):
     against a float64 Eq. 8 at 8 x 16 samples and a 128^3 texture of the same scene. The
     ``transport`` row is the confocal model itself: its error is that of the approximation.
     Time grows with (rings x angles)^2 (pairs per element and scan point)."""
-    from clnlos.forward.bistatic import (FACE_ANGLES, FACE_RINGS, TEXTURE_THETA, BistaticTransport,
-                            scene_textures, study_patch_scene)
+    from clnlos.forward.bistatic import (
+        FACE_ANGLES,
+        FACE_RINGS,
+        TEXTURE_THETA,
+        BistaticTransport,
+        scene_textures,
+    )
+    from clnlos.study.confocal_error import study_patch_scene
     from clnlos.forward.model import ForwardModel, sample_scene
 
     # the study's 9.4 mm pitch (the confocal blur samples Phi on the scan grid: a coarser

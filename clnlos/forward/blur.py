@@ -16,6 +16,7 @@ from __future__ import annotations
 
 import dataclasses
 import math
+from functools import lru_cache
 
 import numpy as np
 import pyopencl.array as cla
@@ -28,6 +29,7 @@ from clnlos.errors import ParameterError
 from clnlos.physics.slab import Slab
 from clnlos.runtime.fft import COMPLEX_OF, RealFFT3
 from clnlos.runtime.buffers import copy_rows, fill_zero, host_view
+from clnlos.runtime.caches import CACHES, FORWARD_BLURS
 from clnlos.runtime.device import get_queue, has_fp64, host_threads, require_dtype
 from clnlos.operators.spectral import SpectralFilter, folded_shape
 
@@ -425,3 +427,34 @@ class TailFilledDeconvolution:
         # arrivals past n - peak are seen only by the rise of their response: not determined
         fill_zero(self.queue, x, offset_bytes=self.n_known * plane * item)
         return x[:n]
+
+
+@lru_cache(maxsize=16)
+def blur_margin(slab, window_s, pitch_m, points, tol, n_dipoles, queue) -> tuple[int, bool]:
+    """(cells per side to add so the scan grid covers the blur's reach, rounded to a
+    2-3-5-smooth size; whether that covers all of it). The margin is capped at twice the
+    scan; a capped margin needs a non-wrapping (zero-padded) lateral convolution."""
+    reach = lateral_reach_m(slab, window_s=window_s, pitch_m=pitch_m, tol=tol,
+                            n_dipoles=n_dipoles, queue=queue)
+    need = int(math.ceil(reach / pitch_m - 1e-9))
+    m = min(need, 2 * points)
+    while sfft.next_fast_len(points + 2 * m, real=True) != points + 2 * m:
+        m += 1
+    return m, m >= need
+
+
+CACHES.register("blur margins", blur_margin.cache_clear)
+
+
+def forward_blur(slab, shape, bin_width_s, pitch_m, n_dipoles, periodic, dtype_str, queue):
+    """The physical Phi * Phi operator, shared by every scene of one geometry (a study;
+    cached in :data:`clnlos.runtime.caches.FORWARD_BLURS`).
+
+    ``periodic``: the input carries the blur's reach as a margin that is cropped after the
+    blur, so the lateral convolution may wrap (no lateral padding: 4x fewer FFT cells).
+    """
+    key = (slab, shape, bin_width_s, pitch_m, n_dipoles, periodic, dtype_str, queue)
+    return FORWARD_BLURS.get(key, lambda: slab_blur(
+        slab, shape, bin_width_s=bin_width_s, pitch_m=pitch_m, mode="convolve",
+        n_dipoles=n_dipoles, periodic_xy=periodic, dtype=np.dtype(dtype_str), queue=queue),
+        queue)

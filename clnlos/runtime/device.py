@@ -255,3 +255,16 @@ def is_oclgrind(device: cl.Device) -> bool:
 
 
 
+
+
+def group_size(kernel, device, cap: int = 256) -> int:
+    """A work-group size: the kernel's preferred multiple, grown while it fits ``cap`` and the
+    kernel's and device's maxima."""
+    wg = cl.kernel_work_group_info
+    mult = max(1, kernel.get_work_group_info(wg.PREFERRED_WORK_GROUP_SIZE_MULTIPLE, device))
+    most = min(cap, kernel.get_work_group_info(wg.WORK_GROUP_SIZE, device),
+               device.max_work_group_size)
+    size = mult
+    while size * 2 <= most:
+        size *= 2
+    return max(1, min(size, most))

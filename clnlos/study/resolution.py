@@ -268,7 +268,7 @@ def budget_capture(noise_free, scene, geometry: ResolutionGeometry, grid, exposu
     """Photon counts of the patch at ``exposure_s``: the noise-free capture scaled by the
     albedo that gives the patch the photons of ``budget_area_m2`` (default: the letters'
     area), then Poisson noise and dark counts (:func:`clnlos.forward.photon_counts`)."""
-    from clnlos.forward.model import photon_counts
+    from clnlos.forward.noise import photon_counts
     from clnlos.io.files import Capture
     from clnlos.forward.scene import Detector
 

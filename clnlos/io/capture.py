@@ -1,0 +1,110 @@
+"""The one in-memory capture contract every reader returns (:mod:`clnlos.io.formats`, one
+module per file format, chosen by content): transient [t, y, x], bin width, start of bin 0
+(round trip from the scan plane), scan width, and the file's attributes (a clnlos simulation
+records its scene and slab there)."""
+
+from __future__ import annotations
+
+import json
+from dataclasses import dataclass, field
+
+import numpy as np
+
+from clnlos.config import check_geometry, parse_toml, slab_from_table
+from clnlos.errors import ClnlosError, InputFileError
+
+
+# how a capture format names the geometry it stores, when not by the Capture field's name
+# (error messages name what the file holds)
+GEOMETRY_SOURCES = {
+    "y-tal": {"bin_width_s": "delta_t / c", "start_s": "t_start / c",
+              "scan_width_m": "the scan grid's pitch x points"},
+    "lct-mat": {"bin_width_s": "variable 'bin_resolution'", "scan_width_m": "2 x variable "
+                "'width'"},
+}
+
+
+@dataclass
+class Capture:
+    """A confocal transient [t, y, x] with its time and scan geometry (SI units).
+
+    The geometry is checked on construction against the one range table the flags use
+    (:data:`clnlos.config.GEOMETRY_LIMITS`): a value out of range is an InputFileError that
+    names the source, what in it gave the value, and the allowed range."""
+
+    transient: np.ndarray
+    bin_width_s: float | None
+    start_s: float
+    scan_width_m: float | None
+    source: str = ""
+    attrs: dict = field(default_factory=dict)
+
+    def __post_init__(self):
+        from clnlos.config import check_geometry
+
+        fmt = self.attrs.get("format") if isinstance(self.attrs, dict) else None
+        labels = GEOMETRY_SOURCES.get(fmt, {})
+        for f in ("bin_width_s", "start_s", "scan_width_m"):
+            v = getattr(self, f)
+            if v is None:
+                continue
+            what = f"{labels[f]} gives {f}" if f in labels else f"attribute {f!r}"
+            try:
+                setattr(self, f, check_geometry(f, v, f))
+            except ParameterError as exc:
+                raise InputFileError(f"{self.source or 'capture'}: {what} = {v!r}: allowed "
+                                     f"{exc.allowed}") from None
+
+    def recorded_scene(self) -> dict | None:
+        """The scene a clnlos simulation recorded in the file (parsed TOML), else None; a
+        recorded scene that is not valid TOML is an InputFileError."""
+        from clnlos.config import parse_toml
+
+        text = self.attrs.get("scene")
+        if not isinstance(text, str) or not text.strip():
+            return None
+        try:
+            return parse_toml(text)
+        except ValueError as exc:
+            raise InputFileError(f"{self.source or 'capture'}: attribute 'scene' is not a "
+                                 f"valid TOML scene ({exc})") from None
+
+    def recorded_slab(self):
+        """(Slab, n_dipoles) of the slab a clnlos simulation recorded (attribute ``slab``, a
+        JSON [slab] table, or the [slab] of the recorded scene), else None. A recorded slab
+        that is not a table or does not validate is an InputFileError naming the attribute
+        (never silently "no slab")."""
+        from clnlos.config import slab_from_table
+
+        src = self.source or "capture"
+        raw = self.attrs.get("slab")
+        if raw is not None and not (isinstance(raw, str) and raw.strip().lower()
+                                    in NO_SLAB_ATTRS):
+            where, shown = "attribute 'slab'", raw
+            try:
+                table = json.loads(raw) if isinstance(raw, str) else raw
+            except (json.JSONDecodeError, RecursionError):
+                table = None
+        else:
+            scene = self.recorded_scene()
+            if not scene or "slab" not in scene:
+                return None
+            where, table = "the [slab] of attribute 'scene'", scene["slab"]
+            shown = table
+        if not isinstance(table, dict):
+            raise InputFileError(f"{src}: {where} = {_short(shown)}"
+                                 " is not a [slab] table (JSON object with thickness_m, "
+                                 "mu_a, mu_s_prime, n)")
+        try:
+            return slab_from_table(table, section="slab")
+        except ClnlosError as exc:
+            raise InputFileError(f"{src}: {where}: {exc}") from None
+
+
+NO_SLAB_ATTRS = ("", "none")  # a ``slab`` attribute that records "no slab" (None is written so)
+
+
+def _short(v, n: int = 60) -> str:
+    """repr of ``v`` cut to ``n`` characters, for error messages."""
+    r = repr(v)
+    return r if len(r) <= n else r[:n - 3] + "..."

@@ -1,0 +1,179 @@
+"""The package's shape: no import cycles, few top-level modules, settings read in one place,
+imports at the top, no private names used across modules, one registry of inversions."""
+
+from __future__ import annotations
+
+import ast
+import re
+from pathlib import Path
+
+import pytest
+
+PKG = Path(__file__).resolve().parents[1] / "clnlos"
+TOP_LEVEL_MAX = 10
+# optional dependencies that stay lazy (imported where first needed), each commented there
+LAZY_OK = ("torch", "dask", "distributed", "pyvkfft", "matplotlib", "mpl_toolkits", "h5py",
+           "scipy.io", "hypothesis", "tqdm", "PIL", "tomllib", "mitsuba", "mitransient")
+
+
+def module_name(path: Path) -> str:
+    rel = path.relative_to(PKG.parent).with_suffix("")
+    parts = list(rel.parts)
+    if parts[-1] == "__init__":
+        parts = parts[:-1]
+    return ".".join(parts)
+
+
+def modules() -> dict[str, Path]:
+    return {module_name(p): p for p in PKG.rglob("*.py")}
+
+
+def imported(node: ast.AST, here: str, is_pkg: bool, known) -> list[str]:
+    """The package modules an import statement loads (a ``from X import y`` loads X.y when
+    that is a module, else X)."""
+    if isinstance(node, ast.Import):
+        return [a.name for a in node.names if a.name.startswith("clnlos")]
+    if not isinstance(node, ast.ImportFrom):
+        return []
+    if node.level:
+        base = here.split(".") if is_pkg else here.split(".")[:-1]
+        base = base[:len(base) - (node.level - 1)]
+        mod = ".".join(base + ([node.module] if node.module else []))
+    else:
+        mod = node.module or ""
+    if not mod.startswith("clnlos"):
+        return []
+    out = []
+    for a in node.names:
+        sub = f"{mod}.{a.name}"
+        out.append(sub if sub in known else mod)
+    return out
+
+
+def import_graph() -> dict[str, set[str]]:
+    """Every import in the package, at the top and inside functions, as module -> modules
+    (``from clnlos.a import b`` names clnlos.a.b when that is a module, else clnlos.a)."""
+    mods = modules()
+    graph: dict[str, set[str]] = {}
+    for name, path in mods.items():
+        tree = ast.parse(path.read_text(encoding="utf-8"))
+        deps = set()
+        for node in ast.walk(tree):
+            deps.update(imported(node, name, path.name == "__init__.py", mods))
+        deps.discard(name)
+        graph[name] = {d for d in deps if d in mods and d != "clnlos"}
+    return graph
+
+
+def cycles(graph: dict[str, set[str]]) -> list[list[str]]:
+    """Strongly connected components with more than one module (Tarjan)."""
+    index, low, stack, on, out = {}, {}, [], set(), []
+    counter = [0]
+
+    def visit(v):
+        index[v] = low[v] = counter[0]
+        counter[0] += 1
+        stack.append(v)
+        on.add(v)
+        for w in graph.get(v, ()):
+            if w not in index:
+                visit(w)
+                low[v] = min(low[v], low[w])
+            elif w in on:
+                low[v] = min(low[v], index[w])
+        if low[v] == index[v]:
+            comp = []
+            while True:
+                w = stack.pop()
+                on.discard(w)
+                comp.append(w)
+                if w == v:
+                    break
+            if len(comp) > 1:
+                out.append(sorted(comp))
+
+    for v in sorted(graph):
+        if v not in index:
+            visit(v)
+    return out
+
+
+def test_no_import_cycles():
+    graph = import_graph()
+    found = cycles(graph)
+    assert not found, "import cycles: " + "; ".join(" <-> ".join(c) for c in found)
+    back = sorted(f"{a} <-> {b}" for a in graph for b in graph[a] if a in graph.get(b, ()))
+    assert not back, back
+
+
+def test_cycle_finder_finds_a_cycle():
+    assert cycles({"a": {"b"}, "b": {"c"}, "c": {"a"}, "d": {"a"}}) == [["a", "b", "c"]]
+    assert cycles({"a": {"b"}, "b": set()}) == []
+
+
+def test_at_most_ten_top_level_modules():
+    top = sorted(p.name for p in PKG.glob("*.py"))
+    assert len(top) <= TOP_LEVEL_MAX, top
+
+
+def test_environment_read_in_one_place():
+    """Every CLNLOS_* variable is read by clnlos.settings alone."""
+    pattern = re.compile(r"os\.environ|getenv|environ\.get")
+    readers = [str(p.relative_to(PKG)) for p in PKG.rglob("*.py")
+               if p.name != "settings.py" and any(
+                   "CLNLOS_" in line or "ENV_" in line
+                   for line in p.read_text(encoding="utf-8").splitlines()
+                   if pattern.search(line) and "dict(os.environ" not in line)]
+    assert not readers, readers
+
+
+def function_imports() -> list[str]:
+    """Imports inside functions of package modules not of a lazy optional dependency."""
+    bad = []
+    for name, path in modules().items():
+        tree = ast.parse(path.read_text(encoding="utf-8"))
+        for fn in ast.walk(tree):
+            if not isinstance(fn, (ast.FunctionDef, ast.AsyncFunctionDef)):
+                continue
+            for node in ast.walk(fn):
+                if isinstance(node, ast.Import):
+                    mods = [a.name for a in node.names]
+                elif isinstance(node, ast.ImportFrom) and not node.level:
+                    mods = [node.module or ""]
+                elif isinstance(node, ast.ImportFrom):
+                    mods = ["clnlos (relative)"]
+                else:
+                    continue
+                bad += [f"{name}:{node.lineno} {m}" for m in mods
+                        if not m.startswith(LAZY_OK)]
+    return bad
+
+
+def test_imports_at_the_top():
+    found = function_imports()
+    assert not found, found
+
+
+def test_no_private_names_across_modules():
+    """No ``from clnlos.x import _private`` and no ``obj._private(...)`` call on another
+    module's object (attributes of ``self`` and ``cls`` are a class's own)."""
+    bad = []
+    for name, path in modules().items():
+        tree = ast.parse(path.read_text(encoding="utf-8"))
+        for node in ast.walk(tree):
+            if isinstance(node, ast.ImportFrom) and (node.module or "").startswith("clnlos"):
+                bad += [f"{name}:{node.lineno} imports {a.name}" for a in node.names
+                        if a.name.startswith("_") and not a.name.startswith("__")]
+            if (isinstance(node, ast.Attribute) and node.attr.startswith("_")
+                    and not node.attr.startswith("__")
+                    and not (isinstance(node.value, ast.Name)
+                             and node.value.id in ("self", "cls"))):
+                bad.append(f"{name}:{node.lineno} uses .{node.attr}")
+    assert not bad, bad
+
+
+@pytest.mark.parametrize("needle", ["get_context", "png_bytes", "def significant"])
+def test_dead_code_stays_removed(needle):
+    hits = [str(p.relative_to(PKG)) for p in PKG.rglob("*.py")
+            if needle in p.read_text(encoding="utf-8")]
+    assert not hits, hits
