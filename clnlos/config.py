@@ -47,6 +47,8 @@ import dataclasses
 import tomllib
 from dataclasses import asdict, dataclass
 
+import numpy as np
+
 from clnlos import C0
 from clnlos.checks import (
     auto_or_positive,
@@ -218,8 +220,6 @@ def check_light_in_window(transient, bin_width_s: float, start_s: float, config,
     t = 0 and, with ``max_path_m``, start before that path: else the ParameterError names
     the start or the max path that puts all of it outside the kept window (an all-zero
     capture is left to the caller)."""
-    import numpy as np
-
     names = names or {}
     lit = np.flatnonzero(np.asarray(transient).reshape(len(transient), -1).max(axis=1) > 0)
     if lit.size == 0:

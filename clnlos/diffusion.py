@@ -31,9 +31,9 @@ from clnlos.checks import positive
 from clnlos.errors import ParameterError
 from clnlos.physics.grid import grid_offsets
 from clnlos.physics.slab import Slab, effective_reflection  # noqa: F401 (re-exported)
-from clnlos.runtime.programs import get_kernels, real_defines
-from clnlos.runtime.device import get_queue, require_dtype
 from clnlos.runtime.buffers import kernel_int, round_up
+from clnlos.runtime.device import get_queue, require_dtype
+from clnlos.runtime.programs import get_kernels, real_defines
 
 # Energy fraction of the slab response left out where it is truncated to its support.
 SUPPORT_TOL = 1e-7

@@ -7,7 +7,6 @@ import numpy as np
 import pytest
 
 from clnlos import settings
-from clnlos.runtime import buffers, fft, programs
 from clnlos.runtime import device as runtime
 
 SHARED = Path(__file__).resolve().parents[1].parent / "shared" / "data"

@@ -11,7 +11,7 @@ import numpy as np
 import pytest
 
 from clnlos import settings
-from clnlos.runtime import buffers, fft, programs
+from clnlos.runtime import fft, programs
 from clnlos.runtime import device as runtime
 from clnlos.app.cli import main
 from clnlos.errors import DeviceCapabilityError, DeviceError, KernelBuildError

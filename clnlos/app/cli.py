@@ -11,8 +11,16 @@ import argparse
 import re
 import signal
 import sys
+import warnings
 
+import pyopencl as cl
+
+from clnlos import __version__
+from clnlos.app import commands as cli_commands
 from clnlos.errors import ClnlosError
+from clnlos.io.outputs import Terminated, install_sigterm_cleanup, user_path
+from clnlos.runtime.device import list_devices, resolve_device_spec, select_device
+from clnlos.runtime.environment import check_environment
 
 EXIT_USAGE = 2
 
@@ -50,8 +58,6 @@ def _add_device(p: argparse.ArgumentParser) -> None:
 
 
 def cmd_devices(args) -> int:
-    from clnlos.runtime.device import list_devices, resolve_device_spec, select_device
-
     devs = list_devices()
     default = select_device(args.device)  # a spec that matches nothing: one-line error
     spec = resolve_device_spec(args.device)
@@ -69,8 +75,6 @@ def cmd_devices(args) -> int:
 
 
 def build_parser() -> argparse.ArgumentParser:
-    from clnlos import __version__
-
     p = _Parser(prog="clnlos", description="GPU-portable OpenCL kernels for non-line-of-sight "
                 "imaging through scattering slabs: simulate, reconstruct, study materials.")
     p.add_argument("--version", action="version", version=f"clnlos {__version__}")
@@ -79,8 +83,6 @@ def build_parser() -> argparse.ArgumentParser:
     d = sub.add_parser("devices", help="list OpenCL platforms and devices")
     _add_device(d)
     d.set_defaults(func=cmd_devices)
-
-    from clnlos.app import commands as cli_commands
 
     cli_commands.register(sub, _add_device)
     return p
@@ -92,10 +94,6 @@ def _one_line_warning(message, category, filename, lineno, file=None, line=None)
 
 
 def main(argv: list[str] | None = None) -> int:
-    import warnings
-
-    from clnlos.io.outputs import install_sigterm_cleanup
-
     warnings.showwarning = _one_line_warning
     previous = install_sigterm_cleanup()
     try:
@@ -106,17 +104,13 @@ def main(argv: list[str] | None = None) -> int:
 
 
 def _main(argv: list[str] | None) -> int:
-    from clnlos.io.outputs import Terminated, user_path
-
     parser = build_parser()
     try:
         args = parser.parse_args(argv)
         if getattr(args, "func", None) is None:  # bare `clnlos` (or a bare group)
             parser.print_help()
             return 0
-        from clnlos.runtime.environment import check_environment
-
-        check_environment()
+        args.settings = check_environment()  # CLNLOS_* read once, passed to the command
         return int(args.func(args) or 0)
     except SystemExit as exc:
         return int(exc.code) if isinstance(exc.code, int) else EXIT_USAGE
@@ -134,8 +128,6 @@ def _main(argv: list[str] | None) -> int:
         where = f"{name}: " if name else ""
         return _fail(f"{where}{(str(exc.strerror or exc).splitlines() or [''])[0]}")
     except Exception as exc:  # OpenCL runtime errors a user can cause (device memory, ...)
-        import pyopencl as cl
-
         if isinstance(exc, cl.MemoryError | cl.LogicError | cl.RuntimeError):
             return _fail(f"OpenCL error: {exc}")
         raise

@@ -5,12 +5,61 @@ prints what it wrote."""
 from __future__ import annotations
 
 import argparse
+import importlib.util
 import sys
+from dataclasses import replace
 from pathlib import Path
 
 import numpy as np
+from tqdm import tqdm
 
+from clnlos.app.demo import DEMO_FILES, demo_inputs, run_demo
+from clnlos.app.progress import counter, progress_bar
+from clnlos.app.simulate import figure_path, simulate_to_file
+from clnlos.bench import main as bench_main
+from clnlos.bench import sections_of
+from clnlos.brdf.data import CSV_COLUMNS
+from clnlos.brdf.evaluate import MODELS as EVAL_MODELS
+from clnlos.brdf.evaluate import MODES as EVAL_MODES
+from clnlos.brdf.evaluate import (
+    TRAIN_FRACTION,
+    evaluate,
+    is_rows_json,
+    measured_files,
+    summary_table,
+    write_rows,
+)
+from clnlos.brdf.fit import fit_to_file
+from clnlos.brdf.plot import brdf_figure, read_samples
+from clnlos.brdf.store import load_model
+from clnlos.brdf.texture import MAX_NODES, MIN_NODES, tabulate, write_texture
+from clnlos.checks import integer
+from clnlos.config import (
+    DEPTH_GUARD_M,
+    METHOD_FALLOFF,
+    METHODS,
+    ReconstructionConfig,
+    check_geometry,
+    check_light_in_window,
+    slab_from_table,
+    slab_table,
+)
+from clnlos.config import ReconstructionConfig as C
+from clnlos.errors import InputFileError, MissingDependencyError, OutputFileError, ParameterError
+from clnlos.forward.scene import Scene
+from clnlos.inverse.pipeline import (
+    device_bytes_needed,
+    reconstruct_to_files,
+    resolve_geometry,
+    setup_slab,
+)
+from clnlos.io.figures import volume_figure
+from clnlos.io.files import read_capture, read_volume, save_figure
 from clnlos.io.outputs import HDF5_SUFFIXES, check_outputs
+from clnlos.runtime.device import get_queue
+from clnlos.runtime.limits import capture_use, check_memory
+from clnlos.study.dataset import MAX_WORKERS, StudyGrid, check_scheduler_address
+from clnlos.study.run import LABEL_METRICS, StudyOptions, run_study
 
 DTYPES = {"float32": np.float32, "float64": np.float64}
 
@@ -22,10 +71,6 @@ EXTRAS = {"torch": ("ml", "the torch CPU wheel: pip install torch==2.13.0"),
 
 def require(module: str, what: str) -> None:
     """One line naming the extra when an optional dependency is missing."""
-    import importlib.util
-
-    from clnlos.errors import MissingDependencyError
-
     if importlib.util.find_spec(module) is None:
         extra, hint = EXTRAS[module]
         raise MissingDependencyError(
@@ -81,9 +126,6 @@ def config_from_args(args, capture=None):
     the flags' names in error messages. Without slab flags, --no-slab or a [slab] in the
     config, the slab a clnlos capture recorded is used (:func:`clnlos.reconstruct.setup_slab`).
     """
-    from clnlos.config import ReconstructionConfig, slab_from_table, slab_table
-    from clnlos.inverse.pipeline import setup_slab
-
     cfg = ReconstructionConfig.from_toml(args.config) if args.config else ReconstructionConfig()
     names = flag_names(args)
     changes = {field: getattr(args, dest) for dest, (field, _) in RECON_FLAGS.items()
@@ -108,11 +150,6 @@ def _pipeline_fits(capture, cfg, queue, dtype):
     """The check a capture reader runs with the declared size (:func:`clnlos.limits.
     capture_use`): the reconstruction's device buffers fit the device (a time axis the file
     does not store, or stores as no valid number, is left to the later checks)."""
-    from clnlos.config import check_geometry
-    from clnlos.errors import ParameterError
-    from clnlos.runtime.limits import check_memory
-    from clnlos.inverse.pipeline import device_bytes_needed
-
     def check(shape, bin_width_s, start_s):
         bw = cfg.bin_width_s if cfg.bin_width_s is not None else bin_width_s
         start = cfg.start_s if cfg.start_s is not None else start_s
@@ -134,12 +171,6 @@ def _pipeline_fits(capture, cfg, queue, dtype):
 
 
 def cmd_reconstruct(args) -> int:
-    from clnlos.config import check_light_in_window
-    from clnlos.io.files import read_capture
-    from clnlos.runtime.limits import capture_use
-    from clnlos.inverse.pipeline import reconstruct_to_files, resolve_geometry
-    from clnlos.runtime.device import get_queue
-
     out = Path(args.output)
     cfg = config_from_args(args)  # parameter errors before reading anything
     check_outputs({"-o": out, "figure": out.with_suffix(".png")},
@@ -151,8 +182,6 @@ def cmd_reconstruct(args) -> int:
         capture = read_capture(args.capture)  # the pipeline's size checked before the data
     bw, start, _ = resolve_geometry(capture, cfg, names=names)  # before the slab note
     if not np.any(capture.transient):
-        from clnlos.errors import InputFileError
-
         raise InputFileError(f"{args.capture}: the capture holds no signal (all zero): "
                              "nothing to reconstruct")
     check_light_in_window(capture.transient, bw, start, cfg, names=names,
@@ -170,8 +199,6 @@ def cmd_reconstruct(args) -> int:
 
 
 def register_reconstruct(sub, add_device) -> None:
-    from clnlos.config import DEPTH_GUARD_M, METHOD_FALLOFF, METHODS, ReconstructionConfig as C
-
     r = sub.add_parser("reconstruct", help="reconstruct a hidden volume from a capture")
     r.add_argument("capture", help="capture: clnlos or y-tal HDF5, MATLAB .mat (CDT, LCT, "
                                    "f-k layouts), NumPy .npy [t, y, x]")
@@ -235,15 +262,10 @@ def register_reconstruct(sub, add_device) -> None:
 
 # ------------------------------------------------------------------ plot
 def cmd_plot(args) -> int:
-    from clnlos.io.figures import volume_figure
-    from clnlos.io.files import read_volume, save_figure
-
     out = Path(args.output) if args.output else Path(args.volume).with_suffix(".png")
     check_outputs({"-o": out}, inputs=[args.volume], suffixes={"-o": (".png",)},
                   implied={} if args.output else {"-o": None}, force=args.force)
     if args.gamma is not None and not (np.isfinite(args.gamma) and 0 < args.gamma <= 10):
-        from clnlos.errors import ParameterError
-
         raise ParameterError("--gamma", args.gamma, "a number > 0 and <= 10")
     volume, extents, attrs = read_volume(args.volume)
     save_figure(volume_figure(volume, extents, f"{Path(args.volume).name}",
@@ -266,10 +288,6 @@ def register_plot(sub) -> None:
 
 # ------------------------------------------------------------------ simulate, demo
 def cmd_simulate(args) -> int:
-    from clnlos.runtime.device import get_queue
-    from clnlos.forward.scene import Scene
-    from clnlos.app.simulate import figure_path, simulate_to_file
-
     out = Path(args.output)
     scene = Scene.from_toml(args.scene)
     check_outputs({"-o": out, "figure": figure_path(out)},
@@ -284,13 +302,8 @@ def cmd_simulate(args) -> int:
 
 
 def cmd_demo(args) -> int:
-    from clnlos.app.demo import DEMO_FILES, demo_inputs, run_demo
-    from clnlos.runtime.device import get_queue
-
     out = Path(args.output)
     if out.exists() and not out.is_dir():
-        from clnlos.errors import OutputFileError
-
         raise OutputFileError(f"-o {out}: is a file; the demo writes a folder")
     scene, cfg = demo_inputs(args.scene, args.config)
     outs = {f"-o {name}": out / name for name in DEMO_FILES}
@@ -330,16 +343,12 @@ BRDF_MODELS = ["mlp", "mlp-seed", "five-param", "torrance-sparrow", "phong", "mi
 
 
 def cmd_brdf_fit(args) -> int:
-    from clnlos.brdf.fit import fit_to_file
-    from clnlos.brdf.plot import read_samples
-
     if args.model in ("mlp", "mlp-seed"):
         require("torch", f"brdf fit --model {args.model}")
     outs = {"-o": Path(args.output)}
     if args.metrics_json:
         outs["--metrics-json"] = Path(args.metrics_json)
     check_outputs(outs, inputs=[args.data, args.test], suffixes={"-o": HDF5_SUFFIXES})
-    from clnlos.app.progress import counter, progress_bar
 
     train = read_samples(args.data)
     test = read_samples(args.test) if args.test else None
@@ -355,10 +364,6 @@ def cmd_brdf_fit(args) -> int:
 
 
 def cmd_brdf_texture(args) -> int:
-    from clnlos.brdf.store import load_model
-    from clnlos.brdf.texture import MAX_NODES, MIN_NODES, tabulate, write_texture
-    from clnlos.checks import integer
-
     for flag, v in (("--resolution", args.resolution), ("--dphi", args.dphi),
                     ("--retro", args.retro)):
         if v is not None:
@@ -375,10 +380,6 @@ def cmd_brdf_texture(args) -> int:
 
 
 def cmd_brdf_plot(args) -> int:
-    from clnlos.brdf.plot import brdf_figure, read_samples
-    from clnlos.brdf.store import load_model
-    from clnlos.io.files import save_figure
-
     out = Path(args.output) if args.output else Path(args.model).with_suffix(".png")
     check_outputs({"-o": out}, inputs=[args.model, args.data], suffixes={"-o": (".png",)},
                   implied={} if args.output else {"-o": None}, force=args.force)
@@ -391,15 +392,9 @@ def cmd_brdf_plot(args) -> int:
 
 
 def cmd_brdf_evaluate(args) -> int:
-    from tqdm import tqdm
-
-    from clnlos.brdf.evaluate import evaluate, is_rows_json, measured_files, summary_table, write_rows
-
     if any(m in ("mlp", "mlp-seed") for m in args.models):
         require("torch", "brdf evaluate with an MLP model")
     if args.splits < 1 or args.splits > 100:
-        from clnlos.errors import ParameterError
-
         raise ParameterError("--splits", args.splits, "an integer from 1 to 100")
     out = Path(args.output)
     outs = {"-o": out, "(json)": out.with_suffix(".json")}
@@ -415,9 +410,6 @@ def cmd_brdf_evaluate(args) -> int:
 
 
 def register_brdf(sub, add_device) -> None:
-    from clnlos.brdf.data import CSV_COLUMNS
-    from clnlos.brdf.evaluate import MODELS as EVAL_MODELS, MODES as EVAL_MODES, TRAIN_FRACTION
-
     b = sub.add_parser("brdf", help="fit, tabulate and plot BRDF models")
     bs = b.add_subparsers(dest="brdf_command", required=True)
     f = bs.add_parser("fit", help="fit a model to measured data (CSV or pbrt .brdf)")
@@ -478,11 +470,6 @@ def register_brdf(sub, add_device) -> None:
 
 # ------------------------------------------------------------------ study
 def cmd_study(args) -> int:
-    from dataclasses import replace
-
-    from clnlos.checks import integer
-    from clnlos.study.dataset import MAX_WORKERS, check_scheduler_address
-
     if args.workers is not None:
         integer("--workers", args.workers, 1, MAX_WORKERS)
     if args.scheduler is not None:
@@ -490,7 +477,6 @@ def cmd_study(args) -> int:
     require("torch", "clnlos study (its CNN)")
     if args.scheduler is not None or (args.workers or 2) > 1:
         require("distributed", "clnlos study with worker processes")
-    from clnlos.study.run import StudyOptions, run_study
 
     out = Path(args.output)
     outs = {"-o report.html": out / "report.html", "-o results.json": out / "results.json"}
@@ -522,9 +508,6 @@ def cmd_study(args) -> int:
 
 
 def register_study(sub, add_device) -> None:
-    from clnlos.study.dataset import StudyGrid
-    from clnlos.study.run import LABEL_METRICS, StudyOptions
-
     quick, full = StudyOptions.quick(), StudyOptions()
     s = sub.add_parser("study", help="the material study (main job)")
     g = s.add_mutually_exclusive_group()
@@ -567,8 +550,6 @@ def register_study(sub, add_device) -> None:
 # ------------------------------------------------------------------ bench
 def cmd_bench(args) -> int:
     """Thin front of :func:`clnlos.bench.main` (runs from an installed package)."""
-    from clnlos.bench import main as bench_main, sections_of
-
     if args.only is not None:
         sections_of(args.only)  # an unknown section: one line before any work
     out = Path(args.output)

@@ -9,16 +9,22 @@ import json
 import tomllib
 from pathlib import Path
 
+from clnlos.app.simulate import simulate_to_file
+from clnlos.config import ReconstructionConfig, load_toml
+from clnlos.errors import ParameterError
+from clnlos.forward.scene import Scene
+from clnlos.inverse.pipeline import reconstruct_to_files
+from clnlos.io.files import atomic_path, read_capture
+from clnlos.io.outputs import stamp
+from clnlos.runtime.device import get_queue
+from clnlos.study.metrics import letters_truth_mask, mip_iou, peak_depth_m
+
 DEMO_FILES = ("capture.h5", "capture.png", "summary.json") + tuple(
     f"volume_{m}.{ext}" for m in ("lct", "fk", "iterative") for ext in ("h5", "png"))
 
 
 def demo_inputs(scene_path=None, config_path=None):
     """(scene, reconstruction config) of the demo: the given files or the built-in ones."""
-    from clnlos.config import ReconstructionConfig, load_toml
-    from clnlos.errors import ParameterError
-    from clnlos.forward.scene import Scene
-
     data = importlib.resources.files("clnlos").joinpath("data")
     if scene_path:
         scene = Scene.from_toml(scene_path)
@@ -38,13 +44,6 @@ def demo_inputs(scene_path=None, config_path=None):
 
 def run_demo(out_dir, scene, config, *, queue=None, log=print) -> dict:
     """Write the demo's capture, volumes, figures and summary.json into ``out_dir``."""
-    from clnlos.io.files import atomic_path, read_capture
-    from clnlos.study.metrics import letters_truth_mask, mip_iou, peak_depth_m
-    from clnlos.io.outputs import stamp
-    from clnlos.inverse.pipeline import reconstruct_to_files
-    from clnlos.runtime.device import get_queue
-    from clnlos.app.simulate import simulate_to_file
-
     queue = get_queue(queue)
     out = Path(out_dir)
     out.mkdir(parents=True, exist_ok=True)

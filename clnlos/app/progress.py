@@ -9,14 +9,14 @@ names the step that is running (set-up steps that have no count of their own).
 
 from __future__ import annotations
 
+from tqdm import tqdm
+
 PROGRESS_DELAY_S = 2.0  # a bar is shown once its job has run this long (s)
 
 
 def progress_bar(total: int | None, desc: str, unit: str):
     """A tqdm bar on stderr for ``total`` ``unit``s (None: not known yet), shown after
     PROGRESS_DELAY_S and removed when closed; use it as a context manager."""
-    from tqdm import tqdm
-
     return tqdm(total=total, desc=desc, unit=unit, delay=PROGRESS_DELAY_S, leave=False)
 
 

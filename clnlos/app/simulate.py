@@ -8,6 +8,14 @@ from pathlib import Path
 
 import numpy as np
 
+from clnlos.app.progress import progress_bar, stage
+from clnlos.errors import ParameterError
+from clnlos.forward.model import ForwardModel
+from clnlos.io.figures import transient_figure
+from clnlos.io.files import capture_attrs, save_figure_file, write_h5_file
+from clnlos.io.formats.tal import write_tal
+from clnlos.io.outputs import provenance, write_group
+
 FORMATS = ("clnlos", "tal")
 
 
@@ -28,17 +36,9 @@ def simulate_to_file(scene, out, *, fmt: str = "clnlos", dtype=np.float32, queue
                      ) -> Simulated:
     """Run the forward model of ``scene`` and write the capture (clnlos HDF5, or y-tal HDF5
     for ``fmt="tal"``) and a PNG of x-t / y-t slices beside it, atomically together."""
-    from clnlos.errors import ParameterError
-    from clnlos.io.figures import transient_figure
-    from clnlos.io.formats.tal import write_tal
-    from clnlos.forward.model import ForwardModel
-    from clnlos.io.files import capture_attrs, save_figure_file, write_h5_file
-    from clnlos.io.outputs import provenance, write_group
-
     if fmt not in FORMATS:
         raise ParameterError("--format", fmt, " or ".join(FORMATS))
     out = Path(out)
-    from clnlos.app.progress import progress_bar, stage
 
     t0 = time.perf_counter()
     fm = ForwardModel(scene, dtype=dtype, queue=queue)

@@ -18,8 +18,6 @@ import json
 import time
 from pathlib import Path
 
-from clnlos.io.outputs import stamp, write_group
-from clnlos.runtime.device import get_queue
 from clnlos.bench.harness import ROW_KEYS, Bench, print_table  # noqa: F401 (ROW_KEYS: row schema)
 from clnlos.bench.report import recommendations, write_html
 from clnlos.bench.sections import (
@@ -34,6 +32,9 @@ from clnlos.bench.sections import (
     bench_reconstruction,
     bench_roofline,
 )
+from clnlos.checks import choice
+from clnlos.io.outputs import stamp, write_group
+from clnlos.runtime.device import get_queue
 
 SECTIONS = {"diffusion": bench_diffusion, "lightcone": bench_lightcone, "brdf": bench_brdf,
             "forward": bench_model_level, "bistatic": bench_bistatic,
@@ -44,8 +45,6 @@ SECTIONS = {"diffusion": bench_diffusion, "lightcone": bench_lightcone, "brdf": 
 
 def sections_of(only: str) -> list[str]:
     """The section names of a comma-separated ``--only``, each checked (ParameterError)."""
-    from clnlos.checks import choice
-
     return [choice("--only", name.strip(), tuple(SECTIONS)) for name in only.split(",")]
 
 

@@ -18,6 +18,7 @@ from pathlib import Path
 
 import numpy as np
 
+from clnlos.io.outputs import write_group
 from clnlos.runtime.device import has_fp64, pocl_version
 
 
@@ -57,8 +58,6 @@ def timeit(fn, queue=None, *, warmup: int = 1, repeat: int = 5, min_time: float 
 def write_rows(rows: list[dict], out_dir: Path, stem: str) -> tuple[Path, Path]:
     """Write rows as CSV and JSON, atomically together (:func:`clnlos.outputs.write_group`);
     returns both paths."""
-    from clnlos.io.outputs import write_group
-
     keys: list[str] = []
     for r in rows:
         keys.extend(k for k in r if k not in keys)

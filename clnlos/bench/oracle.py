@@ -19,15 +19,19 @@ from __future__ import annotations
 import csv
 import io
 import json
-from dataclasses import dataclass
+from dataclasses import dataclass, replace
 from pathlib import Path
 
 import numpy as np
 
 from clnlos.config import ReconstructionConfig, slab_table
-from clnlos.study.metrics import mip_iou, truth_mask
+from clnlos.forward.model import ForwardModel
+from clnlos.forward.scene import Scene
+from clnlos.inverse.pipeline import reconstruct
 from clnlos.inverse.snr import combined_snr, lightcone_snr
+from clnlos.io.files import atomic_path
 from clnlos.physics.slab import CDT_SLAB
+from clnlos.study.metrics import mip_iou, truth_mask
 
 SLAB_SNRS = (1e2, 1e3, 1e4, 1e5)
 INVERSION_SNRS = (1e2, 1e3, 1e4)
@@ -95,17 +99,12 @@ ORACLE_CASES = (
 
 def simulate_case(case: OracleCase, queue=None):
     """(capture, true mask [y, x]) of a case (:class:`clnlos.forward.ForwardModel`)."""
-    from clnlos.forward.model import ForwardModel
-    from clnlos.forward.scene import Scene
-
     scene = Scene.from_dict(case.scene_dict())
     fm = ForwardModel(scene, queue=queue)
     return fm.capture(), truth_mask(fm.samples.elements, scene.scan_centres())
 
 
 def _run(capture, mask, config: ReconstructionConfig, queue) -> tuple[float, dict]:
-    from clnlos.inverse.pipeline import reconstruct
-
     rec = reconstruct(capture, config, device=queue)
     return mip_iou(rec.volume, mask)[0], rec
 
@@ -166,8 +165,6 @@ def exposure_sweep(case: OracleCase, exposures=SWEEP_EXPOSURES_S, seeds=(0, 1, 2
                    ) -> list[dict]:
     """auto IoU of each method for ``case`` at each exposure and noise seed: rows of
     (method, exposure_s, photons, seed, auto_iou, auto SNRs)."""
-    from dataclasses import replace
-
     rows = []
     kw = {} if iterations is None else {"iterations": iterations}
     for e in exposures:
@@ -206,8 +203,6 @@ def sweep_summary(rows: list[dict]) -> list[dict]:
 
 def write_rows(rows: list[dict], stem) -> tuple[Path, Path]:
     """``stem``.csv and ``stem``.json, written atomically (:func:`clnlos.io.atomic_path`)."""
-    from clnlos.io.files import atomic_path
-
     stem = Path(stem)
     stem.parent.mkdir(parents=True, exist_ok=True)
     keys = list(dict.fromkeys(k for r in rows for k in r))

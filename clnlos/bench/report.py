@@ -10,6 +10,7 @@ from pathlib import Path
 
 from clnlos.io.outputs import HTML_GENERATOR
 
+
 # ------------------------------------------------------------------ report
 def recommendations(rows) -> list[dict]:
     """For each kernel knob and target error, the cheapest OpenCL setting reaching it."""

@@ -2,21 +2,56 @@
 
 from __future__ import annotations
 
+import subprocess
+import sys
+import tempfile
+import time
+from dataclasses import replace
+from pathlib import Path
+
 import numpy as np
 import pyopencl as cl
 import pyopencl.array as cla
 
 from clnlos import C0
-from clnlos.config import slab_table
+from clnlos.bench.baselines import (
+    NumpyReconstruction,
+    TorchReconstruction,
+    numpy_lightcone,
+    numpy_transmittance,
+    ut_scene,
+)
+from clnlos.bench.harness import Bench, timeit
+from clnlos.bench.harness import rel_error as _rel
+from clnlos.bench.oracle import ORACLE_CASES, compare_method, simulate_case
+from clnlos.brdf.models import BRDFModel
+from clnlos.brdf.texture import TextureLookup, tabulate
+from clnlos.config import ReconstructionConfig, slab_table
+from clnlos.diffusion import SlabTransmittance, grid_offsets
+from clnlos.forward.bistatic import (
+    FACE_ANGLES,
+    FACE_RINGS,
+    TEXTURE_THETA,
+    BistaticTransport,
+    scene_textures,
+)
+from clnlos.forward.blur import slab_blur
+from clnlos.forward.model import ForwardModel, LightCone, sample_scene
+from clnlos.forward.scene import Scene
+from clnlos.inverse.fk import FKMigration
+from clnlos.inverse.lct import LCT
+from clnlos.inverse.pipeline import reconstruct
+from clnlos.io.files import Capture, write_capture
+from clnlos.operators.spectral import multiply_spectrum
 from clnlos.physics.slab import CDT_SLAB
-from clnlos.bench.baselines import numpy_lightcone, numpy_transmittance, ut_scene
-from clnlos.bench.harness import Bench, rel_error as _rel, timeit
+from clnlos.runtime.caches import PIPELINES
+from clnlos.runtime.fft import RealFFT3
+from clnlos.study.confocal_error import study_patch_scene
+from clnlos.study.metrics import coverage_image, mip_iou, peak_depth_m
 
 
 # ------------------------------------------------------------------ kernels
 def bench_diffusion(b: Bench):
-    from clnlos.diffusion import SlabTransmittance, grid_offsets
-
     slab = CDT_SLAB
     n, nt = {"tiny": (8, 64), "quick": (32, 256), "full": (64, 512)}[b.size]
     off = grid_offsets(n, 0.01)
@@ -38,8 +73,6 @@ def bench_diffusion(b: Bench):
 
 
 def bench_lightcone(b: Bench):
-    from clnlos.forward.model import LightCone, sample_scene
-
     pts, bins = {"tiny": (8, 128), "quick": (32, 512), "full": (32, 512)}[b.size]
     dens = {"tiny": (2.5e3, 1e4, 4e4), "quick": (2.5e3, 1e4, 4e4, 1.6e5),
             "full": (2.5e3, 1e4, 4e4, 1.6e5, 6.4e5)}[b.size]
@@ -66,9 +99,6 @@ def bench_lightcone(b: Bench):
 
 
 def bench_brdf(b: Bench):
-    from clnlos.brdf.models import BRDFModel
-    from clnlos.brdf.texture import TextureLookup, tabulate
-
     model = BRDFModel("microfacet", {"kd": 0.1, "ks": 1.0, "alpha": 0.2, "f0": 0.9})
     rng = np.random.default_rng(0)
     n = {"tiny": 20_000, "quick": 200_000, "full": 1_000_000}[b.size]
@@ -101,9 +131,6 @@ def _peak_rows(b: Bench, a: np.ndarray):
     0.05 glossy, 0.01 near-mirror, about the Starlink panel's 0.3 degree lobe): error is the
     worst relative error at the exact mirror directions (the peak value), with the L2 error over
     +-3 degrees around them and the texture's size, against the time of a random lookup."""
-    from clnlos.brdf.models import BRDFModel
-    from clnlos.brdf.texture import TextureLookup, tabulate
-
     peak_dirs, at_peak = mirror_angles()
     sizes = (16, 32, 64) if b.size == "tiny" else (16, 32, 64, 128, 256)
     for alpha in (0.2, 0.05, 0.01):
@@ -121,8 +148,6 @@ def _peak_rows(b: Bench, a: np.ndarray):
 
 def bench_model_level(b: Bench):
     """Forward model level: Lambertian confocal vs BRDF (glossy) confocal, same scene."""
-    from clnlos.forward.model import ForwardModel
-
     pts, bins = {"tiny": (8, 128), "quick": (32, 512), "full": (32, 512)}[b.size]
     ref = ForwardModel(ut_scene(pts, bins, 4e4, "painted steel plate"), queue=b.q,
                        dtype=b.dtypes[-1]).run()
@@ -141,16 +166,6 @@ def bench_bistatic(b: Bench):
     against a float64 Eq. 8 at 8 x 16 samples and a 128^3 texture of the same scene. The
     ``transport`` row is the confocal model itself: its error is that of the approximation.
     Time grows with (rings x angles)^2 (pairs per element and scan point)."""
-    from clnlos.forward.bistatic import (
-        FACE_ANGLES,
-        FACE_RINGS,
-        TEXTURE_THETA,
-        BistaticTransport,
-        scene_textures,
-    )
-    from clnlos.study.confocal_error import study_patch_scene
-    from clnlos.forward.model import ForwardModel, sample_scene
-
     # the study's 9.4 mm pitch (the confocal blur samples Phi on the scan grid: a coarser
     # pitch than the slab's few-cm footprint is a different error); full = the study scan
     pts, bins, bw = {"tiny": (2, 160, 48e-12), "quick": (8, 160, 48e-12),
@@ -193,10 +208,6 @@ def bench_bistatic(b: Bench):
 
 
 def bench_reconstruction(b: Bench):
-    from clnlos.forward.blur import slab_blur
-    from clnlos.inverse.fk import FKMigration
-    from clnlos.inverse.lct import LCT
-
     sizes = {"tiny": [16], "quick": [32, 64], "full": [32, 64, 128]}[b.size]
     slab = CDT_SLAB
     for n in sizes:
@@ -222,8 +233,6 @@ def bench_reconstruction(b: Bench):
             if dt == np.float32:
                 _bandwidth_rows(b, ops, xg, f"{shape[2]}x{shape[1]}x{shape[0]}")
         if b.size != "tiny":
-            from clnlos.bench.baselines import NumpyReconstruction, TorchReconstruction
-
             for impl, cls_ in (("numpy", NumpyReconstruction), ("torch", TorchReconstruction)):
                 p = cls_(shape, bin_width_s=dt_s, scan_width_m=0.7, slab=slab, snr=1e4,
                          lct_snr=1e4, queue=b.q)
@@ -239,8 +248,6 @@ def bench_reconstruction(b: Bench):
 
 def _bandwidth_rows(b: Bench, ops, xg, grid: str) -> None:
     """The bandwidth-bound pieces alone, with the bytes each must move at least."""
-    from clnlos.operators.spectral import multiply_spectrum
-
     w = ops["wiener"]
     spec = w.fft.forward(w._buf)
     n = spec.size
@@ -257,13 +264,6 @@ def _bandwidth_rows(b: Bench, ops, xg, grid: str) -> None:
 
 
 def bench_end_to_end(b: Bench):
-    from clnlos.config import ReconstructionConfig
-    from clnlos.forward.model import ForwardModel
-    from clnlos.io.files import Capture
-    from clnlos.study.metrics import peak_depth_m
-    from clnlos.inverse.pipeline import reconstruct
-    from clnlos.forward.scene import Scene
-
     grids = {"tiny": [(16, 64)], "quick": [(32, 128), (64, 256)],
              "full": [(32, 128), (64, 256), (128, 512)]}[b.size]
     for n, nt in grids:
@@ -306,17 +306,6 @@ def _cold_warm_rows(b: Bench, cap, cfg, err, grid: str):
     """Reconstruction alone: cold (plans built: caches cleared first), warm (plans reused),
     and the CLI in a fresh process (start-up, plans, run, HDF5 + PNG), each beside one
     r2c + c2r FFT pair of the padded grid timed in the same run."""
-    import subprocess
-    import sys
-    import tempfile
-    import time
-    from pathlib import Path
-
-    from clnlos.runtime.fft import RealFFT3
-    from clnlos.io.files import write_capture
-    from clnlos.runtime.caches import PIPELINES
-    from clnlos.inverse.pipeline import reconstruct
-
     nt, ny, nx = cap.transient.shape
     pad = (2 * cfg.bins, 2 * ny, 2 * nx)
     fft = RealFFT3(pad, np.float32, b.q)
@@ -382,12 +371,6 @@ def bench_iterative(b: Bench):
     the CDT slab (seed Table 1 scan, 0.3 m). The error is 1 - IoU of the Otsu-thresholded
     MIP with the true mask (extra fields: IoU, depth error, relative L2 error of the
     normalised MIP against the true coverage)."""
-    from clnlos.config import ReconstructionConfig
-    from clnlos.forward.model import ForwardModel
-    from clnlos.study.metrics import coverage_image, mip_iou, peak_depth_m
-    from clnlos.inverse.pipeline import reconstruct
-    from clnlos.forward.scene import Scene
-
     points, bins, bw = {"tiny": (12, 96, 64e-12), "quick": (24, 256, 32e-12),
                         "full": (32, 512, 16e-12)}[b.size]
     iters = {"tiny": (5, 20), "quick": (25, 50, 100, 200),
@@ -434,12 +417,6 @@ def bench_auto_params(b: Bench):
     """The "auto" SNRs against the oracle grid (:mod:`clnlos.bench.oracle`): per capture and
     method the time of the auto reconstruction, error = max(0, oracle IoU - auto IoU)
     (extra fields: the IoUs of auto, the oracle and the photon rule, the SNRs chosen)."""
-    from dataclasses import replace
-
-    from clnlos.bench.oracle import ORACLE_CASES, compare_method, simulate_case
-    from clnlos.config import ReconstructionConfig
-    from clnlos.inverse.pipeline import reconstruct
-
     small = (replace(ORACLE_CASES[3], points=16, bins=128, bin_width_s=64e-12),)
     cases = {"tiny": small, "quick": small, "full": ORACLE_CASES}[b.size]
     iterations = {"tiny": 20, "quick": 50, "full": None}[b.size]

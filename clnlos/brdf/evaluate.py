@@ -14,14 +14,20 @@ and fit time (s).
 
 from __future__ import annotations
 
+import csv
+import io
+import json
 import time
-from dataclasses import dataclass
+from dataclasses import asdict, dataclass, fields
 from pathlib import Path
 
 import numpy as np
 
-from clnlos.errors import InputFileError
 from clnlos.brdf.data import BRDFSamples, read_gonio_csv
+from clnlos.brdf.fit import fit_analytic, metrics_for
+from clnlos.brdf.mlp import MLPConfig, train_mlp
+from clnlos.errors import InputFileError
+from clnlos.io.files import atomic_path
 
 MODELS = ("mlp", "mlp-seed", "five-param", "torrance-sparrow")
 MODES = ("interp", "extrap")
@@ -67,8 +73,6 @@ def measured_files(directory) -> list[Path]:
 def is_rows_json(path) -> bool:
     """Whether ``path`` holds the JSON rows :func:`write_rows` writes (a list of objects with
     the fields of :class:`EvalRow`), so that a rerun may replace it."""
-    import json
-
     fields = set(EvalRow.__dataclass_fields__)
     try:
         if Path(path).stat().st_size > ROWS_JSON_MAX_BYTES:
@@ -101,19 +105,14 @@ def fit_model(name: str, train: BRDFSamples, seed: int = 0):
     """A fitted model (callable f(ti, pi, ts, ps) in 1/sr) for ``name`` in MODELS or any
     analytic model of :mod:`clnlos.brdf.fit`."""
     if name in ("mlp", "mlp-seed"):
-        from clnlos.brdf.mlp import MLPConfig, train_mlp
-
         return train_mlp(train, MLPConfig(recipe="seed" if name == "mlp-seed" else "improved",
                                           seed=seed))[0]
-    from clnlos.brdf.fit import fit_analytic
 
     return fit_analytic(name, train, seed=seed).model
 
 
 def evaluate(directory, models=MODELS, modes=MODES, splits=(0,), materials=None,
              progress=None) -> list[EvalRow]:
-    from clnlos.brdf.fit import metrics_for
-
     names = measured_sets(directory)
     if materials:
         names = [n for n in names if any(m in n for m in materials)]
@@ -156,13 +155,6 @@ def summary_table(rows: list[EvalRow]) -> str:
 
 
 def write_rows(rows: list[EvalRow], csv_path, json_path=None) -> None:
-    import csv
-    import io
-    import json
-    from dataclasses import asdict, fields
-
-    from clnlos.io.files import atomic_path
-
     buf = io.StringIO()
     w = csv.DictWriter(buf, fieldnames=[f.name for f in fields(EvalRow)])
     w.writeheader()

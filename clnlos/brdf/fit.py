@@ -8,15 +8,25 @@ starts; the best run is kept and its parameters are reported with the metrics.
 
 from __future__ import annotations
 
+import json
+import time
 from dataclasses import dataclass, field
 
 import numpy as np
 from scipy.optimize import least_squares
 
-from clnlos.errors import ParameterError
-from clnlos.brdf.data import (MIN_SIGNIFICANT, BRDFSamples, agreement, relative_error,
-                   significance_floor)
+from clnlos.brdf.data import (
+    MIN_SIGNIFICANT,
+    BRDFSamples,
+    agreement,
+    relative_error,
+    significance_floor,
+)
+from clnlos.brdf.mlp import MLPConfig, train_mlp
 from clnlos.brdf.models import BRDFModel
+from clnlos.brdf.store import save_model
+from clnlos.errors import InputFileError, ParameterError
+from clnlos.io.files import atomic_path
 
 # (parameter, lower, upper) per model; parameters not listed keep their defaults.
 FIT_SPACE = {
@@ -42,8 +52,6 @@ def check_fit_samples(model_name: str, train: BRDFSamples, test: BRDFSamples | N
     """Enough samples at or above the significance floor (where the metrics are computed):
     min_fit_samples for the training set, one for a test set; else an InputFileError
     naming the file, the count and the floor (an all-zero BRDF has none)."""
-    from clnlos.errors import InputFileError
-
     checks = (("training", train, min_fit_samples(model_name), f"the {model_name} fit needs"),
               ("test", test, 1, "its metrics need"))
     for role, s, need, who in checks:
@@ -105,7 +113,6 @@ def fit_analytic(name: str, train: BRDFSamples, test: BRDFSamples | None = None,
         name = "lambert"
     if name not in FIT_SPACE:
         raise ParameterError("model", name, " or ".join(sorted(FIT_SPACE)))
-    import time
 
     t0 = time.perf_counter()
     space = FIT_SPACE[name]
@@ -171,17 +178,8 @@ def fit_to_file(model_name: str, train, test, out, *, seed: int = 0,
     (and its metrics as JSON when asked); returns the metrics. ``progress(done, total)``
     follows the fit: epochs of the MLPs (:func:`clnlos.brdf.mlp.train_mlp`), optimiser runs of
     an analytic model (:func:`fit_analytic`)."""
-    import json
-
-    from clnlos.io.files import atomic_path
-    from clnlos.brdf.store import save_model
-
     check_fit_samples(model_name, train, test)
     if model_name in ("mlp", "mlp-seed"):
-        from clnlos.brdf.mlp import MLPConfig, train_mlp
-
-        import time
-
         t0 = time.perf_counter()
         model, log = train_mlp(train, MLPConfig(recipe="seed" if model_name == "mlp-seed"
                                                 else "improved", seed=seed),

@@ -37,6 +37,7 @@ from dataclasses import asdict, dataclass
 import numpy as np
 
 from clnlos.brdf.data import BRDFSamples, half_diff, significance_floor
+from clnlos.errors import ParameterError
 
 SEED_HIDDEN = (20, 30, 20, 10, 10)
 RECIPES = ("improved", "seed")
@@ -224,8 +225,6 @@ def train_mlp(train: BRDFSamples, cfg: MLPConfig | None = None, *,
 
     cfg = cfg or MLPConfig()
     if cfg.recipe not in RECIPES:
-        from clnlos.errors import ParameterError
-
         raise ParameterError("recipe", cfg.recipe, " or ".join(RECIPES))
     networks = cfg.members if cfg.improved else 1
 

@@ -5,14 +5,14 @@ from __future__ import annotations
 
 import numpy as np
 
+from clnlos.brdf.data import read_gonio_csv, read_pbrt_brdf
+
 PLANE_TOL_DEG = 0.6   # samples within this of the plotted incidence angle
 PLANE_SIN_TOL = 0.05  # and |sin(phi_s - phi_i)| below this (in the plane of incidence)
 
 
 def read_samples(path):
     """Measured samples: pbrt-v2 ``.brdf`` (by content of its name) or gonioreflectometer CSV."""
-    from clnlos.brdf.data import read_gonio_csv, read_pbrt_brdf
-
     p = str(path)
     return read_pbrt_brdf(p) if p.endswith(".brdf") else read_gonio_csv(p)
 

@@ -11,13 +11,14 @@ from __future__ import annotations
 import importlib.resources
 import json
 from functools import lru_cache
-
 from pathlib import Path
 
 import numpy as np
 
-from clnlos.errors import ParameterError
 from clnlos.brdf.models import BRDFModel, make_model, retro_slice
+from clnlos.brdf.texture import read_texture
+from clnlos.checks import did_you_mean
+from clnlos.errors import ParameterError
 
 # Analytic presets beside the seed's ten measured-data presets (names are case-insensitive);
 # None is the Lambertian (no BRDF table).
@@ -57,16 +58,12 @@ def material_retro(material, base_dir, n_theta: int) -> np.ndarray | None:
     if isinstance(material, dict):
         return retro_slice(make_model(material), n_theta)
     if str(material).endswith((".h5", ".hdf5")):
-        from clnlos.brdf.texture import read_texture
-
         r = read_texture(Path(base_dir) / material).retro.astype(float)
         return np.interp(np.linspace(0, 1, n_theta), np.linspace(0, 1, len(r)), r)
     key = str(material).lower()
     if key in preset_table():
         return retro_slice(preset_model(key), n_theta)
     if key not in ANALYTIC_PRESETS:
-        from clnlos.checks import did_you_mean
-
         names = material_names()
         raise ParameterError("objects.material", material, ", ".join(names) + ", a BRDF "
                              "texture .h5 or a model table" + did_you_mean(key, names))

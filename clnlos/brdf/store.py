@@ -9,18 +9,19 @@ from __future__ import annotations
 
 import json
 
+import h5py
 import numpy as np
 
-from clnlos.errors import InputFileError
+from clnlos.brdf.mlp import NeuralBRDF
 from clnlos.brdf.models import BRDFModel
+from clnlos.checks import input_file
+from clnlos.errors import InputFileError
+from clnlos.io.files import write_h5
 
 FORMAT = "clnlos-brdf-model"
 
 
 def save_model(path, model, metrics: dict, provenance: dict) -> None:
-    from clnlos.io.files import write_h5
-    from clnlos.brdf.mlp import NeuralBRDF
-
     attrs = {"format": FORMAT, "version": 1, "metrics": json.dumps(metrics),
              "provenance": json.dumps(provenance)}
     if isinstance(model, NeuralBRDF):
@@ -33,11 +34,6 @@ def save_model(path, model, metrics: dict, provenance: dict) -> None:
 
 
 def load_model(path):
-    import h5py
-
-    from clnlos.checks import input_file
-    from clnlos.brdf.mlp import NeuralBRDF
-
     path = input_file(path, "BRDF model ")
     try:
         with h5py.File(path, "r") as f:

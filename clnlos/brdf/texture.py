@@ -16,15 +16,18 @@ from __future__ import annotations
 import json
 from dataclasses import dataclass
 
+import h5py
 import numpy as np
 import pyopencl as cl
 import pyopencl.array as cla
 
+from clnlos.checks import input_file
 from clnlos.errors import InputFileError, ParameterError
+from clnlos.io.files import write_h5
+from clnlos.runtime.buffers import kernel_int, round_up
+from clnlos.runtime.device import get_queue, require_dtype
 from clnlos.runtime.limits import check_memory
 from clnlos.runtime.programs import get_kernels, real_defines
-from clnlos.runtime.device import get_queue, require_dtype
-from clnlos.runtime.buffers import kernel_int, round_up
 
 FORMAT, VERSION = "clnlos-brdf-texture", 1
 # tabulate: nodes per model evaluation (bounds its temporaries), host bytes per node of the
@@ -74,8 +77,6 @@ def tabulate(model, n_theta: int = 64, n_dphi: int = 64, n_retro: int = 256,
 
 
 def write_texture(path, tex: BRDFTexture) -> None:
-    from clnlos.io.files import write_h5
-
     write_h5(path, {"texture": tex.texture, "retro": tex.retro},
              {"format": FORMAT, "version": VERSION, "theta_range_rad": [0.0, np.pi / 2],
               "dphi_range_rad": [0.0, np.pi], "resolution": list(tex.shape),
@@ -83,10 +84,6 @@ def write_texture(path, tex: BRDFTexture) -> None:
 
 
 def read_texture(path) -> BRDFTexture:
-    import h5py
-
-    from clnlos.checks import input_file
-
     path = input_file(path, "BRDF texture ")
     try:
         with h5py.File(path, "r") as f:

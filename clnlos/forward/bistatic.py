@@ -39,17 +39,19 @@ from __future__ import annotations
 
 import math
 from dataclasses import dataclass
+from pathlib import Path
 
 import numpy as np
 import pyopencl as cl
 import pyopencl.array as cla
 
+from clnlos.brdf.models import make_model
+from clnlos.brdf.presets import ANALYTIC_PRESETS, preset_model, preset_table
+from clnlos.brdf.texture import lookup_numpy, read_texture, tabulate
 from clnlos.checks import integer
 from clnlos.diffusion import SlabTransmittance, bin_time_nodes, support_of
 from clnlos.errors import ParameterError
-from clnlos.runtime.buffers import fill_zero, kernel_int, round_up, zeros
-from clnlos.runtime.programs import get_kernels, real_defines
-from clnlos.runtime.device import get_queue, has_fp64, require_dtype, require_memory
+from clnlos.forward.sampling import material_retro
 from clnlos.forward.scene import (  # noqa: F401 (the [transport] table: defaults and limits live there)
     FACE_ANGLES,
     FACE_RINGS,
@@ -60,6 +62,9 @@ from clnlos.forward.scene import (  # noqa: F401 (the [transport] table: default
     TRANSPORT_MODELS,
     TransportSettings,
 )
+from clnlos.runtime.buffers import fill_zero, kernel_int, round_up, zeros
+from clnlos.runtime.device import get_queue, group_size, has_fp64, require_dtype, require_memory
+from clnlos.runtime.programs import get_kernels, real_defines
 
 HIST_BYTES = 64 << 20  # class histograms per chunk of scan points
 MAX_SLICES = 16       # element slices per scan point on GPUs (more work-items)
@@ -164,12 +169,6 @@ def face_quadrature(slab, *, bins: int, bin_width_s: float, rings: int = FACE_RI
 def material_texture(obj, base_dir, n_theta: int, n_dphi: int) -> np.ndarray | None:
     """The object's BRDF texture [n_theta, n_theta, n_dphi] (1/sr, the grid of
     :func:`clnlos.brdf.texture.tabulate`), or None for Lambertian."""
-    from pathlib import Path
-
-    from clnlos.brdf.models import make_model
-    from clnlos.brdf.presets import ANALYTIC_PRESETS, preset_model, preset_table
-    from clnlos.brdf.texture import lookup_numpy, read_texture, tabulate
-
     if obj.brdf_retro_csv is not None:
         raise ParameterError("transport.model", "bistatic", "'confocal' for an object with "
                              f"brdf_retro_csv = {obj.brdf_retro_csv!r} (a confocal slice, no "
@@ -239,8 +238,6 @@ class BistaticTransport:
         on GPUs each scan point's elements are split into slices until there are about
         4 x compute units x local size work-items; chunks keep the histograms under
         HIST_BYTES (and half the device's largest allocation)."""
-        from clnlos.runtime.device import group_size
-
         dev = self.queue.device
         lsz = group_size(self._k.bistatic_pairs, dev)
         n_cls, n_scan = len(self.quad.classes), self.points * self.points
@@ -331,8 +328,6 @@ def auto_choice(scene, samples, rms_m: float) -> tuple[str, str]:
     (14.1), the analytic mirror-like (0.75), brushed metal (11.3) and glossy paint (12.3);
     confocal for black anode (21.1), the aluminium diffuse plate (34.7), glass fibre,
     standard white plate, cement board, matte-dark and Lambertian (no lobe)."""
-    from clnlos.forward.sampling import material_retro
-
     if scene.slab is None:
         return "confocal", "no slab"
     for i, obj in enumerate(scene.objects):

@@ -21,17 +21,25 @@ from functools import lru_cache
 import numpy as np
 import pyopencl.array as cla
 import scipy.fft as sfft
+from scipy.signal import fftconvolve
+from scipy.special import erf
 
-from clnlos.diffusion import (SUPPORT_TOL, SlabTransmittance, bin_time_nodes, diffusion_psf,
-                        lateral_integral_profile, support_of)
-from clnlos.physics.grid import grid_offsets
+from clnlos.diffusion import (
+    SUPPORT_TOL,
+    SlabTransmittance,
+    bin_time_nodes,
+    diffusion_psf,
+    lateral_integral_profile,
+    support_of,
+)
 from clnlos.errors import ParameterError
+from clnlos.operators.spectral import SpectralFilter, folded_shape
+from clnlos.physics.grid import grid_offsets
 from clnlos.physics.slab import Slab
-from clnlos.runtime.fft import COMPLEX_OF, RealFFT3
 from clnlos.runtime.buffers import copy_rows, fill_zero, host_view
 from clnlos.runtime.caches import CACHES, FORWARD_BLURS
 from clnlos.runtime.device import get_queue, has_fp64, host_threads, require_dtype
-from clnlos.operators.spectral import SpectralFilter, folded_shape
+from clnlos.runtime.fft import COMPLEX_OF, RealFFT3
 
 
 def _padded_grid(shape, periodic_xy: bool) -> tuple[int, int, int]:
@@ -234,8 +242,6 @@ def eq8_psf(slab: Slab, shape: tuple[int, int, int], *, bin_width_s: float, pitc
     the cell-averaged Gaussian of that width at the lag's centre k dt, normalised to unit
     lateral sum (a narrow kernel keeps its energy when it is narrower than a cell).
     """
-    from scipy.special import erf
-
     phi2 = confocal_psf(slab, shape, bin_width_s=bin_width_s, pitch_m=pitch_m,
                         n_dipoles=n_dipoles, periodic_xy=periodic_xy, dtype=dtype,
                         queue=queue).get().astype(np.float64)
@@ -269,8 +275,6 @@ def lateral_reach_m(slab: Slab, *, window_s: float, pitch_m: float, tol: float =
     computed on a grid of at most 256 cells per side reaching 20 (d + 2 z_e), a bound well
     past the lateral decay length (d + 2 z_e) / pi of the slab's diffuse spot.
     """
-    from scipy.signal import fftconvolve
-
     r_max = 20.0 * (slab.thickness_m + 2.0 * slab.ze)
     pitch = max(float(pitch_m), 2.0 * r_max / 256)
     n = 2 * int(math.ceil(r_max / pitch))

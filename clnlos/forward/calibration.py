@@ -27,11 +27,16 @@ from __future__ import annotations
 import dataclasses
 from pathlib import Path
 
+import h5py
 import numpy as np
+from scipy.optimize import least_squares
+from scipy.sparse import lil_matrix
 
 from clnlos import C0
+from clnlos.diffusion import SlabTransmittance
 from clnlos.errors import InputFileError, ParameterError
 from clnlos.physics.slab import CDT_SLAB, Slab
+from clnlos.runtime.device import get_queue, has_fp64
 
 BIN_WIDTH_S = 8e-12  # histogram bin of the calibration captures (README of the data)
 INCH_M = 0.0254
@@ -59,8 +64,6 @@ def capture_name(thickness_inch: float) -> str:
 
 def read_histogram(path) -> np.ndarray:
     """The photon-count histogram (float64, 1D) of a calibration capture (MATLAB v7.3)."""
-    import h5py
-
     p = Path(path)
     if not p.is_file():
         raise InputFileError(f"calibration capture {p}: no such file")
@@ -144,9 +147,6 @@ def model_curve(slab: Slab, s_s: np.ndarray, irf_kernel: np.ndarray, t0_s: float
                 queue=None) -> np.ndarray:
     """sum_j irf[j] T(0, s - j dt - t0) at the equally spaced times ``s_s`` (1/(m^2 s),
     per unit injected energy): T on the window extended by the kernel's length, convolved."""
-    from clnlos.diffusion import SlabTransmittance
-    from clnlos.runtime.device import get_queue, has_fp64
-
     q = get_queue(queue)
     dt = np.float64 if has_fp64(q.device) else np.float32
     nk = len(irf_kernel)
@@ -207,9 +207,6 @@ def fit_slab(meas: list[Measurement], irf: ImpulseResponse, *, n: float = PUBLIS
     Starts at the given mu_s', mu_a and t0 = 0; bounds mu_s' in [10, 1e4] 1/m, mu_a in
     [0, 50] 1/m, |t0| <= T0_BOUND_S. The residual per capture is ||A m - y|| / ||y||.
     """
-    from scipy.optimize import least_squares
-    from scipy.sparse import lil_matrix
-
     if not meas:
         raise ParameterError("meas", "[]", "at least one capture")
     k = len(meas)

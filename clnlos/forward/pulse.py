@@ -13,17 +13,16 @@ import math
 
 import numpy as np
 import pyopencl.array as cla
+from scipy.special import erf
 
 from clnlos.operators.base import LinearOperator
-from clnlos.runtime.programs import get_kernels, real_defines
-from clnlos.runtime.device import get_queue, require_dtype
 from clnlos.runtime.buffers import kernel_int, round_up
+from clnlos.runtime.device import get_queue, require_dtype
+from clnlos.runtime.programs import get_kernels, real_defines
 
 
 def pulse_taps(pulse_width_s: float, bin_width_s: float) -> np.ndarray:
     """Bin-integrated Gaussian of FWHM ``pulse_width_s``, truncated at 5 sigma, unit sum."""
-    from scipy.special import erf
-
     sigma = pulse_width_s / (2 * math.sqrt(2 * math.log(2))) / bin_width_s
     K = max(1, int(math.ceil(5 * sigma)))
     edges = (np.arange(-K, K + 2) - 0.5) / (sigma * math.sqrt(2))

@@ -26,7 +26,6 @@ from clnlos.forward.geometry import (
 from clnlos.forward.scene import Scene, SceneObject, read_retro_csv
 from clnlos.runtime.limits import check_memory
 
-
 N_THETA = 256  # samples of the retro-reflection tables over [0, 90] degrees
 
 

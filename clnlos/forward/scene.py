@@ -76,8 +76,8 @@ import numpy as np
 from clnlos.brdf.data import TEXT_ENCODING
 from clnlos.checks import choice, input_file, integer, positive
 from clnlos.config import check_keys, load_toml, slab_from_table
-from clnlos.physics.slab import Slab
 from clnlos.errors import InputFileError, ParameterError
+from clnlos.physics.slab import Slab
 
 SHAPES = ("letters", "rectangle", "sphere", "mesh")
 # string sizes: the stroke font's cost grows with characters x covered cells; a file name

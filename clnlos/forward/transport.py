@@ -39,13 +39,13 @@ import scipy.sparse as sp
 
 from clnlos import C0
 from clnlos.errors import ParameterError
-from clnlos.runtime.fft import RealFFT3
 from clnlos.operators.base import LinearOperator
 from clnlos.operators.resample import AxisResample, overlap_matrix
 from clnlos.operators.spectral import multiply_spectrum
 from clnlos.runtime.buffers import Scratch, fill_zero
-from clnlos.runtime.programs import get_kernels, real_defines
 from clnlos.runtime.device import get_queue, require_dtype
+from clnlos.runtime.fft import RealFFT3
+from clnlos.runtime.programs import get_kernels, real_defines
 
 
 def signed_offsets(n: int, shift: int = 0) -> np.ndarray:

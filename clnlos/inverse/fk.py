@@ -20,12 +20,11 @@ import pyopencl.array as cla
 
 from clnlos import C0
 from clnlos.config import METHOD_FALLOFF
-from clnlos.runtime.fft import ComplexFFT3, RealFFT3
 from clnlos.inverse.lct import check_inversion_args
 from clnlos.runtime.buffers import Scratch, fill_zero, kernel_int, round_up
-from clnlos.runtime.programs import get_kernels, real_defines
 from clnlos.runtime.device import get_queue, require_dtype
-
+from clnlos.runtime.fft import ComplexFFT3, RealFFT3
+from clnlos.runtime.programs import get_kernels, real_defines
 
 # the square root of the (t/T)^p-weighted measurement is the wave
 DEFAULT_FALLOFF = METHOD_FALLOFF["fk"]

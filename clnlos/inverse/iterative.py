@@ -31,12 +31,12 @@ import pyopencl.array as cla
 
 from clnlos import C0
 from clnlos.errors import ParameterError
+from clnlos.forward.transport import LightConeTransport
 from clnlos.inverse.lct import LCT
+from clnlos.inverse.solvers import fista, lipschitz
 from clnlos.operators.base import LinearOperator
 from clnlos.runtime.buffers import Scratch
 from clnlos.runtime.device import get_queue, require_dtype
-from clnlos.inverse.solvers import fista, lipschitz
-from clnlos.forward.transport import LightConeTransport
 
 DEPTH_QUANTUM_M = 0.05  # support starts are rounded down to this, so plans are reused
 

@@ -28,16 +28,16 @@ import scipy.sparse as sp
 
 from clnlos import C0
 from clnlos.config import METHOD_FALLOFF
-from clnlos.physics.grid import grid_offsets
 from clnlos.errors import ParameterError, ShapeError
-from clnlos.runtime.fft import RealFFT3
+from clnlos.inverse.gcv import GcvBins
 from clnlos.operators.base import LinearOperator
 from clnlos.operators.resample import AxisResample, overlap_matrix
-from clnlos.runtime.buffers import Scratch, round_up
-from clnlos.runtime.programs import get_kernels, real_defines
-from clnlos.runtime.device import get_queue, require_dtype
 from clnlos.operators.spectral import SpectralFilter
-
+from clnlos.physics.grid import grid_offsets
+from clnlos.runtime.buffers import Scratch, fill_zero, kernel_int, round_up
+from clnlos.runtime.device import get_queue, require_dtype
+from clnlos.runtime.fft import RealFFT3
+from clnlos.runtime.programs import get_kernels, real_defines
 
 DEFAULT_FALLOFF = METHOD_FALLOFF["lct"]  # diffuse (Lambertian) surfaces
 DEFAULT_SNR = 1e2  # light-cone Wiener SNR when none is given
@@ -81,8 +81,6 @@ def lightcone_psf_device(nt: int, ny: int, nx: int, *, bin_width_s: float, pitch
     when given; the normalisation (sum of the kept weights) is computed on the host in
     float64. The cone reaches v = (largest lateral offset / R)^2 nt: about half the padded
     rows stay zero, which the FFT of the plan skips."""
-    from clnlos.runtime.buffers import fill_zero, kernel_int
-
     q = get_queue(queue)
     dt = require_dtype(q.device, dtype)
     R = nt * C0 * bin_width_s / 2
@@ -186,8 +184,6 @@ class LCT:
         """The light-cone Wiener SNR in [snr_min, snr_max] that generalised cross-validation
         (:mod:`clnlos.gcv`) picks for the transient ``tau`` [t, y, x] (device): V evaluated
         on the filter's own (v, y, x) grid, where the light cone is a convolution."""
-        from clnlos.inverse.gcv import GcvBins
-
         if self._gcv_bins is None:
             self._gcv_bins = GcvBins.from_gain(self.inverse_filter.gain_squared(),
                                                self.inverse_filter.pad_shape[2])

@@ -24,22 +24,24 @@ index and y with the row index (images are drawn with +x to the right and +y up)
 
 from __future__ import annotations
 
+import json
 import math
 import time
 from dataclasses import dataclass, field
+from pathlib import Path
 
 import numpy as np
 import pyopencl.array as cla
 
 from clnlos import C0
-from clnlos.forward.blur import TailFilledDeconvolution, blur_time_scales, slab_blur
+from clnlos.app.progress import progress_bar, stage
 from clnlos.config import DEPTH_GUARD_M, ReconstructionConfig, check_window
 from clnlos.errors import InputFileError, ParameterError
+from clnlos.forward.blur import TailFilledDeconvolution, blur_time_scales, slab_blur
 from clnlos.inverse.fk import FKMigration
-from clnlos.io.files import Capture
+from clnlos.inverse.gcv import GcvBins
 from clnlos.inverse.iterative import IterativeInversion
 from clnlos.inverse.lct import LCT
-from clnlos.inverse.gcv import GcvBins
 from clnlos.inverse.snr import (
     ARRIVAL_SIGMAS,
     LIGHTCONE_SNR_MAX,
@@ -52,11 +54,16 @@ from clnlos.inverse.snr import (
     estimate_noise,
     lightcone_snr,
 )
+from clnlos.io.deflate import DeflatedArray
+from clnlos.io.figures import volume_figure as figure
+from clnlos.io.files import Capture, save_figure_file, write_h5_file
+from clnlos.io.outputs import provenance, write_group
 from clnlos.operators.resample import AxisResample, overlap_matrix
-from clnlos.runtime.spectrum_cache import SpectrumCache
 from clnlos.runtime.buffers import Scratch, host_view, round_up
-from clnlos.runtime.programs import get_kernels, real_defines
+from clnlos.runtime.caches import PIPELINES
 from clnlos.runtime.device import get_queue, require_dtype
+from clnlos.runtime.programs import get_kernels, real_defines
+from clnlos.runtime.spectrum_cache import SpectrumCache
 
 
 @dataclass
@@ -431,10 +438,6 @@ def reconstruct(capture: Capture, config: ReconstructionConfig, *, dtype=np.floa
     ``progress(k, n)`` follows the iterative method's iterations and ``setup(step)`` names
     each set-up step (pipeline, operator, step size, warm start) as it starts.
     """
-    from clnlos.runtime.caches import PIPELINES
-
-    import json
-
     bw, start, sw = resolve_geometry(capture, config)
     queue = get_queue(device)
     key = (capture.transient.shape, bw, start, sw, json.dumps(config.as_attrs(), sort_keys=True),
@@ -448,15 +451,11 @@ def reconstruct(capture: Capture, config: ReconstructionConfig, *, dtype=np.floa
 
 def volume_figure(rec: Reconstruction, title: str = ""):
     """The figure of a reconstruction (:func:`clnlos.figures.volume_figure`)."""
-    from clnlos.io.figures import volume_figure as figure
-
     return figure(rec.volume, rec.extents, title)
 
 
 def volume_attrs(rec: Reconstruction) -> dict:
     """The HDF5 attributes of a volume file (format clnlos-volume-1)."""
-    import json
-
     return {**rec.extents, "bin_width_s": rec.bin_width_s, "scan_width_m": rec.scan_width_m,
             "stages": json.dumps(rec.stages), "timings_s": json.dumps(rec.timings_s),
             "params": json.dumps(rec.params), "noise": json.dumps(rec.noise),
@@ -478,14 +477,6 @@ def reconstruct_to_files(capture: Capture, out, config: ReconstructionConfig, *,
     """Reconstruct and write the volume (HDF5) and its figure (PNG beside it) together,
     atomically, with the provenance of the result; the iterative method shows a progress
     bar (:mod:`clnlos.progress`), its set-up steps beside it, then its iterations."""
-    from pathlib import Path
-
-    from clnlos.io.deflate import DeflatedArray
-    from clnlos.io.figures import volume_figure as figure
-    from clnlos.io.files import save_figure_file, write_h5_file
-    from clnlos.io.outputs import provenance, write_group
-    from clnlos.app.progress import progress_bar, stage
-
     out = Path(out)
     queue = get_queue(queue)
     bar = None

@@ -28,6 +28,7 @@ import math
 from dataclasses import dataclass, field
 
 import numpy as np
+import pyopencl as cl
 import pyopencl.array as cla
 
 from clnlos.operators.base import LinearOperator
@@ -194,8 +195,6 @@ def fista(op: LinearOperator, y: cla.Array, x0: cla.Array, *, l1: float = 0.0,
 
 def cla_copy(dst: cla.Array, src: cla.Array) -> None:
     """Device-to-device copy of equal-sized arrays."""
-    import pyopencl as cl
-
     cl.enqueue_copy(dst.queue, dst.base_data, src.base_data, byte_count=src.nbytes,
                     src_offset=src.offset, dst_offset=dst.offset)
 

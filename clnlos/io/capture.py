@@ -11,8 +11,7 @@ from dataclasses import dataclass, field
 import numpy as np
 
 from clnlos.config import check_geometry, parse_toml, slab_from_table
-from clnlos.errors import ClnlosError, InputFileError
-
+from clnlos.errors import ClnlosError, InputFileError, ParameterError
 
 # how a capture format names the geometry it stores, when not by the Capture field's name
 # (error messages name what the file holds)
@@ -40,8 +39,6 @@ class Capture:
     attrs: dict = field(default_factory=dict)
 
     def __post_init__(self):
-        from clnlos.config import check_geometry
-
         fmt = self.attrs.get("format") if isinstance(self.attrs, dict) else None
         labels = GEOMETRY_SOURCES.get(fmt, {})
         for f in ("bin_width_s", "start_s", "scan_width_m"):
@@ -58,8 +55,6 @@ class Capture:
     def recorded_scene(self) -> dict | None:
         """The scene a clnlos simulation recorded in the file (parsed TOML), else None; a
         recorded scene that is not valid TOML is an InputFileError."""
-        from clnlos.config import parse_toml
-
         text = self.attrs.get("scene")
         if not isinstance(text, str) or not text.strip():
             return None
@@ -74,8 +69,6 @@ class Capture:
         JSON [slab] table, or the [slab] of the recorded scene), else None. A recorded slab
         that is not a table or does not validate is an InputFileError naming the attribute
         (never silently "no slab")."""
-        from clnlos.config import slab_from_table
-
         src = self.source or "capture"
         raw = self.attrs.get("slab")
         if raw is not None and not (isinstance(raw, str) and raw.strip().lower()
@@ -108,3 +101,14 @@ def _short(v, n: int = 60) -> str:
     """repr of ``v`` cut to ``n`` characters, for error messages."""
     r = repr(v)
     return r if len(r) <= n else r[:n - 3] + "..."
+
+
+def plain_attr(v):
+    """An HDF5 attribute as a plain Python value."""
+    if isinstance(v, bytes):
+        return v.decode("utf-8", "replace")
+    if isinstance(v, np.generic):
+        return v.item()
+    if isinstance(v, np.ndarray):
+        return v.tolist()
+    return v

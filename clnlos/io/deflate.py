@@ -18,6 +18,8 @@ from concurrent.futures import Future, ThreadPoolExecutor
 
 import numpy as np
 
+from clnlos.runtime.device import host_threads
+
 GZIP_LEVEL = 1  # fast; with the shuffle filter smaller than level 4 without it on volumes
 CHUNK_BYTES = 1 << 20  # chunks of about 1 MB along the first axis
 MIN_PARALLEL_BYTES = 4 * CHUNK_BYTES  # smaller arrays go through h5py directly
@@ -47,8 +49,6 @@ class DeflatedArray:
     stores it as a dataset (chunked, shuffle + gzip ``level``)."""
 
     def __init__(self, array: np.ndarray, *, level: int = GZIP_LEVEL, threads: int | None = None):
-        from clnlos.runtime.device import host_threads
-
         self.array = np.ascontiguousarray(array)
         self.level = int(level)
         a = self.array

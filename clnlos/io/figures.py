@@ -5,7 +5,12 @@ matplotlib is imported only here, only when a figure is drawn (never on the comp
 
 from __future__ import annotations
 
+import io
+import sys
+
 import numpy as np
+
+from clnlos.io.raster import Panel, RasterFigure
 
 DEPTH_MAP_FLOOR = 0.1  # the depth map shows columns whose MIP is at least this of its max
 
@@ -22,10 +27,6 @@ def new_figure(rows: int, cols: int, figsize):
 def close_figure(fig) -> None:
     """Release a figure: pyplot keeps figures it made until closed; plain Figures and
     :class:`clnlos.raster.RasterFigure` need nothing."""
-    import sys
-
-    from clnlos.io.raster import RasterFigure
-
     plt = sys.modules.get("matplotlib.pyplot")
     if plt is not None and not isinstance(fig, RasterFigure):
         plt.close(fig)
@@ -50,8 +51,6 @@ def volume_figure(volume: np.ndarray, extents: dict, title: str = "", *,
     is at least DEPTH_MAP_FLOOR of its maximum), x-z and y-z projections: a
     :class:`clnlos.raster.RasterFigure` (drawn with Pillow in a few tens of milliseconds;
     saved like a matplotlib figure)."""
-    from clnlos.io.raster import Panel, RasterFigure
-
     e = extents
     xy = (e["x_min_m"], e["x_max_m"], e["y_min_m"], e["y_max_m"])
     raw_mip = volume.max(axis=0)
@@ -95,8 +94,6 @@ def transient_figure(tau: np.ndarray, *, width_m: float, start_s: float, bin_wid
 
 def png_bytes(fig, dpi: int = 110) -> bytes:
     """Render a figure to PNG bytes and close it."""
-    import io
-
     buf = io.BytesIO()
     fig.savefig(buf, format="png", dpi=dpi, bbox_inches="tight")
     close_figure(fig)

@@ -9,47 +9,30 @@ from __future__ import annotations
 import contextlib
 import json
 import os
-from dataclasses import dataclass, field
 from pathlib import Path
 
+import h5py
 import numpy as np
 
-from clnlos.errors import ClnlosError, InputFileError, ParameterError
-from clnlos.io.capture import Capture
-
-
-
-
-
-
-
-
+from clnlos.errors import InputFileError
+from clnlos.io.capture import Capture, plain_attr
+from clnlos.io.deflate import write_dataset
+from clnlos.io.figures import close_figure
+from clnlos.io.formats import read_capture as read
+from clnlos.io.outputs import png_metadata, write_group
 
 
 def read_capture(path: str | os.PathLike) -> Capture:
     """Read a capture of any supported format (:func:`clnlos.formats.read_capture`)."""
-    from clnlos.io.formats import read_capture as read
-
     return read(path)
 
 
-def plain_attr(v):
-    """An HDF5 attribute as a plain Python value."""
-    if isinstance(v, bytes):
-        return v.decode("utf-8", "replace")
-    if isinstance(v, np.generic):
-        return v.item()
-    if isinstance(v, np.ndarray):
-        return v.tolist()
-    return v
 
 
 @contextlib.contextmanager
 def atomic_path(path: str | os.PathLike):
     """Yield a temporary path beside ``path``; rename it onto ``path`` (with the mode the
     umask gives a new file) only on success."""
-    from clnlos.io.outputs import write_group
-
     with write_group([Path(path)]) as (tmp,):
         yield tmp
 
@@ -66,10 +49,6 @@ def write_h5_file(path, datasets: dict, attrs: dict) -> Path:
     """Write datasets (arrays, or :class:`clnlos.deflate.DeflatedArray` already being
     compressed) and file attributes to ``path`` (not atomic: see write_h5); gzip + shuffle,
     large arrays compressed in parallel (:mod:`clnlos.deflate`)."""
-    import h5py
-
-    from clnlos.io.deflate import write_dataset
-
     with h5py.File(path, "w") as f:
         for name, arr in datasets.items():
             write_dataset(f, name, arr)
@@ -106,9 +85,6 @@ def save_figure_file(fig, path) -> Path:
     """Save a figure (matplotlib, or :class:`clnlos.raster.RasterFigure`) as PNG to
     ``path``, marked as clnlos's (:func:`clnlos.outputs.png_metadata`), and close it (not
     atomic)."""
-    from clnlos.io.figures import close_figure
-    from clnlos.io.outputs import png_metadata
-
     fig.savefig(path, format="png", dpi=110, bbox_inches="tight", metadata=png_metadata())
     close_figure(fig)
     return Path(path)
@@ -123,10 +99,6 @@ def save_figure(fig, path) -> Path:
 
 def read_volume(path) -> tuple[np.ndarray, dict, dict]:
     """(volume [z, y, x], extents, attributes) of a volume file written by reconstruct."""
-    import h5py
-
-    from clnlos.errors import InputFileError
-
     path = Path(path)
     if not path.is_file():
         raise InputFileError(f"{path}: no such file")

@@ -29,6 +29,9 @@ import tempfile
 from collections.abc import Callable
 from pathlib import Path
 
+import h5py
+
+from clnlos import __version__
 from clnlos.errors import OutputFileError
 
 HDF5_SUFFIXES = (".h5", ".hdf5", ".he5")
@@ -60,15 +63,11 @@ def _existing_parent(p: Path) -> Path:
 
 def png_metadata() -> dict:
     """PNG text chunks of a figure clnlos saves (what :func:`written_by_clnlos` looks for)."""
-    from clnlos import __version__
-
     return {"Software": f"{PNG_SOFTWARE} {__version__}"}
 
 
 def stamp(doc: dict) -> dict:
     """A JSON document with the clnlos version as its first key (its marker)."""
-    from clnlos import __version__
-
     return {VERSION_KEY: __version__, **{k: v for k, v in doc.items() if k != VERSION_KEY}}
 
 
@@ -87,8 +86,6 @@ def _png_software(head: bytes) -> str | None:
 
 
 def _h5_is_clnlos(path: Path) -> bool:
-    import h5py
-
     try:
         with h5py.File(path, "r") as f:
             fmt = f.attrs.get("format", b"")
@@ -299,8 +296,6 @@ def git_commit() -> str | None:
 
 def provenance(*, capture=None, device: str | None = None) -> dict:
     """clnlos version, git commit (in a checkout), absolute input path, device, UTC time."""
-    from clnlos import __version__
-
     p = {"clnlos_version": __version__,
          "created_utc": datetime.datetime.now(datetime.UTC).isoformat(
              timespec="seconds")}

@@ -17,6 +17,8 @@ import math
 from dataclasses import dataclass
 
 import numpy as np
+from PIL import Image, ImageDraw, ImageFont
+from PIL.PngImagePlugin import PngInfo
 
 # viridis (van der Walt & Smith, CC0), sampled at 17 equally spaced points; linear
 # interpolation between them is within 6/255 of the 256-entry map
@@ -87,8 +89,6 @@ class RasterFigure:
 
     def __init__(self, panels: list[Panel], *, suptitle: str = "", width_px: int = 1800,
                  height_px: int = 440):
-        from PIL import Image, ImageDraw, ImageFont
-
         self._Image, self._ImageDraw = Image, ImageDraw
         self.canvas = Image.new("RGB", (int(width_px), int(height_px)), BACKGROUND)
         self.draw = ImageDraw.Draw(self.canvas)
@@ -187,8 +187,6 @@ class RasterFigure:
                 **_ignored) -> None:
         """Write the canvas as PNG to a path or a binary file object, with ``metadata``
         (keyword -> text) as PNG tEXt chunks."""
-        from PIL.PngImagePlugin import PngInfo
-
         info = PngInfo()
         for k, v in (metadata or {}).items():
             info.add_text(k, v)

@@ -15,9 +15,9 @@ import scipy.sparse as sp
 
 from clnlos.errors import ShapeError
 from clnlos.operators.base import LinearOperator
-from clnlos.runtime.programs import get_kernels, real_defines
-from clnlos.runtime.device import get_queue, require_dtype
 from clnlos.runtime.buffers import kernel_int, round_up, zeros
+from clnlos.runtime.device import get_queue, require_dtype
+from clnlos.runtime.programs import get_kernels, real_defines
 
 
 def overlap_matrix(src_edges, dst_edges) -> sp.csr_matrix:

@@ -21,12 +21,12 @@ import pyopencl.array as cla
 import scipy.sparse as sp
 
 from clnlos.errors import ParameterError, ShapeError
-from clnlos.runtime.fft import RealFFT3
 from clnlos.operators.base import LinearOperator
 from clnlos.operators.resample import AxisResample
-from clnlos.runtime.buffers import fill_zero, kernel_int, Scratch, round_up
-from clnlos.runtime.programs import get_kernels, real_defines
+from clnlos.runtime.buffers import Scratch, fill_zero, kernel_int, round_up
 from clnlos.runtime.device import get_queue, require_dtype
+from clnlos.runtime.fft import RealFFT3
+from clnlos.runtime.programs import get_kernels, real_defines
 
 
 def folded_shape(spec_shape) -> tuple[int, int, int]:

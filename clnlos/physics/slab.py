@@ -10,10 +10,11 @@ import math
 from dataclasses import dataclass
 from functools import lru_cache
 
+import numpy as np
+
 from clnlos import C0
 from clnlos.checks import positive
 from clnlos.errors import ParameterError
-
 
 FRESNEL_NODES = 64  # Gauss-Legendre nodes of the R_eff integrals (exact to ~1e-13)
 
@@ -21,8 +22,6 @@ FRESNEL_NODES = 64  # Gauss-Legendre nodes of the R_eff integrals (exact to ~1e-
 def fresnel_inside(theta, n: float):
     """Unpolarised Fresnel reflectance from inside a medium of relative index n at internal
     angle theta (< the critical angle; numpy, vectorised)."""
-    import numpy as np
-
     ci = np.cos(theta)
     st = n * np.sin(theta)
     ct = np.sqrt(np.maximum(0.0, 1.0 - st * st))
@@ -43,8 +42,6 @@ def effective_reflection(n: float) -> float:
     and cos^3 th_c; below it the substitution th = th_c - s^2 removes the square-root kink
     of R_F at th_c and Gauss-Legendre in s converges exponentially. Returns 0 for n = 1.
     """
-    import numpy as np
-
     n = float(n)
     if n == 1.0:
         return 0.0

@@ -4,11 +4,19 @@ geometry (:mod:`clnlos.forward.bistatic` as truth)."""
 from __future__ import annotations
 
 import math
+import time
 
 import numpy as np
 
+from clnlos.brdf.presets import preset_names
+from clnlos.config import slab_table
 from clnlos.forward.bistatic import face_quadrature, footprint_spread_rad, lobe_halfwidth_rad
-
+from clnlos.forward.model import ForwardModel
+from clnlos.forward.sampling import material_retro
+from clnlos.forward.scene import Scene
+from clnlos.physics.slab import CDT_SLAB
+from clnlos.study.dataset import StudyGrid
+from clnlos.study.run import MAIN_TARGET
 
 # ------------------------------------------------------------------ Eq. 9 against Eq. 8
 # The issue's specular test scene at the study geometry (clnlos.study: 0.3 m scan of 32 x 32
@@ -31,12 +39,6 @@ def study_patch_scene(material, model: str = "confocal", *, points: int | None =
                       width_m: float | None = None, transport: dict | None = None):
     """:data:`ERROR_PATCH` of ``material`` at the study geometry (scan points, width and
     bin width overridable), ``[transport] model``."""
-    from clnlos.config import slab_table
-    from clnlos.forward.scene import Scene
-    from clnlos.physics.slab import CDT_SLAB
-    from clnlos.study.dataset import StudyGrid
-    from clnlos.study.run import MAIN_TARGET
-
     g = StudyGrid()
     obj = {**ERROR_PATCH, "translate_m": [0.0, 0.0, MAIN_TARGET["depth_m"]],
            "material": material}
@@ -63,10 +65,6 @@ def confocal_error(material, *, points: int | None = None, refine: bool = True,
     the normalised transients at the brightest point), ``eq8_quadrature_error`` (relative L2
     of Eq. 8 at the defaults against REFINED; only with ``refine``), the "auto" rule's
     numbers and choice, and seconds of each model."""
-    import time
-
-    from clnlos.forward.model import ForwardModel
-
     out = {"material": material}
     runs = {}
     models = [("confocal", None), ("bistatic", None)] + ([("bistatic", REFINED)] if refine
@@ -92,7 +90,6 @@ def confocal_error(material, *, points: int | None = None, refine: bool = True,
     quad = face_quadrature(auto.scene.slab, bins=auto.scene.bins,
                            bin_width_s=auto.scene.bin_width_s, rings=1, angles=1,
                            queue=auto.queue)
-    from clnlos.forward.sampling import material_retro
 
     retro = material_retro(auto.scene.objects[0], auto.scene.base_dir)
     z = float(auto.samples.elements.pos[:, 2].min())
@@ -104,6 +101,4 @@ def confocal_error(material, *, points: int | None = None, refine: bool = True,
 
 def confocal_error_table(materials=None, **kw) -> list[dict]:
     """:func:`confocal_error` for each material (default: the seed's ten presets)."""
-    from clnlos.brdf.presets import preset_names
-
     return [confocal_error(m, **kw) for m in (materials or preset_names())]

@@ -26,15 +26,24 @@ import warnings
 import zipfile
 import zlib
 from dataclasses import asdict, dataclass
+from importlib import resources
 from pathlib import Path
 
 import numpy as np
+from tqdm import tqdm
 
-from clnlos import C0
+from clnlos import C0, __version__
 from clnlos.config import ReconstructionConfig
-from clnlos.study.metrics import coverage_image, iou, otsu_threshold, peak_depth_m
+from clnlos.errors import ParameterError
+from clnlos.forward.model import ForwardModel
+from clnlos.forward.scene import Scene
+from clnlos.inverse.pipeline import reconstruct
+from clnlos.io.files import atomic_path
+from clnlos.io.outputs import install_sigterm_cleanup
 from clnlos.physics.slab import CDT_SLAB
+from clnlos.runtime.device import get_queue
 from clnlos.study.legibility import box_baseline_iou
+from clnlos.study.metrics import coverage_image, iou, otsu_threshold, peak_depth_m
 from clnlos.study.quality import METRICS, quality_metrics
 
 
@@ -63,10 +72,6 @@ def code_version() -> str:
     """clnlos version and a hash of what shapes a sample's result (every kernel source, the
     package's stage modules, the BRDF package and presets, this module and the quality
     metrics): part of each cache key, so results computed by other code are never reused."""
-    from importlib import resources
-
-    from clnlos import __version__
-
     h = hashlib.sha256(__version__.encode())
     files = []
     for pkg, suffixes in (("clnlos.kernels", (".cl", ".h")), ("clnlos", (".py",)),
@@ -166,11 +171,6 @@ def scene_dict(sample: dict, grid: StudyGrid) -> dict:
 
 def render_sample(sample: dict, grid: StudyGrid, device: str | None = None) -> dict:
     """Simulate, reconstruct and score one sample; returns arrays and numbers."""
-    from clnlos.forward.model import ForwardModel
-    from clnlos.inverse.pipeline import reconstruct
-    from clnlos.runtime.device import get_queue
-    from clnlos.forward.scene import Scene
-
     queue = get_queue(device)
     scene = Scene.from_dict(scene_dict(sample, grid))
     fm = ForwardModel(scene, queue=queue)
@@ -295,7 +295,6 @@ def _cached(sample: dict, grid: StudyGrid, cache: Path, version: str,
     if res is not None:
         return res, None
     res = render_sample(sample, grid, device)
-    from clnlos.io.files import atomic_path
 
     entry = {k: np.asarray(v) for k, v in res.items()}
     entry[ENTRY_CHECKSUM] = np.asarray(result_checksum(entry))
@@ -326,8 +325,6 @@ def run_samples(samples: list[dict], grid: StudyGrid, cache: Path, *, workers: i
                 desc: str = "samples") -> list[dict]:
     """Render every sample (cached), serially, on local Dask processes (workers x threads =
     cores), or on an existing cluster."""
-    from tqdm import tqdm
-
     cache.mkdir(parents=True, exist_ok=True)
     version = code_version()
     if scheduler is None and workers <= 1:
@@ -361,14 +358,10 @@ def run_samples(samples: list[dict], grid: StudyGrid, cache: Path, *, workers: i
         try:
             client = Client(scheduler)
         except (OSError, TimeoutError, ValueError) as exc:  # nothing there, refused, ...
-            from clnlos.errors import ParameterError
-
             why = str(exc).splitlines()[0] if str(exc) else type(exc).__name__
             raise ParameterError("--scheduler", scheduler, "the address of a running Dask "
                                  f"scheduler (connecting failed: {why})") from None
     try:
-        from clnlos.io.outputs import install_sigterm_cleanup
-
         # a worker stopped by SIGTERM removes the cache entry it was writing
         client.run(install_sigterm_cleanup, chain=True)
         futs = [client.submit(_cached, s, grid, cache, version, device, pure=False)
@@ -428,8 +421,6 @@ MAX_WORKERS = 256  # local worker processes at most
 def check_scheduler_address(name: str, address) -> str:
     """A Dask scheduler address: ``[tcp://|tls://]host:port`` (port 1-65535; ``inproc://``,
     ``ucx://`` and ``ws[s]://`` addresses as Dask writes them); else a ParameterError."""
-    from clnlos.errors import ParameterError
-
     allowed = "a Dask scheduler address such as tcp://host:8786"
     if not isinstance(address, str) or not address.strip() or any(c.isspace()
                                                                    for c in address):

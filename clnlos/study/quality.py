@@ -25,8 +25,8 @@ from __future__ import annotations
 
 import numpy as np
 
-from clnlos.study.metrics import otsu_threshold
 from clnlos.study.clarity import clarity_score
+from clnlos.study.metrics import otsu_threshold
 
 BORDER_CELLS = 3
 METRICS = ("nr_clarity", "otsu_separability", "central_energy", "depth_coherence",

@@ -38,11 +38,22 @@ from dataclasses import replace
 from pathlib import Path
 
 import numpy as np
+from scipy import ndimage
 
-from clnlos.config import ReconstructionConfig
+from clnlos.config import ReconstructionConfig, slab_table
 from clnlos.errors import ParameterError
+from clnlos.forward.geometry import text_extent
+from clnlos.forward.model import ForwardModel
+from clnlos.forward.scene import Scene
+from clnlos.inverse.pipeline import reconstruct
+from clnlos.io.figures import new_figure
+from clnlos.io.files import Capture, read_capture, save_figure
 from clnlos.physics.slab import CDT_SLAB
-from clnlos.study.resolution import ResolutionGeometry, fwhm_1d
+from clnlos.runtime.device import get_queue
+from clnlos.study.dataset import StudyGrid
+from clnlos.study.metrics import iou, otsu_threshold
+from clnlos.study.quality import otsu_separability
+from clnlos.study.resolution import ResolutionGeometry, chart_features, fwhm_1d
 
 # Published acquisition parameters of the real CDT captures (the data's cdt/README.md)
 PUBLISHED_SCAN_WIDTH_M = {"letters_ut": 0.7, "letter_s": 0.6, "resolution_70": 0.7}
@@ -122,10 +133,6 @@ def estimate_letters(volume: np.ndarray, extents: dict, text: str = "UT") -> dic
     ``text``. Strokes follow the seed's stroke / height ratio. Returns ``{"text", "fit",
     "letters": [{"text", "height_m", "stroke_m", "centre_m": [x, y], "depth_m",
     "tilt_deg"}]}`` (tilt: rotation about y, scene convention)."""
-    from scipy import ndimage
-
-    from clnlos.study.metrics import otsu_threshold
-
     e = extents
     mip = np.asarray(volume, np.float64).max(axis=0)
     mask = mip > otsu_threshold(mip)
@@ -154,8 +161,6 @@ def estimate_letters(volume: np.ndarray, extents: dict, text: str = "UT") -> dic
 
 def _plane_letters(mask: np.ndarray, depth_map: np.ndarray, extents: dict, text: str) -> dict:
     """``text`` as one tilted plane over ``mask`` (:func:`estimate_letters`)."""
-    from clnlos.forward.geometry import text_extent
-
     e = extents
     dx, dy = _grid_axes(mask, e)
     rows, cols = np.nonzero(mask)
@@ -176,9 +181,6 @@ def comparable_scene(capture, name: str, letters: dict, grid):
     """The simulated scene: the capture's scan (published width, its points) and bins,
     the Lambertian ``letters`` (:func:`estimate_letters`) behind the published slab, the
     grid's pulse and sampling."""
-    from clnlos.config import slab_table
-    from clnlos.forward.scene import Scene
-
     nt, ny, nx = capture.transient.shape
     objects = [{"shape": "letters", "text": L["text"], "height_m": L["height_m"],
                 "stroke_m": L["stroke_m"], "translate_m": [*L["centre_m"], L["depth_m"]],
@@ -196,9 +198,6 @@ def simulate_comparable(capture, name: str, letters: dict, photons: float, grid,
                         seed: int = 0):
     """A simulated capture of :func:`comparable_scene` with Poisson counts whose expected
     total is ``photons`` (no recorded slab: reconstructed like the real file)."""
-    from clnlos.forward.model import ForwardModel
-    from clnlos.io.files import Capture
-
     scene = comparable_scene(capture, name, letters, grid)
     tau = ForwardModel(scene, queue=queue).run().astype(np.float64)
     lam = tau * (photons / tau.sum())
@@ -249,13 +248,6 @@ def compare_real_capture(path, method: str = "lct", *, iterations: int | None = 
     plus ``arrays`` for :func:`real_capture_figure` (not JSON: pop it before writing):
     ``time_s``, ``profile``/``xt``/``mip`` for ``real`` and ``simulated``, ``extents``,
     ``scan_width_m``."""
-    from clnlos.io.files import read_capture
-    from clnlos.inverse.pipeline import reconstruct
-    from clnlos.runtime.device import get_queue
-    from clnlos.study.dataset import StudyGrid
-    from clnlos.study.metrics import iou, otsu_threshold
-    from clnlos.study.quality import otsu_separability
-
     name = capture_name(path)
     grid = StudyGrid() if grid is None else grid
     queue = get_queue(queue)
@@ -288,8 +280,6 @@ def real_capture_figure(result: dict, title: str = ""):
     profiles (counts per bin, and normalised to their peaks), the x-t slices through the
     middle row and the reconstructions' MIPs, each image with axes in m / ns and a colour
     bar."""
-    from clnlos.io.figures import new_figure
-
     a = result["arrays"]
     t_ns = a["time_s"] * 1e9
     w = a["scan_width_m"]
@@ -324,8 +314,6 @@ def real_capture_figure(result: dict, title: str = ""):
 
 def write_real_capture_figure(result: dict, out_png) -> Path:
     """Draw :func:`real_capture_figure` into ``out_png`` (atomically)."""
-    from clnlos.io.files import save_figure
-
     return save_figure(real_capture_figure(result), Path(out_png))
 
 
@@ -333,11 +321,6 @@ def reconstruct_chart(path, method: str = "lct", *, queue=None) -> dict:
     """Reconstruct the shared resolution chart (``resolution_70.mat``) with its published
     settings (:func:`capture_config`, SNR 1e4) and report its resolved features
     (:func:`clnlos.study.resolution.chart_features`), with ``name`` and ``method``."""
-    from clnlos.io.files import read_capture
-    from clnlos.inverse.pipeline import reconstruct
-    from clnlos.runtime.device import get_queue
-    from clnlos.study.resolution import chart_features
-
     name = capture_name(path)
     rec = reconstruct(read_capture(path), capture_config(name, method, published_snr=True),
                       device=get_queue(queue))

@@ -14,6 +14,11 @@ import io
 
 import numpy as np
 
+from clnlos import C0
+from clnlos.brdf.models import retro_slice
+from clnlos.brdf.presets import preset_model
+from clnlos.io.files import atomic_path
+from clnlos.io.outputs import HTML_GENERATOR
 from clnlos.study.quality import METRICS
 
 PAGE_WIDTH_PX = 1180
@@ -84,8 +89,6 @@ def fig_figure8(results, plan, res, geometry: str):
     measurement integrated over time with its x-t and y-t slices through the scan centre,
     and the reconstruction's MIP (true outline in red) with its x-z and y-z projections."""
     import matplotlib.pyplot as plt
-
-    from clnlos import C0
 
     geo = next(g for g in results["geometries"] if g["name"] == geometry)
     mats = geo["materials"]
@@ -191,9 +194,6 @@ def fig_legibility_sweeps(results):
 
 def fig_brdf(results):
     import matplotlib.pyplot as plt
-
-    from clnlos.brdf.models import retro_slice
-    from clnlos.brdf.presets import preset_model
 
     fig, ax = plt.subplots(1, 2, figsize=(11.5, 3.8), constrained_layout=True)
     ts = np.radians(np.linspace(-89, 89, 357))
@@ -457,8 +457,6 @@ def write_report(out_dir, results, plan, res, real=None) -> None:
     import matplotlib
 
     matplotlib.use("Agg")
-    from clnlos.io.files import atomic_path
-    from clnlos.io.outputs import HTML_GENERATOR
 
     g = results["options"]["grid"]
     figs = [

@@ -39,10 +39,21 @@ import math
 from dataclasses import asdict, dataclass, replace
 
 import numpy as np
+from scipy.ndimage import map_coordinates, maximum_filter
+from scipy.optimize import brentq
 
 from clnlos import C0
-from clnlos.config import METHODS, ReconstructionConfig
+from clnlos.config import METHODS, ReconstructionConfig, slab_table
+from clnlos.forward.geometry import sample_letters
+from clnlos.forward.model import ForwardModel
+from clnlos.forward.noise import photon_counts
+from clnlos.forward.scene import Detector, Scene
+from clnlos.inverse.pipeline import reconstruct
+from clnlos.io.figures import new_figure
+from clnlos.io.files import Capture
 from clnlos.physics.slab import CDT_SLAB, Slab
+from clnlos.runtime.device import get_queue
+from clnlos.study.dataset import StudyGrid, window_m
 
 CONTRAST_RESOLVED = 0.2   # dip between two maxima, as a fraction of the lower one
 PEAK_FLOOR = 0.25         # chart maxima below this fraction of the image maximum are ignored
@@ -91,8 +102,6 @@ class ResolutionGeometry:
 
     def resolve(self, grid) -> ResolutionGeometry:
         """A copy with every None field taken from the study ``grid``."""
-        from clnlos.study.dataset import window_m
-
         fill = {f: getattr(grid, f) for f in ("scan_width_m", "points", "bin_width_s",
                                               "pulse_width_s", "iterations")
                 if getattr(self, f) is None}
@@ -118,8 +127,6 @@ def _crossing(p: np.ndarray, i: int, level: float) -> float:
     at or above): the root of the cubic through the four samples i-1..i+2 (fewer at the
     ends), fitted to their logarithms when all are positive (exact for a Gaussian, whose
     logarithm is a parabola), else to the values."""
-    from scipy.optimize import brentq
-
     j = np.arange(max(0, i - 1), min(p.size, i + 3))
     v = p[j]
     if np.all(v > 0):
@@ -230,17 +237,12 @@ def stroke_over_resolution(stroke_m: float, lateral_fwhm_m: float | None) -> flo
 
 def letters_area_m2(text: str, height_m: float, stroke_m: float) -> float:
     """Area (m^2) of the stroked letters (:func:`clnlos.geometry.sample_letters`)."""
-    from clnlos.forward.geometry import sample_letters
-
     return float(sample_letters(text, height_m, stroke_m, 1e6).area.sum())
 
 
 def patch_scene(geometry: ResolutionGeometry):
     """The noise-free scene of the patch (:class:`clnlos.scene.Scene`) of a resolved
     geometry (:meth:`ResolutionGeometry.resolve`)."""
-    from clnlos.config import slab_table
-    from clnlos.forward.scene import Scene
-
     g = geometry
     c = g.patch_centre_m()
     d = {"seed": 0, "scan": {"width_m": g.scan_width_m, "points": g.points},
@@ -268,10 +270,6 @@ def budget_capture(noise_free, scene, geometry: ResolutionGeometry, grid, exposu
     """Photon counts of the patch at ``exposure_s``: the noise-free capture scaled by the
     albedo that gives the patch the photons of ``budget_area_m2`` (default: the letters'
     area), then Poisson noise and dark counts (:func:`clnlos.forward.photon_counts`)."""
-    from clnlos.forward.noise import photon_counts
-    from clnlos.io.files import Capture
-    from clnlos.forward.scene import Detector
-
     g = geometry
     area = (g.budget_area_m2 if g.budget_area_m2 is not None
             else letters_area_m2(g.text, g.letter_height_m, g.stroke_m))
@@ -287,8 +285,6 @@ def budget_capture(noise_free, scene, geometry: ResolutionGeometry, grid, exposu
 def _measure(capture, geometry: ResolutionGeometry, methods, queue) -> dict:
     """FWHMs of each method's reconstruction of one capture, the effective temporal FWHM
     of its deconvolved transient over the patch and the bounds from it."""
-    from clnlos.inverse.pipeline import reconstruct
-
     g = geometry
     iy = ix = g.points // 2
     out: dict = {}
@@ -325,10 +321,6 @@ def measure_resolution(geometry: ResolutionGeometry = ResolutionGeometry(), *,
     ``geometry`` echoes the geometry resolved against the grid. A FWHM is None where the
     profile stays above half its peak across the volume. Each method's entry also holds
     ``profiles`` (arrays for :func:`resolution_figure`; :func:`json_ready` drops them)."""
-    from clnlos.forward.model import ForwardModel
-    from clnlos.runtime.device import get_queue
-    from clnlos.study.dataset import StudyGrid
-
     grid = StudyGrid() if grid is None else grid
     queue = get_queue(queue)
     g = geometry.resolve(grid)
@@ -353,8 +345,6 @@ def measure_resolution(geometry: ResolutionGeometry = ResolutionGeometry(), *,
 def image_maxima(img: np.ndarray, floor: float = PEAK_FLOOR) -> list[tuple[int, int]]:
     """(row, column) of the local maxima of an image (3 x 3 neighbourhood) at least
     ``floor`` of its maximum, brightest first."""
-    from scipy.ndimage import maximum_filter
-
     a = np.asarray(img, np.float64)
     top = a.max()
     if not top > 0:
@@ -382,8 +372,6 @@ def neighbour_pairs(points: list[tuple[int, int]]) -> list[tuple[int, int]]:
 def dip_contrast(img: np.ndarray, a: tuple[int, int], b: tuple[int, int],
                  samples_per_pixel: int = 4) -> float:
     """1 - (minimum of the image along the segment a-b, bilinear) / min(img[a], img[b])."""
-    from scipy.ndimage import map_coordinates
-
     n = max(2, int(math.ceil(math.dist(a, b) * samples_per_pixel)) + 1)
     rows, cols = np.linspace(a[0], b[0], n), np.linspace(a[1], b[1], n)
     line = map_coordinates(np.asarray(img, np.float64), [rows, cols], order=1)
@@ -446,8 +434,6 @@ def resolution_figure(result: dict, title: str = ""):
     """The profiles through the patch's peak (matplotlib Figure): lateral (x, m, centred on
     the peak) and axial (z, m) for every method, noise-free and at the budget, each with its
     FWHM in the legend and the lateral bound drawn as a bar at half maximum."""
-    from clnlos.io.figures import new_figure
-
     cases = [("noise-free", result)] + ([("budget", result["budget"])]
                                         if "budget" in result else [])
     fig, ax = new_figure(len(cases), 2, (12, 4 * len(cases)))
@@ -486,8 +472,6 @@ def chart_figure(result: dict, title: str = ""):
     """The chart image (x, y in m, colour bar) with its spots marked and each neighbouring
     pair joined: solid green where resolved, dashed red where not, labelled with its dip
     contrast (matplotlib Figure)."""
-    from clnlos.io.figures import new_figure
-
     e = result["arrays"]["extents"]
     fig, ax = new_figure(1, 1, (7, 6))
     im = ax.imshow(result["arrays"]["image"], origin="lower", cmap="gray",

@@ -38,20 +38,55 @@ from __future__ import annotations
 import json
 import math
 import time
+import warnings
 import zlib
 from dataclasses import asdict, dataclass, field
 from pathlib import Path
 
 import numpy as np
+from scipy import stats
+from scipy.ndimage import zoom
 
+from clnlos.app.progress import counter, progress_bar
+from clnlos.brdf.models import BRDFModel
+from clnlos.brdf.presets import preset_model, preset_table
 from clnlos.errors import ParameterError
+from clnlos.forward.scene import Scene
+from clnlos.inverse.pipeline import reconstruct
+from clnlos.io.files import atomic_path, read_capture
+from clnlos.io.outputs import stamp
 from clnlos.study.clarity import label_thresholds
-from clnlos.study.dataset import StudyGrid, cpu_workers, dataset_samples, run_samples
-from clnlos.study.legibility import (GLYPHS, LEGIBLE_ACCURACY, glyph_templates, identification_summary,
-                         identify)
-from clnlos.study.resolution import (ResolutionGeometry, json_ready, measure_resolution,
-                         otoole_lateral_bound_m)
+from clnlos.study.classify import train_classifier
+from clnlos.study.dataset import (
+    StudyGrid,
+    cpu_workers,
+    dataset_samples,
+    run_samples,
+    scene_dict,
+    window_m,
+)
+from clnlos.study.legibility import (
+    GLYPHS,
+    LEGIBLE_ACCURACY,
+    glyph_templates,
+    identification_summary,
+    identify,
+)
 from clnlos.study.quality import DEFAULT_LABEL_METRIC, METRICS, pearson, validate_metrics
+from clnlos.study.real_capture import (
+    PUBLISHED_SCAN_WIDTH_M,
+    capture_config,
+    compare_real_capture,
+    real_capture_figure,
+    reconstruct_chart,
+)
+from clnlos.study.report import write_report
+from clnlos.study.resolution import (
+    ResolutionGeometry,
+    json_ready,
+    measure_resolution,
+    otoole_lateral_bound_m,
+)
 
 # The seed's Figure 9 grouping of its ten materials (1 clear, 2 medium, 3 fuzzy).
 SEED_FIGURE9 = {
@@ -156,8 +191,6 @@ class StudyOptions:
 def specular_fraction(model, theta_i_deg: float = 45.0, n: int = 64) -> float:
     """Share of the directional-hemispherical reflectance at theta_i not from the kd term
     (0 for Lambertian/Minnaert, 1 for a pure microfacet model)."""
-    from clnlos.brdf.models import BRDFModel
-
     if model is None:
         return 0.0
     th = (np.arange(n) + 0.5) / n * np.pi / 2
@@ -174,8 +207,6 @@ def specular_fraction(model, theta_i_deg: float = 45.0, n: int = 64) -> float:
 
 def mean_interval(x) -> tuple[float, list[float]]:
     """Mean and its 95% t-interval [lo, hi] (the mean itself for one value)."""
-    from scipy import stats
-
     a = np.asarray(x, float)
     m = float(a.mean())
     if a.size < 2 or a.std() == 0:
@@ -280,8 +311,6 @@ def material_class(ident: dict) -> int:
 def resolution_geometry(geo: Geometry, grid: StudyGrid) -> ResolutionGeometry:
     """Where :func:`~clnlos.study.resolution.measure_resolution` measures a study geometry:
     its scan, depth, slab and letters on the study's grid (bins, pulse, window, iterations)."""
-    from clnlos.study.dataset import window_m
-
     return ResolutionGeometry(
         scan_width_m=geo.scan_width_m, points=grid.points, depth_m=geo.depth_m,
         bin_width_s=grid.bin_width_s, pulse_width_s=grid.pulse_width_s,
@@ -317,9 +346,6 @@ def identification_of(plan, results, opts: StudyOptions, gamma_s: float,
     result: its MIP matched to the closest of the K templates blurred to the lateral
     resolution (measured at the study's geometries, O'Toole's bound with the measured
     temporal FWHM elsewhere)."""
-    from clnlos.forward.scene import Scene
-    from clnlos.study.dataset import scene_dict
-
     measured = {(g.scan_width_m, g.depth_m): lateral[g.name] for g in opts.geometries}
     templates = {}
     for (meta, s), r in zip(plan, results, strict=True):
@@ -354,8 +380,6 @@ def _summary(rows: list[dict], chance: float) -> dict:
 
 def material_entries(materials, plan, results, geo: Geometry, opts: StudyOptions, table,
                      label_metric: str, thresholds, fft_thresholds, predict) -> list[dict]:
-    from clnlos.brdf.presets import preset_model
-
     chance = 1.0 / len(opts.glyphs)
     out = []
     for m in materials:
@@ -423,9 +447,6 @@ def _samples_labels(results, idx, label_metric, thresholds) -> np.ndarray:
 def train_cnn(plan, results, opts: StudyOptions, label_metric: str, thresholds):
     """The CNN on every glyph reconstruction (and the random extras for the metric labels):
     validation on the held-out glyphs and letter size."""
-    from clnlos.app.progress import counter, progress_bar
-    from clnlos.study.classify import train_classifier
-
     use = [i for i, (meta, _) in enumerate(plan)
            if meta["set"] != "dataset" or label_metric != "identification"]
     # one image per distinct scene
@@ -450,10 +471,6 @@ def train_cnn(plan, results, opts: StudyOptions, label_metric: str, thresholds):
 def real_capture_dir(root: Path | None) -> Path | None:
     """``root/cdt`` when it holds at least one of the real CDT captures, else None (with a
     one-line warning when ``root`` was given: the study goes on without the real data)."""
-    import warnings
-
-    from clnlos.study.real_capture import PUBLISHED_SCAN_WIDTH_M
-
     if root is None:
         return None
     cdt = Path(root) / "cdt"
@@ -469,12 +486,6 @@ def real_captures_cnn(cdt: Path, predict, grid: StudyGrid, device=None) -> list[
     """The CNN's legibility class of each real capture in ``cdt``, reconstructed with the
     study's method and the default (auto) parameters (:func:`clnlos.study.real_capture.
     capture_config`). MIPs are resampled to the CNN's input size."""
-    from scipy.ndimage import zoom
-
-    from clnlos.io.files import read_capture
-    from clnlos.inverse.pipeline import reconstruct
-    from clnlos.study.real_capture import PUBLISHED_SCAN_WIDTH_M, capture_config
-
     out = []
     for name in PUBLISHED_SCAN_WIDTH_M:
         path = cdt / f"{name}.mat"
@@ -496,8 +507,6 @@ def real_data_study(cdt: Path, predict, grid: StudyGrid, device=None) -> dict:
     """The real captures in ``cdt``: letters_ut beside a simulation of a comparable scene
     (:func:`clnlos.study.real_capture.compare_real_capture`, its figure), the resolution
     chart's resolved features, and the CNN's verdict on each."""
-    from clnlos.study.real_capture import compare_real_capture, real_capture_figure, reconstruct_chart
-
     out: dict = {"summary": None, "figure": None, "chart": None}
     if (cdt / "letters_ut.mat").is_file():
         cmp = compare_real_capture(cdt / "letters_ut.mat", grid.method,
@@ -515,11 +524,6 @@ def real_data_study(cdt: Path, predict, grid: StudyGrid, device=None) -> dict:
 
 def run_study(out_dir: Path, opts: StudyOptions, *, workers: int | None = None,
               scheduler: str | None = None, device: str | None = None) -> dict:
-    from clnlos.brdf.presets import preset_table
-    from clnlos.io.files import atomic_path
-    from clnlos.io.outputs import stamp
-    from clnlos.study.report import write_report
-
     opts = opts.validate()
     out_dir.mkdir(parents=True, exist_ok=True)
     cache = out_dir / "cache"

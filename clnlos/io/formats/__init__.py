@@ -23,8 +23,14 @@ from __future__ import annotations
 import os
 from pathlib import Path
 
+import h5py
+
 from clnlos.errors import InputFileError
-from clnlos.io.files import Capture
+from clnlos.io.capture import Capture
+from clnlos.io.formats.clnlos_h5 import read_clnlos
+from clnlos.io.formats.mat import read_mat5, read_mat73
+from clnlos.io.formats.npy_array import read_npy
+from clnlos.io.formats.tal import read_tal
 
 HDF5_MAGIC = b"\x89HDF\r\n\x1a\n"
 NPY_MAGIC = b"\x93NUMPY"
@@ -56,19 +62,13 @@ def read_capture(path: str | os.PathLike) -> Capture:
                              f"{path}: not a file")
     kind = sniff(path)
     if kind == "npy":
-        from clnlos.io.formats.npy_array import read_npy
-
         return read_npy(path)
     if kind == "mat5":
-        from clnlos.io.formats.mat import read_mat5
-
         return read_mat5(path)
     return _read_hdf5(path)
 
 
 def _read_hdf5(path: Path) -> Capture:
-    import h5py
-
     try:
         f = h5py.File(path, "r")
     except OSError as exc:
@@ -77,16 +77,10 @@ def _read_hdf5(path: Path) -> Capture:
         with f:
             keys = set(f.keys())
             if "transient" in keys:
-                from clnlos.io.formats.clnlos_h5 import read_clnlos
-
                 return read_clnlos(f, path)
             if {"H", "H_format"} <= keys:
-                from clnlos.io.formats.tal import read_tal
-
                 return read_tal(f, path)
             if "meas" in keys or "rect_data" in keys:
-                from clnlos.io.formats.mat import read_mat73
-
                 return read_mat73(f, path)
             raise InputFileError(f"{path}: no dataset 'transient' (clnlos), 'H' (y-tal), "
                                  f"'meas' or 'rect_data' (MATLAB); found {sorted(keys)}")

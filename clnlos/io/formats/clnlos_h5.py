@@ -8,7 +8,7 @@ from __future__ import annotations
 import numpy as np
 
 from clnlos.errors import InputFileError
-from clnlos.io.files import Capture, plain_attr
+from clnlos.io.capture import Capture, plain_attr
 from clnlos.io.formats.common import declared_dataset, validate_transient
 
 

@@ -2,9 +2,11 @@
 
 from __future__ import annotations
 
+import h5py
 import numpy as np
 
 from clnlos.errors import InputFileError
+from clnlos.runtime.limits import declared_capture
 
 
 def validate_transient(arr, path) -> np.ndarray:
@@ -29,10 +31,6 @@ def declared_dataset(ds, path, *, order=(0, 1, 2), bin_width_s=None, start_s=0.0
     (:func:`clnlos.limits.declared_capture`); ``order``: the dataset's axes that become
     [t, y, x]. A dataset that is not 3D or not numeric (or a group) is left to the reader's
     own checks."""
-    import h5py
-
-    from clnlos.runtime.limits import declared_capture
-
     if not isinstance(ds, h5py.Dataset):
         return
     shape = ds.shape

@@ -18,12 +18,16 @@ Layouts, told apart by their variables (MATLAB index order (i, j, k) = numpy ord
 
 from __future__ import annotations
 
+import struct
+
+import h5py
 import numpy as np
+import scipy.io
 
 from clnlos.errors import InputFileError
-from clnlos.io.files import Capture
-from clnlos.runtime.limits import declared_capture
+from clnlos.io.capture import Capture
 from clnlos.io.formats.common import declared_dataset, shift_earlier, validate_transient
+from clnlos.runtime.limits import declared_capture
 
 CDT_MAT_BIN_WIDTH_S = 16e-12  # the CDT capture format's histogram bin
 FK_MAT_BIN_WIDTH_S = 32e-12   # bin_resolution of the f-k data files
@@ -85,8 +89,6 @@ def from_cdt(meas_t_y_x, path) -> Capture:
 def _declared_mat73(f, path) -> None:
     """Declare the capture variable's size before it is read (h5py's shape is MATLAB's
     reversed; the time axis as :func:`read_mat73` will take it)."""
-    import h5py
-
     if "rect_data" in f:  # MATLAB (N, N, T)
         declared_dataset(f["rect_data"], path)
     elif isinstance(f.get("meas"), h5py.Dataset) and len(f["meas"].shape or ()) == 3:
@@ -121,8 +123,6 @@ def _declared_mat5(path) -> None:
     """Declare the capture variable's size from the file's variable headers
     (scipy.io.whosmat) before loadmat reads everything. A file whose headers cannot be
     listed is left to :func:`read_mat5`'s own error."""
-    import scipy.io
-
     try:
         info = {name: (shape, cls) for name, shape, cls in scipy.io.whosmat(path)}
     except Exception:  # any failure is reported by loadmat below
@@ -139,10 +139,6 @@ def _declared_mat5(path) -> None:
 
 
 def read_mat5(path) -> Capture:
-    import struct
-
-    import scipy.io
-
     _declared_mat5(path)
     try:
         d = scipy.io.loadmat(path)

@@ -5,18 +5,17 @@ at t = 0 unless ``start_s`` is given."""
 from __future__ import annotations
 
 import numpy as np
+from numpy.lib import format as npy
 
 from clnlos.errors import InputFileError
-from clnlos.io.files import Capture
-from clnlos.runtime.limits import declared_capture
+from clnlos.io.capture import Capture
 from clnlos.io.formats.common import validate_transient
+from clnlos.runtime.limits import declared_capture
 
 
 def _declared_npy(path) -> None:
     """Declare the array's size from the .npy header before the data are loaded; a header
     numpy cannot parse is left to :func:`read_npy`."""
-    from numpy.lib import format as npy
-
     try:
         with open(path, "rb") as f:
             version = npy.read_magic(f)

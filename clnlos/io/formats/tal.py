@@ -25,11 +25,12 @@ from __future__ import annotations
 
 import json
 
+import h5py
 import numpy as np
 
 from clnlos import C0
 from clnlos.errors import InputFileError
-from clnlos.io.files import Capture
+from clnlos.io.capture import Capture
 from clnlos.io.formats.common import declared_dataset, shift_earlier, validate_transient
 
 H_FORMAT = {"UNKNOWN": 0, "T_Sx_Sy": 1, "T_Lx_Ly_Sx_Sy": 2, "T_Si": 3, "T_Li_Si": 4}
@@ -156,8 +157,6 @@ def write_tal(path, transient: np.ndarray, *, bin_width_s: float, start_s: float
     (T, Sx, Sy) with Sx along +x and Sy along +y, the relay wall at z = 0 with normals +z
     towards the hidden scene, times in metres of path, no first/last bounce) to ``path``
     (callers make it atomic: :func:`clnlos.outputs.write_group`)."""
-    import h5py
-
     nt, ny, nx = transient.shape
     pitch = scan_width_m / nx
     xs = (np.arange(nx) + 0.5) * pitch - scan_width_m / 2
