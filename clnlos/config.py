@@ -29,7 +29,7 @@ optional and its default is the field default of :class:`ReconstructionConfig`::
                                  # (where it has it), then drop it: keeps edge effects out
     lateral_pad = "mirror"       # "mirror" (even extension across the scan border) or "zero"
     [inversion]
-    method = "lct"               # "lct", "fk" or "iterative"
+    method = "lct"               # a registered method: "lct", "fk" or "iterative"
     snr = "auto"                 # Wiener SNR of the LCT light-cone filter (and of the
                                  # iterative method's LCT warm start); "auto": chosen from
                                  # the deconvolved transient by cross-validation (clnlos.gcv)
@@ -60,13 +60,14 @@ from clnlos.checks import (
     real,
 )
 from clnlos.errors import InputFileError, ParameterError
+from clnlos.inverse.methods import default_falloffs, method_names
 from clnlos.physics.slab import Slab
 
-METHODS = ("lct", "fk", "iterative")
-# falloff = None: the method's own radiometric exponent p of (t/T)^p (clnlos.lct, clnlos.fk):
+METHODS = method_names()  # the registry of clnlos.inverse.methods
+# falloff = None: the method's own radiometric exponent p of (t/T)^p (its registry entry):
 # LCT's suits diffuse (Lambertian) surfaces; for f-k the square root of the weighted
 # measurement is the wave. The iterative method models the falloff itself.
-METHOD_FALLOFF = {"lct": 4.0, "fk": 2.0}
+METHOD_FALLOFF = default_falloffs()
 DEPTH_GUARD_M = 0.15  # "auto" support: first-arrival depth minus this (slab delay + noise)
 MAX_BINS = 1 << 16    # time bins of a reconstructed volume at most (--bins and the window)
 

@@ -9,20 +9,20 @@ import os
 import numpy as np
 import pyopencl.array as cla
 
-from clnlos.physics.slab import CDT_SLAB
-from clnlos.forward.blur import slab_blur
 from clnlos.brdf.models import BRDFModel
 from clnlos.brdf.texture import TextureLookup, tabulate
 from clnlos.diffusion import SlabTransmittance, diffusion_psf
-from clnlos.inverse.fk import FKMigration
-from clnlos.forward.sampling import N_THETA
-from clnlos.forward.model import LightCone, PulseBlur, SurfaceSamples
+from clnlos.forward.blur import slab_blur
 from clnlos.forward.geometry import Elements
-from clnlos.inverse.lct import LCT
-from clnlos.operators.resample import AxisResample, overlap_matrix
-from clnlos.runtime.device import get_queue, has_fp64
-from clnlos.inverse.solvers import ProxKernels, fista
+from clnlos.forward.model import LightCone, PulseBlur, SurfaceSamples
+from clnlos.forward.sampling import N_THETA
 from clnlos.forward.transport import LightConeTransport
+from clnlos.inverse.fk import FKMigration
+from clnlos.inverse.lct import LCT
+from clnlos.inverse.solvers import ProxKernels, fista
+from clnlos.operators.resample import AxisResample, overlap_matrix
+from clnlos.physics.slab import CDT_SLAB
+from clnlos.runtime.device import get_queue, has_fp64
 
 # Keep every device array alive until exit. Oclgrind 21.10's uninitialised-value tracking
 # goes wrong when a freed buffer's address is reused by a larger buffer (the cells past the

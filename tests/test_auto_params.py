@@ -18,8 +18,8 @@ from clnlos.bench.oracle import (
 )
 from clnlos.config import ReconstructionConfig
 from clnlos.inverse.gcv import GcvBins
-from clnlos.inverse.snr import K_SNR, MEASURED_MODEL_SNR, NoiseEstimate, combined_snr
 from clnlos.inverse.pipeline import auto_snrs, reconstruct
+from clnlos.inverse.snr import K_SNR, MEASURED_MODEL_SNR, NoiseEstimate, combined_snr
 
 # 'UT' 0.3 m tall 0.5 m behind the CDT slab, a 16 x 16 scan of 0.6 m, 128 bins of 64 ps
 # (8.2 ns: the return has decayed well before the window ends), ~6e8 photons: the photon
@@ -126,8 +126,8 @@ def test_noise_free_capture_takes_the_caps(queue):
     """Without noise (no [detector]) there is nothing to cross-validate against: the slab
     and light-cone SNRs are the caps SNR_MAX and LIGHTCONE_SNR_MAX, as before."""
     from clnlos.forward.model import ForwardModel
-    from clnlos.inverse.snr import LIGHTCONE_SNR_MAX, SNR_MAX
     from clnlos.forward.scene import Scene
+    from clnlos.inverse.snr import LIGHTCONE_SNR_MAX, SNR_MAX
 
     d = replace(TINY, points=32, bins=256, bin_width_s=32e-12).scene_dict()
     del d["detector"]

@@ -11,10 +11,10 @@ import pytest
 from reference.scene_ref import points_transient
 
 from clnlos.config import ReconstructionConfig
-from clnlos.io.files import Capture
-from clnlos.runtime.caches import PIPELINES
 from clnlos.inverse.pipeline import reconstruct
+from clnlos.io.files import Capture
 from clnlos.physics.slab import CDT_SLAB
+from clnlos.runtime.caches import PIPELINES
 from clnlos.runtime.spectrum_cache import HEADER, SUFFIX
 
 SHAPE_T, WIDTH, DT = 96, 0.5, 48e-12  # 4.6 ns: every arrival inside (no tail fill)
@@ -268,8 +268,8 @@ def _write_capture(path, kind):
     import h5py
     import scipy.io
 
-    from clnlos.io.formats.tal import write_tal
     from clnlos.io.files import write_capture
+    from clnlos.io.formats.tal import write_tal
 
     tau = np.random.default_rng(0).random((NT, NY, NX)).astype(np.float32)
     if kind == "clnlos":
@@ -307,9 +307,9 @@ def _never_read(monkeypatch):
 @pytest.mark.parametrize("kind", FORMATS)
 def test_capture_size_is_checked_against_host_memory_before_reading(tmp_path, monkeypatch,
                                                                     kind):
-    from clnlos.runtime import limits
     from clnlos.errors import MemoryLimitError
     from clnlos.io.formats import read_capture
+    from clnlos.runtime import limits
 
     path = _write_capture(tmp_path / f"c{SUFFIXES.get(kind, '.mat')}", kind)
     seen = []
@@ -367,8 +367,8 @@ def test_reconstruction_buffers_are_checked_against_the_device_before_reading(tm
     --bins 64 it does (33 MiB)."""
     from clnlos.app.commands import _pipeline_fits
     from clnlos.errors import DeviceMemoryError
-    from clnlos.runtime.limits import capture_use
     from clnlos.inverse.pipeline import device_bytes_needed
+    from clnlos.runtime.limits import capture_use
 
     cfg = ReconstructionConfig(method="lct").validate()
     total, largest = device_bytes_needed((512, 128, 128), bin_width_s=DT, start_s=0.0,
@@ -399,8 +399,8 @@ def test_legitimate_large_sizes_pass_the_checks(queue):
 
     from clnlos.app.commands import _pipeline_fits
     from clnlos.forward.model import check_scene_size
-    from clnlos.runtime.limits import declared_capture
     from clnlos.forward.scene import Scene
+    from clnlos.runtime.limits import declared_capture
     from clnlos.study.dataset import StudyGrid, dataset_samples, scene_dict
 
     declared_capture("c.h5", (512, 128, 128), 4)
@@ -426,8 +426,8 @@ translate_m = [0.0, 0.0, 0.5]
 
 def test_scene_surface_elements_are_bounded_before_sampling(tmp_path, monkeypatch, capsys):
     """10 m x 10 m at 1e10 per m^2: 1e12 elements, refused before any is built."""
-    from clnlos.forward import model as forward
     from clnlos.app.cli import main
+    from clnlos.forward import model as forward
 
     def boom(*a, **k):
         raise AssertionError("sampled")

@@ -11,13 +11,13 @@ import pytest
 from reference.scene_ref import points_transient
 
 from clnlos.app import progress as progress_mod
+from clnlos.app.cli import build_parser, main
 from clnlos.brdf.data import read_gonio_csv, read_pbrt_brdf
 from clnlos.brdf.fit import fit_analytic
 from clnlos.brdf.models import BRDFModel
-from clnlos.app.cli import build_parser, main
 from clnlos.config import ReconstructionConfig
-from clnlos.io.files import Capture
 from clnlos.forward.scene import read_retro_csv
+from clnlos.io.files import Capture
 from clnlos.physics.slab import CDT_SLAB
 
 HEADER = "theta_i_deg,phi_i_deg,theta_s_deg,phi_s_deg,brdf\n"
@@ -226,9 +226,9 @@ def _iterative_config(iterations=3):
 
 
 def test_iterative_setup_steps_are_reported_before_the_iterations(queue):
-    from clnlos.runtime.caches import PIPELINES
     from clnlos.inverse.pipeline import reconstruct
     from clnlos.inverse.solvers import POWER_ITERATIONS
+    from clnlos.runtime.caches import PIPELINES
 
     PIPELINES.clear()  # a cached pipeline would (rightly) skip the set-up
     events = []
@@ -249,8 +249,8 @@ def test_iterative_setup_steps_are_reported_before_the_iterations(queue):
 
 def test_reconstruct_bar_shows_the_setup_then_the_iterations(queue, tmp_path, capsys,
                                                              monkeypatch):
+    from clnlos.app.reconstruct import reconstruct_to_files
     from clnlos.runtime.caches import PIPELINES
-    from clnlos.inverse.pipeline import reconstruct_to_files
 
     monkeypatch.setattr(progress_mod, "PROGRESS_DELAY_S", 0.0)
     PIPELINES.clear()

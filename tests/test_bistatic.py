@@ -22,6 +22,9 @@ import numpy as np
 import pytest
 
 from clnlos import C0
+from clnlos.app.cli import main
+from clnlos.config import slab_table
+from clnlos.diffusion import diffusion_psf
 from clnlos.forward.bistatic import (
     BistaticTransport,
     TransportSettings,
@@ -29,9 +32,6 @@ from clnlos.forward.bistatic import (
     lobe_halfwidth_rad,
     scene_textures,
 )
-from clnlos.app.cli import main
-from clnlos.config import slab_table
-from clnlos.diffusion import diffusion_psf
 from clnlos.forward.model import ForwardModel, sample_scene
 from clnlos.forward.scene import Scene
 from clnlos.physics.slab import CDT_SLAB

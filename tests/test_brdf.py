@@ -5,6 +5,7 @@ import json
 import numpy as np
 import pytest
 
+from clnlos.app.cli import main
 from clnlos.brdf.data import (
     MerlBRDF,
     agreement,
@@ -18,7 +19,6 @@ from clnlos.brdf.mlp import MLPConfig, train_mlp
 from clnlos.brdf.models import BRDFModel, retro_slice
 from clnlos.brdf.store import load_model
 from clnlos.brdf.texture import TextureLookup, lookup_numpy, read_texture, tabulate, write_texture
-from clnlos.app.cli import main
 from clnlos.errors import InputFileError, ParameterError
 
 HEADER = "theta_i_deg,phi_i_deg,theta_s_deg,phi_s_deg,brdf\n"

@@ -6,8 +6,8 @@ import h5py
 import numpy as np
 import pytest
 
-from clnlos.forward import calibration as cal
 from clnlos.errors import InputFileError
+from clnlos.forward import calibration as cal
 from clnlos.physics.slab import Slab
 
 DT = cal.BIN_WIDTH_S
@@ -153,8 +153,8 @@ def test_eq8_kernel_is_the_far_target_limit_of_eq8(queue, z):
     other's approximation."""
     from scipy.signal import fftconvolve
 
-    from clnlos.forward.blur import confocal_psf, eq8_psf
     from clnlos.diffusion import diffusion_psf
+    from clnlos.forward.blur import confocal_psf, eq8_psf
     from clnlos.physics.slab import CDT_SLAB
     from tests.reference import eq8_ref as ref
 
@@ -187,8 +187,8 @@ def test_slab_blur_kernel_choice(queue):
     """slab_blur(kernel="eq8") convolves by eq8_psf; an unknown kernel is refused by name."""
     import pyopencl.array as cla
 
-    from clnlos.forward.blur import eq8_psf, slab_blur
     from clnlos.errors import ParameterError
+    from clnlos.forward.blur import eq8_psf, slab_blur
     from clnlos.physics.slab import CDT_SLAB
 
     _f64(queue)

@@ -12,7 +12,6 @@ from reference.diffusion_ref import (
 )
 
 from clnlos.config import slab_table
-from clnlos.physics.slab import CDT_SLAB
 from clnlos.diffusion import (
     Slab,
     SlabTransmittance,
@@ -21,6 +20,7 @@ from clnlos.diffusion import (
     slab_transmittance,
 )
 from clnlos.errors import ParameterError
+from clnlos.physics.slab import CDT_SLAB
 
 CDT = slab_table(CDT_SLAB)
 

@@ -16,11 +16,11 @@ from clnlos import C0
 from clnlos.app.cli import main
 from clnlos.config import ReconstructionConfig
 from clnlos.errors import InputFileError
+from clnlos.inverse.pipeline import reconstruct
+from clnlos.io.files import write_capture
 from clnlos.io.formats import read_capture, sniff
 from clnlos.io.formats.common import shift_earlier
 from clnlos.io.formats.tal import GRID_FORMAT, H_FORMAT, write_tal
-from clnlos.io.files import write_capture
-from clnlos.inverse.pipeline import reconstruct
 
 NT, NY, NX = 96, 6, 8  # a rectangular scan on purpose: x and y cannot be swapped unnoticed
 

@@ -7,20 +7,26 @@ import pytest
 from helpers import rel_l2
 from reference.lightcone_ref import lightcone_ref
 
-from clnlos.physics.slab import CDT_SLAB
 from clnlos import C0
-from clnlos.brdf.models import BRDFModel, retro_slice
 from clnlos.app.cli import main
+from clnlos.brdf.models import BRDFModel, retro_slice
 from clnlos.config import ReconstructionConfig, slab_table
 from clnlos.errors import ParameterError
-from clnlos.forward.sampling import N_THETA
+from clnlos.forward.geometry import (
+    Elements,
+    read_mesh,
+    sample_mesh,
+    sample_rectangle,
+    sample_sphere,
+)
 from clnlos.forward.model import ForwardModel, LightCone, SurfaceSamples
 from clnlos.forward.pulse import pulse_taps
-from clnlos.forward.geometry import Elements, read_mesh, sample_mesh, sample_rectangle, sample_sphere
-from clnlos.io.files import read_capture
-from clnlos.study.metrics import letters_truth_mask, mip_iou, peak_depth_m
-from clnlos.inverse.pipeline import reconstruct
+from clnlos.forward.sampling import N_THETA
 from clnlos.forward.scene import Scene
+from clnlos.inverse.pipeline import reconstruct
+from clnlos.io.files import read_capture
+from clnlos.physics.slab import CDT_SLAB
+from clnlos.study.metrics import letters_truth_mask, mip_iou, peak_depth_m
 
 # float32: the sub-bin position r * 2/(c dt) ~ 300 bins carries ~2e-5 bins of rounding
 TOL = {np.float32: 1e-4, np.float64: 1e-12}

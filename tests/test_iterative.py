@@ -11,18 +11,18 @@ from helpers import rel_l2
 
 from clnlos import C0
 from clnlos.config import ReconstructionConfig, slab_table
-from clnlos.forward.model import ForwardModel, LightCone, SurfaceSamples
 from clnlos.forward.geometry import Elements
-from clnlos.inverse.iterative import IterativeInversion
-from clnlos.study.metrics import mip_iou, truth_mask
-from clnlos.inverse.snr import K_SNR, SNR_MAX, estimate_noise, is_counts
-from clnlos.operators.base import dot_test
-from clnlos.inverse.pipeline import reconstruct
-from clnlos.operators.resample import AxisResample
+from clnlos.forward.model import ForwardModel, LightCone, SurfaceSamples
 from clnlos.forward.scene import Scene
-from clnlos.physics.slab import CDT_SLAB
-from clnlos.inverse.solvers import ProxKernels, fista, lipschitz
 from clnlos.forward.transport import LightConeTransport
+from clnlos.inverse.iterative import IterativeInversion
+from clnlos.inverse.pipeline import reconstruct
+from clnlos.inverse.snr import K_SNR, SNR_MAX, estimate_noise, is_counts
+from clnlos.inverse.solvers import ProxKernels, fista, lipschitz
+from clnlos.operators.base import dot_test
+from clnlos.operators.resample import AxisResample
+from clnlos.physics.slab import CDT_SLAB
+from clnlos.study.metrics import mip_iou, truth_mask
 
 TOL = {np.dtype(np.float32): 1e-6, np.dtype(np.float64): 1e-13}
 

@@ -10,21 +10,21 @@ from helpers import rel_l2
 from reference.recon_ref import confocal_psf_ref, fk_ref, lct_ref, pad_filter, resample_cumsum
 from reference.scene_ref import patch_points, points_transient, scan_centres
 
-from clnlos.physics.slab import CDT_SLAB
 from clnlos import C0
-from clnlos.forward.blur import confocal_psf, slab_blur
 from clnlos.app.cli import main
 from clnlos.config import ReconstructionConfig, slab_table
 from clnlos.diffusion import Slab
-from clnlos.runtime.fft import ComplexFFT3, RealFFT3
-from clnlos.inverse.fk import FKMigration
-from clnlos.io.files import Capture, read_capture, write_capture
-from clnlos.inverse.lct import LCT
-from clnlos.operators.base import dot_test
-from clnlos.inverse.pipeline import preprocess_matrix, reconstruct
+from clnlos.forward.blur import confocal_psf, slab_blur
 from clnlos.forward.pulse import PulseBlur
-from clnlos.operators.resample import AxisResample, overlap_matrix, rebin_matrix
 from clnlos.forward.transport import LightConeTransport
+from clnlos.inverse.fk import FKMigration
+from clnlos.inverse.lct import LCT
+from clnlos.inverse.pipeline import preprocess_matrix, reconstruct
+from clnlos.io.files import Capture, read_capture, write_capture
+from clnlos.operators.base import dot_test
+from clnlos.operators.resample import AxisResample, overlap_matrix, rebin_matrix
+from clnlos.physics.slab import CDT_SLAB
+from clnlos.runtime.fft import ComplexFFT3, RealFFT3
 
 CDT = slab_table(CDT_SLAB)
 # Stated tolerances (relative L2 against the float64 numpy reference)
@@ -502,8 +502,8 @@ def test_phi_spectrum_is_the_3d_dft_of_the_psf_table(queue, dtype, shape, period
     numpy's float64 rfftn of the diffusion_psf table on the padded grid, zero past its
     temporal support -- odd and even sizes, one-row grids, periodic and padded laterally;
     squared too."""
-    from clnlos.forward.blur import phi_spectrum
     from clnlos.diffusion import diffusion_psf, lateral_integral_profile, support_of
+    from clnlos.forward.blur import phi_spectrum
 
     slab, dt, pitch = CDT_SLAB, 48e-12, 0.02
     nt, ny, nx = shape
@@ -556,8 +556,8 @@ def test_slab_blur_from_its_spectrum_equals_the_psf_route(queue, dtype, nt):
     """slab_blur squares Phi's spectrum directly when Phi * Phi holds nothing that matters at
     lags >= nt (nt = 512 at 32 ps) and goes back to the lag domain to cut it otherwise
     (nt = 96): both equal filtering by confocal_psf."""
-    from clnlos.forward.blur import confocal_tail_fraction
     from clnlos.diffusion import SUPPORT_TOL, lateral_integral_profile, support_of
+    from clnlos.forward.blur import confocal_tail_fraction
     from clnlos.operators.spectral import SpectralFilter
 
     slab = CDT_SLAB

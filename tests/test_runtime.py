@@ -11,10 +11,10 @@ import numpy as np
 import pytest
 
 from clnlos import settings
-from clnlos.runtime import fft, programs
-from clnlos.runtime import device as runtime
 from clnlos.app.cli import main
 from clnlos.errors import DeviceCapabilityError, DeviceError, KernelBuildError
+from clnlos.runtime import device as runtime
+from clnlos.runtime import fft, programs
 
 ROOT = Path(__file__).resolve().parents[1]
 

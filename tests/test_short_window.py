@@ -11,16 +11,16 @@ import pyopencl.array as cla
 import pytest
 from reference.scene_ref import patch_points, points_transient
 
-from clnlos.forward.blur import (TailFilledDeconvolution, blur_time_scales, lateral_integral_profile,
-                         slab_blur)
 from clnlos.app.cli import main
-from clnlos.config import ReconstructionConfig
-from clnlos.io.files import Capture, read_capture
-from clnlos.study.metrics import letters_truth_mask, mip_iou, peak_depth_m
-from clnlos.inverse.pipeline import cut_level, reconstruct, window_end_level
-from clnlos.forward.scene import Scene
 from clnlos.app.simulate import simulate_to_file
+from clnlos.config import ReconstructionConfig
+from clnlos.forward.blur import blur_time_scales, lateral_integral_profile, slab_blur
+from clnlos.forward.scene import Scene
+from clnlos.inverse.pipeline import cut_level, reconstruct, window_end_level
+from clnlos.inverse.tail_fill import TailFilledDeconvolution
+from clnlos.io.files import Capture, read_capture
 from clnlos.physics.slab import CDT_SLAB
+from clnlos.study.metrics import letters_truth_mask, mip_iou, peak_depth_m
 
 DT = 16e-12
 

@@ -6,10 +6,10 @@ from reference.scene_ref import points_transient
 
 from clnlos.app.cli import main
 from clnlos.config import ReconstructionConfig
-from clnlos.io.files import Capture, write_capture
-from clnlos.runtime.caches import PIPELINES
 from clnlos.inverse.pipeline import reconstruct
+from clnlos.io.files import Capture, write_capture
 from clnlos.physics.slab import CDT_SLAB, Slab
+from clnlos.runtime.caches import PIPELINES
 from clnlos.runtime.spectrum_cache import SUFFIX
 
 SHAPE_T, WIDTH, DT = 96, 0.5, 48e-12  # 4.6 ns: every arrival inside (no tail fill)

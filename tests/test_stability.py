@@ -11,15 +11,15 @@ import pytest
 from helpers import rel_l2
 from reference.lightcone_ref import lightcone_ref
 
-from clnlos.physics.slab import CDT_SLAB
-from clnlos.forward.blur import slab_blur
 from clnlos.brdf.models import BRDFModel, retro_slice
-from clnlos.inverse.fk import FKMigration
-from clnlos.forward.sampling import N_THETA
-from clnlos.forward.model import LightCone, SurfaceSamples
+from clnlos.forward.blur import slab_blur
 from clnlos.forward.geometry import Elements
+from clnlos.forward.model import LightCone, SurfaceSamples
+from clnlos.forward.sampling import N_THETA
+from clnlos.inverse.fk import FKMigration
 from clnlos.inverse.lct import LCT
 from clnlos.operators.spectral import SpectralFilter
+from clnlos.physics.slab import CDT_SLAB
 
 CDT = CDT_SLAB
 # float32 tolerance relative to the float64 result of the same plan

@@ -18,9 +18,8 @@ import numpy as np
 from benchlib import device_meta, print_table, timeit, write_rows
 
 from clnlos.bench.baselines import numpy_transmittance
-from clnlos.physics.slab import CDT_SLAB
-
 from clnlos.diffusion import SlabTransmittance, grid_offsets
+from clnlos.physics.slab import CDT_SLAB
 from clnlos.runtime.device import get_queue, has_fp64
 
 

@@ -25,8 +25,8 @@ from benchlib import device_meta, print_table, timeit, write_rows  # noqa: E402
 
 from clnlos.bench.baselines import numpy_lightcone, ut_scene  # noqa: E402
 from clnlos.forward.model import LightCone, sample_scene  # noqa: E402
-from clnlos.runtime.device import get_queue, has_fp64  # noqa: E402
 from clnlos.forward.scene import Scene  # noqa: E402
+from clnlos.runtime.device import get_queue, has_fp64  # noqa: E402
 
 
 def blur_reach_rows(q, meta, quick: bool) -> list[dict]:

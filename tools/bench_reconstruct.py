@@ -25,7 +25,7 @@ import numpy as np
 sys.path.insert(0, str(Path(__file__).resolve().parent))
 from benchlib import device_meta, print_table, timeit, write_rows  # noqa: E402
 
-from clnlos import C0# noqa: E402
+from clnlos import C0  # noqa: E402
 from clnlos.config import slab_table  # noqa: E402
 from clnlos.physics.slab import CDT_SLAB  # noqa: E402
 
@@ -72,7 +72,6 @@ def worker(impl: str, size: int, device: str | None, repeat: int) -> dict:
                   "end_to_end": lambda: lct(dec(cla.to_device(q, x_np))).get()}
     else:
         from clnlos.bench.baselines import NumpyReconstruction, TorchReconstruction
-
         from clnlos.runtime.device import get_queue
 
         q = get_queue(device)

@@ -14,8 +14,8 @@ import argparse
 from pathlib import Path
 
 from clnlos.bench.harness import print_table, write_rows
-from clnlos.study.confocal_error import confocal_error_table
 from clnlos.runtime.device import get_queue
+from clnlos.study.confocal_error import confocal_error_table
 
 OUT = Path(__file__).resolve().parent / "results"
 COLUMNS = ["material", "total_ratio", "worst_point_ratio", "rel_l2", "shape_error_peak",

@@ -149,7 +149,6 @@ def real(shared: Path) -> dict:
     import clnlos.inverse.pipeline as rec
     from clnlos.config import ReconstructionConfig
     from clnlos.io.files import read_capture
-
     from clnlos.runtime.caches import PIPELINES
 
     out = {}

@@ -32,9 +32,9 @@ def main(argv=None) -> int:
 
     from clnlos.bench.oracle import write_rows
     from clnlos.config import ReconstructionConfig
-    from clnlos.io.files import atomic_path, read_capture, save_figure_file
-    from clnlos.inverse.snr import combined_snr, lightcone_snr
     from clnlos.inverse.pipeline import reconstruct
+    from clnlos.inverse.snr import combined_snr, lightcone_snr
+    from clnlos.io.files import atomic_path, read_capture, save_figure_file
 
     ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     ap.add_argument("--shared", default=str(ROOT.parent / "shared" / "data"))

@@ -13,7 +13,6 @@ import argparse
 import time
 from pathlib import Path
 
-
 ROOT = Path(__file__).resolve().parents[1]
 CAPTURES = (("letters_ut.mat", "cdt_letters_ut.toml"), ("letter_s.mat", "cdt_letter_s.toml"))
 METHODS = ("lct", "fk", "iterative")
@@ -23,8 +22,8 @@ def main() -> int:
     from matplotlib.figure import Figure
 
     from clnlos.config import ReconstructionConfig
-    from clnlos.io.files import read_capture
     from clnlos.inverse.pipeline import reconstruct
+    from clnlos.io.files import read_capture
 
     ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     ap.add_argument("--shared", default=str(ROOT.parent / "shared" / "data"))

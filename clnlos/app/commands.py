@@ -15,6 +15,7 @@ from tqdm import tqdm
 
 from clnlos.app.demo import DEMO_FILES, demo_inputs, run_demo
 from clnlos.app.progress import counter, progress_bar
+from clnlos.app.reconstruct import reconstruct_to_files
 from clnlos.app.simulate import figure_path, simulate_to_file
 from clnlos.bench import main as bench_main
 from clnlos.bench import sections_of
@@ -47,12 +48,8 @@ from clnlos.config import (
 from clnlos.config import ReconstructionConfig as C
 from clnlos.errors import InputFileError, MissingDependencyError, OutputFileError, ParameterError
 from clnlos.forward.scene import Scene
-from clnlos.inverse.pipeline import (
-    device_bytes_needed,
-    reconstruct_to_files,
-    resolve_geometry,
-    setup_slab,
-)
+from clnlos.inverse.methods import METHODS as METHOD_ENTRIES
+from clnlos.inverse.pipeline import device_bytes_needed, resolve_geometry, setup_slab
 from clnlos.io.figures import volume_figure
 from clnlos.io.files import read_capture, read_volume, save_figure
 from clnlos.io.outputs import HDF5_SUFFIXES, check_outputs
@@ -206,10 +203,10 @@ def register_reconstruct(sub, add_device) -> None:
                    help="output volume (.h5; a PNG is written beside)")
     r.add_argument("--config", help="reconstruction parameters (TOML, see clnlos/config.py); "
                    "flags override its values (default: none, the built-in defaults)")
-    r.add_argument("--method", choices=["lct", "fk", "iterative"], default=None,
-                   help="inversion: lct (light-cone transform), fk (f-k migration) or "
-                        "iterative (regularised, warm-started from LCT) (default: the "
-                        f"config's [inversion] method, else {C.method})")
+    r.add_argument("--method", choices=list(METHODS), default=None,
+                   help="inversion: " + "; ".join(f"{m} ({e.summary})"
+                                                  for m, e in METHOD_ENTRIES.items())
+                        + f" (default: the config's [inversion] method, else {C.method})")
     from_file = "(default: from the capture file, else the config's [capture])"
     r.add_argument("--scan-width", type=float,
                    help=f"side of the scanned square (m) {from_file}")
@@ -523,7 +520,7 @@ def register_study(sub, add_device) -> None:
     s.add_argument("-o", "--output", default="out/study",
                    help="output folder: report.html, results.json and the sample cache "
                         "(default %(default)s)")
-    s.add_argument("--method", choices=["lct", "fk", "iterative"], default=None,
+    s.add_argument("--method", choices=list(METHODS), default=None,
                    help=f"reconstruction method (default {StudyGrid.method})")
     s.add_argument("--labels", choices=list(LABEL_METRICS), default=full.labels,
                    help="what the CNN learns: legibility (glyph identified and IoU above "

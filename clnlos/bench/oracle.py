@@ -27,6 +27,7 @@ import numpy as np
 from clnlos.config import ReconstructionConfig, slab_table
 from clnlos.forward.model import ForwardModel
 from clnlos.forward.scene import Scene
+from clnlos.inverse.methods import method_names
 from clnlos.inverse.pipeline import reconstruct
 from clnlos.inverse.snr import combined_snr, lightcone_snr
 from clnlos.io.files import atomic_path
@@ -35,7 +36,7 @@ from clnlos.study.metrics import mip_iou, truth_mask
 
 SLAB_SNRS = (1e2, 1e3, 1e4, 1e5)
 INVERSION_SNRS = (1e2, 1e3, 1e4)
-METHODS = ("iterative", "lct", "fk")
+METHODS = tuple(sorted(method_names(), key=lambda m: m != "iterative"))  # iterative first
 SWEEP_EXPOSURES_S = (0.01, 0.1, 1.0, 10.0)
 MONOTONE_FLOOR = 0.02  # IoU steps below this count as unchanged (2-5 pixels of a 16 x 16 mask)
 

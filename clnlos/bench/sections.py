@@ -23,6 +23,7 @@ from clnlos.bench.baselines import (
 )
 from clnlos.bench.harness import Bench, timeit
 from clnlos.bench.harness import rel_error as _rel
+from clnlos.bench.oracle import METHODS as ORACLE_METHODS
 from clnlos.bench.oracle import ORACLE_CASES, compare_method, simulate_case
 from clnlos.brdf.models import BRDFModel
 from clnlos.brdf.texture import TextureLookup, tabulate
@@ -249,15 +250,15 @@ def bench_reconstruction(b: Bench):
 def _bandwidth_rows(b: Bench, ops, xg, grid: str) -> None:
     """The bandwidth-bound pieces alone, with the bytes each must move at least."""
     w = ops["wiener"]
-    spec = w.fft.forward(w._buf)
+    spec = w.fft.forward(w.work_buffer)
     n = spec.size
     r = b.add("roofline", "wiener_multiply", grid, np.float32,
-              lambda: multiply_spectrum(w._k, w.H, spec, h_scale=w.h_scale, adjoint=False,
+              lambda: multiply_spectrum(w.kernels, w.H, spec, h_scale=w.h_scale, adjoint=False,
                                         folded=w.folded, inv_snr=1e-4), None)
     r["bytes_moved"] = (2 * n + w.H.size) * spec.dtype.itemsize  # read H and X, write X
-    r = b.add("roofline", "fft_r2c_pass", grid, np.float32, lambda: w.fft.forward(w._buf, spec),
+    r = b.add("roofline", "fft_r2c_pass", grid, np.float32, lambda: w.fft.forward(w.work_buffer, spec),
               None, fft_backend=w.fft.backend)
-    r["bytes_moved"] = w._buf.nbytes + spec.nbytes  # one read + one write: a single pass
+    r["bytes_moved"] = w.work_buffer.nbytes + spec.nbytes  # one read + one write: a single pass
     lct = ops["lct"]
     r = b.add("roofline", "resample_t_to_v", grid, np.float32, lambda: lct.to_v(xg), None)
     r["bytes_moved"] = 2 * xg.nbytes + lct.to_v.matrix.nnz * 8  # columns read, rows written
@@ -422,7 +423,7 @@ def bench_auto_params(b: Bench):
     iterations = {"tiny": 20, "quick": 50, "full": None}[b.size]
     for case in cases:
         cap, mask = simulate_case(case, b.q)
-        for method in ("iterative", "lct", "fk"):
+        for method in ORACLE_METHODS:
             row = compare_method(cap, mask, method, iterations=iterations, queue=b.q)
             cfg = ReconstructionConfig(slab=cap.recorded_slab()[0], method=method,
                                        **({} if iterations is None else

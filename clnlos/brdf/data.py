@@ -46,9 +46,6 @@ def significance_floor(samples) -> float:
     return max(float(samples.meta.get("precision", 0.0)), MIN_SIGNIFICANT)
 
 
-def significant(samples):
-    """The samples at or above :func:`significance_floor`."""
-    return samples.subset(samples.brdf >= significance_floor(samples))
 
 
 @dataclass

@@ -164,11 +164,11 @@ class LightConeTransport(LinearOperator):
         fill_zero(self.queue, buf)
         self._pre.apply_into(x_g, buf)
         self._convolve(buf, False, self._in_block, self._out_block)
-        return self._post._apply(buf)
+        return self._post.apply_device(buf)
 
     def _adjoint(self, y_g):
         buf = self.scratch.array("a", self.pad_shape, self.dtype)
         fill_zero(self.queue, buf)
         self._post.adjoint_into(y_g, buf)
         self._convolve(buf, True, self._out_block, self._in_block)
-        return self._pre._adjoint(buf)
+        return self._pre.adjoint_device(buf)

@@ -21,6 +21,7 @@ import pyopencl.array as cla
 from clnlos import C0
 from clnlos.config import METHOD_FALLOFF
 from clnlos.inverse.lct import check_inversion_args
+from clnlos.inverse.methods import Inversion, InversionGrid
 from clnlos.runtime.buffers import Scratch, fill_zero, kernel_int, round_up
 from clnlos.runtime.device import get_queue, require_dtype
 from clnlos.runtime.fft import ComplexFFT3, RealFFT3
@@ -85,3 +86,18 @@ class FKMigration:
         self._k.fk_finish(q, (round_up(nx, 8), round_up(ny, 8), nt), None, out.data,
                           vol.data, kernel_int(nt), kernel_int(ny), kernel_int(nx))
         return vol if on_device else vol.get()
+
+
+class FKMethod(Inversion):
+    """``method = "fk"`` (:class:`FKMigration` behind the inversion contract of
+    :mod:`clnlos.inverse.methods`; nothing is chosen from the data)."""
+
+    name = "fk"
+
+    def __init__(self, grid: InversionGrid, config, *, dtype, queue, scratch=None,
+                 cache=None):
+        super().__init__(grid, config, dtype=dtype, queue=queue, scratch=scratch, cache=cache)
+        self.fk = FKMigration(grid.shape, **self.falloff(), **self.geometry())
+
+    def __call__(self, tau_g, *, progress=None, setup=None):
+        return self.fk(tau_g)

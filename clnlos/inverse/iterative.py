@@ -30,9 +30,11 @@ import numpy as np
 import pyopencl.array as cla
 
 from clnlos import C0
+from clnlos.config import DEPTH_GUARD_M
 from clnlos.errors import ParameterError
 from clnlos.forward.transport import LightConeTransport
-from clnlos.inverse.lct import LCT
+from clnlos.inverse.lct import LCT, choose_lightcone_snr, initial_inversion_snr
+from clnlos.inverse.methods import Inversion, InversionGrid
 from clnlos.inverse.solvers import fista, lipschitz
 from clnlos.operators.base import LinearOperator
 from clnlos.runtime.buffers import Scratch
@@ -131,11 +133,11 @@ class IterativeInversion:
         x0[:row_min] = 0.0
         x0 /= self.scale[:, None, None]
         x0_g = cla.to_device(q, x0.astype(dt))
-        ax = op._apply(x0_g)
+        ax = op.apply_device(x0_g)
         den = float(cla.dot(ax, ax).get())
         alpha = float(cla.dot(ax, y).get()) / den if den > 0 else 0.0
         x0_g *= dt.type(max(alpha, 0.0))
-        lam_max = float(cla.max(op._adjoint(y)).get())
+        lam_max = float(cla.max(op.adjoint_device(y)).get())
         l1 = self.l1_weight * max(lam_max, 0.0)
         tv = self.tv_weight * max(lam_max, 0.0)
         res = fista(op, y, x0_g, l1=l1, tv=tv, wz=self.tv_depth_scale, row_min=row_min,
@@ -148,3 +150,45 @@ class IterativeInversion:
         vol *= cla.to_device(q, np.broadcast_to(self.scale[:, None, None],
                                                  self.shape).astype(dt))
         return vol if on_device else vol.get()
+
+
+def support_depth_m(noise, config) -> float:
+    """Shallowest depth of the iterative method's support (m): the configured depth, or for
+    "auto" the capture's first arrival (:attr:`clnlos.inverse.snr.NoiseEstimate.
+    nearest_depth_m`) less DEPTH_GUARD_M."""
+    if config.depth_min_m != "auto":
+        return float(config.depth_min_m)
+    first = noise.nearest_depth_m
+    return 0.0 if first is None else max(0.0, first - DEPTH_GUARD_M)
+
+
+class IterativeMethod(Inversion):
+    """``method = "iterative"`` (:class:`IterativeInversion` behind the inversion contract of
+    :mod:`clnlos.inverse.methods`): the warm start's light-cone SNR and the support's depth
+    are chosen from the data."""
+
+    name = "iterative"
+
+    def __init__(self, grid: InversionGrid, config, *, dtype, queue, scratch=None,
+                 cache=None):
+        super().__init__(grid, config, dtype=dtype, queue=queue, scratch=scratch, cache=cache)
+        self.solver = IterativeInversion(grid.shape, iterations=config.iterations,
+                                         l1_weight=config.l1_weight, tv_weight=config.tv_weight,
+                                         warm_snr=initial_inversion_snr(config), cache=cache,
+                                         **self.geometry())
+        self.depth_min_m = 0.0
+
+    def configure(self, tau_g, noise, rule_snr: float, timed) -> dict:
+        snr = choose_lightcone_snr(self.solver.warm, self.config, noise, tau_g, rule_snr,
+                                   timed)
+        self.solver.warm.set_snr(snr)
+        self.depth_min_m = support_depth_m(noise, self.config)
+        return {"inversion_snr_used": snr}
+
+    def __call__(self, tau_g, *, progress=None, setup=None):
+        n = self.config.iterations
+        cb = None if progress is None else (lambda k, _x: progress(k + 1, n))
+        return self.solver(tau_g, depth_min_m=self.depth_min_m, callback=cb, setup=setup)
+
+    def report(self) -> dict | None:
+        return self.solver.report.as_dict()

@@ -30,6 +30,8 @@ from clnlos import C0
 from clnlos.config import METHOD_FALLOFF
 from clnlos.errors import ParameterError, ShapeError
 from clnlos.inverse.gcv import GcvBins
+from clnlos.inverse.methods import Inversion, InversionGrid
+from clnlos.inverse.snr import LIGHTCONE_SNR_MAX, LIGHTCONE_SNR_MIN
 from clnlos.operators.base import LinearOperator
 from clnlos.operators.resample import AxisResample, overlap_matrix
 from clnlos.operators.spectral import SpectralFilter
@@ -210,3 +212,41 @@ class LCT:
         self._k.clamp_nonnegative(self.queue, (round_up(vol.size, 256),), None, vol.data,
                                   np.int64(vol.size))
         return vol if on_device else vol.get()
+
+
+def initial_inversion_snr(config) -> float:
+    """The light-cone SNR a plan is built with: the configured number, or 1 for "auto"
+    (set per capture by :meth:`LCTMethod.configure`)."""
+    return 1.0 if config.inversion_snr == "auto" else float(config.inversion_snr)
+
+
+def choose_lightcone_snr(lct: LCT, config, noise, tau_g, rule_snr: float, timed) -> float:
+    """The light-cone Wiener SNR for this capture: generalised cross-validation on the
+    deconvolved transient (:meth:`LCT.gcv_snr`, within [LIGHTCONE_SNR_MIN,
+    LIGHTCONE_SNR_MAX]) when the config says "auto" and the capture is noisy; else
+    ``rule_snr`` (the configured number, or the photon rule on noise-free data)."""
+    if config.inversion_snr == "auto" and not noise.noise_free:
+        return timed("choose_inversion_snr", lct.gcv_snr, tau_g, LIGHTCONE_SNR_MIN,
+                     LIGHTCONE_SNR_MAX)
+    return rule_snr
+
+
+class LCTMethod(Inversion):
+    """``method = "lct"`` (:class:`LCT` behind the inversion contract of
+    :mod:`clnlos.inverse.methods`)."""
+
+    name = "lct"
+
+    def __init__(self, grid: InversionGrid, config, *, dtype, queue, scratch=None,
+                 cache=None):
+        super().__init__(grid, config, dtype=dtype, queue=queue, scratch=scratch, cache=cache)
+        self.lct = LCT(grid.shape, snr=initial_inversion_snr(config), **self.falloff(),
+                       **self.geometry(), cache=cache)
+
+    def configure(self, tau_g, noise, rule_snr: float, timed) -> dict:
+        snr = choose_lightcone_snr(self.lct, self.config, noise, tau_g, rule_snr, timed)
+        self.lct.set_snr(snr)
+        return {"inversion_snr_used": snr}
+
+    def __call__(self, tau_g, *, progress=None, setup=None):
+        return self.lct(tau_g)

@@ -28,24 +28,18 @@ import json
 import math
 import time
 from dataclasses import dataclass, field
-from pathlib import Path
 
 import numpy as np
 import pyopencl.array as cla
 
 from clnlos import C0
-from clnlos.app.progress import progress_bar, stage
-from clnlos.config import DEPTH_GUARD_M, ReconstructionConfig, check_window
+from clnlos.config import ReconstructionConfig, check_window
 from clnlos.errors import InputFileError, ParameterError
-from clnlos.forward.blur import TailFilledDeconvolution, blur_time_scales, slab_blur
-from clnlos.inverse.fk import FKMigration
+from clnlos.forward.blur import blur_time_scales, slab_blur
 from clnlos.inverse.gcv import GcvBins
-from clnlos.inverse.iterative import IterativeInversion
-from clnlos.inverse.lct import LCT
+from clnlos.inverse.methods import InversionGrid, method_class
 from clnlos.inverse.snr import (
     ARRIVAL_SIGMAS,
-    LIGHTCONE_SNR_MAX,
-    LIGHTCONE_SNR_MIN,
     MEASURED_MODEL_SNR,
     SNR_MAX,
     SNR_MIN,
@@ -54,10 +48,8 @@ from clnlos.inverse.snr import (
     estimate_noise,
     lightcone_snr,
 )
-from clnlos.io.deflate import DeflatedArray
-from clnlos.io.figures import volume_figure as figure
-from clnlos.io.files import Capture, save_figure_file, write_h5_file
-from clnlos.io.outputs import provenance, write_group
+from clnlos.inverse.tail_fill import TailFilledDeconvolution
+from clnlos.io.files import Capture
 from clnlos.operators.resample import AxisResample, overlap_matrix
 from clnlos.runtime.buffers import Scratch, host_view, round_up
 from clnlos.runtime.caches import PIPELINES
@@ -191,14 +183,6 @@ def auto_snrs(noise: NoiseEstimate, config: ReconstructionConfig,
     return snr, inv
 
 
-def support_depth_m(noise: NoiseEstimate, config: ReconstructionConfig) -> float:
-    """Shallowest depth of the iterative method's support (m)."""
-    if config.depth_min_m != "auto":
-        return float(config.depth_min_m)
-    first = noise.nearest_depth_m
-    return 0.0 if first is None else max(0.0, first - DEPTH_GUARD_M)
-
-
 class ReconstructionPipeline:
     """The composed stages for one capture geometry (shape, bin width, scan width);
     ``setup(step)`` names each step of the construction as it starts."""
@@ -229,7 +213,6 @@ class ReconstructionPipeline:
         self._rk = get_kernels(self.queue, "resample", real_defines(self.dtype))
         pitch = scan_width_m / nx
         snr0 = 1.0 if config.snr == "auto" else float(config.snr)  # set per capture if auto
-        isnr0 = 1.0 if config.inversion_snr == "auto" else float(config.inversion_snr)
         self.deconv = None
         self._gcv_slab: GcvBins | None = None  # the slab filter's GCV bins, on first use
         self.scratch = Scratch(self.queue)  # work buffers shared by the stages below
@@ -249,19 +232,10 @@ class ReconstructionPipeline:
                                      lateral_pad=config.lateral_pad, dtype=self.dtype,
                                      queue=self.queue, scratch=self.scratch, cache=cache)
             self._tail_deconv = None
-        geo = dict(bin_width_s=self.bin_width_s, scan_width_m=scan_width_m, dtype=self.dtype,
-                   queue=self.queue, scratch=self.scratch)
-        falloff = {} if config.falloff is None else {"falloff": config.falloff}
         setup(f"{config.method} plan")
-        if config.method == "lct":
-            self.invert = LCT(self.shape, snr=isnr0, **falloff, **geo, cache=cache)
-        elif config.method == "fk":
-            self.invert = FKMigration(self.shape, **falloff, **geo)
-        else:
-            self.invert = IterativeInversion(self.shape, iterations=config.iterations,
-                                             l1_weight=config.l1_weight,
-                                             tv_weight=config.tv_weight, warm_snr=isnr0,
-                                             cache=cache, **geo)
+        self.invert = method_class(config.method)(
+            InversionGrid(self.shape, self.bin_width_s, scan_width_m), config, dtype=self.dtype,
+            queue=self.queue, scratch=self.scratch, cache=cache)
         self.stages.append(f"invert:{config.method}")
 
     def slab_gcv_snr(self, tau: cla.Array) -> float:
@@ -321,26 +295,11 @@ class ReconstructionPipeline:
         if self.n_guard:
             tau = tau[:self.shape[0]]  # the guard bins dropped: a view of the leading rows
         method = self.config.method
-        if method != "fk" and self.config.inversion_snr == "auto" and not noise.noise_free:
-            lct = self.invert if method == "lct" else self.invert.warm
-            inv_snr = self._timed(timings, "choose_inversion_snr", lct.gcv_snr, tau,
-                                  LIGHTCONE_SNR_MIN, LIGHTCONE_SNR_MAX)
-        solve = None
-        if method == "lct":
-            self.invert.set_snr(inv_snr)
-            params["inversion_snr_used"] = inv_snr
-            vol = self._timed(timings, "invert:lct", self.invert, tau)
-        elif method == "fk":
-            vol = self._timed(timings, "invert:fk", self.invert, tau)
-        else:
-            self.invert.warm.set_snr(inv_snr)
-            params["inversion_snr_used"] = inv_snr
-            depth_min = support_depth_m(noise, self.config)
-            cb = None if progress is None else (lambda k, _x: progress(k + 1,
-                                                                       self.config.iterations))
-            vol = self._timed(timings, "invert:iterative", self.invert, tau,
-                              depth_min_m=depth_min, callback=cb, setup=setup)
-            solve = self.invert.report.as_dict()
+        params.update(self.invert.configure(
+            tau, noise, inv_snr, lambda name, fn, *a: self._timed(timings, name, fn, *a)))
+        vol = self._timed(timings, f"invert:{method}", self.invert, tau, progress=progress,
+                          setup=setup)
+        solve = self.invert.report()
         volume = vol.get()
         nt, ny, nx = self.shape
         dz = C0 * self.bin_width_s / 2
@@ -449,56 +408,9 @@ def reconstruct(capture: Capture, config: ReconstructionConfig, *, dtype=np.floa
                     model_snr=model_snr_for(capture, config), setup=setup)
 
 
-def volume_figure(rec: Reconstruction, title: str = ""):
-    """The figure of a reconstruction (:func:`clnlos.figures.volume_figure`)."""
-    return figure(rec.volume, rec.extents, title)
 
 
-def volume_attrs(rec: Reconstruction) -> dict:
-    """The HDF5 attributes of a volume file (format clnlos-volume-1)."""
-    return {**rec.extents, "bin_width_s": rec.bin_width_s, "scan_width_m": rec.scan_width_m,
-            "stages": json.dumps(rec.stages), "timings_s": json.dumps(rec.timings_s),
-            "params": json.dumps(rec.params), "noise": json.dumps(rec.noise),
-            "solver": json.dumps(rec.solver), "notes": json.dumps(rec.notes),
-            "axes": "volume[z, y, x]; +x with column index, +y with row index",
-            "format": "clnlos-volume-1"}
 
 
-def _iteration(bar) -> None:
-    """One iteration done: the set-up note (if any) goes, the bar moves."""
-    if bar.postfix:
-        bar.set_postfix_str("", refresh=False)
-    bar.update(1)
 
 
-def reconstruct_to_files(capture: Capture, out, config: ReconstructionConfig, *,
-                         dtype=np.float32, queue=None, title_extra: str = "",
-                         show_progress: bool = True) -> Reconstruction:
-    """Reconstruct and write the volume (HDF5) and its figure (PNG beside it) together,
-    atomically, with the provenance of the result; the iterative method shows a progress
-    bar (:mod:`clnlos.progress`), its set-up steps beside it, then its iterations."""
-    out = Path(out)
-    queue = get_queue(queue)
-    bar = None
-    if show_progress and config.method == "iterative":
-        bar = progress_bar(config.iterations, "iterative", "it")
-    try:
-        rec = reconstruct(capture, config, dtype=dtype, device=queue,
-                          progress=None if bar is None else (lambda k, n: _iteration(bar)),
-                          setup=None if bar is None else (
-                              lambda step: stage(bar, f"setup: {step}")))
-    finally:
-        if bar is not None:
-            bar.close()
-    attrs = {**volume_attrs(rec), "dtype": np.dtype(dtype).name,
-             **provenance(capture=capture.source if capture.source and
-                          Path(capture.source).exists() else None,
-                          device=queue.device.name.strip())}
-    name = Path(capture.source).name if capture.source else "capture"
-    title = f"{title_extra + ': ' if title_extra else ''}{name} ({config.method})"
-    volume = DeflatedArray(rec.volume.astype(np.float32))  # compressed while the figure draws
-    fig = figure(rec.volume, rec.extents, title)
-    with write_group([out, out.with_suffix(".png")]) as (tmp_h5, tmp_png):
-        write_h5_file(tmp_h5, {"volume": volume}, attrs)
-        save_figure_file(fig, tmp_png)
-    return rec

@@ -54,10 +54,10 @@ def lipschitz(op: LinearOperator, weights: cla.Array | None = None, *,
     for k in range(iterations):
         if progress is not None:
             progress(k + 1, iterations)
-        ax = op._apply(x)
+        ax = op.apply_device(x)
         if weights is not None:
             ax *= weights
-        y = op._adjoint(ax)
+        y = op.adjoint_device(ax)
         ny = float(cla.dot(y, y).get()) ** 0.5
         nx = float(cla.dot(x, x).get()) ** 0.5
         if ny == 0 or nx == 0:
@@ -158,11 +158,11 @@ def fista(op: LinearOperator, y: cla.Array, x0: cla.Array, *, l1: float = 0.0,
     out = FistaResult(x, 0, 0)
     for k in range(iterations):
         check = (k + 1) % CHECK_EVERY == 0 or k + 1 == iterations
-        az = op._apply(z)
+        az = op.apply_device(z)
         pk.weighted_residual(az, y, weights, res)
         if check:
             out.objective.append((k + 1, 0.5 * float(cla.dot(res, az - y).get())))
-        g = op._adjoint(res)
+        g = op.adjoint_device(res)
         if tv > 0:
             pk.gradient_step(z, g, v, step, step * l1)
             p = pk.tv_prox(v, step * tv, wz, row_min, p, x1)

@@ -5,7 +5,6 @@ matplotlib is imported only here, only when a figure is drawn (never on the comp
 
 from __future__ import annotations
 
-import io
 import sys
 
 import numpy as np
@@ -92,9 +91,3 @@ def transient_figure(tau: np.ndarray, *, width_m: float, start_s: float, bin_wid
     return fig
 
 
-def png_bytes(fig, dpi: int = 110) -> bytes:
-    """Render a figure to PNG bytes and close it."""
-    buf = io.BytesIO()
-    fig.savefig(buf, format="png", dpi=dpi, bbox_inches="tight")
-    close_figure(fig)
-    return buf.getvalue()

@@ -2,8 +2,9 @@
 
 An operator has ``in_shape``, ``out_shape``, ``dtype`` and a ``queue``. The public call
 checks shape and dtype (raising :class:`~clnlos.errors.ShapeError`) and accepts numpy arrays
-(returned as numpy) or ``pyopencl.array.Array`` (kept on the device); the private
-``_apply``/``_adjoint`` compute on device arrays. ``A @ B`` composes (B first) and
+(returned as numpy) or ``pyopencl.array.Array`` (kept on the device); subclasses
+implement ``_apply``/``_adjoint`` on device arrays, which ``apply_device``/``adjoint_device``
+expose unchecked to other operators and solvers. ``A @ B`` composes (B first) and
 ``(A @ B).adjoint == B.adjoint @ A.adjoint``. :func:`dot_test` checks <A x, y> = <x, A* y>.
 """
 
@@ -28,6 +29,15 @@ class LinearOperator:
 
     def _adjoint(self, y_g: cla.Array) -> cla.Array:
         raise NotImplementedError(f"{self.name} has no adjoint")
+
+    # -- public, unchecked: device arrays of the declared shapes (solvers' inner loops)
+    def apply_device(self, x_g: cla.Array) -> cla.Array:
+        """A x for a device array of ``in_shape`` (no shape or dtype check)."""
+        return self._apply(x_g)
+
+    def adjoint_device(self, y_g: cla.Array) -> cla.Array:
+        """A* y for a device array of ``out_shape`` (no shape or dtype check)."""
+        return self._adjoint(y_g)
 
     # -- public, checked
     def _check(self, x, shape, what):
@@ -66,10 +76,10 @@ class _Adjoint(LinearOperator):
         self.dtype, self.queue, self.name = op.dtype, op.queue, f"{op.name}.adjoint"
 
     def _apply(self, x_g):
-        return self.op._adjoint(x_g)
+        return self.op.adjoint_device(x_g)
 
     def _adjoint(self, y_g):
-        return self.op._apply(y_g)
+        return self.op.apply_device(y_g)
 
     @property
     def adjoint(self):
@@ -92,10 +102,10 @@ class Composition(LinearOperator):
         self.name = f"({outer.name} @ {inner.name})"
 
     def _apply(self, x_g):
-        return self.outer._apply(self.inner._apply(x_g))
+        return self.outer.apply_device(self.inner.apply_device(x_g))
 
     def _adjoint(self, y_g):
-        return self.inner._adjoint(self.outer._adjoint(y_g))
+        return self.inner.adjoint_device(self.outer.adjoint_device(y_g))
 
 
 def dot_test(op: LinearOperator, rng: np.random.Generator | None = None) -> float:

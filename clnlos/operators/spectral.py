@@ -116,7 +116,7 @@ class SpectralFilter(LinearOperator):
                                  queue=self.queue, out_plane=pad_shape[1:],
                                  out_rows=pad_shape[0])
         self.fft = RealFFT3(pad_shape, self.dtype, self.queue)
-        self._k = get_kernels(self.queue, "wiener", real_defines(self.dtype))
+        self.kernels = get_kernels(self.queue, "wiener", real_defines(self.dtype))
         self.folded = bool(spectrum is not None and spectrum_folded)
         if spectrum is not None:
             want = folded_shape(self.fft.spec_shape) if self.folded else self.fft.spec_shape
@@ -141,7 +141,7 @@ class SpectralFilter(LinearOperator):
         self.scratch.reserve("b", self.fft.spec_shape, self.fft.cdtype)
 
     @property
-    def _buf(self) -> cla.Array:
+    def work_buffer(self) -> cla.Array:
         """The padded real grid (scratch slot "a"; every call overwrites all of it)."""
         return self.scratch.array("a", self.pad_shape, self.dtype)
 
@@ -184,7 +184,7 @@ class SpectralFilter(LinearOperator):
 
     def _filter(self, x_g: cla.Array, adjoint: bool) -> cla.Array:
         write, nonzero, zeroed = self._padder(x_g, adjoint)
-        return self.filter_padded(write, self._pad._adjoint, adjoint=adjoint, nonzero=nonzero,
+        return self.filter_padded(write, self._pad.adjoint_device, adjoint=adjoint, nonzero=nonzero,
                                   zeroed=zeroed)
 
     def gain_squared(self) -> np.ndarray:
@@ -214,7 +214,7 @@ class SpectralFilter(LinearOperator):
         """(the padded grid, its half spectrum): ``write_input(buf)`` into the padded grid
         (zeroed first if ``zeroed``; data in its low-corner ``nonzero`` block, default
         ``in_shape``), then the forward FFT into scratch slot "b"."""
-        buf = self._buf
+        buf = self.work_buffer
         if zeroed:
             fill_zero(self.queue, buf)
         write_input(buf)
@@ -232,7 +232,7 @@ class SpectralFilter(LinearOperator):
         (the rest of ``buf`` is not computed). A resampling that writes straight into the
         padded grid saves the separate pad and crop passes (LCT's t -> v and u -> z)."""
         buf, spec = self._forward_padded(write_input, nonzero, zeroed)
-        multiply_spectrum(self._k, self.H, spec, h_scale=self.h_scale, adjoint=adjoint,
+        multiply_spectrum(self.kernels, self.H, spec, h_scale=self.h_scale, adjoint=adjoint,
                           folded=self.folded,
                           inv_snr=self.inv_snr if self.mode == "wiener" else None)
         self.fft.inverse(spec, buf, needed=self.in_shape)

@@ -50,6 +50,7 @@ from scipy.ndimage import zoom
 from clnlos.app.progress import counter, progress_bar
 from clnlos.brdf.models import BRDFModel
 from clnlos.brdf.presets import preset_model, preset_table
+from clnlos.config import METHODS
 from clnlos.errors import ParameterError
 from clnlos.forward.scene import Scene
 from clnlos.inverse.pipeline import reconstruct
@@ -168,7 +169,7 @@ class StudyOptions:
     def validate(self) -> StudyOptions:
         if self.labels not in LABEL_METRICS:
             raise ParameterError("--labels", self.labels, " or ".join(LABEL_METRICS))
-        if self.grid.method not in ("lct", "fk", "iterative"):
+        if self.grid.method not in METHODS:
             raise ParameterError("--method", self.grid.method, "lct, fk or iterative")
         if self.n_dataset < 0:
             raise ParameterError("--n-dataset", self.n_dataset, ">= 0")

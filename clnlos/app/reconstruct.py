@@ -1,0 +1,74 @@
+"""The reconstruct front: a capture in, the volume (HDF5) and its figure (PNG) out, atomically,
+with provenance and a progress bar for the iterative method."""
+
+from __future__ import annotations
+
+import json
+from pathlib import Path
+
+import numpy as np
+
+from clnlos.app.progress import progress_bar, stage
+from clnlos.config import ReconstructionConfig
+from clnlos.inverse.pipeline import Reconstruction, reconstruct
+from clnlos.io.capture import Capture
+from clnlos.io.deflate import DeflatedArray
+from clnlos.io.figures import volume_figure as figure
+from clnlos.io.files import save_figure_file, write_h5_file
+from clnlos.io.outputs import provenance, write_group
+from clnlos.runtime.device import get_queue
+
+
+def volume_figure(rec: Reconstruction, title: str = ""):
+    """The figure of a reconstruction (:func:`clnlos.figures.volume_figure`)."""
+    return figure(rec.volume, rec.extents, title)
+
+
+def volume_attrs(rec: Reconstruction) -> dict:
+    """The HDF5 attributes of a volume file (format clnlos-volume-1)."""
+    return {**rec.extents, "bin_width_s": rec.bin_width_s, "scan_width_m": rec.scan_width_m,
+            "stages": json.dumps(rec.stages), "timings_s": json.dumps(rec.timings_s),
+            "params": json.dumps(rec.params), "noise": json.dumps(rec.noise),
+            "solver": json.dumps(rec.solver), "notes": json.dumps(rec.notes),
+            "axes": "volume[z, y, x]; +x with column index, +y with row index",
+            "format": "clnlos-volume-1"}
+
+
+def _iteration(bar) -> None:
+    """One iteration done: the set-up note (if any) goes, the bar moves."""
+    if bar.postfix:
+        bar.set_postfix_str("", refresh=False)
+    bar.update(1)
+
+
+def reconstruct_to_files(capture: Capture, out, config: ReconstructionConfig, *,
+                         dtype=np.float32, queue=None, title_extra: str = "",
+                         show_progress: bool = True) -> Reconstruction:
+    """Reconstruct and write the volume (HDF5) and its figure (PNG beside it) together,
+    atomically, with the provenance of the result; the iterative method shows a progress
+    bar (:mod:`clnlos.progress`), its set-up steps beside it, then its iterations."""
+    out = Path(out)
+    queue = get_queue(queue)
+    bar = None
+    if show_progress and config.method == "iterative":
+        bar = progress_bar(config.iterations, "iterative", "it")
+    try:
+        rec = reconstruct(capture, config, dtype=dtype, device=queue,
+                          progress=None if bar is None else (lambda k, n: _iteration(bar)),
+                          setup=None if bar is None else (
+                              lambda step: stage(bar, f"setup: {step}")))
+    finally:
+        if bar is not None:
+            bar.close()
+    attrs = {**volume_attrs(rec), "dtype": np.dtype(dtype).name,
+             **provenance(capture=capture.source if capture.source and
+                          Path(capture.source).exists() else None,
+                          device=queue.device.name.strip())}
+    name = Path(capture.source).name if capture.source else "capture"
+    title = f"{title_extra + ': ' if title_extra else ''}{name} ({config.method})"
+    volume = DeflatedArray(rec.volume.astype(np.float32))  # compressed while the figure draws
+    fig = figure(rec.volume, rec.extents, title)
+    with write_group([out, out.with_suffix(".png")]) as (tmp_h5, tmp_png):
+        write_h5_file(tmp_h5, {"volume": volume}, attrs)
+        save_figure_file(fig, tmp_png)
+    return rec

@@ -1,0 +1,104 @@
+"""The inversion methods: one contract, one registry (:data:`METHODS`).
+
+Every method is a class with the same constructor, ``Method(grid, config, *, dtype, queue,
+scratch=None, cache=None)``:
+
+* ``grid`` (:class:`InversionGrid`): the deconvolved transient's shape [t, y, x] (bin 0 at
+  t = 0), bin width (s) and scan width (m);
+* ``config``: the :class:`clnlos.config.ReconstructionConfig` (the method reads its own
+  fields: falloff, iterations, weights, ...);
+* ``dtype``/``queue``: precision and OpenCL queue; ``scratch``/``cache``: work buffers shared
+  with the pipeline's other stages and the optional on-disk spectrum cache.
+
+``configure(tau_g, noise, rule_snr, timed) -> dict`` sets what the method chooses from the
+data (e.g. the light-cone SNR by cross-validation, :mod:`clnlos.inverse.gcv`; ``rule_snr``
+is the photon rule's value, :func:`clnlos.inverse.snr.lightcone_snr`) and returns the
+parameters it used (recorded in the volume's ``params``); ``timed(name, fn, *args)`` runs a
+step and records its time. ``__call__(tau_g, *, progress=None, setup=None)`` returns the
+volume [z, y, x] on the device; ``report()`` what the solver did (or None).
+
+The registry names each method's module and class, so this module (read by the config, the
+CLI flags, the study, the demo and the bench) imports no OpenCL code; :func:`method_class`
+imports the one asked for. Adding a method: one module with its class, one line here.
+"""
+
+from __future__ import annotations
+
+import importlib
+from dataclasses import dataclass
+
+
+@dataclass(frozen=True)
+class InversionGrid:
+    """The grid an inversion runs on: transient shape [t, y, x], bin width (s), scan width (m)."""
+
+    shape: tuple[int, int, int]
+    bin_width_s: float
+    scan_width_m: float
+
+
+@dataclass(frozen=True)
+class MethodEntry:
+    """A registered method: where its class lives, its default radiometric falloff (the
+    power of 1/r applied per bin before the inversion; None: the method has its own model)
+    and a one-line summary for the CLI help."""
+
+    module: str
+    cls: str
+    falloff: float | None
+    summary: str
+
+
+METHODS: dict[str, MethodEntry] = {
+    "lct": MethodEntry("clnlos.inverse.lct", "LCTMethod", 4.0,
+                       "light-cone transform with a Wiener filter (O'Toole et al. 2018)"),
+    "fk": MethodEntry("clnlos.inverse.fk", "FKMethod", 2.0,
+                      "f-k (Stolt) migration (Lindell et al. 2019)"),
+    "iterative": MethodEntry("clnlos.inverse.iterative", "IterativeMethod", None,
+                             "FISTA on the light-cone transport, L1 + TV, warm-started by "
+                             "LCT"),
+}
+
+
+def method_names() -> tuple[str, ...]:
+    return tuple(METHODS)
+
+
+def default_falloffs() -> dict[str, float]:
+    """The falloff of each method that has one (``--falloff`` default per method)."""
+    return {name: e.falloff for name, e in METHODS.items() if e.falloff is not None}
+
+
+def method_class(name: str) -> type:
+    """The class of the registered method ``name`` (its module imported on first use)."""
+    entry = METHODS[name]
+    return getattr(importlib.import_module(entry.module), entry.cls)
+
+
+class Inversion:
+    """Base of the methods (see the module docstring); ``name`` is the registry key."""
+
+    name = ""
+
+    def __init__(self, grid: InversionGrid, config, *, dtype, queue, scratch=None,
+                 cache=None):
+        self.grid, self.config = grid, config
+        self.dtype, self.queue, self.scratch, self.cache = dtype, queue, scratch, cache
+
+    def geometry(self) -> dict:
+        """The keyword arguments every plan of the package takes for this grid."""
+        return dict(bin_width_s=self.grid.bin_width_s, scan_width_m=self.grid.scan_width_m,
+                    dtype=self.dtype, queue=self.queue, scratch=self.scratch)
+
+    def falloff(self) -> dict:
+        """``{"falloff": x}`` when the config sets one, else ``{}`` (the method's default)."""
+        return {} if self.config.falloff is None else {"falloff": self.config.falloff}
+
+    def configure(self, tau_g, noise, rule_snr: float, timed) -> dict:
+        return {}
+
+    def __call__(self, tau_g, *, progress=None, setup=None):
+        raise NotImplementedError
+
+    def report(self) -> dict | None:
+        return None
