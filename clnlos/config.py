@@ -68,6 +68,10 @@ METHODS = method_names()  # the registry of clnlos.inverse.methods
 # LCT's suits diffuse (Lambertian) surfaces; for f-k the square root of the weighted
 # measurement is the wave. The iterative method models the falloff itself.
 METHOD_FALLOFF = default_falloffs()
+# ranges of the inversion parameters: the config and the plans (clnlos.inverse) check these
+FALLOFF_RANGE = (0.0, 8.0)        # radiometric exponent p
+ITERATIONS_RANGE = (0, 100_000)   # iterative: FISTA iterations
+WEIGHT_RANGE = (0.0, 1e3)         # iterative: relative L1 / TV weights, TV depth scale
 DEPTH_GUARD_M = 0.15  # "auto" support: first-arrival depth minus this (slab delay + noise)
 MAX_BINS = 1 << 16    # time bins of a reconstructed volume at most (--bins and the window)
 
@@ -293,10 +297,10 @@ class ReconstructionConfig:
         v["inversion_snr"] = auto_or_positive(nm("inversion_snr"), self.inversion_snr,
                                               upper=1e30)
         if self.falloff is not None:
-            v["falloff"] = real(nm("falloff"), self.falloff, 0.0, 8.0)
-        v["iterations"] = integer(nm("iterations"), self.iterations, 0, 100_000)
-        v["l1_weight"] = real(nm("l1_weight"), self.l1_weight, 0.0, 1e3)
-        v["tv_weight"] = real(nm("tv_weight"), self.tv_weight, 0.0, 1e3)
+            v["falloff"] = real(nm("falloff"), self.falloff, *FALLOFF_RANGE)
+        v["iterations"] = integer(nm("iterations"), self.iterations, *ITERATIONS_RANGE)
+        v["l1_weight"] = real(nm("l1_weight"), self.l1_weight, *WEIGHT_RANGE)
+        v["tv_weight"] = real(nm("tv_weight"), self.tv_weight, *WEIGHT_RANGE)
         if self.depth_min_m != "auto":
             if isinstance(self.depth_min_m, str):
                 raise ParameterError(nm("depth_min_m"), self.depth_min_m,

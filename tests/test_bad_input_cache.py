@@ -427,7 +427,7 @@ translate_m = [0.0, 0.0, 0.5]
 def test_scene_surface_elements_are_bounded_before_sampling(tmp_path, monkeypatch, capsys):
     """10 m x 10 m at 1e10 per m^2: 1e12 elements, refused before any is built."""
     from clnlos.app.cli import main
-    from clnlos.forward import model as forward
+    from clnlos.forward import sampling as forward
 
     def boom(*a, **k):
         raise AssertionError("sampled")

@@ -228,17 +228,17 @@ def test_written_by_clnlos_recognises_only_its_own_markers(tmp_path):
 # ------------------------------------------------------------------ SIGTERM
 CHILD_RECONSTRUCT = """
 import sys, time
-import clnlos.io.files
+import clnlos.app.reconstruct
 from clnlos.app.cli import main
 
-real = clnlos.io.files.write_h5_file
+real = clnlos.app.reconstruct.write_h5_file
 
 def slow_write(path, datasets, attrs):
     real(path, datasets, attrs)           # the temporary is complete on disk ...
     print("writing", path, flush=True)    # ... and the run is stopped before the rename
     time.sleep(60)
 
-clnlos.io.files.write_h5_file = slow_write
+clnlos.app.reconstruct.write_h5_file = slow_write
 sys.exit(main(sys.argv[1:]))
 """
 
@@ -332,14 +332,14 @@ def _full_disk(message_of):
 
 @pytest.mark.parametrize("kind", ["errno", "h5py_text"])
 def test_full_disk_names_the_users_path_in_one_line(tmp_path, monkeypatch, kind):
-    import clnlos.io.files
+    import clnlos.app.reconstruct
 
     make = {"errno": lambda tmp: OSError(errno.ENOSPC, "No space left on device", tmp),
             "h5py_text": lambda tmp: OSError(
                 f"Can't write data (file write failed: name = '{tmp}', errno = 28, error "
                 "message = 'No space left on device')\n  (while closing the file)")}[kind]
     cap = _capture(tmp_path)
-    monkeypatch.setattr(clnlos.io.files, "write_h5_file", _full_disk(make))
+    monkeypatch.setattr(clnlos.app.reconstruct, "write_h5_file", _full_disk(make))
     out = tmp_path / "rec.h5"
     line = _one_error_line(*_run(["reconstruct", str(cap), "-o", str(out)]))
     assert line.startswith(f"clnlos: error: cannot write {out}: "), line

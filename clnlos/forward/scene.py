@@ -36,7 +36,7 @@ Every error names the field, its value and the allowed range; numbers must be TO
     efficiency = 0.3
     wavelength_m = 532e-9
     etendue_m2_sr = 1e-8
-    dark_count_rate_hz = 100.0
+    dark_count_rate_hz = 0.0
     [sampling]              # accuracy knobs
     density_per_m2 = 4e5    # surface elements per square metre
     splat_order = 1         # 0: nearest bin, 1: linear between bin centres
@@ -111,14 +111,14 @@ class TransportSettings:
             raise ParameterError("transport", t, "a table")
         check_keys("transport", t, set(cls.__dataclass_fields__))
         return cls(
-            model=choice("transport.model", t.get("model", "confocal"), TRANSPORT_MODELS),
-            face_rings=integer("transport.face_rings", t.get("face_rings", FACE_RINGS), 1,
+            model=choice("transport.model", t.get("model", cls.model), TRANSPORT_MODELS),
+            face_rings=integer("transport.face_rings", t.get("face_rings", cls.face_rings), 1,
                                MAX_FACE_RINGS),
-            face_angles=integer("transport.face_angles", t.get("face_angles", FACE_ANGLES),
+            face_angles=integer("transport.face_angles", t.get("face_angles", cls.face_angles),
                                 1, MAX_FACE_ANGLES),
             texture_theta=integer("transport.texture_theta",
-                                  t.get("texture_theta", TEXTURE_THETA), 2, 1024),
-            texture_dphi=integer("transport.texture_dphi", t.get("texture_dphi", TEXTURE_DPHI),
+                                  t.get("texture_theta", cls.texture_theta), 2, 1024),
+            texture_dphi=integer("transport.texture_dphi", t.get("texture_dphi", cls.texture_dphi),
                                  2, 1024))
 
 
@@ -255,11 +255,11 @@ class Scene:
                 raise ParameterError("detector.efficiency", det.efficiency, "0 to 1")
         smp = d.get("sampling", {})
         check_keys("sampling", smp, {"density_per_m2", "splat_order", "blur_reach_tol"})
-        dens = positive("sampling.density_per_m2", smp.get("density_per_m2", 4e5), upper=1e10)
-        splat = integer("sampling.splat_order", smp.get("splat_order", 1), 0, 1)
-        reach_tol = positive("sampling.blur_reach_tol", smp.get("blur_reach_tol", 1e-3),
+        dens = positive("sampling.density_per_m2", smp.get("density_per_m2", cls.density_per_m2), upper=1e10)
+        splat = integer("sampling.splat_order", smp.get("splat_order", cls.splat_order), 0, 1)
+        reach_tol = positive("sampling.blur_reach_tol", smp.get("blur_reach_tol", cls.blur_reach_tol),
                              upper=1.0)
-        seed = integer("seed", d.get("seed", 0), 0, 2**63 - 1)
+        seed = integer("seed", d.get("seed", cls.seed), 0, 2**63 - 1)
         transport = TransportSettings.from_table(d.get("transport", {}))
         if transport.model == "bistatic" and slab is None:
             raise ParameterError("transport.model", "bistatic", "'confocal' or 'auto' without "

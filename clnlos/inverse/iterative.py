@@ -30,10 +30,10 @@ import numpy as np
 import pyopencl.array as cla
 
 from clnlos import C0
-from clnlos.config import DEPTH_GUARD_M
-from clnlos.errors import ParameterError
+from clnlos.checks import integer, real
+from clnlos.config import DEPTH_GUARD_M, ITERATIONS_RANGE, WEIGHT_RANGE
 from clnlos.forward.transport import LightConeTransport
-from clnlos.inverse.lct import LCT, choose_lightcone_snr, initial_inversion_snr
+from clnlos.inverse.lct import DEFAULT_SNR, LCT, choose_lightcone_snr, initial_inversion_snr
 from clnlos.inverse.methods import Inversion, InversionGrid
 from clnlos.inverse.solvers import fista, lipschitz
 from clnlos.operators.base import LinearOperator
@@ -72,18 +72,16 @@ class IterativeInversion:
 
     def __init__(self, shape, *, bin_width_s: float, scan_width_m: float,
                  iterations: int, l1_weight: float, tv_weight: float,
-                 tv_depth_scale: float = 1.0, warm_snr: float = 1e4, tol: float = 1e-4,
+                 tv_depth_scale: float = 1.0, warm_snr: float = DEFAULT_SNR, tol: float = 1e-4,
                  dtype=np.float32, queue=None, scratch=None, cache=None):
         self.queue = get_queue(queue)
         self.dtype = require_dtype(self.queue.device, dtype)
         self.shape = tuple(int(s) for s in shape)
         self.bin_width_s, self.scan_width_m = float(bin_width_s), float(scan_width_m)
-        if int(iterations) != iterations or not 0 <= iterations <= 100_000:
-            raise ParameterError("iterations", iterations, "an integer from 0 to 100000")
+        integer("iterations", iterations, *ITERATIONS_RANGE)
         for name, v in (("l1_weight", l1_weight), ("tv_weight", tv_weight),
                         ("tv_depth_scale", tv_depth_scale)):
-            if not (math.isfinite(v) and 0 <= v <= 1e3):
-                raise ParameterError(name, v, "0 to 1000")
+            real(name, v, *WEIGHT_RANGE)
         self.iterations, self.tol = int(iterations), float(tol)
         self.l1_weight, self.tv_weight = float(l1_weight), float(tv_weight)
         self.tv_depth_scale = float(tv_depth_scale)

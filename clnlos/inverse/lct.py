@@ -27,7 +27,8 @@ import pyopencl.array as cla
 import scipy.sparse as sp
 
 from clnlos import C0
-from clnlos.config import METHOD_FALLOFF
+from clnlos.checks import real
+from clnlos.config import FALLOFF_RANGE, METHOD_FALLOFF
 from clnlos.errors import ParameterError, ShapeError
 from clnlos.inverse.gcv import GcvBins
 from clnlos.inverse.methods import Inversion, InversionGrid
@@ -50,8 +51,7 @@ def check_inversion_args(shape, falloff: float) -> tuple[int, int, int]:
     nt, ny, nx = (int(s) for s in shape)
     if min(nt, ny, nx) < 1:
         raise ParameterError("shape", shape, "three sizes >= 1")
-    if not np.isfinite(falloff) or not 0 <= falloff <= 8:
-        raise ParameterError("falloff", falloff, "0 to 8")
+    real("falloff", falloff, *FALLOFF_RANGE)
     return nt, ny, nx
 
 

@@ -135,7 +135,7 @@ class ProxKernels:
 
 def fista(op: LinearOperator, y: cla.Array, x0: cla.Array, *, l1: float = 0.0,
           tv: float = 0.0, wz: float = 1.0, weights: cla.Array | None = None,
-          row_min: int = 0, iterations: int = 100, tol: float = 1e-4,
+          row_min: int = 0, iterations: int, tol: float = 1e-4,
           lipschitz_const: float | None = None, callback=None) -> FistaResult:
     """Minimise the problem of the module docstring from ``x0`` (device arrays, op's dtype).
 

@@ -36,12 +36,13 @@ from clnlos import C0, __version__
 from clnlos.config import ReconstructionConfig
 from clnlos.errors import ParameterError
 from clnlos.forward.model import ForwardModel
-from clnlos.forward.scene import Scene
+from clnlos.forward.scene import Detector, Scene
 from clnlos.inverse.pipeline import reconstruct
 from clnlos.io.files import atomic_path
 from clnlos.io.outputs import install_sigterm_cleanup
 from clnlos.physics.slab import CDT_SLAB
 from clnlos.runtime.device import get_queue
+from clnlos.runtime.programs import code_digest, kernel_families
 from clnlos.study.legibility import box_baseline_iou
 from clnlos.study.metrics import coverage_image, iou, otsu_threshold, peak_depth_m
 from clnlos.study.quality import METRICS, quality_metrics
@@ -58,32 +59,36 @@ class StudyGrid:
     max_path_m: float = 1.6  # reconstruction window (round-trip path), m
     density_per_m2: float = 4e4
     method: str = "iterative"
-    iterations: int = 50
-    power_w: float = 0.4
-    rep_rate_hz: float = 10e6
+    iterations: int = 50  # the study's budget (a quarter of the config's default): most of
+    #                       the iterative gain is in by 50 iterations at this grid
+    # the detector: the scene's defaults (seed Table 1), but for the etendue and dark counts
+    # of the study's SPAD behind the slab
+    power_w: float = Detector.power_w
+    rep_rate_hz: float = Detector.rep_rate_hz
     pulse_width_s: float = 35e-12
-    wavelength_m: float = 532e-9
+    wavelength_m: float = Detector.wavelength_m
     etendue_m2_sr: float = 1e-9
-    efficiency: float = 0.3
+    efficiency: float = Detector.efficiency
     dark_count_rate_hz: float = 1000.0
 
 
+# what shapes a sample's result: every kernel family, the physics, forward, operator, runtime,
+# inverse, io and BRDF packages, the top-level modules, the study's sampling and metrics
+CODE_MODULES = ("clnlos.config", "clnlos.checks", "clnlos.diffusion", "clnlos.errors",
+                "clnlos.settings", "clnlos.physics", "clnlos.forward", "clnlos.operators",
+                "clnlos.runtime", "clnlos.inverse", "clnlos.io", "clnlos.brdf",
+                "clnlos.study.dataset", "clnlos.study.quality", "clnlos.study.clarity",
+                "clnlos.study.legibility", "clnlos.study.metrics")
+
+
 def code_version() -> str:
-    """clnlos version and a hash of what shapes a sample's result (every kernel source, the
-    package's stage modules, the BRDF package and presets, this module and the quality
-    metrics): part of each cache key, so results computed by other code are never reused."""
-    h = hashlib.sha256(__version__.encode())
-    files = []
-    for pkg, suffixes in (("clnlos.kernels", (".cl", ".h")), ("clnlos", (".py",)),
-                          ("clnlos.brdf", (".py", ".json"))):
-        files += [e for e in resources.files(pkg).iterdir()
-                  if e.is_file() and e.name.endswith(suffixes)]
-    study = resources.files("clnlos.study")
-    files += [study.joinpath("dataset.py"), study.joinpath("quality.py"),
-              study.joinpath("clarity.py"), study.joinpath("legibility.py")]
-    for entry in sorted(files, key=lambda e: str(e)):
-        h.update(entry.name.encode() + entry.read_bytes())
-    return f"{__version__}+{h.hexdigest()[:16]}"
+    """clnlos version and a hash of what shapes a sample's result (:data:`CODE_MODULES`,
+    every kernel source, the BRDF presets; :func:`clnlos.runtime.programs.code_digest`, the
+    hash the spectrum cache uses): part of each cache key, so results computed by other code
+    are never reused."""
+    presets = resources.files("clnlos.brdf").joinpath("presets.json")
+    digest = code_digest(CODE_MODULES, kernel_families(), [presets])
+    return f"{__version__}+{digest[:16]}"
 
 
 def sample_key(sample: dict, grid: StudyGrid, version: str) -> str:
