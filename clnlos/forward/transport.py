@@ -42,6 +42,7 @@ from clnlos.errors import ParameterError
 from clnlos.operators.base import LinearOperator
 from clnlos.operators.resample import AxisResample, overlap_matrix
 from clnlos.operators.spectral import multiply_spectrum
+from clnlos.physics.lightcone import lightcone_psf_grid
 from clnlos.runtime.buffers import Scratch, fill_zero
 from clnlos.runtime.device import get_queue, require_dtype
 from clnlos.runtime.fft import RealFFT3
@@ -63,16 +64,7 @@ def lightcone_kernel(nv: int, pad_t: int, py: int, px: int, *, dv_m2: float, pit
     wrap around the padded time axis, are dropped."""
     oy, ox = signed_offsets(py, shift) * pitch_m, signed_offsets(px, shift) * pitch_m
     s = (oy[:, None] ** 2 + ox[None, :] ** 2) / dv_m2
-    k0 = np.floor(s).astype(np.int64)
-    f = s - k0
-    h = np.zeros((pad_t, py, px))
-    yy, xx = np.indices(s.shape)
-    k_max = min(nv - 1, pad_t - nv)
-    for kk, w in ((k0, 1.0 - f), (k0 + 1, f)):
-        ok = kk <= k_max
-        np.add.at(h, (kk[ok], yy[ok], xx[ok]), w[ok])
-    return h
-
+    return lightcone_psf_grid(s, pad_t, min(nv - 1, pad_t - nv))
 
 class LightConeTransport(LinearOperator):
     """Plan: rho [nz, ny, nx] -> I [nt, ny + 2 margin, nx + 2 margin] (see module docstring).

@@ -37,6 +37,7 @@ from clnlos.operators.base import LinearOperator
 from clnlos.operators.resample import AxisResample, overlap_matrix
 from clnlos.operators.spectral import SpectralFilter
 from clnlos.physics.grid import grid_offsets
+from clnlos.physics.lightcone import lightcone_psf_grid
 from clnlos.runtime.buffers import Scratch, fill_zero, kernel_int, round_up
 from clnlos.runtime.device import get_queue, require_dtype
 from clnlos.runtime.fft import RealFFT3
@@ -65,14 +66,7 @@ def lightcone_psf(nt: int, ny: int, nx: int, *, bin_width_s: float, pitch_m: flo
     R = nt * C0 * bin_width_s / 2
     oy, ox = grid_offsets(2 * ny, pitch_m), grid_offsets(2 * nx, pitch_m)
     q = oy[:, None] ** 2 + ox[None, :] ** 2
-    s = q / R**2 * nt
-    k0 = np.floor(s).astype(np.int64)
-    f = s - k0
-    psf = np.zeros((2 * nt, 2 * ny, 2 * nx))
-    yy, xx = np.indices(q.shape)
-    for kk, w in ((k0, 1 - f), (k0 + 1, f)):
-        ok = kk < 2 * nt
-        np.add.at(psf, (kk[ok], yy[ok], xx[ok]), w[ok])
+    psf = lightcone_psf_grid(q / R**2 * nt, 2 * nt, 2 * nt - 1)
     return psf / psf.sum()
 
 
