@@ -14,8 +14,9 @@ from clnlos.brdf.texture import TextureLookup, tabulate
 from clnlos.diffusion import SlabTransmittance, diffusion_psf
 from clnlos.forward.blur import slab_blur
 from clnlos.forward.geometry import Elements
-from clnlos.forward.model import LightCone, PulseBlur, SurfaceSamples
-from clnlos.forward.sampling import N_THETA
+from clnlos.forward.lightcone import LightCone
+from clnlos.forward.pulse import PulseBlur
+from clnlos.forward.sampling import N_THETA, SurfaceSamples
 from clnlos.forward.transport import LightConeTransport
 from clnlos.inverse.fk import FKMigration
 from clnlos.inverse.lct import LCT

@@ -12,7 +12,7 @@ from reference.scene_ref import points_transient
 
 from clnlos.config import ReconstructionConfig
 from clnlos.inverse.pipeline import reconstruct
-from clnlos.io.files import Capture
+from clnlos.io.capture import Capture
 from clnlos.physics.slab import CDT_SLAB
 from clnlos.runtime.caches import PIPELINES
 from clnlos.runtime.spectrum_cache import HEADER, SUFFIX
@@ -398,7 +398,7 @@ def test_legitimate_large_sizes_pass_the_checks(queue):
     from importlib import resources
 
     from clnlos.app.commands import _pipeline_fits
-    from clnlos.forward.model import check_scene_size
+    from clnlos.forward.sampling import check_scene_size
     from clnlos.forward.scene import Scene
     from clnlos.runtime.limits import declared_capture
     from clnlos.study.dataset import StudyGrid, dataset_samples, scene_dict

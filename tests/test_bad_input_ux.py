@@ -17,7 +17,7 @@ from clnlos.brdf.fit import fit_analytic
 from clnlos.brdf.models import BRDFModel
 from clnlos.config import ReconstructionConfig
 from clnlos.forward.scene import read_retro_csv
-from clnlos.io.files import Capture
+from clnlos.io.capture import Capture
 from clnlos.physics.slab import CDT_SLAB
 
 HEADER = "theta_i_deg,phi_i_deg,theta_s_deg,phi_s_deg,brdf\n"

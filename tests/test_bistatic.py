@@ -27,13 +27,13 @@ from clnlos.config import slab_table
 from clnlos.diffusion import diffusion_psf
 from clnlos.forward.bistatic import (
     BistaticTransport,
-    TransportSettings,
     face_quadrature,
     lobe_halfwidth_rad,
     scene_textures,
 )
-from clnlos.forward.model import ForwardModel, sample_scene
-from clnlos.forward.scene import Scene
+from clnlos.forward.model import ForwardModel
+from clnlos.forward.sampling import sample_scene
+from clnlos.forward.scene import Scene, TransportSettings
 from clnlos.physics.slab import CDT_SLAB
 
 BINS, DT = 128, 32e-12

@@ -12,15 +12,10 @@ from reference.diffusion_ref import (
 )
 
 from clnlos.config import slab_table
-from clnlos.diffusion import (
-    Slab,
-    SlabTransmittance,
-    diffusion_psf,
-    grid_offsets,
-    slab_transmittance,
-)
+from clnlos.diffusion import SlabTransmittance, diffusion_psf, slab_transmittance
 from clnlos.errors import ParameterError
-from clnlos.physics.slab import CDT_SLAB
+from clnlos.physics.grid import grid_offsets
+from clnlos.physics.slab import CDT_SLAB, Slab
 
 CDT = slab_table(CDT_SLAB)
 

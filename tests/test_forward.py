@@ -19,9 +19,10 @@ from clnlos.forward.geometry import (
     sample_rectangle,
     sample_sphere,
 )
-from clnlos.forward.model import ForwardModel, LightCone, SurfaceSamples
+from clnlos.forward.lightcone import LightCone
+from clnlos.forward.model import ForwardModel
 from clnlos.forward.pulse import pulse_taps
-from clnlos.forward.sampling import N_THETA
+from clnlos.forward.sampling import N_THETA, SurfaceSamples
 from clnlos.forward.scene import Scene
 from clnlos.inverse.pipeline import reconstruct
 from clnlos.io.files import read_capture
@@ -305,7 +306,7 @@ def test_pulse_blur_kernel_vs_numpy(queue, dtype):
     """kernels/temporal.cl (time_convolve) against numpy's convolution, float64 reference."""
     import pyopencl.array as cla
 
-    from clnlos.forward.model import PulseBlur
+    from clnlos.forward.pulse import PulseBlur
 
     rng = np.random.default_rng(7)
     x = rng.random((90, 3, 4))

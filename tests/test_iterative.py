@@ -12,7 +12,9 @@ from helpers import rel_l2
 from clnlos import C0
 from clnlos.config import ReconstructionConfig, slab_table
 from clnlos.forward.geometry import Elements
-from clnlos.forward.model import ForwardModel, LightCone, SurfaceSamples
+from clnlos.forward.lightcone import LightCone
+from clnlos.forward.model import ForwardModel
+from clnlos.forward.sampling import SurfaceSamples
 from clnlos.forward.scene import Scene
 from clnlos.forward.transport import LightConeTransport
 from clnlos.inverse.iterative import IterativeInversion

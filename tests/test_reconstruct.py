@@ -13,17 +13,17 @@ from reference.scene_ref import patch_points, points_transient, scan_centres
 from clnlos import C0
 from clnlos.app.cli import main
 from clnlos.config import ReconstructionConfig, slab_table
-from clnlos.diffusion import Slab
 from clnlos.forward.blur import confocal_psf, slab_blur
 from clnlos.forward.pulse import PulseBlur
 from clnlos.forward.transport import LightConeTransport
 from clnlos.inverse.fk import FKMigration
 from clnlos.inverse.lct import LCT
 from clnlos.inverse.pipeline import preprocess_matrix, reconstruct
-from clnlos.io.files import Capture, read_capture, write_capture
+from clnlos.io.capture import Capture
+from clnlos.io.files import read_capture, write_capture
 from clnlos.operators.base import dot_test
 from clnlos.operators.resample import AxisResample, overlap_matrix, rebin_matrix
-from clnlos.physics.slab import CDT_SLAB
+from clnlos.physics.slab import CDT_SLAB, Slab
 from clnlos.runtime.fft import ComplexFFT3, RealFFT3
 
 CDT = slab_table(CDT_SLAB)

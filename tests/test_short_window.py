@@ -14,11 +14,13 @@ from reference.scene_ref import patch_points, points_transient
 from clnlos.app.cli import main
 from clnlos.app.simulate import simulate_to_file
 from clnlos.config import ReconstructionConfig
-from clnlos.forward.blur import blur_time_scales, lateral_integral_profile, slab_blur
+from clnlos.diffusion import lateral_integral_profile
+from clnlos.forward.blur import blur_time_scales, slab_blur
 from clnlos.forward.scene import Scene
 from clnlos.inverse.pipeline import cut_level, reconstruct, window_end_level
 from clnlos.inverse.tail_fill import TailFilledDeconvolution
-from clnlos.io.files import Capture, read_capture
+from clnlos.io.capture import Capture
+from clnlos.io.files import read_capture
 from clnlos.physics.slab import CDT_SLAB
 from clnlos.study.metrics import letters_truth_mask, mip_iou, peak_depth_m
 

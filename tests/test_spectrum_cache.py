@@ -7,7 +7,8 @@ from reference.scene_ref import points_transient
 from clnlos.app.cli import main
 from clnlos.config import ReconstructionConfig
 from clnlos.inverse.pipeline import reconstruct
-from clnlos.io.files import Capture, write_capture
+from clnlos.io.capture import Capture
+from clnlos.io.files import write_capture
 from clnlos.physics.slab import CDT_SLAB, Slab
 from clnlos.runtime.caches import PIPELINES
 from clnlos.runtime.spectrum_cache import SUFFIX

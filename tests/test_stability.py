@@ -14,8 +14,8 @@ from reference.lightcone_ref import lightcone_ref
 from clnlos.brdf.models import BRDFModel, retro_slice
 from clnlos.forward.blur import slab_blur
 from clnlos.forward.geometry import Elements
-from clnlos.forward.model import LightCone, SurfaceSamples
-from clnlos.forward.sampling import N_THETA
+from clnlos.forward.lightcone import LightCone
+from clnlos.forward.sampling import N_THETA, SurfaceSamples
 from clnlos.inverse.fk import FKMigration
 from clnlos.inverse.lct import LCT
 from clnlos.operators.spectral import SpectralFilter

@@ -49,7 +49,7 @@ from clnlos.inverse.snr import (
     lightcone_snr,
 )
 from clnlos.inverse.tail_fill import TailFilledDeconvolution
-from clnlos.io.files import Capture
+from clnlos.io.capture import Capture
 from clnlos.operators.resample import AxisResample, overlap_matrix
 from clnlos.runtime.buffers import Scratch, host_view, round_up
 from clnlos.runtime.caches import PIPELINES

@@ -46,8 +46,9 @@ from clnlos.forward.geometry import text_extent
 from clnlos.forward.model import ForwardModel
 from clnlos.forward.scene import Scene
 from clnlos.inverse.pipeline import reconstruct
+from clnlos.io.capture import Capture
 from clnlos.io.figures import new_figure
-from clnlos.io.files import Capture, read_capture, save_figure
+from clnlos.io.files import read_capture, save_figure
 from clnlos.physics.slab import CDT_SLAB
 from clnlos.runtime.device import get_queue
 from clnlos.study.dataset import StudyGrid

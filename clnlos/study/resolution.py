@@ -49,8 +49,8 @@ from clnlos.forward.model import ForwardModel
 from clnlos.forward.noise import photon_counts
 from clnlos.forward.scene import Detector, Scene
 from clnlos.inverse.pipeline import reconstruct
+from clnlos.io.capture import Capture
 from clnlos.io.figures import new_figure
-from clnlos.io.files import Capture
 from clnlos.physics.slab import CDT_SLAB, Slab
 from clnlos.runtime.device import get_queue
 from clnlos.study.dataset import StudyGrid, window_m
