@@ -255,10 +255,11 @@ class Scene:
                 raise ParameterError("detector.efficiency", det.efficiency, "0 to 1")
         smp = d.get("sampling", {})
         check_keys("sampling", smp, {"density_per_m2", "splat_order", "blur_reach_tol"})
-        dens = positive("sampling.density_per_m2", smp.get("density_per_m2", cls.density_per_m2), upper=1e10)
+        dens = positive("sampling.density_per_m2",
+                        smp.get("density_per_m2", cls.density_per_m2), upper=1e10)
         splat = integer("sampling.splat_order", smp.get("splat_order", cls.splat_order), 0, 1)
-        reach_tol = positive("sampling.blur_reach_tol", smp.get("blur_reach_tol", cls.blur_reach_tol),
-                             upper=1.0)
+        reach_tol = positive("sampling.blur_reach_tol",
+                             smp.get("blur_reach_tol", cls.blur_reach_tol), upper=1.0)
         seed = integer("seed", d.get("seed", cls.seed), 0, 2**63 - 1)
         transport = TransportSettings.from_table(d.get("transport", {}))
         if transport.model == "bistatic" and slab is None:

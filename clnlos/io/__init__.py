@@ -1,1 +1,2 @@
-"""Captures, volumes and reports on disk: the Capture contract, format readers, atomic outputs, figures."""
+"""Captures, volumes and reports on disk: the Capture contract, format readers, atomic
+outputs, figures."""

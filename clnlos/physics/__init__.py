@@ -1,1 +1,2 @@
-"""Pure physics and parameter types (no OpenCL): the slab, the grids the stages share, the one light-cone PSF."""
+"""Pure physics and parameter types (no OpenCL): the slab, the grids the stages share, the
+one light-cone PSF."""

@@ -1,4 +1,5 @@
-"""Device buffers: host views and copies, zero fills, shared work buffers (Scratch), kernel sizes."""
+"""Device buffers: host views and copies, zero fills, shared work buffers (Scratch), kernel
+sizes."""
 
 from __future__ import annotations
 

@@ -1,8 +1,8 @@
 """Optional on-disk cache of PSF spectra: ``CLNLOS_SPECTRUM_CACHE=DIR``.
 
 A cold reconstruction builds one or two spectra on its padded grid: the slab's F[Phi * Phi]
-(:mod:`clnlos.forward.blur`) and, for LCT, the light cone's (:mod:`clnlos.inverse.lct`), 270 MB each at
-128 x 128 x 512. With the cache set, each is stored as a raw file named by a SHA-256 of
+(:mod:`clnlos.forward.blur`) and, for LCT, the light cone's (:mod:`clnlos.inverse.lct`),
+270 MB each at 128 x 128 x 512. With the cache set, each is stored as a raw file named by a SHA-256 of
 everything that shapes it -- its kind, grid, precision and physical parameters, the kernel
 sources and Python modules that compute it, and the clnlos version -- and a later process
 with the same geometry reads it instead of recomputing it. Off by default (it spends disk);
@@ -70,8 +70,8 @@ class SpectrumCache:
         try:
             self.root.mkdir(parents=True, exist_ok=True)
         except OSError as exc:
-            raise ParameterError(ENV_SPECTRUM_CACHE, str(self.root), f"a folder that can be created "
-                                 f"({exc.strerror or exc})") from None
+            raise ParameterError(ENV_SPECTRUM_CACHE, str(self.root), "a folder that can be "
+                                 f"created ({exc.strerror or exc})") from None
         if not os.access(self.root, os.W_OK | os.X_OK):
             raise ParameterError(ENV_SPECTRUM_CACHE, str(self.root), "a writable folder")
 
