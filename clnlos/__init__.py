@@ -3,7 +3,7 @@
 Stages (each a plan object with a shape/dtype/unit contract):
 
 * :mod:`clnlos.diffusion` -- time-resolved slab transmittance (image-dipole series)
-* :mod:`clnlos.runtime`   -- devices, queues, program cache, capability checks
+* :mod:`clnlos.runtime.device`   -- devices, queues, program cache, capability checks
 
 Array axis order everywhere: transients ``[t, y, x]``, volumes ``[z, y, x]``; SI units.
 """

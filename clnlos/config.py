@@ -20,11 +20,11 @@ optional and its default is the field default of :class:`ReconstructionConfig`::
     n_dipoles = 20               # optional (default: auto)
     [deconvolution]
     snr = "auto"                 # Wiener SNR of the slab deconvolution, or "auto": chosen
-                                 # from the capture by cross-validation (clnlos.gcv), with
+                                 # from the capture by cross-validation (clnlos.inverse.gcv), with
                                  # model_snr
     model_snr = "auto"           # accuracy of the slab model as an SNR; "auto": exact for a
                                  # capture clnlos simulated with this slab, else
-                                 # clnlos.noise.MEASURED_MODEL_SNR
+                                 # clnlos.inverse.snr.MEASURED_MODEL_SNR
     guard_fraction = 0.25        # deconvolve this much more of the capture past max_path_m
                                  # (where it has it), then drop it: keeps edge effects out
     lateral_pad = "mirror"       # "mirror" (even extension across the scan border) or "zero"
@@ -32,7 +32,8 @@ optional and its default is the field default of :class:`ReconstructionConfig`::
     method = "lct"               # a registered method: "lct", "fk" or "iterative"
     snr = "auto"                 # Wiener SNR of the LCT light-cone filter (and of the
                                  # iterative method's LCT warm start); "auto": chosen from
-                                 # the deconvolved transient by cross-validation (clnlos.gcv)
+                                 # the deconvolved transient by cross-validation
+                                 # (clnlos.inverse.gcv)
     falloff = 4.0                # radiometric exponent p (default: LCT 4, f-k 2)
     iterations = 200             # iterative: FISTA iterations at most
     l1_weight = 0.1              # iterative: L1 weight relative to max(L^T I)

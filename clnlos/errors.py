@@ -1,7 +1,7 @@
 """Typed exceptions of clnlos.
 
 Every error a user can cause derives from :class:`ClnlosError`; the command line turns
-these into one line on stderr and exit status 2 (see :mod:`clnlos.cli`).
+these into one line on stderr and exit status 2 (see :mod:`clnlos.app.cli`).
 """
 
 from __future__ import annotations
@@ -66,7 +66,7 @@ class KernelBuildError(DeviceError):
 class MemoryLimitError(ClnlosError):
     """A size declared by a file or a parameter needs more memory than the host has or a
     device allows; the message names the size, the limit and which memory
-    (:func:`clnlos.limits.check_memory`)."""
+    (:func:`clnlos.runtime.limits.check_memory`)."""
 
 
 class DeviceMemoryError(MemoryLimitError, DeviceCapabilityError):

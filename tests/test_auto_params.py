@@ -1,5 +1,5 @@
 """Reconstruction parameters chosen from the data (issue 24): generalised cross-validation
-for the Wiener SNRs (clnlos.gcv), against the oracle grid and across exposures
+for the Wiener SNRs (clnlos.inverse.gcv), against the oracle grid and across exposures
 (clnlos.bench.oracle)."""
 
 import math

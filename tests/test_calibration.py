@@ -1,4 +1,5 @@
-"""The slab diffusion model fitted to transmittance captures (clnlos.calibration): a synthetic
+"""The slab diffusion model fitted to transmittance captures (clnlos.forward.calibration): a
+synthetic
 round trip with known parameters, and the real CDT calibration captures (skipped without
 ../shared/data)."""
 
@@ -113,7 +114,7 @@ def test_real_five_inch(shared_data):
     assert fit.residual[0] < 0.01
 
 
-# --- the hidden-face kernel (clnlos.blur.eq8_psf) -------------------------------------------
+# --- the hidden-face kernel (clnlos.forward.blur.eq8_psf) ------------------------------------
 
 def _f64(queue):
     from clnlos.runtime.device import has_fp64

@@ -1,5 +1,5 @@
-"""The Pillow-drawn reconstruction figure (clnlos.raster) and the parallel HDF5 writer
-(clnlos.deflate)."""
+"""The Pillow-drawn reconstruction figure (clnlos.io.raster) and the parallel HDF5 writer
+(clnlos.io.deflate)."""
 
 import h5py
 import numpy as np

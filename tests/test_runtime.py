@@ -167,11 +167,12 @@ def test_wheel_ships_kernels_and_runs_them(tmp_path):
                         "--target", str(target), str(whl)], capture_output=True, text=True)
     assert r.returncode == 0, r.stderr
     code = (
-        "import clnlos, clnlos.runtime as rt, clnlos.diffusion as d, pathlib, sys\n"
+        "import clnlos, clnlos.runtime.programs as rt, clnlos.runtime.device as dev\n"
+        "import clnlos.diffusion as d, pathlib, sys\n"
         f"assert pathlib.Path(clnlos.__file__).is_relative_to({str(target)!r}), clnlos.__file__\n"
         "names = sorted(p.name for p in rt.kernel_dir().iterdir() if p.name.endswith('.cl'))\n"
-        "q = rt.get_queue()\n"
-        "import clnlos.bistatic as b\n"
+        "q = dev.get_queue()\n"
+        "import clnlos.forward.scene as b\n"
         "extra = {'bistatic': {'N_PHI': b.FACE_ANGLES}}  # the defines a family needs\n"
         "for fam in names:\n"
         "    rt.get_kernels(q, fam[:-3], {**rt.real_defines('float32'),\n"

@@ -1,6 +1,7 @@
 """Short time windows: a capture whose window ends before the slab's blur of its latest
 arrivals has decayed (issue: "a wrong depth with exit 0"). The deconvolution fills the
-unseen tail from the model (clnlos.blur.TailFilledDeconvolution) instead of treating the
+unseen tail from the model (clnlos.inverse.tail_fill.TailFilledDeconvolution) instead of treating
+the
 window's end as a step to zero, which the inverse filter turned into the brightest voxels of
 the volume (the demo's "UT" at 0.5 m was placed at 0.757 m with 320 bins)."""
 

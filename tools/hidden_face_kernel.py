@@ -1,6 +1,6 @@
 #!/usr/bin/env python3
 """Which hidden-face kernel deconvolves better: CDT's Phi * Phi or the far-target Eq. 8 one
-(clnlos.blur.eq8_psf)?
+(clnlos.forward.blur.eq8_psf)?
 
     .venv/bin/python tools/hidden_face_kernel.py [--shared ../shared/data]
 

@@ -1,5 +1,5 @@
 """The shared real CDT captures reconstructed with defaults (no SNR in the config: the
-auto rule of clnlos.gcv) against the published settings: the correlation of the two
+auto rule of clnlos.inverse.gcv) against the published settings: the correlation of the two
 max-intensity projections per capture and method, with today's photon rule beside them.
 Writes tools/results/real_cdt_defaults.{csv,json} and real_cdt_defaults.png (the MIPs).
 

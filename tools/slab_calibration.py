@@ -5,7 +5,7 @@
 
 Reads ``<shared>/cdt/calibration`` (exits with a message when absent) and writes
 ``tools/results/slab_calibration.csv`` (one row per thickness and fit), ``.json`` (the same
-plus the joint fits and the n profiles) and ``.png``. Fits (clnlos.calibration):
+plus the joint fits and the n profiles) and ``.png``. Fits (clnlos.forward.calibration):
 
 * ``published``: mu_s', mu_a, n held at the authors' values, only t0 and amplitude free;
 * ``per_thickness``: mu_s', mu_a fitted per capture at the published n;

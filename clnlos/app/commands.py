@@ -121,7 +121,7 @@ def flag_names(args) -> dict[str, str]:
 def config_from_args(args, capture=None):
     """The reconstruction config: TOML file (if any), overridden by flags; validated with
     the flags' names in error messages. Without slab flags, --no-slab or a [slab] in the
-    config, the slab a clnlos capture recorded is used (:func:`clnlos.reconstruct.setup_slab`).
+    config, the slab a clnlos capture recorded is used (:func:`clnlos.inverse.pipeline.setup_slab`).
     """
     cfg = ReconstructionConfig.from_toml(args.config) if args.config else ReconstructionConfig()
     names = flag_names(args)
@@ -144,7 +144,7 @@ def config_from_args(args, capture=None):
 
 
 def _pipeline_fits(capture, cfg, queue, dtype):
-    """The check a capture reader runs with the declared size (:func:`clnlos.limits.
+    """The check a capture reader runs with the declared size (:func:`clnlos.runtime.limits.
     capture_use`): the reconstruction's device buffers fit the device (a time axis the file
     does not store, or stores as no valid number, is left to the later checks)."""
     def check(shape, bin_width_s, start_s):

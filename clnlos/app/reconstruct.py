@@ -20,7 +20,7 @@ from clnlos.runtime.device import get_queue
 
 
 def volume_figure(rec: Reconstruction, title: str = ""):
-    """The figure of a reconstruction (:func:`clnlos.figures.volume_figure`)."""
+    """The figure of a reconstruction (:func:`clnlos.io.figures.volume_figure`)."""
     return figure(rec.volume, rec.extents, title)
 
 
@@ -46,7 +46,7 @@ def reconstruct_to_files(capture: Capture, out, config: ReconstructionConfig, *,
                          show_progress: bool = True) -> Reconstruction:
     """Reconstruct and write the volume (HDF5) and its figure (PNG beside it) together,
     atomically, with the provenance of the result; the iterative method shows a progress
-    bar (:mod:`clnlos.progress`), its set-up steps beside it, then its iterations."""
+    bar (:mod:`clnlos.app.progress`), its set-up steps beside it, then its iterations."""
     out = Path(out)
     queue = get_queue(queue)
     bar = None

@@ -56,7 +56,7 @@ def timeit(fn, queue=None, *, warmup: int = 1, repeat: int = 5, min_time: float 
 
 
 def write_rows(rows: list[dict], out_dir: Path, stem: str) -> tuple[Path, Path]:
-    """Write rows as CSV and JSON, atomically together (:func:`clnlos.outputs.write_group`);
+    """Write rows as CSV and JSON, atomically together (:func:`clnlos.io.outputs.write_group`);
     returns both paths."""
     keys: list[str] = []
     for r in rows:

@@ -1,11 +1,11 @@
 """The "auto" reconstruction parameters against an oracle that knows the truth.
 
 For simulated captures (Lambertian shapes through the CDT slab, photon noise), each method
-is run with its default "auto" SNRs (:mod:`clnlos.gcv`), with the photon rule the auto SNRs
-replaced (SNR = photons / K_SNR and its square root, :mod:`clnlos.noise`: "today"), and
+is run with its default "auto" SNRs (:mod:`clnlos.inverse.gcv`), with the photon rule the auto SNRs
+replaced (SNR = photons / K_SNR and its square root, :mod:`clnlos.inverse.snr`: "today"), and
 with every setting of the grid SLAB_SNRS x INVERSION_SNRS (f-k has no light-cone SNR: the
 slab SNRs alone). The oracle is the best IoU of the grid (Otsu-thresholded MIP against the
-true mask, :func:`clnlos.metrics.mip_iou`); the gap is oracle minus auto. Only the slab
+true mask, :func:`clnlos.study.metrics.mip_iou`); the gap is oracle minus auto. Only the slab
 recorded in the capture is used, as ``clnlos reconstruct`` does with no slab flags.
 
 :func:`oracle_rows` gives one row per capture and method, :func:`exposure_sweep` the auto IoU
@@ -99,7 +99,7 @@ ORACLE_CASES = (
 
 
 def simulate_case(case: OracleCase, queue=None):
-    """(capture, true mask [y, x]) of a case (:class:`clnlos.forward.ForwardModel`)."""
+    """(capture, true mask [y, x]) of a case (:class:`clnlos.forward.model.ForwardModel`)."""
     scene = Scene.from_dict(case.scene_dict())
     fm = ForwardModel(scene, queue=queue)
     return fm.capture(), truth_mask(fm.samples.elements, scene.scan_centres())

@@ -191,7 +191,7 @@ def material_texture(obj, base_dir, n_theta: int, n_dphi: int) -> np.ndarray | N
 
 def scene_textures(scene, settings: TransportSettings) -> np.ndarray | None:
     """[objects, n_theta, n_theta, n_dphi] textures in object order (the material index of
-    :func:`clnlos.forward.sample_scene`), or None when every object is Lambertian."""
+    :func:`clnlos.forward.sampling.sample_scene`), or None when every object is Lambertian."""
     n, nd = settings.texture_theta, settings.texture_dphi
     texs = [material_texture(o, scene.base_dir, n, nd) for o in scene.objects]
     if all(t is None for t in texs):

@@ -79,7 +79,7 @@ def _write_phi_spectrum(out: np.ndarray, factors, *, square: bool, rows: int = 1
     at a time and transformed along t. Each (ky, kx) column is a real sequence, so the
     frequencies past n0 / 2 are the conjugates of those below; ``out`` is either the whole
     (n0, n1, n2h) spectrum or its folded (n0 / 2 + 1, n1 / 2 + 1, n2h) quarter
-    (:func:`clnlos.wiener.folded_shape`: Phi is even in y too), told apart by its shape
+    (:func:`clnlos.operators.spectral.folded_shape`: Phi is even in y too), told apart by its shape
     given n1 = Gy's length."""
     c, gy, gx = factors
     n1 = gy.shape[-1]
@@ -104,7 +104,7 @@ def phi_spectrum(slab: Slab, shape, *, bin_width_s: float, pitch_m: float, n_dip
                  periodic_xy: bool, square: bool, dtype, queue, folded: bool = False,
                  profile: np.ndarray | None = None) -> tuple[RealFFT3, cla.Array, float]:
     """(FFT plan of the padded grid, F[Phi] or F[Phi]^2 on it -- whole, or ``folded`` to
-    the quarter :func:`clnlos.wiener.folded_shape` keeps --, the energy fraction of
+    the quarter :func:`clnlos.operators.spectral.folded_shape` keeps --, the energy fraction of
     Phi * Phi at lags >= nt). ``profile``: :func:`~clnlos.diffusion.lateral_integral_profile`
     for these nt and bin width when the caller has it.
 
@@ -156,9 +156,9 @@ def confocal_spectrum(slab: Slab, shape: tuple[int, int, int], *, bin_width_s: f
 
     When Phi * Phi holds less than SUPPORT_TOL of its energy at lags >= nt
     (:func:`confocal_tail_fraction`), the cut at nt changes nothing that matters and the
-    spectrum is F[Phi]^2, stored folded (a quarter: :func:`clnlos.wiener.folded_shape`);
+    spectrum is F[Phi]^2, stored folded (a quarter: :func:`clnlos.operators.spectral.folded_shape`);
     otherwise it is F of :func:`confocal_psf` (an inverse and a forward FFT more), whole.
-    ``cache``: a :class:`clnlos.spectrum_cache.SpectrumCache` to read the spectrum from, or
+    ``cache``: a :class:`clnlos.runtime.spectrum_cache.SpectrumCache` to read the spectrum from, or
     store it in."""
     q = get_queue(queue)
     dt = require_dtype(q.device, dtype)
@@ -303,8 +303,8 @@ def slab_blur(slab: Slab, shape, *, bin_width_s: float, pitch_m: float, mode: st
     ``mode="convolve"``: the forward model tau = (Phi * Phi) * I in physical units (the DC
     gain is the squared slab transmittance). ``mode="wiener"``: the deconvolution
     conj(H)/(|H|^2 + 1/SNR) with H normalised to unit DC gain. ``scratch``: work buffers
-    shared with a plan's other stages (:class:`clnlos.runtime.Scratch`); ``cache``: an
-    on-disk :class:`clnlos.spectrum_cache.SpectrumCache` for the spectrum. ``kernel``:
+    shared with a plan's other stages (:class:`clnlos.runtime.buffers.Scratch`); ``cache``: an
+    on-disk :class:`clnlos.runtime.spectrum_cache.SpectrumCache` for the spectrum. ``kernel``:
     ``"cdt"`` (Phi * Phi, :func:`confocal_psf`) or ``"eq8"`` (:func:`eq8_psf`, not cached).
     """
     if check_kernel(kernel) == "eq8":

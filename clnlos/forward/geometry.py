@@ -76,7 +76,7 @@ def _segments(text: str, height: float, stroke: float) -> np.ndarray:
     for ch in text.upper():
         if ch not in GLYPHS:
             raise ParameterError("objects.text", text,
-                                 "letters A-Z and spaces (stroke font of clnlos.geometry)")
+                                 "letters A-Z and spaces (stroke font of clnlos.forward.geometry)")
         for line in GLYPHS[ch]:
             p = np.asarray(line, float) * inner + [x0, 0.0]
             segs.extend(np.hstack([p[:-1], p[1:]]))

@@ -75,7 +75,7 @@ def element_count(obj: SceneObject, density: float, base_dir) -> float:
 def check_scene_size(scene: Scene, device, dtype) -> None:
     """Before anything is sampled: the surface elements the scene implies (objects x area
     x sampling.density_per_m2) fit the host while they are built and the device's buffers
-    (:func:`clnlos.limits.check_memory`)."""
+    (:func:`clnlos.runtime.limits.check_memory`)."""
     n = sum(element_count(o, scene.density_per_m2, scene.base_dir) for o in scene.objects)
     item = np.dtype(dtype).itemsize
     check_memory(f"the scene's {len(scene.objects)} object(s) at sampling.density_per_m2 = "

@@ -42,13 +42,14 @@ Every error names the field, its value and the allowed range; numbers must be TO
     splat_order = 1         # 0: nearest bin, 1: linear between bin centres
     blur_reach_tol = 1e-3   # with a slab: I is computed past the scan border as far as the
                             # blur carries more than this fraction of its energy
-    [transport]             # how light crosses the slab and meets the target (clnlos.bistatic)
+    [transport]             # how light crosses the slab and meets the target
+                            # (clnlos.forward.bistatic)
     model = "confocal"      # "confocal": seed Eq. 9, tau = (Phi * Phi) * I, I read at r1 = r2
                             # (the retro slice f(w, w)); "bistatic": Eq. 8 in full (light leaves
                             # the face at r1, returns at r2, full BRDF f(w1, w2); needs a [slab]);
                             # "auto": bistatic where a material's lobe is narrower than the
                             # angular spread of the slab's footprint seen from the target
-                            # (clnlos.bistatic.auto_choice), else confocal
+                            # (clnlos.forward.bistatic.auto_choice), else confocal
     face_rings = 4          # bistatic: annuli of equal slab energy on the face
     face_angles = 8         # bistatic: samples per annulus (cost ~ (rings x angles)^2)
     texture_theta = 64      # bistatic: BRDF texture nodes over theta_i, theta_s in [0, 90] deg
@@ -85,7 +86,7 @@ SHAPES = ("letters", "rectangle", "sphere", "mesh")
 MAX_TEXT_CHARS = 256
 MAX_PATH_CHARS = 4096
 
-# [transport] (clnlos.bistatic): models, defaults and limits of the bistatic quadrature
+# [transport] (clnlos.forward.bistatic): models, defaults and limits of the bistatic quadrature
 TRANSPORT_MODELS = ("confocal", "bistatic", "auto")
 FACE_RINGS = 4        # annuli of the face quadrature (default)
 FACE_ANGLES = 8       # samples per annulus (default); compiled in (private arrays)

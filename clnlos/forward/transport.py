@@ -1,6 +1,6 @@
 """Confocal light-cone transport as a linear operator: albedo volume -> hidden-side transient.
 
-The physics of ``clnlos simulate`` (:mod:`clnlos.forward`, ``kernels/lightcone.cl``) for a
+The physics of ``clnlos simulate`` (:mod:`clnlos.forward.model`, ``kernels/lightcone.cl``) for a
 volume of Lambertian voxels facing the scan plane: a voxel at depth z with albedo-weighted
 coverage rho (albedo x fraction of the voxel's lateral cell covered, dimensionless) sends to
 the scan point at distance r
@@ -84,7 +84,7 @@ class LightConeTransport(LinearOperator):
         Shallowest depth of the volume's support (m).
     depth_weight : array (nz,) or None
         Extra factor per depth bin on the input (a column scaling for solvers).
-    scratch : :class:`clnlos.runtime.Scratch`, optional
+    scratch : :class:`clnlos.runtime.buffers.Scratch`, optional
         Work buffers shared with a plan's other stages (a private one by default).
     """
 

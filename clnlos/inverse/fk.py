@@ -9,7 +9,7 @@ dispersion relation is k_t^2 = k_x^2 + k_y^2 + k_z^2. Steps (``kernels/fk.cl``):
    PSI'(k_z) = PSI(sqrt(k_z^2 + k_x^2 + k_y^2)) k_z / k_t for k_z > 0 (linear along k_t);
 3. inverse FFT, volume = |psi'|^2 on the unpadded block.
 
-Same input/output contract as :class:`clnlos.lct.LCT`. Left out: BRDF, occlusions; the
+Same input/output contract as :class:`clnlos.inverse.lct.LCT`. Left out: BRDF, occlusions; the
 square root assumes non-negative measurements (negative values are clipped to 0).
 """
 

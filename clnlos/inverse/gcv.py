@@ -12,7 +12,7 @@ over the n frequencies k of the padded grid: an estimate of the predictive risk 
 neither the noise level nor the signal spectrum. The data's own power spectrum |Y_k|^2 says,
 frequency by frequency, where the blurred signal sinks into the noise, and V puts the
 filter's cut-off there. Why this rule: the photon rule it replaces (SNR = photons / K_SNR,
-:mod:`clnlos.noise`) assumes a flat signal spectrum, which over-states the SNR at the
+:mod:`clnlos.inverse.snr`) assumes a flat signal spectrum, which over-states the SNR at the
 frequencies the slab deconvolution lifts by up to three orders of magnitude on wide scans
 (issue 24); GCV also holds for data that are not counts (measured captures rescaled by a
 vendor tool, noise-free simulations where rounding is the noise), where no noise model is
@@ -25,7 +25,7 @@ Limits. GCV assumes white noise: the light-cone filter sees noise the slab decon
 has coloured, and there GCV is a heuristic, measured against the oracle in
 :mod:`clnlos.bench.oracle` rather than derived. On noise-free data the residual is model
 and rounding error, not noise; the pipeline then keeps the caps
-(:attr:`clnlos.noise.NoiseEstimate.noise_free`). GCV minimises a risk of the filtered data,
+(:attr:`clnlos.inverse.snr.NoiseEstimate.noise_free`). GCV minimises a risk of the filtered data,
 not of a thresholded image: the SNR best for the IoU of a method can differ (the table of
 :mod:`clnlos.bench.oracle` says by how much).
 

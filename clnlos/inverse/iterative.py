@@ -1,13 +1,13 @@
 """Regularised iterative inversion of the confocal light-cone model (``method = "iterative"``).
 
 Given the hidden-side transient I [t, y, x] (the capture after the slab's Wiener
-deconvolution, :mod:`clnlos.blur`; the capture itself without a slab), solve
+deconvolution, :mod:`clnlos.forward.blur`; the capture itself without a slab), solve
 
     min_{rho >= 0}  1/2 || L rho - I ||^2  +  l1 sum(rho)  +  tv TV(rho)
 
-with L the light-cone transport of :mod:`clnlos.transport` (the physics of
+with L the light-cone transport of :mod:`clnlos.forward.transport` (the physics of
 ``clnlos simulate``: Lambertian voxels facing the scan plane, z^4 / (pi r^8) falloff), by
-FISTA with gradient restart (:mod:`clnlos.solvers`), warm-started from LCT. The solver's
+FISTA with gradient restart (:mod:`clnlos.inverse.solvers`), warm-started from LCT. The solver's
 variable is xi = rho / (z / R)^4 (R the deepest depth), which gives every depth a column of
 similar norm; the volume returned is rho >= 0 on the reconstruction grid [z, y, x].
 
@@ -15,7 +15,7 @@ Regularisation weights are relative: l1 = ``l1_weight`` * max(L^T I) and
 tv = ``tv_weight`` * max(L^T I) on the support (max(L^T I) is the smallest L1 weight for
 which rho = 0 is the solution), so they do not depend on the units or the scale of I. The
 support starts at ``depth_min_m`` (the reconstruction pipeline takes it from the capture's
-first arrival, :mod:`clnlos.noise`).
+first arrival, :mod:`clnlos.inverse.snr`).
 
 Left out: the surface orientation (voxels face the scan plane), BRDFs other than Lambertian,
 occlusion -- as in LCT.
@@ -65,9 +65,9 @@ class IterativeInversion:
     tv_weight (relative, see module docstring; their defaults are those of
     :class:`clnlos.config.ReconstructionConfig`); tv_depth_scale (weight of the depth
     difference in TV; 0 = lateral TV only); warm_snr (Wiener SNR of the LCT warm start);
-    tol (relative change that stops the solver, :mod:`clnlos.solvers`); scratch (work
-    buffers shared with a plan's other stages, :class:`clnlos.runtime.Scratch`); cache
-    (on-disk spectra of the warm start, :class:`clnlos.spectrum_cache.SpectrumCache`).
+    tol (relative change that stops the solver, :mod:`clnlos.inverse.solvers`); scratch (work
+    buffers shared with a plan's other stages, :class:`clnlos.runtime.buffers.Scratch`); cache
+    (on-disk spectra of the warm start, :class:`clnlos.runtime.spectrum_cache.SpectrumCache`).
     """
 
     def __init__(self, shape, *, bin_width_s: float, scan_width_m: float,
@@ -118,7 +118,7 @@ class IterativeInversion:
 
     def __call__(self, tau, *, depth_min_m: float = 0.0, callback=None, setup=None):
         """Albedo volume rho [z, y, x] >= 0 from a transient [t, y, x] (device or numpy).
-        ``callback(k, x)`` follows the solver's iterations (:func:`clnlos.solvers.fista`),
+        ``callback(k, x)`` follows the solver's iterations (:func:`clnlos.inverse.solvers.fista`),
         ``setup(step)`` the steps before them (operator, step size, warm start)."""
         on_device = isinstance(tau, cla.Array)
         q, dt = self.queue, self.dtype

@@ -115,8 +115,8 @@ class LCT:
     Parameters: shape (nt, ny, nx); bin_width_s; scan_width_m (side of the scanned square,
     so the lateral pitch is scan_width_m / nx); snr of the light-cone Wiener filter;
     falloff exponent p; scratch: work buffers shared with a plan's other stages
-    (:class:`clnlos.runtime.Scratch`); cache: an on-disk
-    :class:`clnlos.spectrum_cache.SpectrumCache` for the light cone's spectrum.
+    (:class:`clnlos.runtime.buffers.Scratch`); cache: an on-disk
+    :class:`clnlos.runtime.spectrum_cache.SpectrumCache` for the light cone's spectrum.
     """
 
     def __init__(self, shape, *, bin_width_s: float, scan_width_m: float,
@@ -147,7 +147,7 @@ class LCT:
         self._to_z_padded = AxisResample(self.to_z.matrix, (ny, nx), dtype=self.dtype,
                                          queue=self.queue, in_plane=(2 * ny, 2 * nx))
         self._k = get_kernels(self.queue, "resample", real_defines(self.dtype))
-        self._gcv_bins = None  # clnlos.gcv.GcvBins of the light cone, built on first use
+        self._gcv_bins = None  # clnlos.inverse.gcv.GcvBins of the light cone, built on first use
 
     def _cone_filter(self, pitch: float, scratch: Scratch, cache) -> SpectralFilter:
         """The light-cone convolution on the (2 nt, 2 ny, 2 nx) grid: its spectrum from the
@@ -178,7 +178,7 @@ class LCT:
 
     def gcv_snr(self, tau: cla.Array, snr_min: float, snr_max: float) -> float:
         """The light-cone Wiener SNR in [snr_min, snr_max] that generalised cross-validation
-        (:mod:`clnlos.gcv`) picks for the transient ``tau`` [t, y, x] (device): V evaluated
+        (:mod:`clnlos.inverse.gcv`) picks for the transient ``tau`` [t, y, x] (device): V evaluated
         on the filter's own (v, y, x) grid, where the light cone is a convolution."""
         if self._gcv_bins is None:
             self._gcv_bins = GcvBins.from_gain(self.inverse_filter.gain_squared(),

@@ -5,16 +5,18 @@ Stages (each a plan built once for the capture's shape, dtype and device):
 1. ``preprocess``: one mass-conserving resampling of the time axis that aligns bin 0 to
    t = 0 (using ``start_s``), crops to ``max_path_m`` of round-trip path and rebins to
    ``bins`` bins (sums of overlapping bins, never point samples); then normalisation.
-2. ``deconvolve`` (only with a slab): Wiener deconvolution of Phi * Phi (:mod:`clnlos.blur`).
-3. ``invert``: LCT (:mod:`clnlos.lct`), f-k migration (:mod:`clnlos.fk`) or the regularised
-   iterative inversion (:mod:`clnlos.iterative`).
+2. ``deconvolve`` (only with a slab): Wiener deconvolution of Phi * Phi
+   (:mod:`clnlos.forward.blur`).
+3. ``invert``: a registered method (:mod:`clnlos.inverse.methods`): LCT
+   (:mod:`clnlos.inverse.lct`), f-k migration (:mod:`clnlos.inverse.fk`) or the regularised
+   iterative inversion (:mod:`clnlos.inverse.iterative`).
 
 SNRs given as "auto" are chosen from the data by generalised cross-validation
-(:mod:`clnlos.gcv`), each on its own filter's grid: the slab's on the preprocessed
+(:mod:`clnlos.inverse.gcv`), each on its own filter's grid: the slab's on the preprocessed
 transient, the light cone's on the deconvolved one; the slab's is then combined with the
 model's accuracy (:func:`model_snr_for`). On noise-free data
-(:attr:`clnlos.noise.NoiseEstimate.noise_free`: nothing to cross-validate against) the
-rule of :mod:`clnlos.noise` stands in, which there gives the caps SNR_MAX and
+(:attr:`clnlos.inverse.snr.NoiseEstimate.noise_free`: nothing to cross-validate against) the
+rule of :mod:`clnlos.inverse.snr` stands in, which there gives the caps SNR_MAX and
 LIGHTCONE_SNR_MAX (it is also what :func:`auto_snrs` gives when no data SNR is passed).
 
 Output volume [z, y, x]: depth bin k spans [k, k+1) * c * dt / 2 behind the scan plane
@@ -68,7 +70,7 @@ class Reconstruction:
     params: dict
     transient: np.ndarray | None = None
     extents: dict = field(default_factory=dict)
-    noise: dict = field(default_factory=dict)      # clnlos.noise.NoiseEstimate of the capture
+    noise: dict = field(default_factory=dict)      # clnlos.inverse.snr.NoiseEstimate of the capture
     solver: dict | None = None                     # iterative: the solver's report
     notes: list[str] = field(default_factory=list)  # one line each, for the user
 
@@ -141,7 +143,7 @@ def device_bytes_needed(shape_in, *, bin_width_s: float, start_s: float,
     ``shape_in`` [t, y, x] allocates at least: the capture, and twice (the filter's and
     the work buffer) the half spectrum of the inversion's padded grid (2 n, 2 ny, 2 nx),
     n the bins after preprocessing. Lower bounds, from the declared sizes alone: a check
-    before a capture is read (:func:`clnlos.limits.capture_use`) never refuses one that
+    before a capture is read (:func:`clnlos.runtime.limits.capture_use`) never refuses one that
     fits."""
     nt_in, ny, nx = (int(v) for v in shape_in)
     _, n = preprocess_bins(nt_in, bin_width_s, start_s, config.max_path_m, config.bins)
@@ -151,7 +153,7 @@ def device_bytes_needed(shape_in, *, bin_width_s: float, start_s: float,
 
 
 def model_snr_for(capture: Capture, config: ReconstructionConfig) -> float:
-    """The slab model's accuracy as an SNR (:mod:`clnlos.noise`): the configured number, or
+    """The slab model's accuracy as an SNR (:mod:`clnlos.inverse.snr`): the configured number, or
     for "auto" infinite when the capture was simulated by clnlos with this very slab (the
     model made the data) and MEASURED_MODEL_SNR otherwise."""
     if config.model_snr != "auto":
@@ -169,8 +171,8 @@ def auto_snrs(noise: NoiseEstimate, config: ReconstructionConfig,
               data_inversion_snr: float | None = None) -> tuple[float, float]:
     """(deconvolution SNR, light-cone SNR) of a capture: the configured numbers, or for
     "auto" the data's own (``data_snr`` for the slab, combined with ``model_snr``;
-    ``data_inversion_snr`` for the light cone: :mod:`clnlos.gcv`) where given, else the
-    photon rule of :mod:`clnlos.noise` (photon count and model accuracy;
+    ``data_inversion_snr`` for the light cone: :mod:`clnlos.inverse.gcv`) where given, else the
+    photon rule of :mod:`clnlos.inverse.snr` (photon count and model accuracy;
     :func:`lightcone_snr`)."""
     if config.snr != "auto":
         snr = float(config.snr)
@@ -240,7 +242,7 @@ class ReconstructionPipeline:
 
     def slab_gcv_snr(self, tau: cla.Array) -> float:
         """The slab Wiener SNR in [SNR_MIN, SNR_MAX] that generalised cross-validation
-        (:mod:`clnlos.gcv`) picks for the preprocessed transient ``tau`` (device, guard
+        (:mod:`clnlos.inverse.gcv`) picks for the preprocessed transient ``tau`` (device, guard
         bins included): V on the deconvolution's padded grid, padded as it pads."""
         if self._gcv_slab is None:
             self._gcv_slab = GcvBins.from_gain(self.deconv.gain_squared(),
@@ -318,7 +320,8 @@ class ReconstructionPipeline:
         time window ends before the blur of its latest arrivals has decayed (more than
         :func:`cut_level` of the peak still arriving in its last ``peak`` bins, and fewer
         than GUARD_PEAKS peak lags of guard bins between the volume's end and the cut) the
-        :class:`~clnlos.blur.TailFilledDeconvolution` on the window padded by the blur's
+        :class:`~clnlos.inverse.tail_fill.TailFilledDeconvolution` on the window padded by the
+        blur's
         reach (built on first use), with a note saying which depths rest on the rise of
         their response only."""
         scales = self.blur_scales
@@ -392,7 +395,7 @@ def reconstruct(capture: Capture, config: ReconstructionConfig, *, dtype=np.floa
                 setup=None) -> Reconstruction:
     """Reconstruct an albedo volume from a capture with the given configuration.
 
-    Pipelines (PSFs, spectra, FFT plans) are kept in :data:`clnlos.plans.PIPELINES` (LRU
+    Pipelines (PSFs, spectra, FFT plans) are kept in :data:`clnlos.runtime.caches.PIPELINES` (LRU
     under a byte budget), so many captures of one geometry (a study) pay the set-up once.
     ``progress(k, n)`` follows the iterative method's iterations and ``setup(step)`` names
     each set-up step (pipeline, operator, step size, warm start) as it starts.

@@ -1,7 +1,7 @@
 """Noise level of a capture, and the photon rule of regularisation (pure numpy, no OpenCL).
 
 The "auto" SNRs of a reconstruction are chosen from the data by generalised
-cross-validation (:mod:`clnlos.gcv`); the photon rule below stands in for noise-free data
+cross-validation (:mod:`clnlos.inverse.gcv`); the photon rule below stands in for noise-free data
 (:attr:`NoiseEstimate.noise_free`, where it gives the caps) and is what "today" means in
 :mod:`clnlos.bench.oracle`. It assumes a flat signal spectrum, which over-states the SNR at
 the frequencies the slab deconvolution lifts (by 10^2-10^3 on wide scans, issue 24).
@@ -77,7 +77,7 @@ class NoiseEstimate:
     def noise_free(self) -> bool:
         """No noise measurable: the photon rule's SNR at its cap SNR_MAX (a simulation
         without a detector, or more photons than float32 resolves). Cross-validation
-        (:mod:`clnlos.gcv`) has then no noise to weigh the fit against: the caps apply."""
+        (:mod:`clnlos.inverse.gcv`) has then no noise to weigh the fit against: the caps apply."""
         return self.snr >= SNR_MAX
 
     @property

@@ -1,6 +1,6 @@
 """Regularised least squares by accelerated proximal gradient (FISTA) on device arrays.
 
-Problem, for a linear operator A (:mod:`clnlos.operators`) and data y::
+Problem, for a linear operator A (:mod:`clnlos.operators.base`) and data y::
 
     min_x  1/2 || A x - y ||_W^2  +  l1 sum(x)  +  tv TV(x)   s.t.  x >= 0 on the support
 

@@ -25,7 +25,7 @@ def new_figure(rows: int, cols: int, figsize):
 
 def close_figure(fig) -> None:
     """Release a figure: pyplot keeps figures it made until closed; plain Figures and
-    :class:`clnlos.raster.RasterFigure` need nothing."""
+    :class:`clnlos.io.raster.RasterFigure` need nothing."""
     plt = sys.modules.get("matplotlib.pyplot")
     if plt is not None and not isinstance(fig, RasterFigure):
         plt.close(fig)
@@ -48,7 +48,7 @@ def volume_figure(volume: np.ndarray, extents: dict, title: str = "", *,
                   gamma: float | None = None, log: bool = False):
     """Max-intensity projection (x-y), depth map (depth of the brightest voxel, where the MIP
     is at least DEPTH_MAP_FLOOR of its maximum), x-z and y-z projections: a
-    :class:`clnlos.raster.RasterFigure` (drawn with Pillow in a few tens of milliseconds;
+    :class:`clnlos.io.raster.RasterFigure` (drawn with Pillow in a few tens of milliseconds;
     saved like a matplotlib figure)."""
     e = extents
     xy = (e["x_min_m"], e["x_max_m"], e["y_min_m"], e["y_max_m"])

@@ -23,7 +23,7 @@ from clnlos.io.outputs import png_metadata, write_group
 
 
 def read_capture(path: str | os.PathLike) -> Capture:
-    """Read a capture of any supported format (:func:`clnlos.formats.read_capture`)."""
+    """Read a capture of any supported format (:func:`clnlos.io.formats.read_capture`)."""
     return read(path)
 
 
@@ -46,9 +46,9 @@ def _attr_value(v):
 
 
 def write_h5_file(path, datasets: dict, attrs: dict) -> Path:
-    """Write datasets (arrays, or :class:`clnlos.deflate.DeflatedArray` already being
+    """Write datasets (arrays, or :class:`clnlos.io.deflate.DeflatedArray` already being
     compressed) and file attributes to ``path`` (not atomic: see write_h5); gzip + shuffle,
-    large arrays compressed in parallel (:mod:`clnlos.deflate`)."""
+    large arrays compressed in parallel (:mod:`clnlos.io.deflate`)."""
     with h5py.File(path, "w") as f:
         for name, arr in datasets.items():
             write_dataset(f, name, arr)
@@ -66,7 +66,7 @@ def write_h5(path, datasets: dict[str, np.ndarray], attrs: dict) -> Path:
 
 def capture_attrs(*, bin_width_s: float, start_s: float, scan_width_m: float,
                   attrs: dict | None = None) -> dict:
-    """Attributes of the clnlos capture format (see clnlos.formats.clnlos_h5)."""
+    """Attributes of the clnlos capture format (see clnlos.io.formats.clnlos_h5)."""
     a = {"bin_width_s": float(bin_width_s), "start_s": float(start_s),
          "scan_width_m": float(scan_width_m), "format": "clnlos-capture-1"}
     a.update(attrs or {})
@@ -82,8 +82,8 @@ def write_capture(path, transient: np.ndarray, *, bin_width_s: float, start_s: f
 
 
 def save_figure_file(fig, path) -> Path:
-    """Save a figure (matplotlib, or :class:`clnlos.raster.RasterFigure`) as PNG to
-    ``path``, marked as clnlos's (:func:`clnlos.outputs.png_metadata`), and close it (not
+    """Save a figure (matplotlib, or :class:`clnlos.io.raster.RasterFigure`) as PNG to
+    ``path``, marked as clnlos's (:func:`clnlos.io.outputs.png_metadata`), and close it (not
     atomic)."""
     fig.savefig(path, format="png", dpi=110, bbox_inches="tight", metadata=png_metadata())
     close_figure(fig)

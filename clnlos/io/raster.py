@@ -1,6 +1,6 @@
 """Image-panel figures drawn with Pillow: axes in physical units, ticks, colour bars.
 
-For the figure every reconstruction writes beside its volume (:func:`clnlos.figures.
+For the figure every reconstruction writes beside its volume (:func:`clnlos.io.figures.
 volume_figure`): four image panels with a colour bar each. matplotlib would draw the same in
 about 0.55 s, most of it importing and laying out artists; this draws it in a few tens of
 milliseconds, which matters when the reconstruction itself takes two seconds. Figures with

@@ -9,8 +9,9 @@ zero lag/offset at index [0, 0, 0], see :func:`clnlos.diffusion.grid_offsets`)::
 H = F[h] / H(0) (unit DC gain: 1/SNR is relative to |H(0)|^2 = 1) unless
 ``normalize=False``; the factor 1/H(0) is passed to the multiply kernels (``h_scale``), the
 stored spectrum F[h] is never rescaled in a pass of its own. The multiply runs in
-``kernels/wiener.cl``; FFTs from :mod:`clnlos.fft` (pyvkfft, host fallback) on the same
-queue; the work buffers come from a :class:`clnlos.runtime.Scratch`. Padding the time axis to at
+``kernels/wiener.cl``; FFTs from :mod:`clnlos.runtime.fft` (pyvkfft, host fallback) on the same
+queue; the work buffers come from a :class:`clnlos.runtime.buffers.Scratch`. Padding the time
+axis to at
 least twice the causal PSF support keeps the circular convolution from wrapping.
 """
 
@@ -65,7 +66,7 @@ class SpectralFilter(LinearOperator):
     snr : float, for ``mode="wiener"``: 1/SNR regularises the inverse.
     psf_support : (n0, n1, n2), optional
         The PSF is zero outside its low-corner block of this shape (the FFT skips the rest).
-    scratch : :class:`clnlos.runtime.Scratch`, optional
+    scratch : :class:`clnlos.runtime.buffers.Scratch`, optional
         Work buffers shared with the other stages of a plan (slots ``"a"``: the padded
         real grid, ``"b"``: its spectrum); a private one by default.
     spectrum : pyopencl Array, optional

@@ -5,7 +5,7 @@ devices and on PoCL >= 7, which miscompiles VkFFT, pocl issue 2069; VkFFT on GPU
 ``CLNLOS_FFT=host|vkfft`` overrides, ``numpy`` is an alias of ``host``) and recorded in
 ``plan.backend``. The host FFT is scipy.fft (pocketfft,
 all cores) on mapped device buffers (no copy on a CPU device; see
-:func:`clnlos.runtime.host_view`). Conventions are numpy's: forward
+:func:`clnlos.runtime.buffers.host_view`). Conventions are numpy's: forward
 unnormalised, inverse divided by N.
 
 ``RealFFT3``: real (n0, n1, n2) <-> half spectrum (n0, n1, n2//2 + 1) (the spectral filters).

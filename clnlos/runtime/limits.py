@@ -25,7 +25,7 @@ MEMINFO = "/proc/meminfo"
 # cgroup memory limits (v2, v1) that cap what this process may use
 CGROUP_LIMITS = ("/sys/fs/cgroup/memory.max", "/sys/fs/cgroup/memory/memory.limit_in_bytes")
 # host bytes per element of a capture read: the stored value, its float32 copy and the
-# validation's two boolean masks (clnlos.formats.common.validate_transient)
+# validation's two boolean masks (clnlos.io.formats.common.validate_transient)
 READ_EXTRA_BYTES = 4 + 2
 
 

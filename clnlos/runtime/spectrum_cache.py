@@ -2,7 +2,8 @@
 
 A cold reconstruction builds one or two spectra on its padded grid: the slab's F[Phi * Phi]
 (:mod:`clnlos.forward.blur`) and, for LCT, the light cone's (:mod:`clnlos.inverse.lct`),
-270 MB each at 128 x 128 x 512. With the cache set, each is stored as a raw file named by a SHA-256 of
+270 MB each at 128 x 128 x 512. With the cache set, each is stored as a raw file named by a
+SHA-256 of
 everything that shapes it -- its kind, grid, precision and physical parameters, the kernel
 sources and Python modules that compute it, and the clnlos version -- and a later process
 with the same geometry reads it instead of recomputing it. Off by default (it spends disk);

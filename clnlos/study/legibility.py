@@ -2,7 +2,8 @@
 IoU beat that of a featureless blob? (pure numpy / scipy, no OpenCL)
 
 Identification. The glyph set GLYPHS has K = 8 capital letters of one stroke font
-(:data:`clnlos.geometry.GLYPHS`) that share one footprint: every one spans the full glyph box
+(:data:`clnlos.forward.geometry.GLYPHS`) that share one footprint: every one spans the full
+glyph box
 (0.6 x 1 letter heights), so the box, the area and the centre of a blob do not tell them
 apart. A reconstruction's max-intensity projection m [y, x] is matched to the closest of
 the K templates

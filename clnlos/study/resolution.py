@@ -14,11 +14,11 @@ width, z the depth and gamma the effective temporal FWHM, here MEASURED after th
 deconvolution: the FWHM of the deconvolved transient at the scan point over the patch (it
 holds the laser pulse, the bin width and what the Wiener filter leaves of the slab blur).
 The bound is a two-point criterion for a linear inversion; a single point's FWHM can fall
-below it: f-k migration returns |psi|^2 (:mod:`clnlos.fk`), whose FWHM is about 1/sqrt(2)
+below it: f-k migration returns |psi|^2 (:mod:`clnlos.inverse.fk`), whose FWHM is about 1/sqrt(2)
 of the amplitude's, and the iterative method's non-negativity and L1 prior narrow it.
 
 At the budget, a 1 cm^2 patch returns ~200x fewer photons than the study's 'UT' letters and
-the auto-chosen Wiener SNRs (:mod:`clnlos.noise`) would smooth it far more than they smooth
+the auto-chosen Wiener SNRs (:mod:`clnlos.inverse.snr`) would smooth it far more than they smooth
 the letters. ``budget_area_m2`` (default: the area of the geometry's letters) scales the
 patch's albedo so that its capture holds the photons of a Lambertian target of that area at
 the same depth: the resolution the letters' own photon count allows.
@@ -236,12 +236,12 @@ def stroke_over_resolution(stroke_m: float, lateral_fwhm_m: float | None) -> flo
 
 
 def letters_area_m2(text: str, height_m: float, stroke_m: float) -> float:
-    """Area (m^2) of the stroked letters (:func:`clnlos.geometry.sample_letters`)."""
+    """Area (m^2) of the stroked letters (:func:`clnlos.forward.geometry.sample_letters`)."""
     return float(sample_letters(text, height_m, stroke_m, 1e6).area.sum())
 
 
 def patch_scene(geometry: ResolutionGeometry):
-    """The noise-free scene of the patch (:class:`clnlos.scene.Scene`) of a resolved
+    """The noise-free scene of the patch (:class:`clnlos.forward.scene.Scene`) of a resolved
     geometry (:meth:`ResolutionGeometry.resolve`)."""
     g = geometry
     c = g.patch_centre_m()
@@ -269,7 +269,7 @@ def budget_capture(noise_free, scene, geometry: ResolutionGeometry, grid, exposu
                    seed: int = 0):
     """Photon counts of the patch at ``exposure_s``: the noise-free capture scaled by the
     albedo that gives the patch the photons of ``budget_area_m2`` (default: the letters'
-    area), then Poisson noise and dark counts (:func:`clnlos.forward.photon_counts`)."""
+    area), then Poisson noise and dark counts (:func:`clnlos.forward.model.photon_counts`)."""
     g = geometry
     area = (g.budget_area_m2 if g.budget_area_m2 is not None
             else letters_area_m2(g.text, g.letter_height_m, g.stroke_m))

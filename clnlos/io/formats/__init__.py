@@ -1,7 +1,7 @@
 """Capture readers, one module per format family behind :func:`read_capture` (chosen by the
 file's content, never its extension), and the y-tal writer.
 
-Every reader returns the one in-memory contract :class:`clnlos.io.Capture`: transient
+Every reader returns the one in-memory contract :class:`clnlos.io.capture.Capture`: transient
 [t, y, x] (x increasing with the column index, y with the row index, as seen from the scan
 plane looking into the hidden volume), bin width and start of bin 0 (s, round trip from the
 scan plane), scan width (m; None where the file does not say), and the file's own attributes.

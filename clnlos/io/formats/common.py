@@ -28,7 +28,7 @@ def validate_transient(arr, path) -> np.ndarray:
 
 def declared_dataset(ds, path, *, order=(0, 1, 2), bin_width_s=None, start_s=0.0) -> None:
     """Check an HDF5 dataset's declared shape and dtype before it is read
-    (:func:`clnlos.limits.declared_capture`); ``order``: the dataset's axes that become
+    (:func:`clnlos.runtime.limits.declared_capture`); ``order``: the dataset's axes that become
     [t, y, x]. A dataset that is not 3D or not numeric (or a group) is left to the reader's
     own checks."""
     if not isinstance(ds, h5py.Dataset):

@@ -156,7 +156,7 @@ def write_tal(path, transient: np.ndarray, *, bin_width_s: float, start_s: float
     """Write a confocal capture [t, y, x] as y-tal's ``write_capture`` lays it out (H as
     (T, Sx, Sy) with Sx along +x and Sy along +y, the relay wall at z = 0 with normals +z
     towards the hidden scene, times in metres of path, no first/last bounce) to ``path``
-    (callers make it atomic: :func:`clnlos.outputs.write_group`)."""
+    (callers make it atomic: :func:`clnlos.io.outputs.write_group`)."""
     nt, ny, nx = transient.shape
     pitch = scan_width_m / nx
     xs = (np.arange(nx) + 0.5) * pitch - scan_width_m / 2
