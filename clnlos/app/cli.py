@@ -59,8 +59,8 @@ def _add_device(p: argparse.ArgumentParser) -> None:
 
 def cmd_devices(args) -> int:
     devs = list_devices()
-    default = select_device(args.device)  # a spec that matches nothing: one-line error
-    spec = resolve_device_spec(args.device)
+    default = select_device(args.device, args.settings)  # no such device: one-line error
+    spec = resolve_device_spec(args.device, args.settings)
     print(f"{'':2}{'P:D':5} {'platform':32} {'device':40} {'version':22} {'CUs':>4} "
           f"{'mem GiB':>8} {'fp64':>5} {'img':>4}")
     for d in devs:

@@ -173,7 +173,7 @@ def cmd_reconstruct(args) -> int:
     check_outputs({"-o": out, "figure": out.with_suffix(".png")},
                   inputs=[args.capture, args.config], suffixes={"-o": HDF5_SUFFIXES},
                   implied={"figure": None}, force=args.force)
-    queue = get_queue(args.device)
+    queue = get_queue(args.device, settings=args.settings)
     names = flag_names(args)
     with capture_use(_pipeline_fits(args.capture, cfg, queue, DTYPES[args.dtype])):
         capture = read_capture(args.capture)  # the pipeline's size checked before the data
@@ -290,7 +290,7 @@ def cmd_simulate(args) -> int:
     check_outputs({"-o": out, "figure": figure_path(out)},
                   inputs=[args.scene, *scene.input_paths()], suffixes={"-o": HDF5_SUFFIXES},
                   implied={"figure": None}, force=args.force)
-    queue = get_queue(args.device)
+    queue = get_queue(args.device, settings=args.settings)
     sim = simulate_to_file(scene, out, fmt=args.format, dtype=DTYPES[args.dtype], queue=queue)
     print(f"wrote {out} ({args.format}) transient {sim.transient.shape} [t, y, x]; stages "
           f"{', '.join(sim.stages)}; {sim.seconds:.2f} s on {queue.device.name.strip()}")
@@ -306,7 +306,7 @@ def cmd_demo(args) -> int:
     outs = {f"-o {name}": out / name for name in DEMO_FILES}
     check_outputs(outs, inputs=[args.scene, args.config, *scene.input_paths()],
                   implied=dict.fromkeys(outs), force=args.force)
-    run_demo(out, scene, cfg, queue=get_queue(args.device))
+    run_demo(out, scene, cfg, queue=get_queue(args.device, settings=args.settings))
     return 0
 
 

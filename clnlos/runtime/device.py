@@ -119,10 +119,10 @@ def resolve_device_spec(spec: str | None = None, settings: Settings | None = Non
     return str(spec).strip()
 
 
-def select_device(spec: str | None = None) -> cl.Device:
+def select_device(spec: str | None = None, settings: Settings | None = None) -> cl.Device:
     """Pick one device from a spec (see module docstring); never prompts."""
     rows = _all_devices()
-    s = resolve_device_spec(spec)
+    s = resolve_device_spec(spec, settings)
     avail = ", ".join(f"{ip}:{idv} ({d.name.strip()})" for ip, idv, _, d in rows)
     if s == "":
         return rows[_default_index(rows)][3]
@@ -163,12 +163,13 @@ CACHES.register("OpenCL contexts", _context_for.cache_clear)
 CACHES.register("OpenCL queues", _queue_for.cache_clear)
 
 
-def get_queue(device: str | cl.CommandQueue | None = None, *, profiling: bool = False
-              ) -> cl.CommandQueue:
-    """A cached in-order queue for a device spec; a queue passed in is returned as is."""
+def get_queue(device: str | cl.CommandQueue | None = None, *, profiling: bool = False,
+              settings: Settings | None = None) -> cl.CommandQueue:
+    """A cached in-order queue for a device spec (None: ``settings.device``, see the module
+    docstring); a queue passed in is returned as is."""
     if isinstance(device, cl.CommandQueue):
         return device
-    return _queue_for(select_device(device), profiling)
+    return _queue_for(select_device(device, settings), profiling)
 
 
 # --------------------------------------------------------------------------- capabilities
