@@ -299,3 +299,31 @@ def test_scratch_slots_are_shared_views_that_grow_to_the_largest_need(queue):
     big = s.array("a", (64,), np.float32)
     assert big.data.size == 256 and s.nbytes == 256
     assert s.array("b", (3,), np.float64).shape == (3,)
+
+
+def test_one_registry_clears_every_cache(queue):
+    """CACHES.clear() empties the contexts, queues, programs, VkFFT apps, plan caches and
+    blur margins (each module registers its cache when imported)."""
+    import clnlos.forward.blur as blur
+    from clnlos.physics.slab import CDT_SLAB
+    from clnlos.runtime import caches, device
+    from clnlos.runtime import fft as fft_mod
+
+    expected = {"OpenCL contexts", "OpenCL queues", "built programs", "VkFFT apps",
+                "reconstruction pipelines", "forward-model slab blurs", "blur margins"}
+    assert expected <= set(caches.CACHES.names)
+    programs.get_kernels(queue, "fill")
+    blur.blur_margin(CDT_SLAB, 1e-9, 0.01, 8, 1e-3, None, queue)
+    caches.PIPELINES.get("k", lambda: object())
+    device.get_queue()
+    held = (blur.blur_margin.cache_info().currsize, len(caches.PIPELINES),
+            len(programs._program_cache), device._queue_for.cache_info().currsize,
+            device._context_for.cache_info().currsize)
+    assert all(held), held
+    caches.CACHES.clear()
+    assert (blur.blur_margin.cache_info().currsize, len(caches.PIPELINES),
+            len(programs._program_cache), device._queue_for.cache_info().currsize,
+            device._context_for.cache_info().currsize,
+            fft_mod._vkfft_app.cache_info().currsize) == (0,) * 6
+    k = programs.get_kernels(queue, "fill")  # rebuilt on demand
+    assert programs.get_kernels(queue, "fill") is k
