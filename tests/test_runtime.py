@@ -301,29 +301,37 @@ def test_scratch_slots_are_shared_views_that_grow_to_the_largest_need(queue):
     assert s.array("b", (3,), np.float64).shape == (3,)
 
 
-def test_one_registry_clears_every_cache(queue):
-    """CACHES.clear() empties the contexts, queues, programs, VkFFT apps, plan caches and
-    blur margins (each module registers its cache when imported)."""
-    import clnlos.forward.blur as blur
-    from clnlos.physics.slab import CDT_SLAB
-    from clnlos.runtime import caches, device
-    from clnlos.runtime import fft as fft_mod
+CLEAR_ALL = """
+import clnlos.forward.blur as blur
+from clnlos.physics.slab import CDT_SLAB
+from clnlos.runtime import caches, device, programs
+from clnlos.runtime import fft as fft_mod
 
-    expected = {"OpenCL contexts", "OpenCL queues", "built programs", "VkFFT apps",
-                "reconstruction pipelines", "forward-model slab blurs", "blur margins"}
-    assert expected <= set(caches.CACHES.names)
-    programs.get_kernels(queue, "fill")
-    blur.blur_margin(CDT_SLAB, 1e-9, 0.01, 8, 1e-3, None, queue)
-    caches.PIPELINES.get("k", lambda: object())
-    device.get_queue()
-    held = (blur.blur_margin.cache_info().currsize, len(caches.PIPELINES),
+expected = {"OpenCL contexts", "OpenCL queues", "built programs", "VkFFT apps",
+            "reconstruction pipelines", "forward-model slab blurs", "blur margins"}
+assert expected <= set(caches.CACHES.names), caches.CACHES.names
+queue = device.get_queue()
+programs.get_kernels(queue, "fill")
+blur.blur_margin(CDT_SLAB, 1e-9, 0.01, 8, 1e-3, None, queue)
+caches.PIPELINES.get("k", lambda: object())
+
+def held():
+    return (blur.blur_margin.cache_info().currsize, len(caches.PIPELINES),
             len(programs._program_cache), device._queue_for.cache_info().currsize,
             device._context_for.cache_info().currsize)
-    assert all(held), held
-    caches.CACHES.clear()
-    assert (blur.blur_margin.cache_info().currsize, len(caches.PIPELINES),
-            len(programs._program_cache), device._queue_for.cache_info().currsize,
-            device._context_for.cache_info().currsize,
-            fft_mod._vkfft_app.cache_info().currsize) == (0,) * 6
-    k = programs.get_kernels(queue, "fill")  # rebuilt on demand
-    assert programs.get_kernels(queue, "fill") is k
+
+assert all(held()), held()
+caches.CACHES.clear()
+assert held() == (0,) * 5 and fft_mod._vkfft_app.cache_info().currsize == 0, held()
+k = programs.get_kernels(device.get_queue(), "fill")  # rebuilt on demand
+print("ok")
+"""
+
+
+def test_one_registry_clears_every_cache():
+    """CACHES.clear() empties the contexts, queues, programs, VkFFT apps, plan caches and
+    blur margins (each module registers its cache when imported); in a child process, so
+    the session's queue stays valid."""
+    r = subprocess.run([sys.executable, "-c", CLEAR_ALL], capture_output=True, text=True,
+                       timeout=300)
+    assert r.returncode == 0 and r.stdout.strip() == "ok", r.stderr
