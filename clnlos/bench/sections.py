@@ -447,7 +447,7 @@ def bench_auto_params(b: Bench):
 # ------------------------------------------------------------------ cost per grid and reach
 def bench_lightcone_grid(b: Bench):
     """Light-cone throughput and the cost of a density with its sampling (the rows of the
-    former ``tools/bench_forward.py``, ``tools/results/bench_forward.csv``). UT letters, no
+    former per-kernel forward script, ``tools/results/bench_forward.csv``). UT letters, no
     slab (:func:`ut_scene`): per grid, OpenCL (float32, float64) and numpy float64 (one cold
     run) with element-scan-point ``pairs_per_s``, errors against the float64 OpenCL run of the
     same grid; then knob ``density_per_m2@sampled``: sample_scene + light cone timed together,
@@ -496,8 +496,8 @@ def bench_blur_reach(b: Bench):
     """How far past the scan border the slab-blurred light cone is computed: the built-in
     demo scene (Table 1: UT 0.5 m behind the CDT slab, 0.3 m scan; at ``tiny`` an 8 x 8 x 128
     scan of it), each ``blur_reach_tol`` (1 = no margin) against tol 1e-5, timed as
-    ForwardModel.run (light cone on the widened grid + blur + pulse). Formerly in
-    ``tools/bench_forward.py`` (``tools/results/bench_forward.csv``)."""
+    ForwardModel.run (light cone on the widened grid + blur + pulse). Formerly in the
+    per-kernel forward script (``tools/results/bench_forward.csv``)."""
     base = tomllib.loads(importlib.resources.files("clnlos").joinpath(
         "data/demo_scene.toml").read_text())
     if b.size == "tiny":
@@ -525,9 +525,9 @@ MEASURED = ("nist_ptfe_white_532nm", "pbrt_cayman_550nm", "pbrt_krylon_blue_550n
 
 def bench_brdf_measured(b: Bench):
     """Neural BRDFs against the texture lookup and the analytic fit (the rows of the former
-    ``tools/bench_brdf.py``, ``tools/results/bench_brdf.csv``). Needs torch for the MLP rows
-    and the measured data (``--brdf-data``, default ../shared/data/brdf) for the fits; each
-    part absent is skipped with a note.
+    BRDF script, ``tools/results/bench_brdf.csv``; its texture table is :func:`bench_brdf`).
+    Needs torch for the MLP rows and the measured data (``--brdf-data``, default
+    ../shared/data/brdf) for the fits; each part absent is skipped with a note.
 
     * ``brdf``/``mlp-eval``: an MLP (improved recipe) trained on 500 samples of the
       microfacet model of :func:`bench_brdf`, evaluated on the same random queries (torch
@@ -590,8 +590,8 @@ WORKER = "import sys; from clnlos.bench.isolated import main; main(sys.argv[1:])
 
 def bench_reconstruction_process(b: Bench):
     """Reconstruction speed and memory, one implementation per process (the rows of the former
-    ``tools/bench_reconstruct.py``, ``tools/results/bench_reconstruct.csv``): per grid
-    (4N x N x N) OpenCL (FFT backend auto), OpenCL with the host FFT (CLNLOS_FFT=host), torch
+    reconstruction script, ``tools/results/bench_reconstruct.csv``): per grid (4N x N x N)
+    OpenCL (FFT backend auto), OpenCL with the host FFT (CLNLOS_FFT=host), torch
     CPU float32 (skipped with a note where torch is absent) and numpy float64, each run by
     :mod:`clnlos.bench.isolated` in a fresh process, so its ``peak_mem_bytes`` is its own:
     stages deconvolve, lct, fk and end_to_end (upload, deconvolve, LCT, download), with the
