@@ -1,21 +1,114 @@
-"""The benchmark report: JSON schema, and each knob's error falls as its accuracy rises (a
-property of the kernels, not a timing)."""
+"""The benchmark report: JSON schema, every section runs at ``--tiny``, and each knob's error
+falls as its accuracy rises (a property of the kernels, not a timing: no test asserts a time)."""
 
+import importlib.util
 import json
+from pathlib import Path
 
 import pytest
 
 from clnlos import bench
 from clnlos.app.cli import main as cli_main
+from clnlos.bench.harness import Bench
 
 pytestmark = pytest.mark.slow  # runs the benchmark harness
+
+REPORT_SECTIONS = ("diffusion", "lightcone", "brdf", "iterative")  # through main: the report
+BRDF_DATA = Path(__file__).resolve().parents[1].parent / "shared" / "data" / "brdf"
+TORCH = importlib.util.find_spec("torch") is not None
 
 
 @pytest.fixture(scope="module")
 def bench_doc(tmp_path_factory):
     out = tmp_path_factory.mktemp("bench")
-    bench.main(["--tiny", "-o", str(out), "--only", "diffusion,lightcone,brdf,iterative"])
+    bench.main(["--tiny", "-o", str(out), "--only", ",".join(REPORT_SECTIONS)])
     return json.loads((out / "bench.json").read_text()), out
+
+
+@pytest.fixture(scope="module")
+def section_rows(queue):
+    """Each section not run by ``bench_doc``, at ``tiny``, on a Bench of its own."""
+    runs = {}
+    for name, fn in bench.SECTIONS.items():
+        if name not in REPORT_SECTIONS:
+            b = Bench(queue, "tiny")
+            b.options["brdf_data"] = BRDF_DATA
+            fn(b)
+            runs[name] = b
+    return runs
+
+
+@pytest.mark.parametrize("name", [n for n in bench.SECTIONS if n not in REPORT_SECTIONS])
+def test_every_section_runs_at_tiny(section_rows, name):
+    b = section_rows[name]
+    assert b.rows, (name, b.notes)
+    for r in b.rows:
+        for k in bench.ROW_KEYS:
+            assert k in r, (name, k, r)
+        assert r["median_s"] > 0  # measured (end_to_end's cli@cold keeps max_s of a no-op)
+
+
+def test_only_help_lists_every_section(capsys):
+    try:
+        cli_main(["bench", "--help"])
+    except SystemExit:
+        pass
+    text = " ".join(capsys.readouterr().out.split())
+    assert bench.ONLY_HELP in text
+    assert all(name in bench.ONLY_HELP for name in bench.SECTIONS)
+
+
+def test_lightcone_grid_rows(section_rows):
+    rows = section_rows["lightcone_grid"].rows
+    grid = {(r["dtype"], r["impl"]): r for r in rows if r["knob"] == "grid"}
+    assert {("float32", "opencl"), ("float64", "numpy")} <= set(grid)
+    assert all(r["pairs_per_s"] > 0 and r["elements"] > 0 for r in grid.values())
+    assert grid[("float64", "numpy")]["error"] < 1e-6  # the same sum as the device's
+    den = [r["error"] for r in rows if (r["knob"], r["dtype"]) ==
+           ("density_per_m2@sampled", "float32")]
+    assert len(den) >= 3 and all(b < a for a, b in zip(den, den[1:], strict=False)), den
+
+
+def test_blur_reach_rows(section_rows):
+    rows = {r["value"].split()[0]: r for r in section_rows["blur_reach"].rows}
+    assert rows["1"]["value"] == "1 (margin 0)"
+    assert rows["0.001"]["error"] < 0.1 * rows["1"]["error"]  # the margin is what matters
+
+
+def test_brdf_measured_rows_or_notes(section_rows):
+    b = section_rows["brdf_measured"]
+    mlp = [r for r in b.rows if r["knob"] == "mlp-eval"]
+    assert len(mlp) == (1 if TORCH else 0)
+    fits = {r["value"]: r for r in b.rows if r["kernel"] == "brdf-measured"}
+    if BRDF_DATA.is_dir():
+        want = {"five-param"} | ({"mlp-seed", "mlp-improved"} if TORCH else set())
+        assert set(fits) == want
+        assert fits["five-param"]["test_agreement_pct"] > 0
+    else:
+        assert not fits and any("no measured data" in n for n in b.notes), b.notes
+
+
+def test_optional_parts_skip_with_a_note(queue, tmp_path, monkeypatch):
+    """Without torch and without the measured data: no rows, a note for each."""
+    real = importlib.util.find_spec
+    monkeypatch.setattr(importlib.util, "find_spec",
+                        lambda name, *a: None if name == "torch" else real(name, *a))
+    b = Bench(queue, "tiny")
+    b.options["brdf_data"] = tmp_path / "absent"
+    bench.SECTIONS["brdf_measured"](b)
+    assert not b.rows
+    assert any("torch not installed" in n for n in b.notes), b.notes
+    assert any("no measured data" in n for n in b.notes), b.notes
+
+
+def test_reconstruction_process_rows(section_rows):
+    rows = section_rows["reconstruction_process"].rows
+    by = {(r["impl"], r["knob"]): r for r in rows}
+    for impl in ("opencl-hostfft", "numpy"):
+        for stage in ("deconvolve", "lct", "fk", "end_to_end"):
+            r = by[(impl, f"{stage}@grid")]
+            assert r["value"] == "16x16x64" and r["plan_s"] > 0 and r["peak_mem_bytes"] > 0
+    assert by[("opencl-hostfft", "lct@grid")]["fft_backend"] == "host"  # CLNLOS_FFT reached it
 
 
 def test_schema(bench_doc):

@@ -17,8 +17,8 @@ from clnlos.app.demo import DEMO_FILES, demo_inputs, run_demo
 from clnlos.app.progress import counter, progress_bar
 from clnlos.app.reconstruct import reconstruct_to_files
 from clnlos.app.simulate import figure_path, simulate_to_file
+from clnlos.bench import ONLY_HELP, sections_of
 from clnlos.bench import main as bench_main
-from clnlos.bench import sections_of
 from clnlos.brdf.data import CSV_COLUMNS
 from clnlos.brdf.evaluate import MODELS as EVAL_MODELS
 from clnlos.brdf.evaluate import MODES as EVAL_MODES
@@ -554,7 +554,8 @@ def cmd_bench(args) -> int:
     check_outputs(outs, implied=dict.fromkeys(outs), force=args.force)
     argv = ["-o", args.output] + (["--quick"] if args.quick else []) + (
         ["--tiny"] if args.tiny else []) + (["--only", args.only] if args.only else []) + (
-        ["--device", args.device] if args.device else [])
+        ["--device", args.device] if args.device else []) + (
+        ["--brdf-data", args.brdf_data] if args.brdf_data else [])
     bench_main(argv)
     return 0
 
@@ -567,9 +568,10 @@ def register_bench(sub, add_device) -> None:
     g.add_argument("--tiny", action="store_true", help=argparse.SUPPRESS)
     b.add_argument("-o", "--output", default="out/bench",
                    help="output folder: bench.json and bench.html (default %(default)s)")
-    b.add_argument("--only", default=None, help="comma-separated sections (diffusion, "
-                   "lightcone, brdf, forward, reconstruction, iterative, end_to_end) "
-                   "(default: all)")
+    b.add_argument("--only", default=None, help=ONLY_HELP + " (default: all)")
+    b.add_argument("--brdf-data", default=None, metavar="DIR",
+                   help="measured BRDFs for the brdf_measured section (default "
+                        "../shared/data/brdf; skipped with a note when absent)")
     _add_force(b)
     add_device(b)
     b.set_defaults(func=cmd_bench)

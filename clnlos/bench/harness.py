@@ -55,6 +55,19 @@ def timeit(fn, queue=None, *, warmup: int = 1, repeat: int = 5, min_time: float 
             "repeats": len(times)}
 
 
+def timed_once(fn, queue=None):
+    """(fn()'s result, its timing as :func:`timeit` reports it) from one cold run: for runs
+    too long to repeat (a training, a numpy baseline of seconds)."""
+    if queue is not None:
+        queue.finish()
+    t0 = time.perf_counter()
+    out = fn()
+    if queue is not None:
+        queue.finish()
+    dt = time.perf_counter() - t0
+    return out, {"median_s": dt, "min_s": dt, "max_s": dt, "repeats": 1}
+
+
 def write_rows(rows: list[dict], out_dir: Path, stem: str) -> tuple[Path, Path]:
     """Write rows as CSV and JSON, atomically together (:func:`clnlos.io.outputs.write_group`);
     returns both paths."""
@@ -94,23 +107,37 @@ def rel_error(a, b) -> float:
 
 
 class Bench:
+    """One run's rows: :meth:`add` times a callable, :meth:`record` keeps a timing measured
+    elsewhere (a single long run, another process); :meth:`note` says what was skipped."""
+
     def __init__(self, queue, size: str):
         self.q, self.size = queue, size
         self.meta = device_meta(queue)
         self.rows: list[dict] = []
+        self.notes: list[str] = []
+        self.options: dict = {}  # section inputs from the command line (``brdf_data``)
         self.repeat = {"tiny": 1, "quick": 3, "full": 5}[size]
         self.f64 = has_fp64(queue.device)
 
     def add(self, kernel, knob, value, dtype, fn, error, impl="opencl", sync=True, **extra):
         t = timeit(fn, self.q if sync else None, repeat=self.repeat)
+        return self.record(kernel, knob, value, dtype, t, error, impl=impl, **extra)
+
+    def record(self, kernel, knob, value, dtype, timing: dict, error, impl="opencl", **extra):
+        """A row from ``timing`` (the keys :func:`timeit` returns)."""
         row = {"device": self.meta["device"], "driver": self.meta["driver"],
                "pocl": self.meta["pocl"], "kernel": kernel, "knob": knob, "value": value,
-               "dtype": np.dtype(dtype).name, "impl": impl, **t,
+               "dtype": np.dtype(dtype).name, "impl": impl, **timing,
                "error": None if error is None else float(error),
                "peak_mem_bytes": resource.getrusage(resource.RUSAGE_SELF).ru_maxrss * 1024,
                **extra}
         self.rows.append(row)
         return row
+
+    def note(self, text: str) -> None:
+        """Something a section skipped (an optional dependency or data set absent), and why."""
+        self.notes.append(text)
+        print(f"  note: {text}", flush=True)
 
     @property
     def dtypes(self):

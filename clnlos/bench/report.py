@@ -19,7 +19,7 @@ def recommendations(rows) -> list[dict]:
     for r in rows:
         if r["impl"] == "opencl" and r["error"] is not None and r["kernel"] != "roofline":
             # a grid size is a different problem, not a knob: there, only the dtype is chosen
-            per_value = r["kernel"] in ("reconstruction", "end_to_end")
+            per_value = r["kernel"] in ("reconstruction", "end_to_end") or r["knob"] == "grid"
             key = (r["kernel"], f"{r['knob']}={r['value']}" if per_value else r["knob"])
             groups.setdefault(key, []).append(r)
     for (kern, knob), rs in groups.items():
@@ -42,7 +42,7 @@ def _png(fig) -> str:
     return base64.b64encode(buf.getvalue()).decode()
 
 
-def write_html(path: Path, rows, recs, meta, bw):
+def write_html(path: Path, rows, recs, meta, bw, notes=()):
     """Write the report page to ``path`` (not atomic: :func:`clnlos.bench.main` writes it
     to a temporary of its group)."""
     import matplotlib
@@ -53,6 +53,9 @@ def write_html(path: Path, rows, recs, meta, bw):
     parts = [f"<h1>clnlos: what accuracy costs in time</h1><p>Device {html.escape(meta['device'])}"
              f" ({html.escape(meta['platform'])}, driver {html.escape(meta['driver'])}, PoCL "
              f"{meta['pocl']}); copy bandwidth {bw / 1e9:.1f} GB/s.</p>"]
+    if notes:
+        parts.append("<h2>Skipped</h2><ul>" + "".join(
+            f"<li>{html.escape(n)}</li>" for n in notes) + "</ul>")
     kernels = sorted({r["kernel"] for r in rows if r["error"] is not None})
     roof = [r for r in rows if r.get("bandwidth_fraction") is not None]
     if roof:

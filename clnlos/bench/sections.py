@@ -2,10 +2,15 @@
 
 from __future__ import annotations
 
+import importlib.resources
+import importlib.util
+import json
+import os
 import subprocess
 import sys
 import tempfile
 import time
+import tomllib
 from dataclasses import replace
 from pathlib import Path
 
@@ -21,10 +26,14 @@ from clnlos.bench.baselines import (
     numpy_transmittance,
     ut_scene,
 )
-from clnlos.bench.harness import Bench, timeit
+from clnlos.bench.harness import Bench, timed_once, timeit
+from clnlos.bench.isolated import IMPLS as PROCESS_IMPLS
 from clnlos.bench.harness import rel_error as _rel
 from clnlos.bench.oracle import METHODS as ORACLE_METHODS
 from clnlos.bench.oracle import ORACLE_CASES, compare_method, simulate_case
+from clnlos.brdf.data import BRDFSamples, agreement, read_gonio_csv, relative_error
+from clnlos.brdf.fit import fit_analytic
+from clnlos.brdf.mlp import MLPConfig, train_mlp
 from clnlos.brdf.models import BRDFModel
 from clnlos.brdf.texture import TextureLookup, tabulate
 from clnlos.config import ReconstructionConfig, slab_table
@@ -47,6 +56,7 @@ from clnlos.operators.spectral import multiply_spectrum
 from clnlos.physics.slab import CDT_SLAB
 from clnlos.runtime.caches import PIPELINES
 from clnlos.runtime.fft import RealFFT3
+from clnlos.settings import ENV_FFT
 from clnlos.study.confocal_error import study_patch_scene
 from clnlos.study.metrics import coverage_image, mip_iou, peak_depth_m
 
@@ -256,8 +266,8 @@ def _bandwidth_rows(b: Bench, ops, xg, grid: str) -> None:
               lambda: multiply_spectrum(w.kernels, w.H, spec, h_scale=w.h_scale, adjoint=False,
                                         folded=w.folded, inv_snr=1e-4), None)
     r["bytes_moved"] = (2 * n + w.H.size) * spec.dtype.itemsize  # read H and X, write X
-    r = b.add("roofline", "fft_r2c_pass", grid, np.float32, lambda: w.fft.forward(w.work_buffer, spec),
-              None, fft_backend=w.fft.backend)
+    r = b.add("roofline", "fft_r2c_pass", grid, np.float32,
+              lambda: w.fft.forward(w.work_buffer, spec), None, fft_backend=w.fft.backend)
     r["bytes_moved"] = w.work_buffer.nbytes + spec.nbytes  # one read + one write: a single pass
     lct = ops["lct"]
     r = b.add("roofline", "resample_t_to_v", grid, np.float32, lambda: lct.to_v(xg), None)
@@ -432,3 +442,179 @@ def bench_auto_params(b: Bench):
                   lambda cfg=cfg, cap=cap: reconstruct(cap, cfg, device=b.q),
                   max(0.0, row["gap"]), error_kind="oracle IoU - auto IoU",
                   **{k: v for k, v in row.items() if k != "method"})
+
+
+# ------------------------------------------------------------------ cost per grid and reach
+def bench_lightcone_grid(b: Bench):
+    """Light-cone throughput and the cost of a density with its sampling (the rows of the
+    former per-kernel forward script, ``tools/results/bench_forward.csv``). UT letters, no
+    slab (:func:`ut_scene`): per grid, OpenCL (float32, float64) and numpy float64 (one cold
+    run) with element-scan-point ``pairs_per_s``, errors against the float64 OpenCL run of the
+    same grid; then knob ``density_per_m2@sampled``: sample_scene + light cone timed together,
+    against the float64 reference of :func:`bench_lightcone` (16 x the densest density)."""
+    grids, dens = {"tiny": ([(8, 128)], 4e4), "quick": ([(32, 512)], 4e5),
+                   "full": ([(32, 512), (64, 1024)], 4e5)}[b.size]
+    for points, bins in grids:
+        s = ut_scene(points, bins, dens)
+        smp = sample_scene(s)
+        pairs = len(smp.elements) * points * points
+        grid = f"{points}x{points}x{bins}"
+        outs = {}
+        for dt in reversed(b.dtypes):
+            lc = LightCone(points=points, width_m=s.width_m, bins=bins,
+                           bin_width_s=s.bin_width_s, start_s=0.0, retro=False, dtype=dt,
+                           queue=b.q)
+            outs[dt] = lc(smp).get()
+            r = b.add("lightcone", "grid", grid, dt, lambda lc=lc, smp=smp: lc(smp),
+                      _rel(outs[dt], outs[b.dtypes[-1]]), elements=len(smp.elements))
+            r["pairs_per_s"] = pairs / r["median_s"]
+        out, t = timed_once(lambda s=s, smp=smp: numpy_lightcone(s, smp))
+        r = b.record("lightcone", "grid", grid, np.float64, t, _rel(out, outs[b.dtypes[-1]]),
+                     impl="numpy", elements=len(smp.elements))
+        r["pairs_per_s"] = pairs / r["median_s"]
+    pts, bins = {"tiny": (8, 128), "quick": (32, 512), "full": (32, 512)}[b.size]
+    densities = {"tiny": (2.5e3, 1e4, 4e4), "quick": (2.5e3, 1e4, 4e4, 1.6e5),
+                 "full": (2.5e3, 1e4, 4e4, 1.6e5, 6.4e5)}[b.size]
+    ref_s = ut_scene(pts, bins, 16 * densities[-1])
+    ref = LightCone(points=pts, width_m=0.6, bins=bins, bin_width_s=ref_s.bin_width_s,
+                    start_s=0.0, retro=False, dtype=b.dtypes[-1], queue=b.q)(
+        sample_scene(ref_s)).get()
+    for d in densities:
+        s = ut_scene(pts, bins, d)
+        for dt in b.dtypes:
+            lc = LightCone(points=pts, width_m=0.6, bins=bins, bin_width_s=s.bin_width_s,
+                           start_s=0.0, retro=False, dtype=dt, queue=b.q)
+
+            def run(s=s, lc=lc):
+                return lc(sample_scene(s))
+
+            b.add("lightcone", "density_per_m2@sampled", d, dt, run, _rel(run().get(), ref),
+                  elements=len(sample_scene(s).elements))
+
+
+def bench_blur_reach(b: Bench):
+    """How far past the scan border the slab-blurred light cone is computed: the built-in
+    demo scene (Table 1: UT 0.5 m behind the CDT slab, 0.3 m scan; at ``tiny`` an 8 x 8 x 128
+    scan of it), each ``blur_reach_tol`` (1 = no margin) against tol 1e-5, timed as
+    ForwardModel.run (light cone on the widened grid + blur + pulse). Formerly in the
+    per-kernel forward script (``tools/results/bench_forward.csv``)."""
+    base = tomllib.loads(importlib.resources.files("clnlos").joinpath(
+        "data/demo_scene.toml").read_text())
+    if b.size == "tiny":
+        base = {**base, "scan": {**base["scan"], "points": 8},
+                "time": {**base["time"], "bins": 128, "bin_width_s": 64e-12},
+                "sampling": {**base["sampling"], "density_per_m2": 4e4}}
+
+    def model(tol):
+        d = {**base, "sampling": {**base["sampling"], "blur_reach_tol": tol}}
+        return ForwardModel(Scene.from_dict(d), queue=b.q)
+
+    ref = model(1e-5).run()
+    tols = (1.0, 1e-3) if b.size != "full" else (1.0, 1e-1, 1e-2, 1e-3, 1e-4)
+    for tol in tols:
+        fm = model(tol)
+        b.add("forward(slab)", "blur_reach_tol", f"{tol:g} (margin {fm.margin})", np.float32,
+              fm.run, _rel(fm.run(), ref), elements=len(fm.samples.elements))
+
+
+# ------------------------------------------------------------------ measured BRDFs
+BRDF_DATA = Path("..", "shared", "data", "brdf")  # relative to the working directory
+MEASURED = ("nist_ptfe_white_532nm", "pbrt_cayman_550nm", "pbrt_krylon_blue_550nm",
+            "starlink_chassis_532nm")
+
+
+def bench_brdf_measured(b: Bench):
+    """Neural BRDFs against the texture lookup and the analytic fit (the rows of the former
+    BRDF script, ``tools/results/bench_brdf.csv``; its texture table is :func:`bench_brdf`).
+    Needs torch for the MLP rows and the measured data (``--brdf-data``, default
+    ../shared/data/brdf) for the fits; each part absent is skipped with a note.
+
+    * ``brdf``/``mlp-eval``: an MLP (improved recipe) trained on 500 samples of the
+      microfacet model of :func:`bench_brdf`, evaluated on the same random queries (torch
+      CPU); error against the model itself, beside the texture rows of that section;
+    * ``brdf-measured``/``fit@<material>``: per material, the five-parameter fit and the MLP
+      (seed and improved recipes), each timed once (training included); error = test-set
+      relative error (extra: test and train agreement %, epochs).
+
+    ``tiny`` (a smoke run): 20 epochs, one network instead of the improved recipe's five, one
+    material, two starts of the five-parameter fit."""
+    torch = importlib.util.find_spec("torch") is not None
+    epochs = {"tiny": 20, "quick": 1000, "full": 3000}[b.size]
+    members = {"members": 1} if b.size == "tiny" else {}  # the improved recipe's ensemble
+    if torch:
+        model = BRDFModel("microfacet", {"kd": 0.1, "ks": 1.0, "alpha": 0.2, "f0": 0.9})
+        rng = np.random.default_rng(0)
+        n = {"tiny": 20_000, "quick": 200_000, "full": 1_000_000}[b.size]
+        a = np.column_stack([rng.uniform(0, 1.45, n), rng.uniform(-np.pi, np.pi, n),
+                             rng.uniform(0, 1.45, n), rng.uniform(-np.pi, np.pi, n)])
+        fake = np.column_stack([rng.uniform(0, 1.4, 500), np.zeros(500),
+                                rng.uniform(0, 1.4, 500), rng.uniform(0, np.pi, 500)])
+        mlp, _ = train_mlp(BRDFSamples(*fake.T, model(*fake.T)),
+                           MLPConfig(epochs=min(epochs, 300), **members))
+        b.add("brdf", "mlp-eval", "torch-cpu", np.float32, lambda: mlp(*a.T),
+              _rel(mlp(*a.T), model(*a.T)), impl="torch", sync=False, queries=n)
+    else:
+        b.note("brdf_measured: torch not installed: the MLP rows are skipped")
+    data = Path(b.options.get("brdf_data") or BRDF_DATA)
+    if not data.is_dir():
+        b.note(f"brdf_measured: no measured data at {data}: the measured-material rows are "
+               "skipped (--brdf-data DIR)")
+        return
+    materials = {"tiny": MEASURED[:1], "quick": MEASURED[:2], "full": MEASURED}[b.size]
+    for mat in materials:
+        tr = read_gonio_csv(data / f"{mat}_gonio.csv")
+        te = read_gonio_csv(data / f"{mat}_test.csv")
+        r, t = timed_once(lambda tr=tr, te=te: fit_analytic(
+            "five-param", tr, te, **({"starts": 2} if b.size == "tiny" else {})))
+        b.record("brdf-measured", f"fit@{mat}", "five-param", np.float64, t,
+                 r.metrics["test_relative_error"], impl="host",
+                 error_kind="test relative error", material=mat,
+                 test_agreement_pct=r.metrics["test_agreement_pct"],
+                 train_agreement_pct=r.metrics["train_agreement_pct"])
+        for recipe in ("seed", "improved") if torch else ():
+            (m, log), t = timed_once(lambda tr=tr, recipe=recipe: train_mlp(
+                tr, MLPConfig(recipe=recipe, epochs=epochs, **members)))
+            p = m(te.theta_i, te.phi_i, te.theta_s, te.phi_s)
+            ptr = m(tr.theta_i, tr.phi_i, tr.theta_s, tr.phi_s)
+            b.record("brdf-measured", f"fit@{mat}", f"mlp-{recipe}", np.float32, t,
+                     relative_error(p, te.brdf), impl="torch",
+                     error_kind="test relative error", material=mat,
+                     test_agreement_pct=agreement(p, te.brdf),
+                     train_agreement_pct=agreement(ptr, tr.brdf),
+                     epochs=log["epochs_run"])
+
+
+# ------------------------------------------------------------------ isolated processes
+WORKER = "import sys; from clnlos.bench.isolated import main; main(sys.argv[1:])"
+
+
+def bench_reconstruction_process(b: Bench):
+    """Reconstruction speed and memory, one implementation per process (the rows of the former
+    reconstruction script, ``tools/results/bench_reconstruct.csv``): per grid (4N x N x N)
+    OpenCL (FFT backend auto), OpenCL with the host FFT (CLNLOS_FFT=host), torch
+    CPU float32 (skipped with a note where torch is absent) and numpy float64, each run by
+    :mod:`clnlos.bench.isolated` in a fresh process, so its ``peak_mem_bytes`` is its own:
+    stages deconvolve, lct, fk and end_to_end (upload, deconvolve, LCT, download), with the
+    plan time (``plan_s``). No errors: the same math is compared by ``reconstruction``."""
+    sizes = {"tiny": [16], "quick": [32, 64], "full": [32, 64, 128]}[b.size]
+    # tiny (seconds): one OpenCL worker (the host FFT, through the environment) and one
+    # baseline worker; the others start in seconds each (torch: over ten on 2 cores)
+    impls = ("opencl-hostfft", "numpy") if b.size == "tiny" else PROCESS_IMPLS
+    impls = [i for i in impls if i != "torch" or importlib.util.find_spec("torch")]
+    if "torch" not in impls and b.size != "tiny":
+        b.note("reconstruction_process: torch not installed: the torch rows are skipped")
+    for n in sizes:
+        for impl in impls:
+            cmd = [sys.executable, "-c", WORKER, impl, str(n), "--size", b.size,
+                   "--device", _device_spec(b.q.device)]
+            env = dict(os.environ)
+            if impl == "opencl-hostfft":
+                env[ENV_FFT] = "host"
+            r = subprocess.run(cmd, capture_output=True, text=True, env=env)
+            if r.returncode != 0:
+                b.note(f"reconstruction_process: {impl} at N={n} failed: {r.stderr[-2000:]}")
+                continue
+            rows = json.loads(r.stdout.strip().splitlines()[-1])
+            b.rows.extend(rows)
+            end = next(x for x in rows if x["knob"] == "end_to_end@grid")
+            print(f"  {impl} {end['value']}: end to end {end['median_s']:.3g} s", flush=True)
