@@ -27,8 +27,8 @@ from clnlos.bench.baselines import (
     ut_scene,
 )
 from clnlos.bench.harness import Bench, timed_once, timeit
-from clnlos.bench.isolated import IMPLS as PROCESS_IMPLS
 from clnlos.bench.harness import rel_error as _rel
+from clnlos.bench.isolated import IMPLS as PROCESS_IMPLS
 from clnlos.bench.oracle import METHODS as ORACLE_METHODS
 from clnlos.bench.oracle import ORACLE_CASES, compare_method, simulate_case
 from clnlos.brdf.data import BRDFSamples, agreement, read_gonio_csv, relative_error
@@ -37,22 +37,20 @@ from clnlos.brdf.mlp import MLPConfig, train_mlp
 from clnlos.brdf.models import BRDFModel
 from clnlos.brdf.texture import TextureLookup, tabulate
 from clnlos.config import ReconstructionConfig, slab_table
-from clnlos.diffusion import SlabTransmittance, grid_offsets
-from clnlos.forward.bistatic import (
-    FACE_ANGLES,
-    FACE_RINGS,
-    TEXTURE_THETA,
-    BistaticTransport,
-    scene_textures,
-)
+from clnlos.diffusion import SlabTransmittance
+from clnlos.forward.bistatic import BistaticTransport, scene_textures
 from clnlos.forward.blur import slab_blur
-from clnlos.forward.model import ForwardModel, LightCone, sample_scene
-from clnlos.forward.scene import Scene
+from clnlos.forward.lightcone import LightCone
+from clnlos.forward.model import ForwardModel
+from clnlos.forward.sampling import sample_scene
+from clnlos.forward.scene import FACE_ANGLES, FACE_RINGS, TEXTURE_THETA, Scene
 from clnlos.inverse.fk import FKMigration
 from clnlos.inverse.lct import LCT
 from clnlos.inverse.pipeline import reconstruct
-from clnlos.io.files import Capture, write_capture
+from clnlos.io.capture import Capture
+from clnlos.io.files import write_capture
 from clnlos.operators.spectral import multiply_spectrum
+from clnlos.physics.grid import grid_offsets
 from clnlos.physics.slab import CDT_SLAB
 from clnlos.runtime.caches import PIPELINES
 from clnlos.runtime.fft import RealFFT3
