@@ -21,7 +21,6 @@ from functools import lru_cache
 import numpy as np
 import pyopencl.array as cla
 import scipy.fft as sfft
-from scipy.signal import fftconvolve
 from scipy.special import erf
 
 from clnlos.diffusion import (
@@ -265,6 +264,17 @@ def check_kernel(kernel: str) -> str:
     return kernel
 
 
+def autoconvolution_full(p: np.ndarray) -> np.ndarray:
+    """p * p, the full linear 2D convolution of a real array with itself (shape 2 n - 1 per
+    axis), by real FFTs on a zero-padded 2-3-5-smooth grid (what scipy.signal.fftconvolve
+    computes, without importing scipy.signal: 1.3 s of the CLI's start)."""
+    full = tuple(2 * s - 1 for s in p.shape)
+    fast = tuple(sfft.next_fast_len(s, real=True) for s in full)
+    spec = sfft.rfftn(p, fast)
+    out = sfft.irfftn(spec * spec, fast)
+    return out[tuple(slice(0, s) for s in full)]
+
+
 def lateral_reach_m(slab: Slab, *, window_s: float, pitch_m: float, tol: float = 1e-3,
                     n_dipoles: int | None = None, queue=None) -> float:
     """Radius R (m) outside which the confocal blur holds less than ``tol`` of its energy.
@@ -284,7 +294,7 @@ def lateral_reach_m(slab: Slab, *, window_s: float, pitch_m: float, tol: float =
                         n_dipoles=n_dipoles, dtype=np.float64 if has_fp64(q.device) else
                         np.float32, queue=q)
     p = np.fft.fftshift(phi.astype(np.float64).sum(axis=0))  # centre (zero offset) at n/2
-    pp = fftconvolve(p, p, mode="full")  # zero offset at index n
+    pp = autoconvolution_full(p)  # zero offset at index n
     off = (np.arange(2 * n - 1) - n) * pitch
     rho = np.hypot(off[:, None], off[None, :]).ravel()
     e = np.clip(pp.ravel(), 0, None)

@@ -29,7 +29,7 @@ import math
 
 import numpy as np
 from scipy.ndimage import gaussian_filter
-from scipy.stats import norm
+from scipy.special import ndtri  # the normal quantile (scipy.stats.norm.ppf computes it so)
 
 from clnlos.forward.geometry import letters_mask
 
@@ -107,7 +107,7 @@ def wilson_interval(k: int, n: int, level: float = 0.95) -> list[float]:
     """Wilson score interval [lo, hi] of a proportion k / n."""
     if n <= 0:
         return [float("nan"), float("nan")]
-    z = float(norm.ppf(0.5 + level / 2))
+    z = float(ndtri(0.5 + level / 2))
     p = k / n
     d = 1 + z * z / n
     centre = (p + z * z / (2 * n)) / d

@@ -44,8 +44,8 @@ from dataclasses import asdict, dataclass, field
 from pathlib import Path
 
 import numpy as np
-from scipy import stats
 from scipy.ndimage import zoom
+from scipy.special import stdtrit  # Student's t quantile (what scipy.stats.t.ppf calls)
 
 from clnlos.app.progress import counter, progress_bar
 from clnlos.brdf.models import BRDFModel
@@ -212,7 +212,7 @@ def mean_interval(x) -> tuple[float, list[float]]:
     m = float(a.mean())
     if a.size < 2 or a.std() == 0:
         return m, [m, m]
-    h = float(stats.t.ppf(0.975, a.size - 1) * a.std(ddof=1) / math.sqrt(a.size))
+    h = float(stdtrit(a.size - 1, 0.975) * a.std(ddof=1) / math.sqrt(a.size))
     return m, [m - h, m + h]
 
 
