@@ -502,6 +502,7 @@ def cmd_study(args) -> int:
         opts.grid = replace(opts.grid, method=args.method)
     opts.labels = args.labels
     opts.real_data = args.real_data
+    opts.transport = args.transport
     res = run_study(out, opts.validate(), workers=args.workers, scheduler=args.scheduler,
                     device=args.device)
     for geo in res["geometries"]:
@@ -523,7 +524,7 @@ def cmd_study(args) -> int:
 
 def register_study(sub, add_device) -> None:
     from .study.dataset import StudyGrid
-    from .study.run import LABEL_METRICS, StudyOptions
+    from .study.run import LABEL_METRICS, TRANSPORT_CHOICES, StudyOptions
 
     quick, full = StudyOptions.quick(), StudyOptions()
     s = sub.add_parser("study", help="the material study (main job)")
@@ -558,6 +559,13 @@ def register_study(sub, add_device) -> None:
                         "beside its simulation, the real chart's resolved features and the "
                         "CNN's verdict on them; a folder without them is noted and skipped "
                         "(default: none)")
+    s.add_argument("--transport", choices=list(TRANSPORT_CHOICES), default=full.transport,
+                   help="confocal: every sample with the seed's confocal transport (Eq. 9); "
+                        "both: also the materials at the legible geometry under the bistatic "
+                        f"transport (Eq. 8 in full, {full.face_rings} x {full.face_angles} "
+                        "face samples, about 11 s a sample on 2 cores: some 15 minutes more "
+                        "for the quick study), their table, ranks and rank correlation "
+                        "(default %(default)s)")
     s.add_argument("--n-dataset", type=int, default=None, help=argparse.SUPPRESS)
     _add_force(s)
     add_device(s)

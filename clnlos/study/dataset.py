@@ -1,7 +1,8 @@
 """Study samples: simulate a hidden object through the slab, reconstruct it, score it.
 
 A sample is a JSON-able dict (material, object and its size, pose, depth, exposure, seed, and
-optional overrides of the scan width and slab thickness for the sweeps); with the grid it
+optional overrides of the scan width and slab thickness for the sweeps, and a ``transport``
+table, :class:`clnlos.scene.TransportSettings`, for the bistatic comparison); with the grid it
 defines one scene (:func:`scene_dict`). Its result is cached on disk as
 ``<cache>/<sha1 of sample, grid and code version>.npz`` (written atomically, with the mode
 the umask gives), so reruns and interrupted runs resume and a changed clnlos never reuses an
@@ -161,6 +162,8 @@ def scene_dict(sample: dict, grid: StudyGrid) -> dict:
     if thickness > 0:
         d["slab"] = {"thickness_m": thickness, "mu_a": CDT_SLAB.mu_a,
                      "mu_s_prime": CDT_SLAB.mu_s_prime, "n": CDT_SLAB.n}
+    if "transport" in sample:  # the scene's [transport] table (absent: the confocal model)
+        d["transport"] = dict(sample["transport"])
     return d
 
 

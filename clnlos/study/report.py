@@ -453,6 +453,19 @@ def _real_html(results) -> str:
     return out
 
 
+def _transport_section(comparison) -> list[str]:
+    """The material table under both transports (``--transport both``), else nothing."""
+    if not comparison:
+        return []
+    from .transport_compare import comparison_html, fig_transport
+
+    title = "The material table under both transports: does Eq. 9 change the ranking?"
+    return [f"<h2>{html.escape(title)}</h2>",
+            comparison_html(comparison, comparison["face_rings"], comparison["face_angles"]),
+            f"<img alt='{html.escape(title)}' src='data:image/png;base64,"
+            f"{_png(fig_transport(comparison))}'/>"]
+
+
 def write_report(out_dir, results, plan, res, real=None) -> None:
     import matplotlib
 
@@ -518,6 +531,7 @@ def write_report(out_dir, results, plan, res, real=None) -> None:
         f"{results['resolution']['effective_temporal_fwhm_s'] * 1e12:.0f} ps: "
         f"{results['resolution']['bound_lateral_m'] * 100:.2f} cm.</p>",
         "<h2>A real capture and its simulation</h2>", _real_html(results),
+        *_transport_section(results.get("transport_comparison")),
         "<h2>No-reference metrics against ground truth</h2>",
         "<p>Pearson r over the glyph reconstructions (point-biserial for identified).</p>",
         _table(["metric", "r with identified", "r with IoU", "r with IoU - baseline",
