@@ -44,6 +44,8 @@ def _rel(a, b) -> float:
 def main(argv=None) -> list[dict]:
     ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     ap.add_argument("--materials", nargs="+", default=list(MATERIALS))
+    ap.add_argument("--faces", nargs="+", default=None, metavar="RxA",
+                    help="face samples (default 1x4 2x4 2x8 3x6 4x8; the last is the reference)")
     ap.add_argument("--device", default=None)
     args = ap.parse_args(argv)
     q = get_queue(args.device)
@@ -55,22 +57,24 @@ def main(argv=None) -> list[dict]:
                          stroke_m=geo.stroke_m, depth_m=geo.depth_m, exposure_s=0.1, seed=0)
         conf, t_conf = noise_free(s, grid, q)
         runs = {}
-        for r, a in FACES:
+        faces = [tuple(int(v) for v in f.split("x")) for f in args.faces] if args.faces \
+            else FACES
+        for r, a in faces:
             runs[(r, a)] = noise_free({**s, "transport": {"model": "bistatic", "face_rings": r,
                                                           "face_angles": a}}, grid, q)
-        ref = runs[FACES[-1]][0]
+        ref = runs[faces[-1]][0]
         for (r, a), (tau, sec) in [(("confocal", ""), (conf, t_conf)), *runs.items()]:
             rows.append({"material": m, "rings": r, "angles": a,
                          "face_samples": "" if r == "confocal" else r * a,
                          "total_ratio": float(tau.sum() / ref.sum()),
                          "rel_l2": _rel(tau, ref),
                          "rel_l2_image": _rel(tau.sum(axis=0), ref.sum(axis=0)),
-                         "seconds": sec, "reference": f"bistatic {FACES[-1][0]}x{FACES[-1][1]}"})
+                         "seconds": sec, "reference": f"bistatic {faces[-1][0]}x{faces[-1][1]}"})
         print_table([x for x in rows if x["material"] == m],
                     ["material", "rings", "angles", "total_ratio", "rel_l2", "rel_l2_image",
                      "seconds"])
-    csv_path, json_path = write_rows(rows, OUT, "study_transport_faces")
-    print(f"wrote {csv_path} and {json_path}")
+        csv_path, json_path = write_rows(rows, OUT, "study_transport_faces")  # each material
+        print(f"wrote {csv_path} and {json_path}", flush=True)
     return rows
 
 

@@ -17,9 +17,11 @@ Samples go through :func:`clnlos.study.run.render_plan` and the study's cache: t
 confocal side is the study's own main samples (same cache entries); a bistatic sample is
 the same sample dict with a ``transport`` table (its own cache key).
 
-Cost: at the study's grid (32 x 32 points, 48 ps bins) a bistatic glyph sample takes about
-11 s with 2 x 4 face samples on 2 CPU cores, 60 s with 4 x 8, against 5-9 s confocal
-(tools/results/study_transport_faces.csv: convergence in face samples). It runs with
+Cost (the forward model of one glyph at the study's grid, 32 x 32 points, 48 ps bins, on
+2 CPU cores shared with other jobs; tools/results/study_transport_faces.csv): confocal
+0.6-1.6 s, bistatic 2 x 4 face samples 3.7-19 s, 3 x 6 16-114 s, 4 x 8 123-225 s; the
+reconstruction adds some 5-10 s to each sample. Default 2 x 4: within 5% (relative L2) of
+4 x 8 for the sharpest lobe, 1% for the others measured. It runs with
 ``clnlos study --transport both``; the committed results are
 tools/results/study_transport.{csv,json} (``tools/study_transport.py``).
 """
@@ -31,6 +33,10 @@ import math
 import numpy as np
 
 # face samples of the comparison (tools/results/study_transport_faces.csv)
+# against 4 x 8 (tools/results/study_transport_faces.csv): 2 x 4 is 4.9% off in relative L2
+# and 5% in total signal for quartz glass (the sharpest lobe, 0.75 deg; 3 x 6: 0.7%, 0.0%;
+# the confocal model: 16.5%), 0.9% and 0.0% for the aluminium alloy (2.6 deg; confocal 11%);
+# 3 x 6 costs 4-6x more
 COMPARE_RINGS = 2
 COMPARE_ANGLES = 4
 TRANSPORTS = ("confocal", "bistatic")
@@ -255,6 +261,6 @@ def comparison_html(comparison: dict, rings: int, angles: int) -> str:
         f"{_fmt(c['margin']['kendall'])}.</p>"
         f"<p><b>{html.escape(comparison['statement'])}</b></p>"
         "<p>Regenerate: <code>python -m clnlos study --transport both</code> (this section; "
-        "adds about 11 s per bistatic sample on 2 cores) or <code>python "
+        "adds about 20 s per bistatic sample on 2 cores) or <code>python "
         "tools/study_transport.py</code> (the table alone, "
         "tools/results/study_transport.{csv,json}).</p>")
