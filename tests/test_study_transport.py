@@ -7,7 +7,7 @@ import numpy as np
 import pytest
 
 from clnlos.study.dataset import StudyGrid, scene_dict
-from clnlos.study.run import StudyOptions, transport_comparison
+from clnlos.study.run import Geometry, StudyOptions, transport_comparison
 from clnlos.study.transport_compare import (
     bistatic_table,
     comparison_plan,
@@ -16,15 +16,20 @@ from clnlos.study.transport_compare import (
     rank_of,
 )
 
-# a tiny grid: 12 x 12 points, 64 ps bins, a sparse surface sampling
+# a tiny grid: 12 x 12 points, 64 ps bins, a sparse surface sampling; a small "legible"
+# geometry (0.24 m scan: a 2 cm pitch, as the study's 1.9 cm -- the confocal model's slab blur
+# runs on the scan grid and needs a pitch near the slab's footprint)
 GRID = replace(StudyGrid(), points=12, bin_width_s=64e-12, iterations=10, density_per_m2=1e4)
 MATERIALS = ["standard white plate", "quartz glass"]
 OPTS = StudyOptions(materials=MATERIALS, glyphs=("E", "H", "T", "U"), sweep_glyphs=("T",),
-                    transport_glyphs=("T",),
-                    seeds=1, grid=GRID, transport="both", label="tiny").validate()
-# Lambertian tolerances: the total signal within 6% (Eq. 8 / Eq. 9 = 0.96-0.97 for a diffuse
-# patch, issue 27) and the NCC margin within 0.1
-COUNTS_TOL, MARGIN_TOL = 0.06, 0.1
+                    transport_glyphs=("T",), seeds=1, grid=GRID, transport="both",
+                    geometries=(Geometry("legible", 0.24, 0.15, 0.04, 0.4),),
+                    label="tiny").validate()
+# Lambertian tolerances: photon counts within 5% (Eq. 8 / Eq. 9 = 0.96-0.97 for a diffuse
+# patch, issue 27; measured here 0.985), the NCC margin of the true glyph within 0.05
+# (measured 0.005), the same glyph identified, the MIPs within 20% relative L2 (measured 11%:
+# the photon noise of two different means)
+COUNTS_TOL, MARGIN_TOL, MIP_TOL = 0.05, 0.05, 0.2
 
 
 def test_plan_pairs_each_study_sample_with_its_bistatic_twin():
@@ -71,7 +76,7 @@ def test_comparison_table_and_lambertian_agreement(tmp_path):
     assert sorted(r["confocal"]["rank"] for r in rows) == [1, 2]
     assert set(out["correlation"]) == {"rank", "accuracy", "margin"}
     rho = out["correlation"]["rank"]["spearman"]
-    assert rho in (-1.0, 1.0) and (rho == 1.0) == (not out["moved"])
+    assert abs(rho) == pytest.approx(1.0) and (rho > 0) == (not out["moved"])
     assert isinstance(out["statement"], str) and "Spearman" in out["statement"]
     flat = csv_rows(out)
     assert {"confocal_rank", "bistatic_rank", "counts_ratio"} <= set(flat[0])
@@ -82,4 +87,4 @@ def test_comparison_table_and_lambertian_agreement(tmp_path):
     assert abs(lam["margin_change"]) < MARGIN_TOL
     assert lam["confocal"]["identified_as"] == lam["bistatic"]["identified_as"]
     mc, mb = (out["results"][i]["mip"] for i in (0, 1))
-    assert np.linalg.norm(mb - mc) / np.linalg.norm(mc) < 0.15
+    assert np.linalg.norm(mb - mc) / np.linalg.norm(mc) < MIP_TOL
