@@ -563,7 +563,7 @@ def register_study(sub, add_device) -> None:
                    help="confocal: every sample with the seed's confocal transport (Eq. 9); "
                         "both: also the materials at the legible geometry under the bistatic "
                         f"transport (Eq. 8 in full, {full.face_rings} x {full.face_angles} "
-                        "face samples, about 20 s a sample on 2 cores: some 30 minutes more "
+                        "face samples, about 8 s a sample on 2 cores: some 10-15 minutes more "
                         "for the quick study), their table, ranks and rank correlation "
                         "(default %(default)s)")
     s.add_argument("--n-dataset", type=int, default=None, help=argparse.SUPPRESS)

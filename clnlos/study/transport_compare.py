@@ -261,6 +261,6 @@ def comparison_html(comparison: dict, rings: int, angles: int) -> str:
         f"{_fmt(c['margin']['kendall'])}.</p>"
         f"<p><b>{html.escape(comparison['statement'])}</b></p>"
         "<p>Regenerate: <code>python -m clnlos study --transport both</code> (this section; "
-        "adds about 20 s per bistatic sample on 2 cores) or <code>python "
+        "adds 80 bistatic samples to the quick study, about 8 s each on 2 cores) or <code>python "
         "tools/study_transport.py</code> (the table alone, "
         "tools/results/study_transport.{csv,json}).</p>")
