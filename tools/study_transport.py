@@ -9,7 +9,7 @@ shares the study's sample cache (default out/study/cache: a later ``clnlos study
 study's).
 
     PYTHONPATH=. .venv/bin/python tools/study_transport.py [--cache DIR] [--workers N]
-        [--glyphs E H T U] [--rings 3 --angles 6]
+        [--glyphs E H T U] [--rings 3 --angles 6] [--materials "quartz glass" --stem NAME]
 """
 
 from __future__ import annotations
@@ -34,6 +34,9 @@ def main(argv=None) -> dict:
     ap.add_argument("--glyphs", nargs="+", default=None, help="default: the study's")
     ap.add_argument("--rings", type=int, default=None)
     ap.add_argument("--angles", type=int, default=None)
+    ap.add_argument("--materials", nargs="+", default=None, help="default: the ten presets")
+    ap.add_argument("--stem", default="study_transport", help="results file name (default "
+                    "%(default)s)")
     ap.add_argument("--device", default=None)
     args = ap.parse_args(argv)
     opts = StudyOptions.quick()
@@ -46,7 +49,7 @@ def main(argv=None) -> dict:
         opts.face_angles = args.angles
     opts.validate()
     table = preset_table()
-    materials = list(table)
+    materials = args.materials or list(table)
     t0 = time.perf_counter()
     resolution, lateral = study_resolution(opts, args.device)
     t_res = time.perf_counter() - t0
@@ -61,7 +64,7 @@ def main(argv=None) -> dict:
             "geometry": "legible", "lateral_fwhm_m": lateral["legible"],
             "seconds_resolution": t_res, "seconds_samples": seconds,
             "samples": len(out["plan"])}
-    csv_path, json_path = write_rows(rows, OUT, "study_transport")
+    csv_path, json_path = write_rows(rows, OUT, args.stem)
     # the JSON holds the rows and the summary (correlations, moves, statement)
     json_path.write_text(json.dumps({"rows": out["rows"], **summary, **meta}, indent=1))
     print_table(rows, ["material", "confocal_identification", "bistatic_identification",
