@@ -27,6 +27,15 @@ Patches: a 6 cm Lambertian patch and a 6 cm GGX patch (alpha 0.1, F0 0.9: Mitsub
 the face at x = 0; scan points on it and 3 and 6 cm off. Writes
 tools/results/mitransient_check.{csv,json}.
 
+Measured (tools/results/mitransient_check.csv, 2 cm cells, 512 samples per pixel, 88 renders
+per patch in 7-12 s on 2 CPU cores): mitransient / grid 1.000-1.007 in total and 0.1-0.8% in
+shape per scan point; mitransient / clnlos 0.993-1.003 and 0.2-1.1%. Per face pair before
+the slab, the rendered and the element-sum transients differ by 18% (Lambertian) and 31%
+(GGX) in binned shape and 4.5% in per-pair totals, unchanged from 512 to 4096 samples per
+pixel (0.180 -> 0.174): the grid sums ~64 surface elements of 7.5 mm splatted into 32 ps
+bins where the renderer integrates the continuous patch; summed over the face through the
+slab the difference averages out.
+
 Skips with one line when mitsuba or mitransient is absent (neither is a clnlos dependency:
 ``pip install mitsuba mitransient``) or when Dr.Jit's LLVM is older than 16 (Debian 12's
 LLVM 14 and 15 abort on Dr.Jit 1.5's kernels: "LLVM ERROR: Cannot select: f32 = fminimum";
