@@ -56,7 +56,7 @@ from clnlos.io.outputs import HDF5_SUFFIXES, check_outputs
 from clnlos.runtime.device import get_queue
 from clnlos.runtime.limits import capture_use, check_memory
 from clnlos.study.dataset import MAX_WORKERS, StudyGrid, check_scheduler_address
-from clnlos.study.run import LABEL_METRICS, StudyOptions, run_study
+from clnlos.study.run import LABEL_METRICS, TRANSPORT_CHOICES, StudyOptions, run_study
 
 DTYPES = {"float32": np.float32, "float64": np.float64}
 
@@ -485,6 +485,7 @@ def cmd_study(args) -> int:
         opts.grid = replace(opts.grid, method=args.method)
     opts.labels = args.labels
     opts.real_data = args.real_data
+    opts.transport = args.transport
     res = run_study(out, opts.validate(), workers=args.workers, scheduler=args.scheduler,
                     device=args.device)
     for geo in res["geometries"]:
@@ -538,6 +539,13 @@ def register_study(sub, add_device) -> None:
                         "beside its simulation, the real chart's resolved features and the "
                         "CNN's verdict on them; a folder without them is noted and skipped "
                         "(default: none)")
+    s.add_argument("--transport", choices=list(TRANSPORT_CHOICES), default=full.transport,
+                   help="confocal: every sample with the seed's confocal transport (Eq. 9); "
+                        "both: also the materials at the legible geometry under the bistatic "
+                        f"transport (Eq. 8 in full, {full.face_rings} x {full.face_angles} "
+                        "face samples, about 8 s a sample on 2 cores: some 10-15 minutes more "
+                        "for the quick study), their table, ranks and rank correlation "
+                        "(default %(default)s)")
     s.add_argument("--n-dataset", type=int, default=None, help=argparse.SUPPRESS)
     _add_force(s)
     add_device(s)

@@ -100,7 +100,7 @@ class FaceQuadrature:
     angles: int
 
 
-def _node_weights(slab, bins: int, bin_width_s: float, n_dipoles, queue):
+def node_weights(slab, bins: int, bin_width_s: float, n_dipoles, queue):
     """(base [lag, node] = dt w_j T(0, t) pi a, a = 4 D v t [lag, node]) over the window's
     lags; dead nodes (t <= 0, T = 0) have base 0."""
     q = get_queue(queue)
@@ -131,7 +131,7 @@ def _ring_moment(base, a, r_in: float, r_out: float) -> float:
 def face_quadrature(slab, *, bins: int, bin_width_s: float, rings: int = FACE_RINGS,
                     angles: int = FACE_ANGLES, n_dipoles=None, queue=None) -> FaceQuadrature:
     """The face quadrature of the module docstring for a window of ``bins`` bins."""
-    base, a = _node_weights(slab, bins, bin_width_s, n_dipoles, queue)
+    base, a = node_weights(slab, bins, bin_width_s, n_dipoles, queue)
     per_lag = base.sum(axis=1)
     lags = max(1, support_of(per_lag))
     base, a = base[:lags], a[:lags]

@@ -1,8 +1,9 @@
 """Study samples: simulate a hidden object through the slab, reconstruct it, score it.
 
 A sample is a JSON-able dict (material, object and its size, pose, depth, exposure, seed, and
-optional overrides of the scan width and slab thickness for the sweeps); with the grid it
-defines one scene (:func:`scene_dict`). Its result is cached on disk as
+optional overrides of the scan width and slab thickness for the sweeps, and a ``transport``
+table, :class:`clnlos.forward.scene.TransportSettings`, for the bistatic comparison); with the
+grid it defines one scene (:func:`scene_dict`). Its result is cached on disk as
 ``<cache>/<sha1 of sample, grid and code version>.npz`` (written atomically, with the mode
 the umask gives), so reruns and interrupted runs resume and a changed clnlos never reuses an
 old result. Each entry also holds its key and a SHA-256 of its arrays, and is checked when
@@ -12,7 +13,8 @@ or through Dask (local processes with pinned threads, or an existing cluster): e
 process builds its own OpenCL context.
 
 Ground truth per sample: the scan cells at least half covered by surfaces facing the scan
-plane (:func:`clnlos.metrics.truth_mask`), the mean depth of the surface elements, and the
+plane (:func:`clnlos.study.metrics.truth_mask`), the mean depth of the surface elements, and
+the
 covered fraction per cell (for PSNR).
 """
 
@@ -171,6 +173,8 @@ def scene_dict(sample: dict, grid: StudyGrid) -> dict:
     if thickness > 0:
         d["slab"] = {"thickness_m": thickness, "mu_a": CDT_SLAB.mu_a,
                      "mu_s_prime": CDT_SLAB.mu_s_prime, "n": CDT_SLAB.n}
+    if "transport" in sample:  # the scene's [transport] table (absent: the confocal model)
+        d["transport"] = dict(sample["transport"])
     return d
 
 

@@ -20,6 +20,7 @@ from clnlos.brdf.presets import preset_model
 from clnlos.io.files import atomic_path
 from clnlos.io.outputs import HTML_GENERATOR
 from clnlos.study.quality import METRICS
+from clnlos.study.transport_compare import TRANSPORTS, fmt_r
 
 PAGE_WIDTH_PX = 1180
 DPI = 100
@@ -453,6 +454,17 @@ def _real_html(results) -> str:
     return out
 
 
+def _transport_section(comparison) -> list[str]:
+    """The material table under both transports (``--transport both``), else nothing."""
+    if not comparison:
+        return []
+    title = "The material table under both transports: does Eq. 9 change the ranking?"
+    return [f"<h2>{html.escape(title)}</h2>",
+            comparison_html(comparison, comparison["face_rings"], comparison["face_angles"]),
+            f"<img alt='{html.escape(title)}' src='data:image/png;base64,"
+            f"{_png(fig_transport(comparison))}'/>"]
+
+
 def write_report(out_dir, results, plan, res, real=None) -> None:
     import matplotlib
 
@@ -516,6 +528,7 @@ def write_report(out_dir, results, plan, res, real=None) -> None:
         f"{results['resolution']['effective_temporal_fwhm_s'] * 1e12:.0f} ps: "
         f"{results['resolution']['bound_lateral_m'] * 100:.2f} cm.</p>",
         "<h2>A real capture and its simulation</h2>", _real_html(results),
+        *_transport_section(results.get("transport_comparison")),
         "<h2>No-reference metrics against ground truth</h2>",
         "<p>Pearson r over the glyph reconstructions (point-biserial for identified).</p>",
         _table(["metric", "r with identified", "r with IoU", "r with IoU - baseline",
@@ -535,3 +548,87 @@ def write_report(out_dir, results, plan, res, real=None) -> None:
            "</head><body>" + "\n".join(body) + "</body></html>")
     with atomic_path(out_dir / "report.html") as tmp:
         tmp.write_text(doc, encoding="utf-8")
+
+
+def fig_transport(comparison: dict, plan=None, results=None):
+    """Identification per material under both transports (Wilson 95% intervals) and the
+    NCC margins of one against the other; with samples, one glyph's MIP under each."""
+    import matplotlib.pyplot as plt  # optional dependency: only when a report draws
+
+    rows = comparison["rows"]
+    names = [r["material"] for r in rows]
+    x = np.arange(len(rows))
+    fig, ax = plt.subplots(1, 2, figsize=(11.5, 4.4), constrained_layout=True)
+    for k, tr in enumerate(TRANSPORTS):
+        acc = np.array([r[tr]["identification"]["accuracy"] for r in rows])
+        lo = np.array([r[tr]["identification"]["ci"][0] for r in rows])
+        hi = np.array([r[tr]["identification"]["ci"][1] for r in rows])
+        ax[0].bar(x + (k - 0.5) * 0.4, acc, 0.4,
+                  yerr=[np.clip(acc - lo, 0, None), np.clip(hi - acc, 0, None)], capsize=2,
+                  label=tr + (" (Eq. 9)" if tr == "confocal" else " (Eq. 8)"))
+    if rows:
+        chance = rows[0]["confocal"]["identification"]["chance"]
+        ax[0].axhline(chance, color="gray", ls=":", label=f"chance {chance:.3f}")
+    ax[0].set_xticks(x)
+    ax[0].set_xticklabels([n if len(n) <= 18 else n[:17] + "." for n in names], rotation=55,
+                          ha="right", fontsize=7)
+    ax[0].set(ylabel="identification accuracy (95% Wilson interval)", ylim=(0, 1.05),
+              title="legible geometry: identification under each transport")
+    ax[0].legend(fontsize=7)
+    mc = np.array([r["confocal"]["margin"] for r in rows])
+    mb = np.array([r["bistatic"]["margin"] for r in rows])
+    ax[1].scatter(mc, mb, s=22)
+    for r, a, b in zip(rows, mc, mb, strict=True):
+        ax[1].annotate(f"{r['material'][:14]} ({r['confocal']['rank']}->{r['bistatic']['rank']})",
+                       (a, b), fontsize=6, xytext=(3, 2), textcoords="offset points")
+    if rows:
+        lim = [min(mc.min(), mb.min(), 0) - 0.02, max(mc.max(), mb.max()) + 0.02]
+        ax[1].plot(lim, lim, color="gray", ls=":", label="equal")
+        ax[1].axhline(0, color="k", lw=0.5)
+        ax[1].axvline(0, color="k", lw=0.5)
+        ax[1].set(xlim=lim, ylim=lim)
+    c = comparison["correlation"]["rank"]
+    ax[1].set(xlabel="mean NCC margin of the true glyph, confocal",
+              ylabel="mean NCC margin, bistatic",
+              title=f"margins (rank confocal->bistatic); Spearman {fmt_r(c['spearman'])}, "
+                    f"Kendall {fmt_r(c['kendall'])}")
+    ax[1].legend(fontsize=7)
+    return fig
+
+
+def comparison_html(comparison: dict, rings: int, angles: int) -> str:
+    """The report's section body: how it was made, the table, the statement."""
+    def cell(e):
+        i = e["identification"]
+        return f"{i['accuracy']:.2f} [{i['ci'][0]:.2f}, {i['ci'][1]:.2f}]"
+
+    rows = [[html.escape(r["material"]), html.escape(str(r["brdf_class"] or "")),
+             cell(r["confocal"]), cell(r["bistatic"]),
+             f"{r['confocal']['margin']:+.3f}", f"{r['bistatic']['margin']:+.3f}",
+             f"{r['confocal']['iou']:.3f}", f"{r['bistatic']['iou']:.3f}",
+             f"{r['counts_ratio']:.3f}", str(r["confocal"]["rank"]), str(r["bistatic"]["rank"])]
+            for r in comparison["rows"]]
+    c = comparison["correlation"]
+    n = comparison["rows"][0]["confocal"]["n"] if comparison["rows"] else 0
+    return (
+        "<p>The study's glyphs at the legible geometry rendered under both transports: "
+        "confocal (the seed's Eq. 9, what every other section uses) and bistatic (Eq. 8 in "
+        f"full: light leaves the face at r1 and returns at r2, the full BRDF; {rings} x "
+        f"{angles} face samples, converged in tools/results/study_transport_faces.csv); "
+        f"same scenes, noise seeds, reconstruction and identification rule; {n} "
+        "reconstructions per material and transport. Margin: mean NCC of the true glyph "
+        "minus the best other (> 0: identified). Rank: by identification, ties by margin. "
+        "Counts: bistatic / confocal photon counts.</p>"
+        + _table(["material", "class", "identification confocal", "identification bistatic",
+                  "margin confocal", "margin bistatic", "IoU confocal", "IoU bistatic",
+                  "counts ratio", "rank confocal", "rank bistatic"], rows)
+        + f"<p>Rank correlation: Spearman {fmt_r(c['rank']['spearman'])}, Kendall "
+        f"{fmt_r(c['rank']['kendall'])}; of the accuracies: Spearman "
+        f"{fmt_r(c['accuracy']['spearman'])}, Kendall {fmt_r(c['accuracy']['kendall'])}; of "
+        f"the margins: Spearman {fmt_r(c['margin']['spearman'])}, Kendall "
+        f"{fmt_r(c['margin']['kendall'])}.</p>"
+        f"<p><b>{html.escape(comparison['statement'])}</b></p>"
+        "<p>Regenerate: <code>python -m clnlos study --transport both</code> (this section; "
+        "adds 80 bistatic samples to the quick study, about 8 s each on 2 cores) or <code>python "
+        "tools/study_transport.py</code> (the table alone, "
+        "tools/results/study_transport.{csv,json}).</p>")

@@ -26,7 +26,11 @@ The question is answered with legibility, not with how well a blob covers the ta
    2 one of the two, 3 neither), validated on held-out glyphs and a held-out letter size,
    applied to the real captures; ``--labels fft`` is the seed's recipe (FFT clarity
    terciles), ``nr`` the no-reference metric's.
-7. Report (report.html, with the seed's Figure 8 side by side) and results.json.
+7. With ``transport = "both"`` (``--transport both``): the materials at the legible geometry
+   under the bistatic transport too (Eq. 8 in full, :mod:`clnlos.study.transport_compare`),
+   their table and ranks under both and the rank correlation. Everything else is simulated
+   with the confocal transport (the seed's Eq. 9).
+8. Report (report.html, with the seed's Figure 8 side by side) and results.json.
 
 Every sample is rendered (simulated, reconstructed, scored) by :mod:`clnlos.study.dataset`,
 cached on disk and run through one pool of workers; identification is computed from the
@@ -88,6 +92,12 @@ from clnlos.study.resolution import (
     measure_resolution,
     otoole_lateral_bound_m,
 )
+from clnlos.study.transport_compare import (
+    COMPARE_ANGLES,
+    COMPARE_RINGS,
+    bistatic_table,
+    comparison_table,
+)
 
 # The seed's Figure 9 grouping of its ten materials (1 clear, 2 medium, 3 fuzzy).
 SEED_FIGURE9 = {
@@ -103,6 +113,7 @@ SWEEPS = {"scan_width_m": (0.3, 0.45, 0.6, 0.8), "depth_m": (0.3, 0.5, 0.7, 0.9)
           "slab_thickness_m": (0.0, 0.0127, 0.0254, 0.0508)}
 LEGIBILITY_SWEEPS = {"letter_height_m": (0.1, 0.2, 0.3, 0.5),
                      "exposure_s": (0.001, 0.01, 0.1, 1.0)}
+TRANSPORT_CHOICES = ("confocal", "both")  # the study's transports: confocal; + bistatic
 STROKE_PER_HEIGHT = 0.04 / 0.15   # the seed's letters: 4 cm strokes on 15 cm
 DEFAULT_EXPOSURE_S = 0.1          # per scan point (the seed's budget)
 HELD_OUT_GLYPHS = ("U", "X")      # the CNN's validation: glyphs ...
@@ -153,6 +164,10 @@ class StudyOptions:
     seed: int = 0
     label: str = "full"
     real_data: Path | None = None       # folder holding cdt/*.mat (the real CDT captures)
+    transport: str = "confocal"         # "both": also the bistatic comparison stage
+    transport_glyphs: tuple[str, ...] | None = None  # the comparison's (default: glyphs)
+    face_rings: int = COMPARE_RINGS     # the comparison's bistatic face samples
+    face_angles: int = COMPARE_ANGLES
 
     @classmethod
     def quick(cls) -> StudyOptions:
@@ -179,6 +194,13 @@ class StudyOptions:
             raise ParameterError("glyphs", self.glyphs, f"two or more of {''.join(GLYPHS)}")
         if not self.sweep_glyphs or any(g not in self.glyphs for g in self.sweep_glyphs):
             raise ParameterError("sweep_glyphs", self.sweep_glyphs,
+                                 f"one or more of {''.join(self.glyphs)}")
+        if self.transport not in TRANSPORT_CHOICES:
+            raise ParameterError("--transport", self.transport, " or ".join(TRANSPORT_CHOICES))
+        if self.transport_glyphs is not None and (
+                not self.transport_glyphs or any(g not in self.glyphs
+                                                 for g in self.transport_glyphs)):
+            raise ParameterError("transport_glyphs", self.transport_glyphs,
                                  f"one or more of {''.join(self.glyphs)}")
         if LEGIBLE_GEOMETRY not in {g.name for g in self.geometries}:
             raise ParameterError("geometries", [g.name for g in self.geometries],
@@ -360,8 +382,12 @@ def identification_of(plan, results, opts: StudyOptions, gamma_s: float,
                 fwhm = otoole_lateral_bound_m(s["scan_width_m"], s["depth_m"], gamma_s)
             templates[key] = glyph_templates(s["height_m"], s["stroke_m"], (0.0, 0.0),
                                              scene.scan_centres(), fwhm, opts.glyphs)
-        best, margin, _ = identify(r["mip"], templates[key])
+        best, margin, scores = identify(r["mip"], templates[key])
         r["identified_as"], r["margin"] = best, margin
+        # the true glyph's NCC and its margin over the best other (> 0: identified)
+        r["ncc_true"] = scores[s["text"]]
+        r["true_margin"] = scores[s["text"]] - max(
+            (v for g, v in scores.items() if g != s["text"]), default=-1.0)
         r["identified"] = bool(best == s["text"])
         # the time-integrated measurement matched the same way (no reconstruction at all)
         r["measurement_identified"] = bool(identify(r["meas_image"], templates[key])[0]
@@ -596,6 +622,15 @@ def run_study(out_dir: Path, opts: StudyOptions, *, workers: int | None = None,
         resolution["real_chart"] = real["chart"]
     timings["real_capture_s"] = time.perf_counter() - t0
 
+    # -- the materials under both transports (legible geometry)
+    comparison = None
+    if opts.transport == "both":
+        t0 = time.perf_counter()
+        comparison = transport_comparison(materials, opts, cache, resolution, lateral,
+                                          table, workers=nw, scheduler=scheduler,
+                                          device=device)
+        timings["transport_s"] = time.perf_counter() - t0
+
     findings = make_findings(geometries, legibility_rows, geometry_rows, validation,
                              label_metric, cnn, agreement, opts)
     ious = np.array([r["iou"] for r in results])
@@ -639,12 +674,29 @@ def run_study(out_dir: Path, opts: StudyOptions, *, workers: int | None = None,
                     "iou_histogram": {"edges": edges.tolist(), "counts": hist.tolist()},
                     "iou_zero_fraction": float(np.mean(ious == 0))},
         "findings": findings, "timings_s": timings, "n_dataset": len(results)}
+    if comparison is not None:
+        results_json["transport_comparison"] = {
+            **{k: v for k, v in comparison.items() if k not in ("plan", "results")},
+            "face_rings": opts.face_rings, "face_angles": opts.face_angles,
+            "glyphs": list(opts.transport_glyphs or opts.glyphs),
+            "geometry": LEGIBLE_GEOMETRY}
     t0 = time.perf_counter()
     write_report(out_dir, results_json, plan, results, real)
     timings["report_s"] = time.perf_counter() - t0
     with atomic_path(out_dir / "results.json") as tmp:
         tmp.write_text(json.dumps(stamp(results_json), indent=1))
     return results_json
+
+
+def transport_comparison(materials, opts: StudyOptions, cache: Path, resolution: dict,
+                         lateral: dict[str, float], table=None, **kw) -> dict:
+    """The materials at the legible geometry under the confocal and the bistatic transport
+    (:mod:`clnlos.study.transport_compare`): its table, with ``plan`` and ``results``."""
+    plan = comparison_plan(materials, opts)
+    results = render_plan(plan, opts.grid, cache, desc="transport comparison", **kw)
+    identification_of(plan, results, opts, resolution["effective_temporal_fwhm_s"], lateral)
+    out = comparison_table(materials, plan, results, 1.0 / len(opts.glyphs), table)
+    return {**out, "plan": plan, "results": results}
 
 
 def _gains(a: float | None, b: float | None, margin: float = 0.25) -> bool:
@@ -776,3 +828,19 @@ def make_findings(geometries, legibility_rows, geometry_rows, validation, label_
            if f["seed_conclusion_holds"] else
            "The seed's conclusion (less specular -> clearer) is not supported here."))
     return f
+
+
+def comparison_plan(materials, opts) -> list[tuple[dict, dict]]:
+    """(meta, sample) of every comparison sample: per material, glyph and noise realisation
+    at the legible geometry, once confocal (the study's main sample itself) and once
+    bistatic (the same sample with a ``transport`` table)."""
+    geo = opts.geometry(LEGIBLE_GEOMETRY)
+    table = bistatic_table(opts.face_rings, opts.face_angles)
+    plan = []
+    for m in materials:
+        for meta, s in _glyph_entries(opts, geo, m, opts.transport_glyphs or opts.glyphs,
+                                      opts.seeds,
+                                      {"set": "transport"}):
+            plan.append(({**meta, "transport": "confocal"}, s))
+            plan.append(({**meta, "transport": "bistatic"}, {**s, "transport": table}))
+    return plan
