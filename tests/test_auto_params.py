@@ -12,6 +12,7 @@ from clnlos.bench.oracle import (
     OracleCase,
     compare_method,
     exposure_sweep,
+    seed_spread,
     simulate_case,
     sweep_summary,
     write_rows,
@@ -120,6 +121,27 @@ def test_auto_monotone_in_exposure(queue, tmp_path):
     csv_path, json_path = write_rows(summary, tmp_path / "sweep")
     assert csv_path.read_text().splitlines()[0].startswith("method,exposure_s")
     assert json_path.is_file()
+
+
+def _seed_row(capture, seed, auto, today):
+    return {"capture": capture, "method": "lct", "seed": seed, "auto_iou": auto,
+            "today_iou": today, "oracle_iou": max(auto, today) + 0.01,
+            "gap": max(auto, today) + 0.01 - auto, "vs_today": auto - today}
+
+
+def test_seed_spread_tells_a_regression_from_seed_luck():
+    """A mean drop below today of more than 0.03 is a regression only when it exceeds the
+    spread of auto and of today over the noise seeds."""
+    luck = [_seed_row("a", 0, 0.54, 0.62), _seed_row("a", 1, 0.59, 0.57),
+            _seed_row("a", 2, 0.55, 0.61)]   # 0.04 below today, whose spread is 0.05
+    real = [_seed_row("b", 0, 0.58, 0.64), _seed_row("b", 1, 0.585, 0.635),
+            _seed_row("b", 2, 0.59, 0.645)]  # 0.055 below, spreads 0.01
+    out = {r["capture"]: r for r in seed_spread(luck + real)}
+    assert out["a"]["seeds"] == 3 and not out["a"]["regression"]
+    assert out["a"]["vs_today_mean"] == pytest.approx(-0.04)
+    assert out["a"]["today_iou_spread"] == pytest.approx(0.05)
+    assert out["b"]["regression"]
+    assert out["b"]["vs_today_mean"] == pytest.approx(-0.055)
 
 
 def test_noise_free_capture_takes_the_caps(queue):

@@ -145,20 +145,46 @@ def compare_method(capture, mask, method: str, *, iterations: int | None = None,
 
 
 def oracle_rows(cases=ORACLE_CASES, methods=METHODS, *, iterations: int | None = None,
-                queue=None, progress=print) -> list[dict]:
-    """One row per case and method (:func:`compare_method`), with the case's fields."""
+                seeds=None, queue=None, progress=print) -> list[dict]:
+    """One row per case and method (:func:`compare_method`), with the case's name; with
+    ``seeds``, one per case, noise seed and method, the seed in the row."""
+    from dataclasses import replace
+
     rows = []
     for case in cases:
-        capture, mask = simulate_case(case, queue)
-        for m in methods:
-            row = {"capture": case.name, **compare_method(capture, mask, m,
-                                                          iterations=iterations,
-                                                          queue=queue)}
-            rows.append(row)
-            if progress:
-                progress(f"{case.name} [{m}]: auto {row['auto_iou']:.3f}, oracle "
-                         f"{row['oracle_iou']:.3f}, today {row['today_iou']:.3f}")
+        for s in (None,) if seeds is None else seeds:
+            c = case if s is None else replace(case, seed=int(s))
+            capture, mask = simulate_case(c, queue)
+            for m in methods:
+                row = {"capture": case.name, **({} if s is None else {"seed": c.seed}),
+                       **compare_method(capture, mask, m, iterations=iterations,
+                                        queue=queue)}
+                rows.append(row)
+                if progress:
+                    progress(f"{case.name}{'' if s is None else f' seed {s}'} [{m}]: auto "
+                             f"{row['auto_iou']:.3f}, oracle {row['oracle_iou']:.3f}, today "
+                             f"{row['today_iou']:.3f}")
     return rows
+
+
+def seed_spread(rows: list[dict]) -> list[dict]:
+    """Per capture and method of :func:`oracle_rows` over several seeds: mean and spread
+    (max - min over the seeds) of the auto, today and oracle IoU, of vs_today and of the
+    gap; ``regression``: auto worse than today by more than 0.03 on the mean, and by more
+    than the seeds' spread of either (a difference inside the spread is noise-seed luck)."""
+    out = []
+    keys = list(dict.fromkeys((r["capture"], r["method"]) for r in rows))
+    for cap, m in keys:
+        mine = [r for r in rows if r["capture"] == cap and r["method"] == m]
+        row = {"capture": cap, "method": m, "seeds": len(mine)}
+        for k in ("auto_iou", "today_iou", "oracle_iou", "gap", "vs_today"):
+            v = np.array([r[k] for r in mine], np.float64)
+            row[f"{k}_mean"], row[f"{k}_spread"] = float(v.mean()), float(np.ptp(v))
+        drop = -row["vs_today_mean"]
+        row["regression"] = bool(drop > 0.03 and drop > max(row["auto_iou_spread"],
+                                                              row["today_iou_spread"]))
+        out.append(row)
+    return out
 
 
 def exposure_sweep(case: OracleCase, exposures=SWEEP_EXPOSURES_S, seeds=(0, 1, 2),
