@@ -184,14 +184,29 @@ class LCT:
         """The light-cone Wiener SNR in [snr_min, snr_max] that generalised cross-validation
         (:mod:`clnlos.gcv`) picks for the transient ``tau`` [t, y, x] (device): V evaluated
         on the filter's own (v, y, x) grid, where the light cone is a convolution."""
+        return self._bins().snr(self._power(tau), snr_min, snr_max)
+
+    def upre_snr(self, tau: cla.Array, noise: cla.Array, snr_min: float,
+                 snr_max: float) -> float:
+        """The light-cone Wiener SNR in [snr_min, snr_max] that the unbiased predictive risk
+        estimate (:meth:`clnlos.gcv.GcvBins.upre_snr`) picks for the transient ``tau``
+        whose noise is like ``noise`` (a realisation of it, same shape, device): on the
+        filter's (v, y, x) grid, where the slab deconvolution and the t -> v resampling
+        have coloured it (GCV's white-noise assumption does not hold there)."""
+        return self._bins().upre_snr(self._power(tau), self._power(noise), snr_min, snr_max)
+
+    def _bins(self):
         from .gcv import GcvBins
 
         if self._gcv_bins is None:
             self._gcv_bins = GcvBins.from_gain(self.inverse_filter.gain_squared(),
                                                self.inverse_filter.pad_shape[2])
-        power = self.inverse_filter.power_spectrum(
+        return self._gcv_bins
+
+    def _power(self, tau: cla.Array) -> np.ndarray:
+        """|F[t -> v of tau, padded]|^2 on the half spectrum of the light-cone filter."""
+        return self.inverse_filter.power_spectrum(
             write_input=lambda buf: self._to_v_padded.apply_into(tau, buf))
-        return self._gcv_bins.snr(power, snr_min, snr_max)
 
     @property
     def forward_operator(self) -> LinearOperator:
