@@ -338,12 +338,14 @@ class ReconstructionPipeline:
         if self.n_guard:
             tau = tau[:self.shape[0]]  # the guard bins dropped: a view of the leading rows
         method = self.config.method
+        noise_probe = None  # a realisation of tau's noise (photon counts), on first use
         if method != "fk" and self.config.inversion_snr == "auto" and not noise.noise_free:
             lct = self.invert if method == "lct" else self.invert.warm
             if noise.photon_counts and LIGHTCONE_RULE == "upre":
-                inv_snr = self._timed(timings, "choose_inversion_snr", lambda: lct.upre_snr(
-                    tau, self._noise_like(transient, scale, deconv, snr), LIGHTCONE_SNR_MIN,
-                    LIGHTCONE_SNR_MAX))
+                if noise_probe is None:
+                    noise_probe = self._noise_like(transient, scale, deconv, snr)
+                inv_snr = self._timed(timings, "choose_inversion_snr", lct.upre_snr, tau,
+                                      noise_probe, LIGHTCONE_SNR_MIN, LIGHTCONE_SNR_MAX)
                 params["inversion_snr_rule"] = "upre"
             else:
                 inv_snr = self._timed(timings, "choose_inversion_snr", lct.gcv_snr, tau,
@@ -362,9 +364,16 @@ class ReconstructionPipeline:
             depth_min = support_depth_m(noise, self.config)
             cb = None if progress is None else (lambda k, _x: progress(k + 1,
                                                                        self.config.iterations))
+            if (self.config.l1_weight == "auto" and noise.photon_counts
+                    and not noise.noise_free and noise_probe is None):
+                noise_probe = self._noise_like(transient, scale, deconv, snr)
             vol = self._timed(timings, "invert:iterative", self.invert, tau,
-                              depth_min_m=depth_min, callback=cb, setup=setup)
+                              depth_min_m=depth_min, callback=cb, setup=setup,
+                              noise=noise_probe if self.config.l1_weight == "auto" else None)
             solve = self.invert.report.as_dict()
+            params["l1_rule"] = self.invert.l1_rule
+            lam = self.invert.report.lam_max
+            params["l1_weight_used"] = self.invert.report.l1 / lam if lam > 0 else None
         volume = vol.get()
         nt, ny, nx = self.shape
         dz = C0 * self.bin_width_s / 2

@@ -6,6 +6,7 @@ import math
 from dataclasses import replace
 
 import numpy as np
+import pyopencl.array as cla
 import pytest
 
 from clnlos.bench.oracle import (
@@ -179,6 +180,45 @@ def test_seed_spread_tells_a_regression_from_seed_luck():
     assert out["a"]["today_iou_spread"] == pytest.approx(0.05)
     assert out["b"]["regression"]
     assert out["b"]["vs_today_mean"] == pytest.approx(-0.055)
+
+
+def test_noise_l1_weight_leaves_pure_noise_empty(queue):
+    """l1_weight "auto" (twice max(L^T n) of a noise realisation n): the inversion of
+    another realisation of the same noise, alone, returns an empty volume, where today's
+    constant (0.1 of max(L^T I), I the data) switches voxels on."""
+    from clnlos.iterative import IterativeInversion
+
+    rng = np.random.default_rng(3)
+    shape = (64, 8, 8)
+    n1, n2 = (rng.standard_normal(shape).astype(np.float32) for _ in range(2))
+    kw = dict(bin_width_s=64e-12, scan_width_m=0.3, iterations=60, tv_weight=0.0,
+              queue=queue)
+    auto = IterativeInversion(shape, l1_weight="auto", **kw)
+    empty = auto(n1, noise=cla.to_device(queue, n2))
+    assert auto.l1_rule == "noise" and auto.report.l1 > auto.report.lam_max
+    fixed = IterativeInversion(shape, l1_weight=0.1, **kw)
+    lit = fixed(n1)
+    assert fixed.l1_rule == "fixed" and lit.sum() > 0
+    assert empty.sum() <= 1e-3 * lit.sum(), (empty.sum(), lit.sum())
+    # without a noise realisation "auto" keeps today's constant
+    auto(n1)
+    assert auto.l1_rule == "fixed"
+    assert auto.report.l1 == pytest.approx(0.1 * auto.report.lam_max, rel=1e-6)
+
+
+@pytest.mark.slow
+def test_iterative_l1_weight_from_the_noise(tiny_capture, queue):
+    """Photon counts: the iterative method's L1 weight comes from the capture's own noise
+    (here below today's constant 0.1); a number given keeps the constant."""
+    cap, _ = tiny_capture
+    cfg = ReconstructionConfig(slab=cap.recorded_slab()[0], method="iterative",
+                               iterations=20)
+    rec = reconstruct(cap, cfg.validate(), device=queue)
+    assert rec.params["l1_rule"] == "noise"
+    assert 0.0 < rec.params["l1_weight_used"] < 0.1
+    rec = reconstruct(cap, cfg.replace(l1_weight=0.1).validate(), device=queue)
+    assert rec.params["l1_rule"] == "fixed"
+    assert rec.params["l1_weight_used"] == pytest.approx(0.1, rel=1e-6)
 
 
 def test_noise_free_capture_takes_the_caps(queue):

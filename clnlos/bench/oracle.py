@@ -4,7 +4,9 @@ For simulated captures (Lambertian shapes through the CDT slab, photon noise), e
 is run with its default "auto" SNRs (:mod:`clnlos.gcv`), with the photon rule the auto SNRs
 replaced (SNR = photons / K_SNR and its square root, :mod:`clnlos.noise`: "today"), and
 with every setting of the grid SLAB_SNRS x INVERSION_SNRS (f-k has no light-cone SNR: the
-slab SNRs alone). The oracle is the best IoU of the grid (Otsu-thresholded MIP against the
+slab SNRs alone). The iterative method's L1 weight is "auto" (from the noise,
+:mod:`clnlos.iterative`) in the auto and the grid runs, today's constant FIXED_L1_WEIGHT in
+the "today" run. The oracle is the best IoU of the grid (Otsu-thresholded MIP against the
 true mask, :func:`clnlos.metrics.mip_iou`); the gap is oracle minus auto. Only the slab
 recorded in the capture is used, as ``clnlos reconstruct`` does with no slab flags.
 
@@ -25,6 +27,7 @@ from pathlib import Path
 import numpy as np
 
 from ..config import ReconstructionConfig, slab_table
+from ..iterative import FIXED_L1_WEIGHT
 from ..metrics import mip_iou, truth_mask
 from ..noise import combined_snr, lightcone_snr
 from ..slab import CDT_SLAB
@@ -129,8 +132,11 @@ def compare_method(capture, mask, method: str, *, iterations: int | None = None,
            "auto_inversion_snr": rec.params.get("inversion_snr_used")}
     old = combined_snr(rec.noise["snr"], rec.params.get("model_snr_used", float("inf")))
     old_inv = lightcone_snr(old)
-    row["today_iou"] = _run(capture, mask, base.replace(snr=old, inversion_snr=old_inv)
-                            .validate(), queue)[0]
+    today = base.replace(snr=old, inversion_snr=old_inv)
+    if method == "iterative":  # today's constant L1 weight (auto: from the noise)
+        today = today.replace(l1_weight=FIXED_L1_WEIGHT)
+        row["auto_l1_weight"] = rec.params.get("l1_weight_used")
+    row["today_iou"] = _run(capture, mask, today.validate(), queue)[0]
     row["today_snr"], row["today_inversion_snr"] = old, old_inv if method != "fk" else None
     best = (-1.0, None, None)
     for a, b in grid_settings(method):
