@@ -138,6 +138,17 @@ def test_auto_within_the_oracle_gap(tiny_capture, queue, method):
     assert row["auto_snr"] < row["today_snr"] / 10, row  # the data hold less than photons say
 
 
+def test_compare_without_the_grid(tiny_capture, queue):
+    """grid=False (the seed measurements of auto against today): the same auto and today
+    as with the grid, no oracle."""
+    cap, mask = tiny_capture
+    row = compare_method(cap, mask, "lct", grid=False, queue=queue)
+    full = compare_method(cap, mask, "lct", queue=queue)
+    assert row["oracle_iou"] is None and row["gap"] is None
+    assert (row["auto_iou"], row["today_iou"]) == (full["auto_iou"], full["today_iou"])
+    assert list(full)[-2:] == ["gap", "vs_today"]
+
+
 @pytest.mark.slow
 def test_iterative_auto_within_the_oracle_gap(tiny_capture, queue):
     cap, mask = tiny_capture

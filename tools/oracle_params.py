@@ -49,12 +49,14 @@ def main(argv=None) -> None:
     ap.add_argument("--methods", nargs="+", default=list(METHODS), choices=METHODS)
     ap.add_argument("--seeds", nargs="+", type=int, default=None,
                     help="the table over these noise seeds (mean and spread per row)")
+    ap.add_argument("--no-grid", action="store_true",
+                    help="with --seeds: auto and today only, no oracle grid")
     args = ap.parse_args(argv)
     if args.seeds is not None:
         cases = [c for c in ORACLE_CASES
                  if not args.case or any(s in c.name for s in args.case)]
         rows = oracle_rows(cases, args.methods, iterations=args.iterations, seeds=args.seeds,
-                           queue=args.device)
+                           grid=not args.no_grid, queue=args.device)
         stem = RESULTS / "oracle_seeds"
         if args.update and stem.with_suffix(".json").is_file():
             new = {(r["capture"], r["method"]) for r in rows}
@@ -65,11 +67,12 @@ def main(argv=None) -> None:
         summary = seed_spread(rows)
         print("wrote", *write_rows(summary, RESULTS / "oracle_seeds_summary"))
         for r in summary:
+            oracle = ("" if r["oracle_iou_mean"] is None else
+                      f" oracle {r['oracle_iou_mean']:.3f} gap {r['gap_mean']:+.3f}")
             print(f"{r['capture']} [{r['method']}]: auto {r['auto_iou_mean']:.3f} "
                   f"(+-{r['auto_iou_spread'] / 2:.3f}) today {r['today_iou_mean']:.3f} "
-                  f"(+-{r['today_iou_spread'] / 2:.3f}) oracle {r['oracle_iou_mean']:.3f} "
-                  f"gap {r['gap_mean']:+.3f} vs today {r['vs_today_mean']:+.3f}"
-                  f"{' REGRESSION' if r['regression'] else ''}")
+                  f"(+-{r['today_iou_spread'] / 2:.3f}){oracle} vs today "
+                  f"{r['vs_today_mean']:+.3f}{' REGRESSION' if r['regression'] else ''}")
         return
     if not args.no_table:
         cases = [c for c in ORACLE_CASES

@@ -120,10 +120,11 @@ def grid_settings(method: str) -> list[tuple[float, float]]:
 
 
 def compare_method(capture, mask, method: str, *, iterations: int | None = None,
-                   queue=None) -> dict:
+                   grid: bool = True, queue=None) -> dict:
     """auto, today's photon rule and the oracle grid for one capture and method: a row
     with the IoUs, the parameters each used, gap = oracle - auto and
-    vs_today = auto - today."""
+    vs_today = auto - today (``grid=False``: auto and today only, the oracle's fields
+    None)."""
     kw = {} if iterations is None else {"iterations": iterations}
     base = ReconstructionConfig(slab=capture.recorded_slab()[0], method=method, **kw)
     auto_iou, rec = _run(capture, mask, base.validate(), queue)
@@ -138,6 +139,10 @@ def compare_method(capture, mask, method: str, *, iterations: int | None = None,
         row["auto_l1_weight"] = rec.params.get("l1_weight_used")
     row["today_iou"] = _run(capture, mask, today.validate(), queue)[0]
     row["today_snr"], row["today_inversion_snr"] = old, old_inv if method != "fk" else None
+    row["vs_today"] = auto_iou - row["today_iou"]
+    if not grid:
+        return {**row, "oracle_iou": None, "oracle_snr": None, "oracle_inversion_snr": None,
+                "gap": None}
     best = (-1.0, None, None)
     for a, b in grid_settings(method):
         v = _run(capture, mask, base.replace(snr=a, inversion_snr=b).validate(), queue)[0]
@@ -146,12 +151,12 @@ def compare_method(capture, mask, method: str, *, iterations: int | None = None,
     row["oracle_iou"], row["oracle_snr"] = best[0], best[1]
     row["oracle_inversion_snr"] = best[2] if method != "fk" else None
     row["gap"] = row["oracle_iou"] - auto_iou
-    row["vs_today"] = auto_iou - row["today_iou"]
+    row["vs_today"] = row.pop("vs_today")  # the column after gap, as before
     return row
 
 
 def oracle_rows(cases=ORACLE_CASES, methods=METHODS, *, iterations: int | None = None,
-                seeds=None, queue=None, progress=print) -> list[dict]:
+                seeds=None, grid: bool = True, queue=None, progress=print) -> list[dict]:
     """One row per case and method (:func:`compare_method`), with the case's name; with
     ``seeds``, one per case, noise seed and method, the seed in the row."""
     from dataclasses import replace
@@ -164,11 +169,12 @@ def oracle_rows(cases=ORACLE_CASES, methods=METHODS, *, iterations: int | None =
             for m in methods:
                 row = {"capture": case.name, **({} if s is None else {"seed": c.seed}),
                        **compare_method(capture, mask, m, iterations=iterations,
-                                        queue=queue)}
+                                        grid=grid, queue=queue)}
                 rows.append(row)
                 if progress:
+                    oracle = "-" if row["oracle_iou"] is None else f"{row['oracle_iou']:.3f}"
                     progress(f"{case.name}{'' if s is None else f' seed {s}'} [{m}]: auto "
-                             f"{row['auto_iou']:.3f}, oracle {row['oracle_iou']:.3f}, today "
+                             f"{row['auto_iou']:.3f}, oracle {oracle}, today "
                              f"{row['today_iou']:.3f}")
     return rows
 
@@ -185,6 +191,9 @@ def seed_spread(rows: list[dict]) -> list[dict]:
         mine = [r for r in rows if r["capture"] == cap and r["method"] == m]
         row = {"capture": cap, "method": m, "seeds": len(mine)}
         for k in ("auto_iou", "today_iou", "oracle_iou", "gap", "vs_today"):
+            if any(r[k] is None for r in mine):  # no oracle grid run
+                row[f"{k}_mean"] = row[f"{k}_spread"] = None
+                continue
             v = np.array([r[k] for r in mine], np.float64)
             row[f"{k}_mean"], row[f"{k}_spread"] = float(v.mean()), float(np.ptp(v))
         row["vs_today_max"] = float(max(r["vs_today"] for r in mine))
