@@ -24,7 +24,8 @@ with N_k = |F[n]_k|^2 of one noise realisation n carried through the same linear
 :meth:`clnlos.lct.LCT.upre_snr`), and GCV for data that are not counts (no noise model).
 On the oracle table (:mod:`clnlos.bench.oracle`, 3 noise seeds) GCV's white-noise
 assumption put the light-cone SNR up to 7x too low (a 0.7 m deep '+' : 1.3e3 against
-UPRE's 1e4, LCT IoU 0.59 against 0.66). On noise-free data
+UPRE's 1e4, LCT IoU 0.59 against 0.66). The same noise realisation sets the iterative
+method's "auto" L1 weight (twice max(L^T n), :mod:`clnlos.iterative`). On noise-free data
 (:attr:`clnlos.noise.NoiseEstimate.noise_free`: nothing to cross-validate against) the
 rule of :mod:`clnlos.noise` stands in, which there gives the caps SNR_MAX and
 LIGHTCONE_SNR_MAX (it is also what :func:`auto_snrs` gives when no data SNR is passed).
