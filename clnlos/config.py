@@ -36,7 +36,8 @@ optional and its default is the field default of :class:`ReconstructionConfig`::
                                  # (clnlos.inverse.gcv)
     falloff = 4.0                # radiometric exponent p (default: LCT 4, f-k 2)
     iterations = 200             # iterative: FISTA iterations at most
-    l1_weight = 0.1              # iterative: L1 weight relative to max(L^T I)
+    l1_weight = "auto"           # iterative: L1 weight relative to max(L^T I), or "auto":
+                                 # twice max(L^T n), n the capture's own noise
     tv_weight = 0.0              # iterative: TV weight relative to max(L^T I)
     depth_min_m = "auto"         # iterative: shallowest depth of the support, or "auto"
                                  # (the capture's first arrival minus DEPTH_GUARD_M)
@@ -264,7 +265,7 @@ class ReconstructionConfig:
     inversion_snr: float | str = "auto"
     falloff: float | None = None
     iterations: int = 200
-    l1_weight: float = 0.1
+    l1_weight: float | str = "auto"
     tv_weight: float = 0.0
     depth_min_m: float | str = "auto"
 
@@ -300,7 +301,8 @@ class ReconstructionConfig:
         if self.falloff is not None:
             v["falloff"] = real(nm("falloff"), self.falloff, *FALLOFF_RANGE)
         v["iterations"] = integer(nm("iterations"), self.iterations, *ITERATIONS_RANGE)
-        v["l1_weight"] = real(nm("l1_weight"), self.l1_weight, *WEIGHT_RANGE)
+        v["l1_weight"] = ("auto" if self.l1_weight == "auto"
+                          else real(nm("l1_weight"), self.l1_weight, *WEIGHT_RANGE))
         v["tv_weight"] = real(nm("tv_weight"), self.tv_weight, *WEIGHT_RANGE)
         if self.depth_min_m != "auto":
             if isinstance(self.depth_min_m, str):

@@ -145,7 +145,7 @@ def test_help_states_defaults_from_the_owning_modules(capsys):
     c = ReconstructionConfig()
     assert f"else {c.method})" in out
     assert f"lct {LCT_FALLOFF:g}, fk {FK_FALLOFF:g}" in out
-    assert f"(default {c.iterations})" in out and f"(default {c.l1_weight:g})" in out
+    assert f"(default {c.iterations})" in out and f"(default {c.l1_weight})" in out
     assert f"less {DEPTH_GUARD_M:g} m" in out
     assert "whole time window" in out  # --max-path
     assert main(["brdf", "texture", "--help"]) == 0

@@ -42,7 +42,7 @@ class TimeAsDepth(Inversion):
 
     name = "time_as_depth"
 
-    def configure(self, tau_g, noise, rule_snr, timed):
+    def configure(self, tau_g, noise, rule_snr, timed, probe=None):
         return {"time_as_depth": True}
 
     def __call__(self, tau_g, *, progress=None, setup=None):

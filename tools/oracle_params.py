@@ -3,7 +3,10 @@
 tools/results/exposure_sweep.{csv,json} and prints the worst gaps.
 
     .venv/bin/python tools/oracle_params.py [--device P:D] [--iterations N] [--no-sweep]
-        [--no-table] [--case NAME_PART ... --update]
+        [--no-table] [--case NAME_PART ... --update] [--methods M ...]
+        [--seeds S ...]   (the table over these noise seeds, with mean and spread:
+                           tools/results/oracle_seeds{,_summary}.{csv,json}; with --update
+                           the rows of other cases and methods are kept)
 """
 
 from __future__ import annotations
@@ -16,11 +19,20 @@ from clnlos.bench.oracle import (
     ORACLE_CASES,
     exposure_sweep,
     oracle_rows,
+    METHODS,
+    seed_spread,
     sweep_summary,
     write_rows,
 )
 
 RESULTS = Path(__file__).resolve().parent / "results"
+
+
+def _ordered(rows: list[dict]) -> list[dict]:
+    """Rows in the order of ORACLE_CASES, then METHODS, then seed."""
+    order = {c.name: i for i, c in enumerate(ORACLE_CASES)}
+    return sorted(rows, key=lambda r: (order.get(r["capture"], len(order)),
+                                       METHODS.index(r["method"]), r.get("seed", 0)))
 
 
 def main(argv=None) -> None:
@@ -34,17 +46,45 @@ def main(argv=None) -> None:
                     help="only the cases whose name contains this (repeatable)")
     ap.add_argument("--update", action="store_true",
                     help="replace these cases' rows in the existing table, keep the others")
+    ap.add_argument("--methods", nargs="+", default=list(METHODS), choices=METHODS)
+    ap.add_argument("--seeds", nargs="+", type=int, default=None,
+                    help="the table over these noise seeds (mean and spread per row)")
+    ap.add_argument("--no-grid", action="store_true",
+                    help="with --seeds: auto and today only, no oracle grid")
     args = ap.parse_args(argv)
+    if args.seeds is not None:
+        cases = [c for c in ORACLE_CASES
+                 if not args.case or any(s in c.name for s in args.case)]
+        rows = oracle_rows(cases, args.methods, iterations=args.iterations, seeds=args.seeds,
+                           grid=not args.no_grid, queue=args.device)
+        stem = RESULTS / "oracle_seeds"
+        if args.update and stem.with_suffix(".json").is_file():
+            new = {(r["capture"], r["method"]) for r in rows}
+            kept = [r for r in json.loads(stem.with_suffix(".json").read_text())
+                    if (r["capture"], r["method"]) not in new]
+            rows = _ordered(kept + rows)
+        print("wrote", *write_rows(rows, stem))
+        summary = seed_spread(rows)
+        print("wrote", *write_rows(summary, RESULTS / "oracle_seeds_summary"))
+        for r in summary:
+            oracle = ("" if r["oracle_iou_mean"] is None else
+                      f" oracle {r['oracle_iou_mean']:.3f} gap {r['gap_mean']:+.3f}")
+            print(f"{r['capture']} [{r['method']}]: auto {r['auto_iou_mean']:.3f} "
+                  f"(+-{r['auto_iou_spread'] / 2:.3f}) today {r['today_iou_mean']:.3f} "
+                  f"(+-{r['today_iou_spread'] / 2:.3f}){oracle} vs today "
+                  f"{r['vs_today_mean']:+.3f}{' REGRESSION' if r['regression'] else ''}")
+        return
     if not args.no_table:
         cases = [c for c in ORACLE_CASES
                  if not args.case or any(s in c.name for s in args.case)]
-        rows = oracle_rows(cases, iterations=args.iterations, queue=args.device)
+        rows = oracle_rows(cases, args.methods, iterations=args.iterations,
+                           queue=args.device)
         table = RESULTS / "oracle_params.json"
         if args.update and table.is_file():
-            names = {c.name for c in cases}
-            kept = [r for r in json.loads(table.read_text()) if r["capture"] not in names]
-            order = {c.name: i for i, c in enumerate(ORACLE_CASES)}
-            rows = sorted(kept + rows, key=lambda r: order.get(r["capture"], len(order)))
+            new = {(r["capture"], r["method"]) for r in rows}
+            kept = [r for r in json.loads(table.read_text())
+                    if (r["capture"], r["method"]) not in new]
+            rows = _ordered(kept + rows)
         print("wrote", *write_rows(rows, RESULTS / "oracle_params"))
         for m in dict.fromkeys(r["method"] for r in rows):
             mine = [r for r in rows if r["method"] == m]

@@ -235,9 +235,10 @@ def register_reconstruct(sub, add_device) -> None:
     r.add_argument("--tv-weight", type=float,
                    help="iterative: total-variation weight, relative to max(L^T I) "
                         f"(default {C.tv_weight:g})")
-    r.add_argument("--l1-weight", type=float,
-                   help="iterative: L1 (sparsity) weight, relative to max(L^T I) "
-                        f"(default {C.l1_weight:g})")
+    r.add_argument("--l1-weight", type=number_or_auto,
+                   help="iterative: L1 (sparsity) weight, relative to max(L^T I), or auto: "
+                        "twice max(L^T n) of the capture's own noise n "
+                        f"(default {C.l1_weight})")
     r.add_argument("--depth-min", type=number_or_auto,
                    help="iterative: shallowest depth of the volume (m), or auto: the "
                         f"capture's first arrival less {DEPTH_GUARD_M:g} m "

@@ -4,7 +4,9 @@ For simulated captures (Lambertian shapes through the CDT slab, photon noise), e
 is run with its default "auto" SNRs (:mod:`clnlos.inverse.gcv`), with the photon rule the auto SNRs
 replaced (SNR = photons / K_SNR and its square root, :mod:`clnlos.inverse.snr`: "today"), and
 with every setting of the grid SLAB_SNRS x INVERSION_SNRS (f-k has no light-cone SNR: the
-slab SNRs alone). The oracle is the best IoU of the grid (Otsu-thresholded MIP against the
+slab SNRs alone). The iterative method's L1 weight is "auto" (from the noise,
+:mod:`clnlos.inverse.iterative`) in the auto and the grid runs, today's constant FIXED_L1_WEIGHT in
+the "today" run. The oracle is the best IoU of the grid (Otsu-thresholded MIP against the
 true mask, :func:`clnlos.study.metrics.mip_iou`); the gap is oracle minus auto. Only the slab
 recorded in the capture is used, as ``clnlos reconstruct`` does with no slab flags.
 
@@ -27,6 +29,7 @@ import numpy as np
 from clnlos.config import ReconstructionConfig, slab_table
 from clnlos.forward.model import ForwardModel
 from clnlos.forward.scene import Scene
+from clnlos.inverse.iterative import FIXED_L1_WEIGHT
 from clnlos.inverse.methods import method_names
 from clnlos.inverse.pipeline import reconstruct
 from clnlos.inverse.snr import combined_snr, lightcone_snr
@@ -117,10 +120,11 @@ def grid_settings(method: str) -> list[tuple[float, float]]:
 
 
 def compare_method(capture, mask, method: str, *, iterations: int | None = None,
-                   queue=None) -> dict:
+                   grid: bool = True, queue=None) -> dict:
     """auto, today's photon rule and the oracle grid for one capture and method: a row
     with the IoUs, the parameters each used, gap = oracle - auto and
-    vs_today = auto - today."""
+    vs_today = auto - today (``grid=False``: auto and today only, the oracle's fields
+    None)."""
     kw = {} if iterations is None else {"iterations": iterations}
     base = ReconstructionConfig(slab=capture.recorded_slab()[0], method=method, **kw)
     auto_iou, rec = _run(capture, mask, base.validate(), queue)
@@ -129,9 +133,16 @@ def compare_method(capture, mask, method: str, *, iterations: int | None = None,
            "auto_inversion_snr": rec.params.get("inversion_snr_used")}
     old = combined_snr(rec.noise["snr"], rec.params.get("model_snr_used", float("inf")))
     old_inv = lightcone_snr(old)
-    row["today_iou"] = _run(capture, mask, base.replace(snr=old, inversion_snr=old_inv)
-                            .validate(), queue)[0]
+    today = base.replace(snr=old, inversion_snr=old_inv)
+    if method == "iterative":  # today's constant L1 weight (auto: from the noise)
+        today = today.replace(l1_weight=FIXED_L1_WEIGHT)
+        row["auto_l1_weight"] = rec.params.get("l1_weight_used")
+    row["today_iou"] = _run(capture, mask, today.validate(), queue)[0]
     row["today_snr"], row["today_inversion_snr"] = old, old_inv if method != "fk" else None
+    row["vs_today"] = auto_iou - row["today_iou"]
+    if not grid:
+        return {**row, "oracle_iou": None, "oracle_snr": None, "oracle_inversion_snr": None,
+                "gap": None}
     best = (-1.0, None, None)
     for a, b in grid_settings(method):
         v = _run(capture, mask, base.replace(snr=a, inversion_snr=b).validate(), queue)[0]
@@ -140,25 +151,55 @@ def compare_method(capture, mask, method: str, *, iterations: int | None = None,
     row["oracle_iou"], row["oracle_snr"] = best[0], best[1]
     row["oracle_inversion_snr"] = best[2] if method != "fk" else None
     row["gap"] = row["oracle_iou"] - auto_iou
-    row["vs_today"] = auto_iou - row["today_iou"]
+    row["vs_today"] = row.pop("vs_today")  # the column after gap, as before
     return row
 
 
 def oracle_rows(cases=ORACLE_CASES, methods=METHODS, *, iterations: int | None = None,
-                queue=None, progress=print) -> list[dict]:
-    """One row per case and method (:func:`compare_method`), with the case's fields."""
+                seeds=None, grid: bool = True, queue=None, progress=print) -> list[dict]:
+    """One row per case and method (:func:`compare_method`), with the case's name; with
+    ``seeds``, one per case, noise seed and method, the seed in the row."""
+    from dataclasses import replace
+
     rows = []
     for case in cases:
-        capture, mask = simulate_case(case, queue)
-        for m in methods:
-            row = {"capture": case.name, **compare_method(capture, mask, m,
-                                                          iterations=iterations,
-                                                          queue=queue)}
-            rows.append(row)
-            if progress:
-                progress(f"{case.name} [{m}]: auto {row['auto_iou']:.3f}, oracle "
-                         f"{row['oracle_iou']:.3f}, today {row['today_iou']:.3f}")
+        for s in (None,) if seeds is None else seeds:
+            c = case if s is None else replace(case, seed=int(s))
+            capture, mask = simulate_case(c, queue)
+            for m in methods:
+                row = {"capture": case.name, **({} if s is None else {"seed": c.seed}),
+                       **compare_method(capture, mask, m, iterations=iterations,
+                                        grid=grid, queue=queue)}
+                rows.append(row)
+                if progress:
+                    oracle = "-" if row["oracle_iou"] is None else f"{row['oracle_iou']:.3f}"
+                    progress(f"{case.name}{'' if s is None else f' seed {s}'} [{m}]: auto "
+                             f"{row['auto_iou']:.3f}, oracle {oracle}, today "
+                             f"{row['today_iou']:.3f}")
     return rows
+
+
+def seed_spread(rows: list[dict]) -> list[dict]:
+    """Per capture and method of :func:`oracle_rows` over several seeds: mean and spread
+    (max - min over the seeds) of the auto, today and oracle IoU, of vs_today and of the
+    gap; ``regression``: auto worse than today by more than 0.03 on the mean and worse on
+    every seed (the seeds are paired: both rules see the same noise; a mean drop that some
+    seed reverses is inside the seeds' spread, noise-seed luck)."""
+    out = []
+    keys = list(dict.fromkeys((r["capture"], r["method"]) for r in rows))
+    for cap, m in keys:
+        mine = [r for r in rows if r["capture"] == cap and r["method"] == m]
+        row = {"capture": cap, "method": m, "seeds": len(mine)}
+        for k in ("auto_iou", "today_iou", "oracle_iou", "gap", "vs_today"):
+            if any(r[k] is None for r in mine):  # no oracle grid run
+                row[f"{k}_mean"] = row[f"{k}_spread"] = None
+                continue
+            v = np.array([r[k] for r in mine], np.float64)
+            row[f"{k}_mean"], row[f"{k}_spread"] = float(v.mean()), float(np.ptp(v))
+        row["vs_today_max"] = float(max(r["vs_today"] for r in mine))
+        row["regression"] = bool(row["vs_today_mean"] < -0.03 and row["vs_today_max"] < 0)
+        out.append(row)
+    return out
 
 
 def exposure_sweep(case: OracleCase, exposures=SWEEP_EXPOSURES_S, seeds=(0, 1, 2),

@@ -22,9 +22,11 @@ mirror padding, the time crop and, for the light-cone filter, the slab deconvolu
 (colouring the noise) would make uncertain.
 
 Limits. GCV assumes white noise: the light-cone filter sees noise the slab deconvolution
-has coloured, and there GCV is a heuristic, measured against the oracle in
-:mod:`clnlos.bench.oracle` rather than derived. On noise-free data the residual is model
-and rounding error, not noise; the pipeline then keeps the caps
+has coloured (blue: amplified at the frequencies the slab filter lifts), and there GCV
+filters too strongly. Where the noise spectrum is known -- photon counts, whose Poisson
+noise the pipeline can carry through its own linear steps -- :meth:`GcvBins.upre_snr`
+(the unbiased predictive risk estimate with that spectrum) replaces it. On noise-free data
+the residual is model and rounding error, not noise; the pipeline then keeps the caps
 (:attr:`clnlos.inverse.snr.NoiseEstimate.noise_free`). GCV minimises a risk of the filtered data,
 not of a thresholded image: the SNR best for the IoU of a method can differ (the table of
 :mod:`clnlos.bench.oracle` says by how much).
@@ -99,6 +101,36 @@ class GcvBins:
         with np.errstate(divide="ignore", invalid="ignore"):
             v = rss / (trace * trace)
         return np.where(trace > 0, v, np.inf)
+
+    def upre(self, power: np.ndarray, noise_power: np.ndarray, snrs: np.ndarray
+             ) -> np.ndarray:
+        """U(1/SNR) of :func:`upre_snr`'s criterion for each SNR in ``snrs``: the data of
+        power spectrum ``power`` hold noise of (expected) power spectrum ``noise_power``."""
+        s = self.power_per_bin(power)
+        nb = self.power_per_bin(noise_power)
+        lam = 1.0 / np.asarray(snrs, np.float64)[:, None]
+        phi = self.gain[None, :] / (self.gain[None, :] + lam)
+        return ((1.0 - phi) ** 2 * s[None, :]).sum(axis=1) + 2.0 * (phi * nb[None, :]).sum(1)
+
+    def upre_snr(self, power: np.ndarray, noise_power: np.ndarray, snr_min: float,
+                 snr_max: float) -> float:
+        """The SNR in [snr_min, snr_max] that minimises the unbiased predictive risk
+        estimate (Mallows' C_L; Vogel, "Computational methods for inverse problems", 2002,
+        sec. 7.1) of a filter whose data hold coloured noise of known power spectrum N_k:
+
+            U(lam) = sum_k (1 - phi_k)^2 |Y_k|^2 + 2 sum_k phi_k N_k   (- sum_k N_k),
+
+        an unbiased estimate of sum_k E|phi_k Y_k - S_k|^2 (S the noise-free data) for any
+        noise spectrum, where GCV (:meth:`snr`) assumes N_k flat. ``noise_power``: |N_k|^2
+        of one noise realisation (its sum over a bin of many frequencies is close to the
+        expected one)."""
+        decades = np.log10(snr_max / snr_min)
+        n = max(2, int(np.ceil(decades * TRIALS_PER_DECADE)) + 1)
+        snrs = np.logspace(np.log10(snr_min), np.log10(snr_max), n)
+        u = self.upre(power, noise_power, snrs)
+        if not np.isfinite(u).any():
+            return float(snr_max)
+        return float(snrs[int(np.argmin(u))])
 
     def snr(self, power: np.ndarray, snr_min: float, snr_max: float) -> float:
         """The SNR in [snr_min, snr_max] that minimises V for data of power spectrum

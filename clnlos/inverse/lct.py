@@ -32,7 +32,7 @@ from clnlos.config import FALLOFF_RANGE, METHOD_FALLOFF
 from clnlos.errors import ParameterError, ShapeError
 from clnlos.inverse.gcv import GcvBins
 from clnlos.inverse.methods import Inversion, InversionGrid
-from clnlos.inverse.snr import LIGHTCONE_SNR_MAX, LIGHTCONE_SNR_MIN
+from clnlos.inverse.snr import LIGHTCONE_RULE, LIGHTCONE_SNR_MAX, LIGHTCONE_SNR_MIN
 from clnlos.operators.base import LinearOperator
 from clnlos.operators.resample import AxisResample, overlap_matrix
 from clnlos.operators.spectral import SpectralFilter
@@ -180,12 +180,27 @@ class LCT:
         """The light-cone Wiener SNR in [snr_min, snr_max] that generalised cross-validation
         (:mod:`clnlos.inverse.gcv`) picks for the transient ``tau`` [t, y, x] (device): V evaluated
         on the filter's own (v, y, x) grid, where the light cone is a convolution."""
+        return self._bins().snr(self._power(tau), snr_min, snr_max)
+
+    def upre_snr(self, tau: cla.Array, noise: cla.Array, snr_min: float,
+                 snr_max: float) -> float:
+        """The light-cone Wiener SNR in [snr_min, snr_max] that the unbiased predictive risk
+        estimate (:meth:`clnlos.inverse.gcv.GcvBins.upre_snr`) picks for the transient ``tau``
+        whose noise is like ``noise`` (a realisation of it, same shape, device): on the
+        filter's (v, y, x) grid, where the slab deconvolution and the t -> v resampling
+        have coloured it (GCV's white-noise assumption does not hold there)."""
+        return self._bins().upre_snr(self._power(tau), self._power(noise), snr_min, snr_max)
+
+    def _bins(self):
         if self._gcv_bins is None:
             self._gcv_bins = GcvBins.from_gain(self.inverse_filter.gain_squared(),
                                                self.inverse_filter.pad_shape[2])
-        power = self.inverse_filter.power_spectrum(
+        return self._gcv_bins
+
+    def _power(self, tau: cla.Array) -> np.ndarray:
+        """|F[t -> v of tau, padded]|^2 on the half spectrum of the light-cone filter."""
+        return self.inverse_filter.power_spectrum(
             write_input=lambda buf: self._to_v_padded.apply_into(tau, buf))
-        return self._gcv_bins.snr(power, snr_min, snr_max)
 
     @property
     def forward_operator(self) -> LinearOperator:
@@ -214,15 +229,26 @@ def initial_inversion_snr(config) -> float:
     return 1.0 if config.inversion_snr == "auto" else float(config.inversion_snr)
 
 
-def choose_lightcone_snr(lct: LCT, config, noise, tau_g, rule_snr: float, timed) -> float:
-    """The light-cone Wiener SNR for this capture: generalised cross-validation on the
-    deconvolved transient (:meth:`LCT.gcv_snr`, within [LIGHTCONE_SNR_MIN,
-    LIGHTCONE_SNR_MAX]) when the config says "auto" and the capture is noisy; else
-    ``rule_snr`` (the configured number, or the photon rule on noise-free data)."""
-    if config.inversion_snr == "auto" and not noise.noise_free:
-        return timed("choose_inversion_snr", lct.gcv_snr, tau_g, LIGHTCONE_SNR_MIN,
-                     LIGHTCONE_SNR_MAX)
-    return rule_snr
+def choose_lightcone_snr(lct: LCT, config, noise, tau_g, rule_snr: float, timed,
+                         probe=None) -> tuple[float, str | None]:
+    """(light-cone Wiener SNR, rule) for this capture, within [LIGHTCONE_SNR_MIN,
+    LIGHTCONE_SNR_MAX] when the config says "auto" and the capture is noisy: for photon
+    counts the unbiased predictive risk estimate with the noise realisation ``probe()``
+    (:meth:`LCT.upre_snr`; LIGHTCONE_RULE), else generalised cross-validation
+    (:meth:`LCT.gcv_snr`); otherwise ``rule_snr`` (the configured number, or the photon rule
+    on noise-free data) and rule None."""
+    if config.inversion_snr != "auto" or noise.noise_free:
+        return rule_snr, None
+    if noise.photon_counts and LIGHTCONE_RULE == "upre" and probe is not None:
+        return timed("choose_inversion_snr", lct.upre_snr, tau_g, probe(), LIGHTCONE_SNR_MIN,
+                     LIGHTCONE_SNR_MAX), "upre"
+    return timed("choose_inversion_snr", lct.gcv_snr, tau_g, LIGHTCONE_SNR_MIN,
+                 LIGHTCONE_SNR_MAX), "gcv"
+
+
+def lightcone_snr_params(snr: float, rule: str | None) -> dict:
+    """What a volume records of the light-cone SNR choice."""
+    return ({} if rule is None else {"inversion_snr_rule": rule}) | {"inversion_snr_used": snr}
 
 
 class LCTMethod(Inversion):
@@ -237,10 +263,11 @@ class LCTMethod(Inversion):
         self.lct = LCT(grid.shape, snr=initial_inversion_snr(config), **self.falloff(),
                        **self.geometry(), cache=cache)
 
-    def configure(self, tau_g, noise, rule_snr: float, timed) -> dict:
-        snr = choose_lightcone_snr(self.lct, self.config, noise, tau_g, rule_snr, timed)
+    def configure(self, tau_g, noise, rule_snr: float, timed, probe=None) -> dict:
+        snr, rule = choose_lightcone_snr(self.lct, self.config, noise, tau_g, rule_snr, timed,
+                                         probe)
         self.lct.set_snr(snr)
-        return {"inversion_snr_used": snr}
+        return lightcone_snr_params(snr, rule)
 
     def __call__(self, tau_g, *, progress=None, setup=None):
         return self.lct(tau_g)

@@ -10,12 +10,15 @@ scratch=None, cache=None)``:
 * ``dtype``/``queue``: precision and OpenCL queue; ``scratch``/``cache``: work buffers shared
   with the pipeline's other stages and the optional on-disk spectrum cache.
 
-``configure(tau_g, noise, rule_snr, timed) -> dict`` sets what the method chooses from the
-data (e.g. the light-cone SNR by cross-validation, :mod:`clnlos.inverse.gcv`; ``rule_snr``
-is the photon rule's value, :func:`clnlos.inverse.snr.lightcone_snr`) and returns the
-parameters it used (recorded in the volume's ``params``); ``timed(name, fn, *args)`` runs a
-step and records its time. ``__call__(tau_g, *, progress=None, setup=None)`` returns the
-volume [z, y, x] on the device; ``report()`` what the solver did (or None).
+``configure(tau_g, noise, rule_snr, timed, probe=None) -> dict`` sets what the method
+chooses from the data (e.g. the light-cone SNR by the unbiased predictive risk or
+cross-validation, :mod:`clnlos.inverse.gcv`; ``rule_snr`` is the photon rule's value,
+:func:`clnlos.inverse.snr.lightcone_snr`; ``probe()`` a realisation of the noise of
+``tau_g`` for photon counts, None otherwise) and returns the parameters it chose (recorded
+in the volume's ``params``); ``timed(name, fn, *args)`` runs a step and records its time.
+``__call__(tau_g, *, progress=None, setup=None)`` returns the volume [z, y, x] on the
+device; ``report()`` what the solver did (or None); ``used()`` parameters settled during
+the call (recorded in ``params``).
 
 The registry names each method's module and class, so this module (read by the config, the
 CLI flags, the study, the demo and the bench) imports no OpenCL code; :func:`method_class`
@@ -94,7 +97,7 @@ class Inversion:
         """``{"falloff": x}`` when the config sets one, else ``{}`` (the method's default)."""
         return {} if self.config.falloff is None else {"falloff": self.config.falloff}
 
-    def configure(self, tau_g, noise, rule_snr: float, timed) -> dict:
+    def configure(self, tau_g, noise, rule_snr: float, timed, probe=None) -> dict:
         return {}
 
     def __call__(self, tau_g, *, progress=None, setup=None):
@@ -102,3 +105,6 @@ class Inversion:
 
     def report(self) -> dict | None:
         return None
+
+    def used(self) -> dict:
+        return {}

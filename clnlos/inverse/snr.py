@@ -51,6 +51,7 @@ MEASURED_MODEL_SNR = 1e4  # accuracy of the slab model on measured captures (see
 SNR_MIN = 1e2
 SNR_MAX = 1e10
 LIGHTCONE_SNR_MAX = 1e4
+LIGHTCONE_RULE = "upre"  # light-cone SNR of photon counts: "upre" (noise known) or "gcv"
 LIGHTCONE_SNR_MIN = 10.0  # lower end of the light-cone SNRs cross-validation tries
 LEAD_FRACTION = 0.05  # the first 5% of the window estimates the background (if signal-free)
 ARRIVAL_SIGMAS = 6.0  # a bin holds signal when above background by this many std
