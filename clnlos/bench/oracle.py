@@ -159,8 +159,6 @@ def oracle_rows(cases=ORACLE_CASES, methods=METHODS, *, iterations: int | None =
                 seeds=None, grid: bool = True, queue=None, progress=print) -> list[dict]:
     """One row per case and method (:func:`compare_method`), with the case's name; with
     ``seeds``, one per case, noise seed and method, the seed in the row."""
-    from dataclasses import replace
-
     rows = []
     for case in cases:
         for s in (None,) if seeds is None else seeds:
