@@ -127,7 +127,7 @@ def test_dataset_design_and_scenes():
 
 
 TINY = StudyOptions(
-    n_dataset=6, epochs=3, seeds=1, sweep_seeds=1,
+    n_dataset=6, epochs=3, seeds=1, sweep_seeds=1, transport="confocal",
     materials=["standard white plate", "quartz glass", "painted steel plate"],
     sweep_materials=("quartz glass", "standard white plate"),
     sweeps={"scan_width_m": (0.3, 0.5), "depth_m": (0.4, 0.6),

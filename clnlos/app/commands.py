@@ -486,7 +486,8 @@ def cmd_study(args) -> int:
         opts.grid = replace(opts.grid, method=args.method)
     opts.labels = args.labels
     opts.real_data = args.real_data
-    opts.transport = args.transport
+    if args.transport is not None:
+        opts.transport = args.transport
     res = run_study(out, opts.validate(), workers=args.workers, scheduler=args.scheduler,
                     device=args.device)
     for geo in res["geometries"]:
@@ -540,13 +541,14 @@ def register_study(sub, add_device) -> None:
                         "beside its simulation, the real chart's resolved features and the "
                         "CNN's verdict on them; a folder without them is noted and skipped "
                         "(default: none)")
-    s.add_argument("--transport", choices=list(TRANSPORT_CHOICES), default=full.transport,
+    s.add_argument("--transport", choices=list(TRANSPORT_CHOICES), default=None,
                    help="confocal: every sample with the seed's confocal transport (Eq. 9); "
                         "both: also the materials at the legible geometry under the bistatic "
                         f"transport (Eq. 8 in full, {full.face_rings} x {full.face_angles} "
                         "face samples, about 8 s a sample on 2 cores: some 10-15 minutes more "
                         "for the quick study), their table, ranks and rank correlation "
-                        "(default %(default)s)")
+                        f"(default: {quick.transport} with --quick, {full.transport} with "
+                        "--full)")
     s.add_argument("--n-dataset", type=int, default=None, help=argparse.SUPPRESS)
     _add_force(s)
     add_device(s)

@@ -164,7 +164,8 @@ class StudyOptions:
     seed: int = 0
     label: str = "full"
     real_data: Path | None = None       # folder holding cdt/*.mat (the real CDT captures)
-    transport: str = "confocal"         # "both": also the bistatic comparison stage
+    transport: str = "both"             # "both": also the bistatic comparison stage (--full);
+    #                                     "confocal": the quick default (4 minutes)
     transport_glyphs: tuple[str, ...] | None = None  # the comparison's (default: glyphs)
     face_rings: int = COMPARE_RINGS     # the comparison's bistatic face samples
     face_angles: int = COMPARE_ANGLES
@@ -179,13 +180,14 @@ class StudyOptions:
                    legibility_sweeps={**LEGIBILITY_SWEEPS, "exposure_s": (0.001, 0.01, 0.1)},
                    geometry_sweep_materials=(SWEEP_MATERIALS[0], SWEEP_MATERIALS[-1]),
                    sweeps={"scan_width_m": (0.3, 0.6, 0.8), "depth_m": (0.3, 0.5, 0.7),
-                           "slab_thickness_m": (0.0, 0.0254, 0.0508)}, label="quick")
+                           "slab_thickness_m": (0.0, 0.0254, 0.0508)}, label="quick",
+                   transport="confocal")
 
     def validate(self) -> StudyOptions:
         if self.labels not in LABEL_METRICS:
             raise ParameterError("--labels", self.labels, " or ".join(LABEL_METRICS))
         if self.grid.method not in METHODS:
-            raise ParameterError("--method", self.grid.method, "lct, fk or iterative")
+            raise ParameterError("--method", self.grid.method, ", ".join(METHODS))
         if self.n_dataset < 0:
             raise ParameterError("--n-dataset", self.n_dataset, ">= 0")
         if self.seeds < 1:
