@@ -41,7 +41,10 @@ UPRE of the composed estimate on the raw data (slab blur o light-cone transport 
 volume; flat in the slab SNR, picks light-cone SNRs of 10-100: worse on 7 of 8 table cases), a
 light-cone risk against a deep-deconvolution reference, and the solution-domain risk of the
 light-cone filter (the dead frequencies' noise dominates it). The iterative method and f-k
-with the same slab SNR are within 0.02 of their oracle there.
+with the same slab SNR are within 0.02 of their oracle there. The iterative method's worst
+gap (0.055, the 0.7 m deep '+') has the same cause (iterative_plus_diagnosis.csv): at GCV's
+slab SNR 5.6e4 it scores 0.747, at 1e5 0.798 (the oracle 0.802), at 3e5 0.826; the warm
+start's light-cone SNR (1e4 against 1e2-1e3) moves it by 0.01.
 On noise-free data (:attr:`clnlos.inverse.snr.NoiseEstimate.noise_free`: nothing to
 cross-validate against) the rule of :mod:`clnlos.inverse.snr` stands in, which there gives the
 caps SNR_MAX and LIGHTCONE_SNR_MAX (it is also what :func:`auto_snrs` gives when no data
