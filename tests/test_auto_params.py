@@ -10,6 +10,7 @@ import pyopencl.array as cla
 import pytest
 
 from clnlos.bench.oracle import (
+    ORACLE_CASES,
     OracleCase,
     compare_method,
     exposure_sweep,
@@ -124,6 +125,30 @@ def test_lightcone_snr_of_counts_from_their_noise(tiny_capture, queue):
     scaled = replace(cap, transient=cap.transient.astype(np.float32) * np.float32(0.37))
     c = reconstruct(scaled, cfg, device=queue)
     assert c.params["inversion_snr_rule"] == "gcv"
+
+
+def test_upre_lightcone_snr_falls_as_the_slab_snr_rises(tiny_capture, queue):
+    """The light-cone UPRE adapts to the slab deconvolution before it: a deeper slab
+    deconvolution (higher slab SNR) leaves more amplified noise, and the light-cone SNR
+    chosen for it falls (the low-exposure diagnosis, tools/results/lct_low_exposure_*:
+    at the slab SNR the LCT needs, UPRE's light-cone SNR gives the oracle's IoU; at GCV's
+    lower slab SNR it rises towards its cap)."""
+    cap, _ = tiny_capture
+    base = ReconstructionConfig(slab=cap.recorded_slab()[0], method="lct")
+    inv = [reconstruct(cap, base.replace(snr=a).validate(), device=queue
+                       ).params["inversion_snr_used"] for a in (1e3, 1e5, 1e7)]
+    assert inv[0] >= inv[1] >= inv[2] and inv[2] < inv[0] / 3, inv
+
+
+def test_oracle_cases_cover_the_low_exposure_regime():
+    """The table reaches down to 1e7 photons at the seed geometry (0.01 s), where LCT's
+    auto SNRs fell below the photon rule, and spans at least two decades of exposure."""
+    seed = [c for c in ORACLE_CASES if (c.shape, c.size_m, c.scan_width_m, c.depth_m)
+            == ("UT", 0.15, 0.3, 0.5)]
+    exposures = sorted(c.exposure_s for c in seed)
+    assert exposures[0] <= 0.01 and 0.1 in exposures
+    assert exposures[-1] / exposures[0] >= 100
+    assert len({c.name for c in ORACLE_CASES}) == len(ORACLE_CASES)
 
 
 @pytest.mark.parametrize("method", ["lct", "fk"])

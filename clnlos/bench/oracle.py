@@ -85,9 +85,13 @@ class OracleCase:
                              "dark_count_rate_hz": 1e3}}
 
 
-# exposures over three decades (5e7 to 6e9 photons), scans 0.3-0.7 m, depths 0.4-0.8 m,
+# exposures over 2.7 decades (1e7 to 6e9 photons), scans 0.3-0.7 m, depths 0.4-0.8 m,
 # three shapes; 256 bins of 32 ps (8.2 ns) end well after the deepest return has decayed
 ORACLE_CASES = (
+    # the seed geometry below the others' photon range (1e7 and 1e8 photons): where LCT's
+    # auto SNRs fell below the photon rule (tools/results/lct_low_exposure*.csv)
+    OracleCase("UT 0.15 m, scan 0.3 m, 0.5 m deep, 0.01 s", "UT", 0.15, 0.5, 0.3, 0.01),
+    OracleCase("UT 0.15 m, scan 0.3 m, 0.5 m deep, 0.1 s", "UT", 0.15, 0.5, 0.3, 0.1),
     OracleCase("UT 0.15 m, scan 0.3 m, 0.5 m deep, 0.05 s", "UT", 0.15, 0.5, 0.3, 0.05),
     OracleCase("UT 0.15 m, scan 0.3 m, 0.5 m deep, 0.5 s", "UT", 0.15, 0.5, 0.3, 0.5),
     OracleCase("UT 0.15 m, scan 0.3 m, 0.5 m deep, 5 s", "UT", 0.15, 0.5, 0.3, 5.0),
