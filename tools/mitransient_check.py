@@ -200,8 +200,9 @@ def render_hidden(mods, el_scene, cells_xy, xs, ys, cell: float, kind: str, spp:
                   log) -> np.ndarray:
     """I [laser cell, sensor cell, bin] rendered by mitransient (its own units)."""
     mi, mitr = mods
-    from clnlos import C0
     from mitransient.integrators.transientnlospath import CaptureType
+
+    from clnlos import C0
 
     T = mi.ScalarTransform4f
     obj = el_scene.objects[0]

@@ -16,10 +16,12 @@ import json
 from pathlib import Path
 
 from clnlos.bench.oracle import (
+    METHODS,
     ORACLE_CASES,
+    SWEEP_CASE,
+    case_named,
     exposure_sweep,
     oracle_rows,
-    METHODS,
     seed_spread,
     sweep_summary,
     write_rows,
@@ -93,7 +95,8 @@ def main(argv=None) -> None:
             print(f"{m}: worst gap {g['gap']:+.3f} ({g['capture']}), worst against today "
                   f"{t['vs_today']:+.3f} ({t['capture']})")
     if not args.no_sweep:
-        rows = exposure_sweep(ORACLE_CASES[0], iterations=args.iterations, queue=args.device)
+        rows = exposure_sweep(case_named(SWEEP_CASE), iterations=args.iterations,
+                              queue=args.device)
         print("wrote", *write_rows(rows, RESULTS / "exposure_sweep"))
         summary = sweep_summary(rows)
         print("wrote", *write_rows(summary, RESULTS / "exposure_sweep_summary"))

@@ -105,6 +105,19 @@ ORACLE_CASES = (
 )
 
 
+def case_named(name: str) -> OracleCase:
+    """The case of :data:`ORACLE_CASES` called ``name`` (cases are referred to by name, not
+    by position: the table grows)."""
+    for c in ORACLE_CASES:
+        if c.name == name:
+            return c
+    raise KeyError(f"no oracle case {name!r}")
+
+
+SWEEP_CASE = "UT 0.15 m, scan 0.3 m, 0.5 m deep, 0.05 s"  # the exposure sweep's scene
+BENCH_CASE = "UT 0.3 m, scan 0.6 m, 0.5 m deep, 0.5 s"    # clnlos bench's (reduced) case
+
+
 def simulate_case(case: OracleCase, queue=None):
     """(capture, true mask [y, x]) of a case (:class:`clnlos.forward.model.ForwardModel`)."""
     scene = Scene.from_dict(case.scene_dict())

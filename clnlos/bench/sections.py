@@ -29,8 +29,14 @@ from clnlos.bench.baselines import (
 from clnlos.bench.harness import Bench, timed_once, timeit
 from clnlos.bench.harness import rel_error as _rel
 from clnlos.bench.isolated import IMPLS as PROCESS_IMPLS
+from clnlos.bench.oracle import (
+    BENCH_CASE,
+    ORACLE_CASES,
+    case_named,
+    compare_method,
+    simulate_case,
+)
 from clnlos.bench.oracle import METHODS as ORACLE_METHODS
-from clnlos.bench.oracle import ORACLE_CASES, compare_method, simulate_case
 from clnlos.brdf.data import BRDFSamples, agreement, read_gonio_csv, relative_error
 from clnlos.brdf.fit import fit_analytic
 from clnlos.brdf.mlp import MLPConfig, train_mlp
@@ -426,7 +432,7 @@ def bench_auto_params(b: Bench):
     """The "auto" SNRs against the oracle grid (:mod:`clnlos.bench.oracle`): per capture and
     method the time of the auto reconstruction, error = max(0, oracle IoU - auto IoU)
     (extra fields: the IoUs of auto, the oracle and the photon rule, the SNRs chosen)."""
-    small = (replace(ORACLE_CASES[3], points=16, bins=128, bin_width_s=64e-12),)
+    small = (replace(case_named(BENCH_CASE), points=16, bins=128, bin_width_s=64e-12),)
     cases = {"tiny": small, "quick": small, "full": ORACLE_CASES}[b.size]
     iterations = {"tiny": 20, "quick": 50, "full": None}[b.size]
     for case in cases:
