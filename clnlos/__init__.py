@@ -1,9 +1,12 @@
 """clnlos: OpenCL kernels for non-line-of-sight imaging through scattering slabs.
 
-Stages (each a plan object with a shape/dtype/unit contract):
-
-* :mod:`clnlos.diffusion` -- time-resolved slab transmittance (image-dipole series)
-* :mod:`clnlos.runtime.device`   -- devices, queues, program cache, capability checks
+The packages follow the physics (docs/architecture.md): :mod:`clnlos.physics` (pure slab,
+grid and light-cone physics), :mod:`clnlos.diffusion` (the slab transmittance, stage 1),
+:mod:`clnlos.forward` (scene -> capture), :mod:`clnlos.operators` (operators with adjoints),
+:mod:`clnlos.inverse` (capture -> volume, the METHODS registry), :mod:`clnlos.runtime`
+(devices, programs, buffers, FFT, caches), :mod:`clnlos.io` (captures and outputs),
+:mod:`clnlos.app` (the CLI), :mod:`clnlos.brdf`, :mod:`clnlos.study`, :mod:`clnlos.bench`;
+:mod:`clnlos.settings` reads the environment.
 
 Array axis order everywhere: transients ``[t, y, x]``, volumes ``[z, y, x]``; SI units.
 """

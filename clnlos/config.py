@@ -65,7 +65,6 @@ from clnlos.errors import InputFileError, ParameterError
 from clnlos.inverse.methods import default_falloffs, method_names
 from clnlos.physics.slab import Slab
 
-METHODS = method_names()  # the registry of clnlos.inverse.methods
 # falloff = None: the method's own radiometric exponent p of (t/T)^p (its registry entry):
 # LCT's suits diffuse (Lambertian) surfaces; for f-k the square root of the weighted
 # measurement is the wave. The iterative method models the falloff itself.
@@ -295,7 +294,7 @@ class ReconstructionConfig:
         v["guard_fraction"] = positive(nm("guard_fraction"), self.guard_fraction,
                                        allow_zero=True, upper=4.0)
         v["lateral_pad"] = choice(nm("lateral_pad"), self.lateral_pad, ("mirror", "zero"))
-        v["method"] = choice(nm("method"), self.method, METHODS)
+        v["method"] = choice(nm("method"), self.method, method_names())  # the registry now
         v["inversion_snr"] = auto_or_positive(nm("inversion_snr"), self.inversion_snr,
                                               upper=1e30)
         if self.falloff is not None:

@@ -1,4 +1,4 @@
-/* Light-cone transform: the light cone h on the padded (pv, py, px) v-grid (clnlos/lct.py).
+/* Light-cone transform: the light cone h on the padded (pv, py, px) v-grid (clnlos/inverse/lct.py).
  *
  * Lateral cell (y, x) in wrap order has offset (dy, dx) cells, d = j < (n + 1) / 2 ? j : j - n;
  * its response sits at the v-shift s = (dy^2 + dx^2) * shift_per_cell2 bins

@@ -1,4 +1,4 @@
-/* Proximal and vector-update kernels of the iterative solvers (clnlos/solvers.py).
+/* Proximal and vector-update kernels of the iterative solvers (clnlos/inverse/solvers.py).
  *
  * Volumes are [nz, ny, nx] arrays of n = nz * ny * nx values; the support is the depth rows
  * k >= row_min (plane = ny * nx values per row): outside it every update writes 0.

@@ -9,7 +9,7 @@ import pytest
 
 from clnlos import bench
 from clnlos.app.cli import main as cli_main
-from clnlos.bench.harness import Bench
+from clnlos.bench.harness import ROW_KEYS, Bench
 
 pytestmark = pytest.mark.slow  # runs the benchmark harness
 
@@ -43,7 +43,7 @@ def test_every_section_runs_at_tiny(section_rows, name):
     b = section_rows[name]
     assert b.rows, (name, b.notes)
     for r in b.rows:
-        for k in bench.ROW_KEYS:
+        for k in ROW_KEYS:
             assert k in r, (name, k, r)
         assert r["median_s"] > 0  # measured (end_to_end's cli@cold keeps max_s of a no-op)
 
@@ -115,7 +115,7 @@ def test_schema(bench_doc):
     doc, out = bench_doc
     assert doc["copy_bandwidth_gbs"] > 0 and doc["rows"]
     for r in doc["rows"]:
-        for k in bench.ROW_KEYS:
+        for k in ROW_KEYS:
             assert k in r, (k, r)
         assert r["median_s"] > 0 and r["min_s"] <= r["median_s"] <= r["max_s"]
     assert (out / "bench.html").read_text().count("data:image/png") >= 3

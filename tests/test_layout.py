@@ -1,5 +1,11 @@
 """The package's shape: no import cycles, few top-level modules, settings read in one place,
-imports at the top, no private names used across modules, one registry of inversions."""
+imports at the top, no private names used across modules (the registry of inversions:
+tests/test_methods.py).
+
+The one import the graph below cannot see is the registry's: clnlos.inverse.methods
+imports a method's module by name when it is asked for it (importlib), and the method modules
+import clnlos.inverse.methods for the base class -- a plugin table, not a cycle at import
+time (methods.py imports none of them)."""
 
 from __future__ import annotations
 
@@ -117,15 +123,19 @@ def test_at_most_ten_top_level_modules():
     assert len(top) <= TOP_LEVEL_MAX, top
 
 
+# modules that touch os.environ for other processes only (never to read a setting):
+# the study pins the threads of the Dask workers it spawns and restores the variables
+# after; the bench copies the environment for a worker with another FFT backend
+ENVIRON_FOR_CHILDREN = {"study/dataset.py", "bench/sections.py"}
+
+
 def test_environment_read_in_one_place():
-    """Every CLNLOS_* variable is read by clnlos.settings alone."""
+    """Every CLNLOS_* variable is read by clnlos.settings alone: no other module touches
+    os.environ or getenv, but for the named ones that set up child processes."""
     pattern = re.compile(r"os\.environ|getenv|environ\.get")
-    readers = [str(p.relative_to(PKG)) for p in PKG.rglob("*.py")
-               if p.name != "settings.py" and any(
-                   "CLNLOS_" in line or "ENV_" in line
-                   for line in p.read_text(encoding="utf-8").splitlines()
-                   if pattern.search(line) and "dict(os.environ" not in line)]
-    assert not readers, readers
+    touch = sorted(str(p.relative_to(PKG)) for p in PKG.rglob("*.py")
+                   if p.name != "settings.py" and pattern.search(p.read_text(encoding="utf-8")))
+    assert set(touch) <= ENVIRON_FOR_CHILDREN, touch
 
 
 def function_imports() -> list[str]:
@@ -178,3 +188,28 @@ def test_dead_code_stays_removed(needle):
     hits = [str(p.relative_to(PKG)) for p in PKG.rglob("*.py")
             if needle in p.read_text(encoding="utf-8")]
     assert not hits, hits
+
+
+# memo caches of pure functions (values, not device state) that need no clearing
+PURE_MEMOS = {"physics/slab.py:effective_reflection", "brdf/presets.py:preset_table"}
+
+
+def test_every_cache_is_registered():
+    """A function cached with functools (cache / lru_cache) is registered with
+    clnlos.runtime.caches.CACHES (its ``cache_clear`` named in a ``CACHES.register``) or is
+    a listed pure memo."""
+    bad = []
+    for path in PKG.rglob("*.py"):
+        text = path.read_text(encoding="utf-8")
+        for node in ast.walk(ast.parse(text)):
+            if not isinstance(node, (ast.FunctionDef, ast.AsyncFunctionDef)):
+                continue
+            names = {d.func.id if isinstance(d, ast.Call) and isinstance(d.func, ast.Name)
+                     else d.id if isinstance(d, ast.Name)
+                     else d.attr if isinstance(d, ast.Attribute) else ""
+                     for d in node.decorator_list}
+            if names & {"cache", "lru_cache"}:
+                where = f"{path.relative_to(PKG)}:{node.name}"
+                if where not in PURE_MEMOS and f"{node.name}.cache_clear" not in text:
+                    bad.append(where)
+    assert not bad, bad

@@ -314,24 +314,25 @@ queue = device.get_queue()
 programs.get_kernels(queue, "fill")
 blur.blur_margin(CDT_SLAB, 1e-9, 0.01, 8, 1e-3, None, queue)
 caches.PIPELINES.get("k", lambda: object())
+caches.FORWARD_BLURS.get("k", lambda: object())
 
 def held():
     return (blur.blur_margin.cache_info().currsize, len(caches.PIPELINES),
-            len(programs._program_cache), device._queue_for.cache_info().currsize,
-            device._context_for.cache_info().currsize)
+            len(caches.FORWARD_BLURS), len(programs._program_cache),
+            device._queue_for.cache_info().currsize, device._context_for.cache_info().currsize)
 
 assert all(held()), held()
 caches.CACHES.clear()
-assert held() == (0,) * 5 and fft_mod._vkfft_app.cache_info().currsize == 0, held()
+assert held() == (0,) * 6 and fft_mod._vkfft_app.cache_info().currsize == 0, held()
 k = programs.get_kernels(device.get_queue(), "fill")  # rebuilt on demand
 print("ok")
 """
 
 
 def test_one_registry_clears_every_cache():
-    """CACHES.clear() empties the contexts, queues, programs, VkFFT apps, plan caches and
-    blur margins (each module registers its cache when imported); in a child process, so
-    the session's queue stays valid."""
+    """CACHES.clear() empties the contexts, queues, programs, VkFFT apps (filled on GPUs
+    only), both plan caches and the blur margins (each module registers its cache when
+    imported); in a child process, so the session's queue stays valid."""
     r = subprocess.run([sys.executable, "-c", CLEAR_ALL], capture_output=True, text=True,
                        timeout=300)
     assert r.returncode == 0 and r.stdout.strip() == "ok", r.stderr

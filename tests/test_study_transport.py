@@ -50,10 +50,41 @@ def test_rank_breaks_ties_by_margin():
 def test_validate_refuses_unknown_transport_and_glyphs():
     from clnlos.errors import ParameterError
 
-    with pytest.raises(ParameterError):
+    with pytest.raises(ParameterError, match="--transport"):
         replace(OPTS, transport="bistatic").validate()
-    with pytest.raises(ParameterError):
+    with pytest.raises(ParameterError, match="transport_glyphs"):
         replace(OPTS, transport_glyphs=("Z",)).validate()
+
+
+def _row(material, acc_c, acc_b, margin_c, margin_b, counts=(1.0, 1.0)):
+    """A synthetic per-sample result list for comparison_table: 4 samples per transport."""
+    out = []
+    for tr, acc, margin, n_counts in (("confocal", acc_c, margin_c, counts[0]),
+                                      ("bistatic", acc_b, margin_b, counts[1])):
+        hits = round(4 * acc)
+        for k in range(4):
+            out.append(({"set": "transport", "material": material, "transport": tr},
+                        {"identified": k < hits, "true_margin": margin, "ncc_true": 0.5,
+                         "iou": 0.5, "counts": n_counts, "identified_as": "E"}))
+    return out
+
+
+def test_comparison_table_on_known_rows():
+    """Three materials whose ranks are known: one swap between transports (by accuracy),
+    the rank correlations and the statement follow."""
+    from clnlos.study.transport_compare import comparison_table
+
+    rows = (_row("a", 1.0, 1.0, 0.08, 0.08) + _row("b", 0.5, 0.25, 0.01, -0.02)
+            + _row("c", 0.25, 0.5, -0.03, 0.02, counts=(1.0, 1.5)))
+    plan, results = [(r[0], {}) for r in rows], [r[1] for r in rows]
+    out = comparison_table(["a", "b", "c"], plan, results, chance=0.125)
+    ranks = {r["material"]: (r["confocal"]["rank"], r["bistatic"]["rank"]) for r in out["rows"]}
+    assert ranks == {"a": (1, 1), "b": (2, 3), "c": (3, 2)}
+    assert [m["material"] for m in out["moved"]] == ["b", "c"] and out["ranking_changes"]
+    assert out["correlation"]["rank"]["spearman"] == pytest.approx(0.5)
+    assert out["correlation"]["rank"]["kendall"] == pytest.approx(1 / 3)
+    assert out["rows"][2]["counts_ratio"] == pytest.approx(1.5)
+    assert "b 2 -> 3" in out["statement"] and "change identification" in out["statement"]
 
 
 @pytest.mark.slow

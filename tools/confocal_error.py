@@ -1,8 +1,8 @@
 """The error of the seed's confocal approximation (Eq. 9) against Eq. 8 per material preset.
 
 Writes tools/results/confocal_error.csv and .json (confocal_error_<N>pt.* with --points N)
-and prints the table (clnlos.forward.bistatic.confocal_error_table: the issue's 6 cm patch tilted
-5 degrees, 0.5 m behind the CDT slab, at the study's 0.3 m scan of 32 x 32 points and
+and prints the table (clnlos.study.confocal_error.confocal_error_table: the issue's 6 cm
+patch tilted 5 degrees, 0.5 m behind the CDT slab, at the study's 0.3 m scan of 32 x 32 points and
 48 ps bins).
 
     .venv/bin/python tools/confocal_error.py [--points N] [--no-refine] [--device D]

@@ -13,7 +13,7 @@ from pathlib import Path
 import numpy as np
 from tqdm import tqdm
 
-from clnlos.app.demo import DEMO_FILES, demo_inputs, run_demo
+from clnlos.app.demo import demo_files, demo_inputs, run_demo
 from clnlos.app.progress import counter, progress_bar
 from clnlos.app.reconstruct import reconstruct_to_files
 from clnlos.app.simulate import figure_path, simulate_to_file
@@ -38,7 +38,6 @@ from clnlos.checks import integer
 from clnlos.config import (
     DEPTH_GUARD_M,
     METHOD_FALLOFF,
-    METHODS,
     ReconstructionConfig,
     check_geometry,
     check_light_in_window,
@@ -49,6 +48,7 @@ from clnlos.config import ReconstructionConfig as C
 from clnlos.errors import InputFileError, MissingDependencyError, OutputFileError, ParameterError
 from clnlos.forward.scene import Scene
 from clnlos.inverse.methods import METHODS as METHOD_ENTRIES
+from clnlos.inverse.methods import method_names
 from clnlos.inverse.pipeline import device_bytes_needed, resolve_geometry, setup_slab
 from clnlos.io.figures import volume_figure
 from clnlos.io.files import read_capture, read_volume, save_figure
@@ -203,7 +203,7 @@ def register_reconstruct(sub, add_device) -> None:
                    help="output volume (.h5; a PNG is written beside)")
     r.add_argument("--config", help="reconstruction parameters (TOML, see clnlos/config.py); "
                    "flags override its values (default: none, the built-in defaults)")
-    r.add_argument("--method", choices=list(METHODS), default=None,
+    r.add_argument("--method", choices=list(method_names()), default=None,
                    help="inversion: " + "; ".join(f"{m} ({e.summary})"
                                                   for m, e in METHOD_ENTRIES.items())
                         + f" (default: the config's [inversion] method, else {C.method})")
@@ -223,7 +223,7 @@ def register_reconstruct(sub, add_device) -> None:
                    help="radiometric exponent p (dimensionless) of the (t/T)^p weighting "
                         "before the inversion (default: the method's own, " + ", ".join(
                             f"{m} {p:g}" for m, p in METHOD_FALLOFF.items()) + "; "
-                        + ", ".join(m for m in METHODS if m not in METHOD_FALLOFF)
+                        + ", ".join(m for m in method_names() if m not in METHOD_FALLOFF)
                         + " models the falloff itself and ignores it)")
     r.add_argument("--max-path", type=float,
                    help="keep round-trip path lengths c t below this (m) (default: the "
@@ -304,7 +304,7 @@ def cmd_demo(args) -> int:
     if out.exists() and not out.is_dir():
         raise OutputFileError(f"-o {out}: is a file; the demo writes a folder")
     scene, cfg = demo_inputs(args.scene, args.config)
-    outs = {f"-o {name}": out / name for name in DEMO_FILES}
+    outs = {f"-o {name}": out / name for name in demo_files()}
     check_outputs(outs, inputs=[args.scene, args.config, *scene.input_paths()],
                   implied=dict.fromkeys(outs), force=args.force)
     run_demo(out, scene, cfg, queue=get_queue(args.device, settings=args.settings))
@@ -523,7 +523,7 @@ def register_study(sub, add_device) -> None:
     s.add_argument("-o", "--output", default="out/study",
                    help="output folder: report.html, results.json and the sample cache "
                         "(default %(default)s)")
-    s.add_argument("--method", choices=list(METHODS), default=None,
+    s.add_argument("--method", choices=list(method_names()), default=None,
                    help=f"reconstruction method (default {StudyGrid.method})")
     s.add_argument("--labels", choices=list(LABEL_METRICS), default=full.labels,
                    help="what the CNN learns: legibility (glyph identified and IoU above "

@@ -11,16 +11,20 @@ from pathlib import Path
 
 from clnlos.app.reconstruct import reconstruct_to_files
 from clnlos.app.simulate import simulate_to_file
-from clnlos.config import METHODS, ReconstructionConfig, load_toml
+from clnlos.config import ReconstructionConfig, load_toml
 from clnlos.errors import ParameterError
 from clnlos.forward.scene import Scene
+from clnlos.inverse.methods import method_names
 from clnlos.io.files import atomic_path, read_capture
 from clnlos.io.outputs import stamp
 from clnlos.runtime.device import get_queue
 from clnlos.study.metrics import letters_truth_mask, mip_iou, peak_depth_m
 
-DEMO_FILES = ("capture.h5", "capture.png", "summary.json") + tuple(
-    f"volume_{m}.{ext}" for m in METHODS for ext in ("h5", "png"))
+
+def demo_files() -> tuple[str, ...]:
+    """The files the demo writes: the capture, the summary, a volume per registered method."""
+    return ("capture.h5", "capture.png", "summary.json") + tuple(
+        f"volume_{m}.{ext}" for m in method_names() for ext in ("h5", "png"))
 
 
 def demo_inputs(scene_path=None, config_path=None):
@@ -55,7 +59,7 @@ def run_demo(out_dir, scene, config, *, queue=None, log=print) -> dict:
     summary = {"device": queue.device.name.strip(), "simulate_s": sim.seconds,
                "stages": sim.stages, "methods": {}}
     capture = read_capture(sim.capture)
-    for method in METHODS:
+    for method in method_names():
         cfg = config.replace(method=method).validate()
         vol_path = out / f"volume_{method}.h5"
         rec = reconstruct_to_files(capture, vol_path, cfg, queue=queue,

@@ -21,7 +21,7 @@ import json
 import time
 from pathlib import Path
 
-from clnlos.bench.harness import ROW_KEYS, Bench, print_table  # noqa: F401 (ROW_KEYS: row schema)
+from clnlos.bench.harness import Bench, print_table
 from clnlos.bench.report import recommendations, write_html
 from clnlos.bench.sections import (
     BRDF_DATA,

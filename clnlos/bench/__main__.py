@@ -1,6 +1,8 @@
-"""``python -m clnlos.bench [--quick | --tiny] [-o DIR] [--only SECTIONS]``: the same as
-``clnlos bench`` (:func:`clnlos.bench.main`)."""
+"""``python -m clnlos.bench ...``: exactly ``clnlos bench ...`` (the CLI's checks, flags and
+one-line errors)."""
 
-from clnlos.bench import main
+import sys
 
-main()
+from clnlos.app.cli import main
+
+sys.exit(main(["bench", *sys.argv[1:]]))

@@ -259,7 +259,7 @@ def sweep_summary(rows: list[dict]) -> list[dict]:
 
 
 def write_rows(rows: list[dict], stem) -> tuple[Path, Path]:
-    """``stem``.csv and ``stem``.json, written atomically (:func:`clnlos.io.atomic_path`)."""
+    """``stem``.csv and ``stem``.json, written atomically (:func:`clnlos.io.files.atomic_path`)."""
     stem = Path(stem)
     stem.parent.mkdir(parents=True, exist_ok=True)
     keys = list(dict.fromkeys(k for r in rows for k in r))

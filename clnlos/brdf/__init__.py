@@ -1,5 +1,3 @@
-"""BRDF models and materials (analytic models; the confocal retro-reflection slice)."""
-
-from clnlos.brdf.models import MODELS, BRDFModel, make_model, retro_slice
-
-__all__ = ["MODELS", "BRDFModel", "make_model", "retro_slice"]
+"""BRDF models and materials: measured data (data), analytic models and the confocal
+retro-reflection slice (models), fits and the torch MLP (fit, mlp), textures (texture),
+stored models (store), the seed's ten presets (presets)."""

@@ -43,11 +43,12 @@ from scipy.ndimage import map_coordinates, maximum_filter
 from scipy.optimize import brentq
 
 from clnlos import C0
-from clnlos.config import METHODS, ReconstructionConfig, slab_table
+from clnlos.config import ReconstructionConfig, slab_table
 from clnlos.forward.geometry import sample_letters
 from clnlos.forward.model import ForwardModel
 from clnlos.forward.noise import photon_counts
 from clnlos.forward.scene import Detector, Scene
+from clnlos.inverse.methods import method_names
 from clnlos.inverse.pipeline import reconstruct
 from clnlos.io.capture import Capture
 from clnlos.io.figures import new_figure
@@ -269,7 +270,7 @@ def budget_capture(noise_free, scene, geometry: ResolutionGeometry, grid, exposu
                    seed: int = 0):
     """Photon counts of the patch at ``exposure_s``: the noise-free capture scaled by the
     albedo that gives the patch the photons of ``budget_area_m2`` (default: the letters'
-    area), then Poisson noise and dark counts (:func:`clnlos.forward.model.photon_counts`)."""
+    area), then Poisson noise and dark counts (:func:`clnlos.forward.noise.photon_counts`)."""
     g = geometry
     area = (g.budget_area_m2 if g.budget_area_m2 is not None
             else letters_area_m2(g.text, g.letter_height_m, g.stroke_m))
@@ -307,7 +308,7 @@ def _measure(capture, geometry: ResolutionGeometry, methods, queue) -> dict:
 
 
 def measure_resolution(geometry: ResolutionGeometry = ResolutionGeometry(), *,
-                       exposure_s: float | None = None, methods=METHODS, grid=None,
+                       exposure_s: float | None = None, methods=None, grid=None,
                        queue=None, seed: int = 0) -> dict:
     """Resolution of each method at ``geometry`` (results.json ``resolution``).
 
@@ -322,6 +323,7 @@ def measure_resolution(geometry: ResolutionGeometry = ResolutionGeometry(), *,
     profile stays above half its peak across the volume. Each method's entry also holds
     ``profiles`` (arrays for :func:`resolution_figure`; :func:`json_ready` drops them)."""
     grid = StudyGrid() if grid is None else grid
+    methods = method_names() if methods is None else methods
     queue = get_queue(queue)
     g = geometry.resolve(grid)
     scene = patch_scene(g)
@@ -438,7 +440,7 @@ def resolution_figure(result: dict, title: str = ""):
                                         if "budget" in result else [])
     fig, ax = new_figure(len(cases), 2, (12, 4 * len(cases)))
     ax = np.atleast_2d(ax)
-    methods = [m for m in METHODS if m in result]
+    methods = [m for m in method_names() if m in result]
     for row, (label, case) in enumerate(cases):
         for m in methods:
             r = case[m]

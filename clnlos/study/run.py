@@ -54,9 +54,9 @@ from scipy.special import stdtrit  # Student's t quantile (what scipy.stats.t.pp
 from clnlos.app.progress import counter, progress_bar
 from clnlos.brdf.models import BRDFModel
 from clnlos.brdf.presets import preset_model, preset_table
-from clnlos.config import METHODS
 from clnlos.errors import ParameterError
 from clnlos.forward.scene import Scene
+from clnlos.inverse.methods import method_names
 from clnlos.inverse.pipeline import reconstruct
 from clnlos.io.files import atomic_path, read_capture
 from clnlos.io.outputs import stamp
@@ -186,8 +186,8 @@ class StudyOptions:
     def validate(self) -> StudyOptions:
         if self.labels not in LABEL_METRICS:
             raise ParameterError("--labels", self.labels, " or ".join(LABEL_METRICS))
-        if self.grid.method not in METHODS:
-            raise ParameterError("--method", self.grid.method, ", ".join(METHODS))
+        if self.grid.method not in method_names():
+            raise ParameterError("--method", self.grid.method, ", ".join(method_names()))
         if self.n_dataset < 0:
             raise ParameterError("--n-dataset", self.n_dataset, ">= 0")
         if self.seeds < 1:
