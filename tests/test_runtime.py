@@ -151,14 +151,24 @@ def test_cli_bad_device_one_line_exit_2(capsys):
 @pytest.mark.slow
 def test_wheel_ships_kernels_and_runs_them(tmp_path):
     """Build a wheel, install it into an empty target dir and run a kernel from there only."""
+    import shutil
+
     wheel_dir = tmp_path / "wheel"
+    src = tmp_path / "src"  # a clean copy: a build/ left in the checkout could add old modules
+    shutil.copytree(ROOT, src, ignore=shutil.ignore_patterns(
+        ".git", ".venv", "build", "out", "*.egg-info", "__pycache__", "tests", "tools", "docs"))
     r = subprocess.run([sys.executable, "-m", "pip", "wheel", "--no-deps", "--no-build-isolation",
-                        "-q", "-w", str(wheel_dir), str(ROOT)], capture_output=True, text=True)
+                        "-q", "-w", str(wheel_dir), str(src)], capture_output=True, text=True)
     if r.returncode != 0 and "No module named" in r.stderr:
         pytest.skip(f"cannot build a wheel here: {r.stderr.strip()[-200:]}")
     assert r.returncode == 0, r.stderr
     whl = next(wheel_dir.glob("clnlos-*.whl"))
     names = zipfile.ZipFile(whl).namelist()
+    shipped = {n for n in names if n.startswith("clnlos/") and n.endswith(".py")}
+    source = {f"clnlos/{p.relative_to(ROOT / 'clnlos').as_posix()}"
+              for p in (ROOT / "clnlos").rglob("*.py") if "__pycache__" not in p.parts}
+    source |= {f"clnlos/kernels/{p.name}" for p in (ROOT / "kernels").glob("*.py")}
+    assert shipped == source, (sorted(shipped - source), sorted(source - shipped))
     for k in (ROOT / "kernels").glob("*.[ch]*"):
         if k.suffix in (".cl", ".h"):
             assert f"clnlos/kernels/{k.name}" in names, k.name
