@@ -37,7 +37,6 @@ from clnlos.brdf.texture import MAX_NODES, MIN_NODES, tabulate, write_texture
 from clnlos.checks import integer
 from clnlos.config import (
     DEPTH_GUARD_M,
-    METHOD_FALLOFF,
     ReconstructionConfig,
     check_geometry,
     check_light_in_window,
@@ -48,7 +47,7 @@ from clnlos.config import ReconstructionConfig as C
 from clnlos.errors import InputFileError, MissingDependencyError, OutputFileError, ParameterError
 from clnlos.forward.scene import Scene
 from clnlos.inverse.methods import METHODS as METHOD_ENTRIES
-from clnlos.inverse.methods import method_names
+from clnlos.inverse.methods import default_falloffs, method_names
 from clnlos.inverse.pipeline import device_bytes_needed, resolve_geometry, setup_slab
 from clnlos.io.figures import volume_figure
 from clnlos.io.files import read_capture, read_volume, save_figure
@@ -217,13 +216,14 @@ def register_reconstruct(sub, add_device) -> None:
                         f"model's accuracy (default {C.snr})")
     r.add_argument("--inversion-snr", type=number_or_auto,
                    help="Wiener SNR of the LCT filter (and of the iterative warm start), or "
-                        "auto: by generalised cross-validation on the deconvolved transient "
-                        f"(default {C.inversion_snr})")
+                        "auto: chosen on the deconvolved transient, for photon counts by the "
+                        "unbiased predictive risk with the capture's own noise, otherwise by "
+                        f"generalised cross-validation (default {C.inversion_snr})")
     r.add_argument("--falloff", type=float,
                    help="radiometric exponent p (dimensionless) of the (t/T)^p weighting "
                         "before the inversion (default: the method's own, " + ", ".join(
-                            f"{m} {p:g}" for m, p in METHOD_FALLOFF.items()) + "; "
-                        + ", ".join(m for m in method_names() if m not in METHOD_FALLOFF)
+                            f"{m} {p:g}" for m, p in default_falloffs().items()) + "; "
+                        + ", ".join(m for m in method_names() if m not in default_falloffs())
                         + " models the falloff itself and ignores it)")
     r.add_argument("--max-path", type=float,
                    help="keep round-trip path lengths c t below this (m) (default: the "

@@ -87,7 +87,9 @@ def bench_diffusion(b: Bench):
           _rel(numpy_transmittance(slab, R, T, 20), ref), impl="numpy", sync=False)
 
 
-def bench_lightcone(b: Bench):
+def lightcone_reference(b: Bench):
+    """(points, bins, sampling densities, reference transient) of the light-cone sections:
+    'UT' sampled at 16 x the densest density, in the most precise dtype."""
     pts, bins = {"tiny": (8, 128), "quick": (32, 512), "full": (32, 512)}[b.size]
     dens = {"tiny": (2.5e3, 1e4, 4e4), "quick": (2.5e3, 1e4, 4e4, 1.6e5),
             "full": (2.5e3, 1e4, 4e4, 1.6e5, 6.4e5)}[b.size]
@@ -95,6 +97,11 @@ def bench_lightcone(b: Bench):
     ref = LightCone(points=pts, width_m=0.6, bins=bins, bin_width_s=ref_s.bin_width_s,
                     start_s=0.0, retro=False, dtype=b.dtypes[-1], queue=b.q)(
         sample_scene(ref_s)).get()
+    return pts, bins, dens, ref
+
+
+def bench_lightcone(b: Bench):
+    pts, bins, dens, ref = lightcone_reference(b)
     for dt in b.dtypes:
         for splat in (0, 1):
             for d in dens:
@@ -476,13 +483,7 @@ def bench_lightcone_grid(b: Bench):
         r = b.record("lightcone", "grid", grid, np.float64, t, _rel(out, outs[b.dtypes[-1]]),
                      impl="numpy", elements=len(smp.elements))
         r["pairs_per_s"] = pairs / r["median_s"]
-    pts, bins = {"tiny": (8, 128), "quick": (32, 512), "full": (32, 512)}[b.size]
-    densities = {"tiny": (2.5e3, 1e4, 4e4), "quick": (2.5e3, 1e4, 4e4, 1.6e5),
-                 "full": (2.5e3, 1e4, 4e4, 1.6e5, 6.4e5)}[b.size]
-    ref_s = ut_scene(pts, bins, 16 * densities[-1])
-    ref = LightCone(points=pts, width_m=0.6, bins=bins, bin_width_s=ref_s.bin_width_s,
-                    start_s=0.0, retro=False, dtype=b.dtypes[-1], queue=b.q)(
-        sample_scene(ref_s)).get()
+    pts, bins, densities, ref = lightcone_reference(b)
     for d in densities:
         s = ut_scene(pts, bins, d)
         for dt in b.dtypes:
