@@ -29,6 +29,7 @@ Left out: occlusion between elements (no visibility test), interreflections.
 from __future__ import annotations
 
 import json
+import warnings
 from dataclasses import dataclass, field
 from typing import Any
 
@@ -192,7 +193,10 @@ class ForwardModel:
         self.queue = get_queue(queue)
         self.dtype = require_dtype(self.queue.device, dtype)
         check_scene_size(scene, self.queue.device, self.dtype)
-        self.warnings = check_scene_geometry(scene)
+        # the geometry's warnings are issued once the capture is known not to be all zero
+        # (a run that ends in that error says one line, not a warning and an error)
+        self.warnings = check_scene_geometry(scene, emit=False)
+        self._warned = False
         self.samples = sample_scene(scene)
         self.transport, self.transport_reason = transport_model(scene, self.samples,
                                                                 self.queue)
@@ -242,6 +246,10 @@ class ForwardModel:
         x = self.samples
         for st in self.chain:
             x = st(x)
+            if st.name == "readout" and not self._warned:
+                self._warned = True
+                for note in self.warnings:
+                    warnings.warn(note, UserWarning, stacklevel=2)
             if progress is not None and st.recorded:
                 self.queue.finish()
                 progress(st.name)

@@ -116,10 +116,11 @@ def sample_scene(scene: Scene, density: float | None = None) -> SurfaceSamples:
 FRONT_MIN_Z_M = 1e-6  # elements nearer the relay plane than this return no light: the light
 
 
-def check_scene_geometry(scene: Scene) -> list[str]:
+def check_scene_geometry(scene: Scene, *, emit: bool = True) -> list[str]:
     """Objects must lie in front of the relay plane (z > 0) and return light inside the time
     window: an object with no element in front, or whose every round trip falls outside
-    [start, start + bins dt), is an error; one partly outside gives a warning (returned)."""
+    [start, start + bins dt), is an error; one partly outside gives a warning (returned;
+    also issued now with ``emit``)."""
     w = scene.width_m / 2
     t0, t1 = scene.start_s, scene.start_s + scene.bins * scene.bin_width_s
     notes = []
@@ -159,8 +160,9 @@ def check_scene_geometry(scene: Scene) -> list[str]:
         field, value, why, allowed = dark[0]
         raise ParameterError(field, value, f"{allowed}: {why} and no other object returns "
                              "light (the capture would be all zero)")
-    for n in notes:
-        warnings.warn(n, UserWarning, stacklevel=3)
+    if emit:
+        for n in notes:
+            warnings.warn(n, UserWarning, stacklevel=3)
     return notes
 
 
