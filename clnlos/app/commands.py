@@ -581,8 +581,8 @@ def register_bench(sub, add_device) -> None:
                    help="output folder: bench.json and bench.html (default %(default)s)")
     b.add_argument("--only", default=None, help=ONLY_HELP + " (default: all)")
     b.add_argument("--brdf-data", default=None, metavar="DIR",
-                   help="measured BRDFs for the brdf_measured section (default "
-                        "../shared/data/brdf; skipped with a note when absent)")
+                   help="folder of measured BRDFs (*_gonio.csv) for the brdf_measured section "
+                        "(default: none, those rows skipped with a note)")
     _add_force(b)
     add_device(b)
     b.set_defaults(func=cmd_bench)

@@ -24,7 +24,6 @@ from pathlib import Path
 from clnlos.bench.harness import Bench, print_table
 from clnlos.bench.report import recommendations, write_html
 from clnlos.bench.sections import (
-    BRDF_DATA,
     bench_auto_params,
     bench_bistatic,
     bench_blur_reach,
@@ -69,7 +68,7 @@ def main(argv=None) -> dict:
     g.add_argument("--tiny", action="store_true", help="seconds; for tests")
     ap.add_argument("--only", default=",".join(SECTIONS), help=ONLY_HELP + " (default: all)")
     ap.add_argument("--brdf-data", default=None, type=Path,
-                    help=f"measured BRDFs of brdf_measured (default {BRDF_DATA})")
+                    help="measured BRDFs of brdf_measured (default: none, those rows skipped)")
     args = ap.parse_args(argv)
     sections = sections_of(args.only)  # all checked before the first one runs
     b = Bench(get_queue(args.device), "tiny" if args.tiny else "quick" if args.quick else "full")

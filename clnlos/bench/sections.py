@@ -523,7 +523,6 @@ def bench_blur_reach(b: Bench):
 
 
 # ------------------------------------------------------------------ measured BRDFs
-BRDF_DATA = Path("..", "shared", "data", "brdf")  # relative to the working directory
 MEASURED = ("nist_ptfe_white_532nm", "pbrt_cayman_550nm", "pbrt_krylon_blue_550nm",
             "starlink_chassis_532nm")
 
@@ -531,8 +530,8 @@ MEASURED = ("nist_ptfe_white_532nm", "pbrt_cayman_550nm", "pbrt_krylon_blue_550n
 def bench_brdf_measured(b: Bench):
     """Neural BRDFs against the texture lookup and the analytic fit (the rows of the former
     BRDF script, ``tools/results/bench_brdf.csv``; its texture table is :func:`bench_brdf`).
-    Needs torch for the MLP rows and the measured data (``--brdf-data``, default
-    ../shared/data/brdf) for the fits; each part absent is skipped with a note.
+    Needs torch for the MLP rows and the measured data (``--brdf-data DIR``, a folder
+    of ``*_gonio.csv``) for the fits; each part absent is skipped with a note.
 
     * ``brdf``/``mlp-eval``: an MLP (improved recipe) trained on 500 samples of the
       microfacet model of :func:`bench_brdf`, evaluated on the same random queries (torch
@@ -560,11 +559,13 @@ def bench_brdf_measured(b: Bench):
               _rel(mlp(*a.T), model(*a.T)), impl="torch", sync=False, queries=n)
     else:
         b.note("brdf_measured: torch not installed: the MLP rows are skipped")
-    data = Path(b.options.get("brdf_data") or BRDF_DATA)
-    if not data.is_dir():
-        b.note(f"brdf_measured: no measured data at {data}: the measured-material rows are "
+    data = b.options.get("brdf_data")
+    if data is None or not Path(data).is_dir():
+        where = "given" if data is None else f"at {data}"
+        b.note(f"brdf_measured: no measured data {where}: the measured-material rows are "
                "skipped (--brdf-data DIR)")
         return
+    data = Path(data)
     materials = {"tiny": MEASURED[:1], "quick": MEASURED[:2], "full": MEASURED}[b.size]
     for mat in materials:
         tr = read_gonio_csv(data / f"{mat}_gonio.csv")
