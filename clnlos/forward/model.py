@@ -70,10 +70,13 @@ class Stage:
 @dataclass
 class Readout:
     """Device transient -> host array [t, y, x]: the lateral margin cropped, FFT round-off
-    (-1e-17 where tau is 0) clipped; an all-zero capture is an error naming the objects."""
+    (-1e-17 where tau is 0) clipped; an all-zero capture is an error naming the objects.
+    The scene's geometry ``notes`` are issued as warnings once a capture is known not to be
+    all zero (a run that ends in that error says one line, not a warning and an error)."""
 
     scene: Scene
     margin: int = 0
+    notes: list = field(default_factory=list)
 
     def __call__(self, x_g) -> np.ndarray:
         tau = x_g.get()
@@ -88,6 +91,9 @@ class Readout:
                                  f"[{s.start_s:.3g}, {s.start_s + s.bins * s.bin_width_s:.3g})"
                                  " s: this scene's capture is all zero (check the objects' "
                                  "materials, rotations and positions)")
+        for note in self.notes:
+            warnings.warn(note, UserWarning, stacklevel=3)
+        self.notes = []  # once per model
         return tau
 
 
@@ -169,8 +175,8 @@ def confocal_stages(scene: Scene, samples: SurfaceSamples, dtype, queue) -> Tran
 TRANSPORTS = {"confocal": confocal_stages, "bistatic": bistatic_stages}
 
 
-def build_stages(scene: Scene, samples: SurfaceSamples, transport: str, dtype, queue
-                 ) -> tuple[list[Stage], TransportStages]:
+def build_stages(scene: Scene, samples: SurfaceSamples, transport: str, dtype, queue,
+                 notes=()) -> tuple[list[Stage], TransportStages]:
     """The chain a scene asks for: its transport (and slab blur), the pulse when the laser
     has a width, the readout, the photon noise when there is a detector."""
     tr = TRANSPORTS[transport](scene, samples, dtype, queue)
@@ -178,7 +184,7 @@ def build_stages(scene: Scene, samples: SurfaceSamples, transport: str, dtype, q
     if scene.pulse_width_s is not None:
         pulse = PulseBlur(tr.shape, scene.pulse_width_s, scene.bin_width_s, dtype, queue)
         stages.append(Stage("pulse_blur", pulse, pulse))
-    stages.append(Stage("readout", Readout(scene, tr.margin), recorded=False))
+    stages.append(Stage("readout", Readout(scene, tr.margin, list(notes)), recorded=False))
     if scene.detector is not None:
         noise = PhotonNoise.of_scene(scene)
         stages.append(Stage("photon_noise", noise, noise))
@@ -193,15 +199,12 @@ class ForwardModel:
         self.queue = get_queue(queue)
         self.dtype = require_dtype(self.queue.device, dtype)
         check_scene_size(scene, self.queue.device, self.dtype)
-        # the geometry's warnings are issued once the capture is known not to be all zero
-        # (a run that ends in that error says one line, not a warning and an error)
-        self.warnings = check_scene_geometry(scene, emit=False)
-        self._warned = False
+        self.warnings = check_scene_geometry(scene, emit=False)  # issued by the readout
         self.samples = sample_scene(scene)
         self.transport, self.transport_reason = transport_model(scene, self.samples,
                                                                 self.queue)
         self.chain, tr = build_stages(scene, self.samples, self.transport, self.dtype,
-                                      self.queue)
+                                      self.queue, self.warnings)
         self.margin, self.reach_covered = tr.margin, tr.reach_covered
         self.lightcone = self.chain[0].operator
         self.stages = [st.name for st in self.chain if st.recorded]
@@ -246,10 +249,6 @@ class ForwardModel:
         x = self.samples
         for st in self.chain:
             x = st(x)
-            if st.name == "readout" and not self._warned:
-                self._warned = True
-                for note in self.warnings:
-                    warnings.warn(note, UserWarning, stacklevel=2)
             if progress is not None and st.recorded:
                 self.queue.finish()
                 progress(st.name)
