@@ -343,6 +343,8 @@ class ReconstructionPipeline:
                 params["snr_data"] = data_snr  # cross-validation's, before the model's share
             params["model_snr_used"] = model_snr
             tau = self._timed(timings, "deconvolve", deconv, tau)
+            if isinstance(deconv, TailFilledDeconvolution):
+                params["tail_fill_snr"] = deconv.fill_snr  # the fill's SNR (tail_fill)
         if self.n_guard:
             tau = tau[:self.shape[0]]  # the guard bins dropped: a view of the leading rows
         method = self.config.method

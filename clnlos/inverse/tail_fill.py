@@ -3,6 +3,8 @@ arrivals has decayed: the unseen tail filled from the model (Gerchberg-Papoulis 
 
 from __future__ import annotations
 
+import math
+
 import numpy as np
 import pyopencl.array as cla
 
@@ -15,6 +17,8 @@ TAIL_FILL_ITERATIONS = 12    # at most this many fills of the unseen tail
 
 
 TAIL_FILL_RTOL = 1e-3        # ... stopping when the fill changes by less than this (rel. L2)
+TAIL_FILL_SNR = 1e4          # the fill's Wiener SNR at most (see TailFilledDeconvolution)
+TAIL_FILL_SNR_MIN = 1e2      # ... lowered 10x at a time while the fill diverges, to this
 
 
 class TailFilledDeconvolution:
@@ -37,6 +41,16 @@ class TailFilledDeconvolution:
     P x_K on [0, n): arrivals in the last ``peak`` bins are left out (zero), since only the
     rise of their response is in the window and the inverse filter would turn it into the
     brightest voxels of the volume.
+
+    The fill's W runs at min(snr, TAIL_FILL_SNR); only the final x_K = W y_K takes the
+    deconvolution's own SNR. The fill is H P x_k, blurred again by H, so it needs only what
+    a moderate SNR already restores; a near-inverse W (SNR 1e8-1e10: noise-free captures,
+    1e12 photons) makes the fixed-point iteration diverge instead (85 bins of 96 ps, a
+    5.1 ns tail: the fill grows 49x per step, a target at 0.5 m reconstructed at 1.1 m).
+    Measured there, the fill's error against the true tail is 0.6% at SNR 1e4, 1.3% at 1e5,
+    1.4% at 1e6; from 1e7 it diverges. Should the fill still diverge (its change growing
+    twice in a row), its SNR is lowered tenfold and the fill restarted, down to
+    TAIL_FILL_SNR_MIN; ``fill_snr`` records the SNR the fill ran at.
     """
 
     name = "tail_filled_wiener"
@@ -56,24 +70,46 @@ class TailFilledDeconvolution:
                            scratch=scratch, cache=cache)
         self.H = SpectralFilter.from_spectrum(self.W, self.W.H, mode="convolve")
         self.queue = self.W.queue
+        self.snr = float(snr)
+        self.fill_snr = min(self.snr, TAIL_FILL_SNR)
         self.iterations_run = 0
 
     def set_snr(self, snr: float) -> None:
-        self.W.set_snr(snr)
+        self.snr = float(snr)
 
     def __call__(self, tau_g: cla.Array) -> cla.Array:
         n = self.in_shape[0]
         plane = self.in_shape[1] * self.in_shape[2]
         item = tau_g.dtype.itemsize
+        fill_snr = min(self.snr, TAIL_FILL_SNR)
+        while True:
+            y, diverged = self._fill(tau_g, fill_snr)
+            if not diverged or fill_snr <= TAIL_FILL_SNR_MIN:
+                break
+            fill_snr = max(fill_snr / 10.0, TAIL_FILL_SNR_MIN)
+        self.fill_snr = fill_snr
+        self.W.set_snr(self.snr)
+        x = self.W(y)
+        # arrivals past n - peak are seen only by the rise of their response: not determined
+        fill_zero(self.queue, x, offset_bytes=self.n_known * plane * item)
+        return x[:n]
+
+    def _fill(self, tau_g: cla.Array, fill_snr: float) -> tuple[cla.Array, bool]:
+        """(the window ``tau_g`` extended by its model-predicted tail, diverged): the fill
+        iteration of the class docstring with W at ``fill_snr``; diverged when its change
+        grew in two successive iterations (the iteration does not contract)."""
+        n = self.in_shape[0]
+        plane = self.in_shape[1] * self.in_shape[2]
+        item = tau_g.dtype.itemsize
+        self.W.set_snr(fill_snr)
         y = cla.empty(self.queue, (self.n_ext,) + self.in_shape[1:], tau_g.dtype)
         copy_rows(self.queue, tau_g, y, rows=n)
         fill_zero(self.queue, y, offset_bytes=n * plane * item)
-        tail_old = None
-        for k in range(TAIL_FILL_ITERATIONS):
+        tail_old, change_old, growing = None, math.inf, 0
+        self.iterations_run = 0
+        for k in range(TAIL_FILL_ITERATIONS - 1):
             x = self.W(y)
             self.iterations_run = k + 1
-            if k == TAIL_FILL_ITERATIONS - 1:
-                break
             fill_zero(self.queue, x, offset_bytes=self.n_known * plane * item)
             hx = self.H(x)
             copy_rows(self.queue, hx, y, rows=self.n_ext - n, src_row=n, dst_row=n)
@@ -81,11 +117,14 @@ class TailFilledDeconvolution:
                 tail = np.array(yh[n:], dtype=np.float64)
             if tail_old is not None:
                 scale = max(float(np.linalg.norm(tail)), 1e-300)
-                if float(np.linalg.norm(tail - tail_old)) < TAIL_FILL_RTOL * scale:
-                    x = self.W(y)
-                    self.iterations_run = k + 2
+                change = float(np.linalg.norm(tail - tail_old))
+                if not np.isfinite(change):
+                    return y, True
+                growing = growing + 1 if change > change_old else 0
+                if growing >= 2:
+                    return y, True
+                if change < TAIL_FILL_RTOL * scale:
                     break
+                change_old = change
             tail_old = tail
-        # arrivals past n - peak are seen only by the rise of their response: not determined
-        fill_zero(self.queue, x, offset_bytes=self.n_known * plane * item)
-        return x[:n]
+        return y, False
