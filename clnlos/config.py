@@ -41,6 +41,9 @@ optional and its default is the field default of :class:`ReconstructionConfig`::
     tv_weight = 0.0              # iterative: TV weight relative to max(L^T I)
     depth_min_m = "auto"         # iterative: shallowest depth of the support, or "auto"
                                  # (the capture's first arrival minus DEPTH_GUARD_M)
+    slab_model = "influence"     # iterative: "influence" fits Phi o L to the deconvolved
+                                 # transient (Phi the slab Wiener filter's own smoothing,
+                                 # clnlos.inverse.iterative), "none" fits L (Wiener first)
 """
 
 from __future__ import annotations
@@ -74,6 +77,7 @@ FALLOFF_RANGE = (0.0, 8.0)        # radiometric exponent p
 ITERATIONS_RANGE = (0, 100_000)   # iterative: FISTA iterations
 WEIGHT_RANGE = (0.0, 1e3)         # iterative: relative L1 / TV weights, TV depth scale
 DEPTH_GUARD_M = 0.15  # "auto" support: first-arrival depth minus this (slab delay + noise)
+SLAB_MODELS = ("influence", "none")  # iterative: how the slab deconvolution enters the model
 MAX_BINS = 1 << 16    # time bins of a reconstructed volume at most (--bins and the window)
 
 # The one range table of the capture geometry (SI units): (low, high, low allowed). The flags,
@@ -103,6 +107,7 @@ TOML_FIELDS: dict[tuple[str, str], str] = {
     ("inversion", "l1_weight"): "l1_weight",
     ("inversion", "tv_weight"): "tv_weight",
     ("inversion", "depth_min_m"): "depth_min_m",
+    ("inversion", "slab_model"): "slab_model",
 }
 FIELD_NAMES = {f: f"{sec}.{key}" for (sec, key), f in TOML_FIELDS.items()}
 SLAB_KEYS = ("thickness_m", "mu_a", "mu_s_prime", "n", "ze_m", "n_dipoles")
@@ -267,6 +272,7 @@ class ReconstructionConfig:
     l1_weight: float | str = "auto"
     tv_weight: float = 0.0
     depth_min_m: float | str = "auto"
+    slab_model: str = "influence"
 
     def validate(self, names: dict[str, str] | None = None) -> ReconstructionConfig:
         """A validated copy. ``names`` maps field names to how the user gave them (a CLI
@@ -308,6 +314,7 @@ class ReconstructionConfig:
                 raise ParameterError(nm("depth_min_m"), self.depth_min_m,
                                      "\"auto\" or a depth in m from 0 to 1000")
             v["depth_min_m"] = real(nm("depth_min_m"), self.depth_min_m, 0.0, 1e3)
+        v["slab_model"] = choice(nm("slab_model"), self.slab_model, SLAB_MODELS)
         return dataclasses.replace(self, **v)
 
     def replace(self, **changes) -> ReconstructionConfig:

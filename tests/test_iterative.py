@@ -2,6 +2,8 @@
 independent solvers (scipy L-BFGS-B), light-cone transport vs the forward light-cone kernel,
 the noise estimate, and reconstructions through the slab."""
 
+from dataclasses import replace
+
 import numpy as np
 import pyopencl.array as cla
 import pytest
@@ -10,7 +12,10 @@ import scipy.sparse as sp
 from helpers import rel_l2
 
 from clnlos import C0
+from clnlos.bench.oracle import case_named, simulate_case
 from clnlos.config import ReconstructionConfig, slab_table
+from clnlos.errors import ParameterError
+from clnlos.forward.blur import slab_blur
 from clnlos.forward.geometry import Elements
 from clnlos.forward.lightcone import LightCone
 from clnlos.forward.model import ForwardModel
@@ -324,3 +329,55 @@ etendue_m2_sr = 1e-9
     assert main(["reconstruct", str(cap), "-o", str(out2), "--no-slab"]) == 0
     with h5py.File(out2) as f:
         assert "deconvolve" not in f.attrs["stages"]
+
+
+@pytest.mark.parametrize("snr", [1e2, 1e5])
+def test_slab_influence_is_the_wiener_filter_after_the_blur(queue, snr):
+    """Phi of SpectralFilter.influence against the two filters it stands for: for a
+    transient whose blur stays inside the grid (a 4 x 4 patch of early arrivals in the
+    middle of 0.56 m), W (B x) = B's DC gain * Phi x (float32 pair, within the blur's
+    0.1% left outside); Phi is self-adjoint, of norm < 1, and on fewer rows equals the
+    full one with those rows zero."""
+    shape, kw = (160, 28, 28), dict(bin_width_s=48e-12, pitch_m=0.02, queue=queue)
+    W = slab_blur(CDT_SLAB, shape, mode="wiener", snr=snr, **kw)
+    B = slab_blur(CDT_SLAB, shape, **kw)
+    phi = W.influence()
+    rng = np.random.default_rng(1)
+    x = np.zeros(shape, np.float32)
+    x[:16, 12:16, 12:16] = rng.random((16, 4, 4))
+    ref = W(B(x)) / B.dc_gain
+    assert rel_l2(phi(x), ref) < 5e-3
+    assert abs(dot_test(phi)) < 1e-5
+    noise = rng.random(shape).astype(np.float32)
+    assert np.linalg.norm(phi(noise)) < np.linalg.norm(noise)
+    short = W.influence(in_shape=(64,) + shape[1:])
+    xs = noise.copy()
+    xs[64:] = 0
+    np.testing.assert_allclose(short(noise[:64]), phi(xs)[:64], rtol=1e-4,
+                               atol=1e-5 * float(np.abs(phi(xs)).max()))
+    with pytest.raises(ParameterError, match="mode"):
+        B.influence()
+
+
+def test_slab_model_is_a_checked_choice():
+    assert ReconstructionConfig().validate().slab_model == "influence"
+    with pytest.raises(ParameterError, match="slab_model"):
+        ReconstructionConfig(slab_model="exact").validate()
+
+
+@pytest.mark.slow
+def test_slab_influence_in_the_model_recovers_a_deep_plus(queue):
+    """A '+' of 7.5 cm bars 0.7 m behind the CDT slab (24 x 24 scan of 0.5 m, 4e9 photons):
+    with the smoothing the slab deconvolution leaves in the model (Phi o L) the iterative
+    method's default reconstruction is at least 0.03 IoU above Wiener first (L alone; 0.73
+    against 0.80 on the oracle table's 32 x 32 case), at the same slab SNR."""
+    case = replace(case_named("plus 0.25 m, scan 0.5 m, 0.7 m deep, 0.5 s"), points=24)
+    cap, mask = simulate_case(case, queue)
+    base = ReconstructionConfig(slab=cap.recorded_slab()[0], method="iterative")
+    recs = {m: reconstruct(cap, base.replace(slab_model=m).validate(), device=queue)
+            for m in ("none", "influence")}
+    iou = {m: mip_iou(r.volume, mask)[0] for m, r in recs.items()}
+    assert recs["influence"].params["slab_model_used"] == "influence"
+    assert recs["none"].params["slab_model_used"] == "none"
+    assert recs["influence"].params["snr_used"] == recs["none"].params["snr_used"]
+    assert iou["influence"] >= iou["none"] + 0.03, iou

@@ -26,6 +26,13 @@ def test_every_method_has_the_one_constructor():
         assert inspect.signature(cls.__init__).parameters.keys() == base.parameters.keys()
 
 
+def test_every_method_configures_through_the_one_signature():
+    base = inspect.signature(Inversion.configure)
+    for name in methods.METHODS:
+        sig = inspect.signature(method_class(name).configure)
+        assert sig.parameters.keys() == base.parameters.keys(), name
+
+
 def test_config_and_cli_read_the_registry(monkeypatch):
     assert config_mod.METHOD_FALLOFF == {m: e.falloff for m, e in methods.METHODS.items()
                                          if e.falloff is not None}
@@ -48,7 +55,7 @@ class TimeAsDepth(Inversion):
 
     name = "time_as_depth"
 
-    def configure(self, tau_g, noise, rule_snr, timed, probe=None):
+    def configure(self, tau_g, noise, rule_snr, timed, probe=None, slab_influence=None):
         return {"time_as_depth": True}
 
     def __call__(self, tau_g, *, progress=None, setup=None):

@@ -1,6 +1,7 @@
 """The shared real CDT captures reconstructed with defaults (no SNR in the config: the
 auto rule of clnlos.inverse.gcv) against the published settings: the correlation of the two
-max-intensity projections per capture and method, with today's photon rule beside them.
+max-intensity projections per capture and method, with today's photon rule beside them
+(and, for the iterative method, its Wiener-first model at the published settings).
 Writes tools/results/real_cdt_defaults.{csv,json} and real_cdt_defaults.png (the MIPs).
 
     .venv/bin/python tools/real_cdt_defaults.py [--shared ../shared/data] [--device P:D]
@@ -51,13 +52,18 @@ def main(argv=None) -> int:
             old = combined_snr(dflt.noise["snr"], dflt.params["model_snr_used"])
             today = reconstruct(cap, dflt_cfg.replace(snr=old, inversion_snr=lightcone_snr(
                 old)).validate(), device=a.device)
+            # the iterative method's former model (Wiener first) at the published settings
+            first = (mip_correlation(reconstruct(cap, published.replace(
+                method=m, slab_model="none").validate(), device=a.device).volume, pub.volume)
+                if m == "iterative" else None)
             rows.append({"capture": cap_name, "method": m,
                          "corr_default": mip_correlation(dflt.volume, pub.volume),
                          "corr_today": mip_correlation(today.volume, pub.volume),
                          "default_snr": dflt.params["snr_used"],
                          "default_inversion_snr": dflt.params.get("inversion_snr_used"),
                          "today_snr": old, "published_snr": published.snr,
-                         "published_inversion_snr": published.inversion_snr})
+                         "published_inversion_snr": published.inversion_snr,
+                         "corr_wiener_first": first})
             mips.append((f"{cap_name} {m}", pub.volume.max(axis=0), dflt.volume.max(axis=0)))
             r = rows[-1]
             print(f"{cap_name} {m}: corr(default, published) {r['corr_default']:.3f}, "

@@ -37,6 +37,7 @@ from clnlos.brdf.texture import MAX_NODES, MIN_NODES, tabulate, write_texture
 from clnlos.checks import integer
 from clnlos.config import (
     DEPTH_GUARD_M,
+    SLAB_MODELS,
     ReconstructionConfig,
     check_geometry,
     check_light_in_window,
@@ -96,7 +97,8 @@ RECON_FLAGS = {"scan_width": ("scan_width_m", "--scan-width"),
                "iterations": ("iterations", "--iterations"),
                "tv_weight": ("tv_weight", "--tv-weight"),
                "l1_weight": ("l1_weight", "--l1-weight"),
-               "depth_min": ("depth_min_m", "--depth-min")}
+               "depth_min": ("depth_min_m", "--depth-min"),
+               "slab_model": ("slab_model", "--slab-model")}
 SLAB_FLAGS = {"slab_thickness": ("thickness_m", "--slab-thickness"), "mu_a": ("mu_a", "--mu-a"),
               "mu_s_prime": ("mu_s_prime", "--mu-s-prime"), "n": ("n", "--n")}
 
@@ -243,6 +245,11 @@ def register_reconstruct(sub, add_device) -> None:
                    help="iterative: shallowest depth of the volume (m), or auto: the "
                         f"capture's first arrival less {DEPTH_GUARD_M:g} m "
                         f"(default {C.depth_min_m})")
+    r.add_argument("--slab-model", choices=SLAB_MODELS,
+                   help="iterative: influence fits (Wiener filter o slab blur) o light cone "
+                        "to the deconvolved transient, modelling the smoothing the slab "
+                        "deconvolution leaves; none fits the light cone alone (Wiener first) "
+                        f"(default {C.slab_model})")
     slab = ("(default: the config's [slab]; with no slab flag and no [slab], the slab a "
             "clnlos capture recorded)")
     r.add_argument("--slab-thickness", type=float, help=f"slab thickness (m) {slab}")

@@ -263,7 +263,8 @@ class LCTMethod(Inversion):
         self.lct = LCT(grid.shape, snr=initial_inversion_snr(config), **self.falloff(),
                        **self.geometry(), cache=cache)
 
-    def configure(self, tau_g, noise, rule_snr: float, timed, probe=None) -> dict:
+    def configure(self, tau_g, noise, rule_snr: float, timed, probe=None,
+                  slab_influence=None) -> dict:
         snr, rule = choose_lightcone_snr(self.lct, self.config, noise, tau_g, rule_snr, timed,
                                          probe)
         self.lct.set_snr(snr)

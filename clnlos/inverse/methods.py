@@ -10,12 +10,15 @@ scratch=None, cache=None)``:
 * ``dtype``/``queue``: precision and OpenCL queue; ``scratch``/``cache``: work buffers shared
   with the pipeline's other stages and the optional on-disk spectrum cache.
 
-``configure(tau_g, noise, rule_snr, timed, probe=None) -> dict`` sets what the method
-chooses from the data (e.g. the light-cone SNR by the unbiased predictive risk or
-cross-validation, :mod:`clnlos.inverse.gcv`; ``rule_snr`` is the photon rule's value,
+``configure(tau_g, noise, rule_snr, timed, probe=None, slab_influence=None) -> dict`` sets
+what the method chooses from the data (e.g. the light-cone SNR by the unbiased predictive
+risk or cross-validation, :mod:`clnlos.inverse.gcv`; ``rule_snr`` is the photon rule's value,
 :func:`clnlos.inverse.snr.lightcone_snr`; ``probe()`` a realisation of the noise of
-``tau_g`` for photon counts, None otherwise) and returns the parameters it chose (recorded
-in the volume's ``params``); ``timed(name, fn, *args)`` runs a step and records its time.
+``tau_g`` for photon counts, None otherwise; ``slab_influence()`` the slab deconvolution's
+influence operator on ``tau_g``'s grid, :meth:`clnlos.operators.spectral.SpectralFilter.
+influence`, for a method that models what the deconvolution leaves, None without a slab)
+and returns the parameters it chose (recorded in the volume's ``params``);
+``timed(name, fn, *args)`` runs a step and records its time.
 ``__call__(tau_g, *, progress=None, setup=None)`` returns the volume [z, y, x] on the
 device; ``report()`` what the solver did (or None); ``used()`` parameters settled during
 the call (recorded in ``params``).
@@ -97,7 +100,8 @@ class Inversion:
         """``{"falloff": x}`` when the config sets one, else ``{}`` (the method's default)."""
         return {} if self.config.falloff is None else {"falloff": self.config.falloff}
 
-    def configure(self, tau_g, noise, rule_snr: float, timed, probe=None) -> dict:
+    def configure(self, tau_g, noise, rule_snr: float, timed, probe=None,
+                  slab_influence=None) -> dict:
         return {}
 
     def __call__(self, tau_g, *, progress=None, setup=None):

@@ -40,11 +40,22 @@ Joint choices measured and rejected (lct_low_exposure_criteria.csv):
 UPRE of the composed estimate on the raw data (slab blur o light-cone transport of the LCT
 volume; flat in the slab SNR, picks light-cone SNRs of 10-100: worse on 7 of 8 table cases), a
 light-cone risk against a deep-deconvolution reference, and the solution-domain risk of the
-light-cone filter (the dead frequencies' noise dominates it). The iterative method and f-k
-with the same slab SNR are within 0.02 of their oracle there. The iterative method's worst
-gap (0.055, the 0.7 m deep '+') has the same cause (iterative_plus_diagnosis.csv): at GCV's
-slab SNR 5.6e4 it scores 0.747, at 1e5 0.798 (the oracle 0.802), at 3e5 0.826; the warm
-start's light-cone SNR (1e4 against 1e2-1e3) moves it by 0.01.
+light-cone filter (the dead frequencies' noise dominates it). Measured since and rejected
+as well: the solution-domain risk of the slab filter (its minimum at the grid's floor, 1e2,
+at the seed geometry), the oracle per-frequency Wiener filter knowing the true signal
+spectrum (LCT IoU 0.12 against 0.52 for GCV's scalar filter at 1e7 photons), the L-curve
+corner (no corner on the 'S'), the one-standard-error rule on either risk (the risk
+curves are sharper than a grid step: it moves nothing) and wider time bins (2x: LCT +0.05,
+iterative -0.05 at 1e7 photons; 4x: both lower). The predictive risks are estimated
+correctly (slab stage: GCV = UPRE, within two steps of 16 per decade of the true
+predictive optimum on 5 captures; light-cone stage: UPRE = the true optimum on 6); LCT's IoU at the seed geometry is not a predictive-risk optimum: there the
+letters are not resolved at any setting, the oracle's image is a centred blob and the auto
+one a blob with bright arcs at the scan border. f-k with the same slab SNR is within 0.02
+of its oracle there. The iterative method's former worst gap (0.055, the 0.7 m deep '+',
+iterative_plus_diagnosis.csv) came from the same shallow slab deconvolution taken as the
+slab-free transient; it now fits the deconvolution's own smoothing
+(``slab_model = "influence"``, :mod:`clnlos.inverse.iterative`): 0.80 against an oracle of
+0.81 at GCV's slab SNR.
 On noise-free data (:attr:`clnlos.inverse.snr.NoiseEstimate.noise_free`: nothing to
 cross-validate against) the rule of :mod:`clnlos.inverse.snr` stands in, which there gives the
 caps SNR_MAX and LIGHTCONE_SNR_MAX (it is also what :func:`auto_snrs` gives when no data
@@ -350,9 +361,11 @@ class ReconstructionPipeline:
         method = self.config.method
         probe = (NoiseProbe(lambda: self._noise_like(transient, scale, deconv, snr))
                  if noise.photon_counts and not noise.noise_free else None)
+        influence = (None if self.deconv is None else
+                     lambda: self._slab_influence(snr))
         params.update(self.invert.configure(
             tau, noise, inv_snr, lambda name, fn, *a: self._timed(timings, name, fn, *a),
-            probe))
+            probe, influence))
         vol = self._timed(timings, f"invert:{method}", self.invert, tau, progress=progress,
                           setup=setup)
         solve = self.invert.report()
@@ -368,6 +381,14 @@ class ReconstructionPipeline:
                               stages=list(self.stages), timings_s=timings, params=params,
                               transient=tau.get() if keep_transient else None, extents=extents,
                               noise=noise.as_dict(), solver=solve, notes=notes)
+
+    def _slab_influence(self, snr: float):
+        """The influence Phi of the slab's Wiener filter at ``snr`` on the inverted
+        transient's grid (guard bins dropped: the rows past the volume are zero;
+        :meth:`clnlos.operators.spectral.SpectralFilter.influence`). For a tail-filled window
+        it is the plain filter's: the fill restores the unseen tail the filter then sees."""
+        self.deconv.set_snr(snr)
+        return self.deconv.influence(in_shape=self.shape)
 
     def _noise_like(self, transient: np.ndarray, scale: float, deconv, snr: float
                     ) -> cla.Array:

@@ -199,6 +199,21 @@ class SpectralFilter(LinearOperator):
         w, ky = np.arange(n0), np.arange(n1)
         return g[np.minimum(w, n0 - w)][:, np.minimum(ky, n1 - ky)]
 
+    def influence(self, in_shape=None) -> SpectralFilter:
+        """The Wiener filter's influence ("hat") operator: this filter applied after the blur
+        it inverts, phi_k = |h H_k|^2 / (|h H_k|^2 + 1/SNR) (real, in [0, 1)), as a
+        zero-padded convolution on this filter's grid for volumes of ``in_shape`` (default
+        its own; fewer rows: the data end there, the rows past them zero). Self-adjoint,
+        norm below 1; the SNR is the one set now (``mode="wiener"`` only)."""
+        if self.mode != "wiener":
+            raise ParameterError("mode", self.mode, "'wiener' (a filter with an influence)")
+        g = self.gain_squared()
+        phi = np.ascontiguousarray((g / (g + self.inv_snr)).astype(self.fft.cdtype))
+        return SpectralFilter(self.pad_shape, self.in_shape if in_shape is None else in_shape,
+                              mode="convolve", normalize=False, lateral_pad="zero",
+                              dtype=self.dtype, queue=self.queue,
+                              spectrum=cla.to_device(self.queue, phi), scratch=self.scratch)
+
     def power_spectrum(self, x_g: cla.Array | None = None, *, write_input=None,
                        nonzero=None) -> np.ndarray:
         """|F[pad(x)]|^2 on the half-spectrum grid (host, float32): the power spectrum of
