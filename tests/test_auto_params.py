@@ -310,3 +310,21 @@ def test_lct_auto_monotone_at_the_seed_geometry(queue):
                           queue=queue)
     summary = sweep_summary(rows)
     assert all(r["monotone"] for r in summary), summary
+
+
+@pytest.mark.slow
+def test_slab_influence_in_the_model_recovers_a_deep_plus(queue):
+    """A '+' of 7.5 cm bars 0.7 m behind the CDT slab (24 x 24 scan of 0.5 m, 4e9 photons):
+    with the smoothing the slab deconvolution leaves in the model (Phi o L) the iterative
+    method's default reconstruction is at least 0.03 IoU above Wiener first (L alone; 0.73
+    against 0.80 on the oracle table's 32 x 32 case), at the same slab SNR."""
+    case = replace(case_named("plus 0.25 m, scan 0.5 m, 0.7 m deep, 0.5 s"), points=24)
+    cap, mask = simulate_case(case, queue)
+    base = ReconstructionConfig(slab=cap.recorded_slab()[0], method="iterative")
+    recs = {m: reconstruct(cap, base.replace(slab_model=m).validate(), device=queue)
+            for m in ("none", "influence")}
+    iou = {m: mip_iou(r.volume, mask)[0] for m, r in recs.items()}
+    assert recs["influence"].params["slab_model_used"] == "influence"
+    assert recs["none"].params["slab_model_used"] == "none"
+    assert recs["influence"].params["snr_used"] == recs["none"].params["snr_used"]
+    assert iou["influence"] >= iou["none"] + 0.03, iou
