@@ -8,9 +8,10 @@ slab SNRs alone). The iterative method's L1 weight is "auto" (from the noise,
 :mod:`clnlos.inverse.iterative`) in the auto and the grid runs, today's constant FIXED_L1_WEIGHT in
 the "today" run, which is also Wiener first (``slab_model = "none"``: the deconvolved
 transient fitted as the slab-free one; auto and the grid fit the slab filter's influence,
-:mod:`clnlos.inverse.iterative`). The oracle is the best IoU of the grid (Otsu-thresholded MIP against the
-true mask, :func:`clnlos.study.metrics.mip_iou`); the gap is oracle minus auto. Only the slab
-recorded in the capture is used, as ``clnlos reconstruct`` does with no slab flags.
+:mod:`clnlos.inverse.iterative`). The oracle is the best IoU of the grid (Otsu-thresholded
+MIP against the true mask, :func:`clnlos.study.metrics.mip_iou`); the gap is oracle minus
+auto. Only the slab recorded in the capture is used, as ``clnlos reconstruct`` does with no
+slab flags.
 
 :func:`oracle_rows` gives one row per capture and method, :func:`exposure_sweep` the auto IoU
 over a range of exposures and noise seeds (auto must not get worse with more photons), and

@@ -48,8 +48,9 @@ corner (no corner on the 'S'), the one-standard-error rule on either risk (the r
 curves are sharper than a grid step: it moves nothing) and wider time bins (2x: LCT +0.05,
 iterative -0.05 at 1e7 photons; 4x: both lower). The predictive risks are estimated
 correctly (slab stage: GCV = UPRE, within two steps of 16 per decade of the true
-predictive optimum on 5 captures; light-cone stage: UPRE = the true optimum on 6); LCT's IoU at the seed geometry is not a predictive-risk optimum: there the
-letters are not resolved at any setting, the oracle's image is a centred blob and the auto
+predictive optimum on 5 captures; light-cone stage: UPRE = the true optimum on 6); LCT's
+IoU at the seed geometry is not a predictive-risk optimum: there the letters are not
+resolved at any setting, the oracle's image is a centred blob and the auto
 one a blob with bright arcs at the scan border. f-k with the same slab SNR is within 0.02
 of its oracle there. The iterative method's former worst gap (0.055, the 0.7 m deep '+',
 iterative_plus_diagnosis.csv) came from the same shallow slab deconvolution taken as the
