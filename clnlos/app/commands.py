@@ -582,7 +582,7 @@ def register_bench(sub, add_device) -> None:
     b = sub.add_parser("bench", help="accuracy versus time of every kernel knob (bench.json, "
                                      "bench.html)")
     g = b.add_mutually_exclusive_group()
-    g.add_argument("--quick", action="store_true", help="under 5 minutes on 2 CPU cores")
+    g.add_argument("--quick", action="store_true", help="about 6 minutes on 2 CPU cores")
     g.add_argument("--tiny", action="store_true", help=argparse.SUPPRESS)
     b.add_argument("-o", "--output", default="out/bench",
                    help="output folder: bench.json and bench.html (default %(default)s)")

@@ -64,7 +64,7 @@ def main(argv=None) -> dict:
     ap.add_argument("--device", default=None)
     ap.add_argument("-o", "--out", default="out/bench", type=Path)
     g = ap.add_mutually_exclusive_group()
-    g.add_argument("--quick", action="store_true", help="under 5 minutes on 2 CPU cores")
+    g.add_argument("--quick", action="store_true", help="about 6 minutes on 2 CPU cores")
     g.add_argument("--tiny", action="store_true", help="seconds; for tests")
     ap.add_argument("--only", default=",".join(SECTIONS), help=ONLY_HELP + " (default: all)")
     ap.add_argument("--brdf-data", default=None, type=Path,

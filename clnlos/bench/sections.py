@@ -415,10 +415,16 @@ def bench_iterative(b: Bench):
         cap = fm.capture()
         cover = np.clip(coverage_image(fm.samples.elements, scene.scan_centres()), 0, 1)
         mask = cover >= 0.5
-        settings = [("lct", None), ("fk", None)] + [("iterative", k) for k in iters]
-        for method, k in settings:
+        # the iterative method at each iteration count with the default slab model, and at
+        # the largest with Wiener first (slab_model "none": the knob's accuracy and cost)
+        settings = ([("lct", None, None), ("fk", None, None)]
+                    + [("iterative", k, None) for k in iters] + [("iterative", iters[-1], "none")])
+        for method, k, slab_model in settings:
+            extra = {"iterations": k} if k else {}
+            if slab_model:
+                extra["slab_model"] = slab_model
             cfg = ReconstructionConfig(max_path_m=1.6, slab=CDT_SLAB, method=method,
-                                       **({"iterations": k} if k else {})).validate()
+                                       **extra).validate()
 
             def run(cfg=cfg, cap=cap):
                 return reconstruct(cap, cfg, device=b.q)
@@ -429,7 +435,9 @@ def bench_iterative(b: Bench):
             mip = mip / mip.max() if mip.max() > 0 else mip
             depth = peak_depth_m(rec.volume, rec.extents["voxel_depth_m"])
             b.add("inversion_quality", f"method@{'photon-noise' if noise else 'noise-free'}",
-                  method if k is None else f"iterative@{k}", np.float32, run, 1.0 - iou,
+                  method if k is None else f"iterative@{k}" + (f"/{slab_model}"
+                                                                  if slab_model else ""),
+                  np.float32, run, 1.0 - iou,
                   error_kind="1 - IoU", iou=iou, depth_error_m=abs(depth - 0.5),
                   mip_rel_l2=_rel(mip, cover), iterations=k or 0,
                   grid=f"{points}x{points}x{rec.volume.shape[0]}")
