@@ -43,15 +43,15 @@ I takes that smoothing for light from the hidden side; the default fits
 
     min_{rho >= 0}  1/2 || Phi L rho - W tau ||^2  +  l1 sum(rho)  +  tv TV(rho),
 
-the slab inside the model, B L, with the Wiener filter as the left preconditioner (W B L
-rho against W tau): Phi is real and below 1, so the problem keeps the conditioning and the
-step size of L alone, where least squares on B L rho - tau converged far slower (issue 24:
-0.57 IoU after 84 s against 0.82 in 8 s). It costs one more filter pair per iteration
-(about 2x the time). On the oracle table (:mod:`clnlos.bench.oracle`, one noise seed) it
-raised the IoU on 7 of 10 captures (the 0.7 m deep '+' 0.73 -> 0.80, the 0.8 m deep 'UT'
-0.72 -> 0.75, the wide 'UT' 0.91 -> 0.94) and lowered it on the three seed-geometry captures
-at 1e7-6e8 photons (0.65 -> 0.60 at 1e7), where neither reads the letters. ``"none"`` is
-Wiener first (L alone), the method before. For a tail-filled window
+the slab inside the model, B L, with the Wiener filter as the left preconditioner (W B L rho
+against W tau): Phi is real with norm below 1, so the step size of L alone stays valid (no
+power iteration of its own), where least squares on B L rho - tau converged far slower
+(issue 24: 0.57 IoU after 84 s against 0.82 in 8 s). It costs one more filter pair per
+iteration (about 2x the time). On the oracle table (:mod:`clnlos.bench.oracle`, one noise
+seed) it raised the IoU on 7 of 10 captures (the 0.7 m deep '+' 0.73 -> 0.80, the 0.8 m deep
+'UT' 0.72 -> 0.75, the wide 'UT' 0.91 -> 0.94) and lowered it on the three seed-geometry
+captures at 1e7-6e8 photons (0.65 -> 0.60 at 1e7), where neither reads the letters.
+``"none"`` is Wiener first (L alone), the method before. For a tail-filled window
 (:mod:`clnlos.inverse.tail_fill`) Phi is the plain filter's.
 
 Left out: the surface orientation (voxels face the scan plane), BRDFs other than Lambertian,

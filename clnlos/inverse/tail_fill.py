@@ -48,7 +48,8 @@ class TailFilledDeconvolution:
     Measured there, the fill's error against the true tail is 0.6% at SNR 1e4, 1.3% at 1e5,
     1.4% at 1e6; from 1e7 it diverges. Should the fill still diverge (a change larger than
     its first), its SNR is lowered tenfold and the fill restarted, down to
-    TAIL_FILL_SNR_MIN; ``fill_snr`` records the SNR the fill ran at.
+    TAIL_FILL_SNR_MIN (diverging there too, the tail is left zero); ``fill_snr`` records
+    the SNR the fill ran at.
     """
 
     name = "tail_filled_wiener"
@@ -82,7 +83,10 @@ class TailFilledDeconvolution:
         fill_snr = min(self.snr, TAIL_FILL_SNR)
         while True:
             y, diverged = self._fill(tau_g, fill_snr)
-            if not diverged or fill_snr <= TAIL_FILL_SNR_MIN:
+            if not diverged:
+                break
+            if fill_snr <= TAIL_FILL_SNR_MIN:  # no fill to trust: the window as it is
+                fill_zero(self.queue, y, offset_bytes=n * plane * item)
                 break
             fill_snr = max(fill_snr / 10.0, TAIL_FILL_SNR_MIN)
         self.fill_snr = fill_snr
