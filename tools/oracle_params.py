@@ -7,6 +7,8 @@ tools/results/exposure_sweep.{csv,json} and prints the worst gaps.
         [--seeds S ...]   (the table over these noise seeds, with mean and spread:
                            tools/results/oracle_seeds{,_summary}.{csv,json}; with --update
                            the rows of other cases and methods are kept)
+        [--holdout]       (HOLDOUT_CASES instead of ORACLE_CASES, with --seeds:
+                           tools/results/oracle_holdout{,_summary}.{csv,json})
 """
 
 from __future__ import annotations
@@ -16,6 +18,7 @@ import json
 from pathlib import Path
 
 from clnlos.bench.oracle import (
+    HOLDOUT_CASES,
     METHODS,
     ORACLE_CASES,
     SWEEP_CASE,
@@ -32,7 +35,7 @@ RESULTS = Path(__file__).resolve().parent / "results"
 
 def _ordered(rows: list[dict]) -> list[dict]:
     """Rows in the order of ORACLE_CASES, then METHODS, then seed."""
-    order = {c.name: i for i, c in enumerate(ORACLE_CASES)}
+    order = {c.name: i for i, c in enumerate(ORACLE_CASES + HOLDOUT_CASES)}
     return sorted(rows, key=lambda r: (order.get(r["capture"], len(order)),
                                        METHODS.index(r["method"]), r.get("seed", 0)))
 
@@ -53,13 +56,17 @@ def main(argv=None) -> None:
                     help="the table over these noise seeds (mean and spread per row)")
     ap.add_argument("--no-grid", action="store_true",
                     help="with --seeds: auto and today only, no oracle grid")
+    ap.add_argument("--holdout", action="store_true",
+                    help="with --seeds: the held-out cases (HOLDOUT_CASES)")
     args = ap.parse_args(argv)
+    if args.holdout and args.seeds is None:
+        ap.error("--holdout needs --seeds")
     if args.seeds is not None:
-        cases = [c for c in ORACLE_CASES
-                 if not args.case or any(s in c.name for s in args.case)]
+        pool = HOLDOUT_CASES if args.holdout else ORACLE_CASES
+        cases = [c for c in pool if not args.case or any(s in c.name for s in args.case)]
         rows = oracle_rows(cases, args.methods, iterations=args.iterations, seeds=args.seeds,
                            grid=not args.no_grid, queue=args.device)
-        stem = RESULTS / "oracle_seeds"
+        stem = RESULTS / ("oracle_holdout" if args.holdout else "oracle_seeds")
         if args.update and stem.with_suffix(".json").is_file():
             new = {(r["capture"], r["method"]) for r in rows}
             kept = [r for r in json.loads(stem.with_suffix(".json").read_text())
@@ -67,7 +74,7 @@ def main(argv=None) -> None:
             rows = _ordered(kept + rows)
         print("wrote", *write_rows(rows, stem))
         summary = seed_spread(rows)
-        print("wrote", *write_rows(summary, RESULTS / "oracle_seeds_summary"))
+        print("wrote", *write_rows(summary, stem.with_name(stem.name + "_summary")))
         for r in summary:
             oracle = ("" if r["oracle_iou_mean"] is None else
                       f" oracle {r['oracle_iou_mean']:.3f} gap {r['gap_mean']:+.3f}")

@@ -22,6 +22,7 @@ from clnlos import C0
 from clnlos.config import METHOD_FALLOFF
 from clnlos.inverse.lct import check_inversion_args
 from clnlos.inverse.methods import Inversion, InversionGrid
+from clnlos.inverse.snr import CLOSED_FORM_SLAB_SNR_MIN
 from clnlos.runtime.buffers import Scratch, fill_zero, kernel_int, round_up
 from clnlos.runtime.device import get_queue, require_dtype
 from clnlos.runtime.fft import ComplexFFT3, RealFFT3
@@ -90,9 +91,11 @@ class FKMigration:
 
 class FKMethod(Inversion):
     """``method = "fk"`` (:class:`FKMigration` behind the inversion contract of
-    :mod:`clnlos.inverse.methods`; nothing is chosen from the data)."""
+    :mod:`clnlos.inverse.methods`; nothing of its own is chosen from the data, its slab SNR
+    has the floor CLOSED_FORM_SLAB_SNR_MIN)."""
 
     name = "fk"
+    slab_snr_min = CLOSED_FORM_SLAB_SNR_MIN  # Phi not modelled (clnlos.inverse.pipeline)
 
     def __init__(self, grid: InversionGrid, config, *, dtype, queue, scratch=None,
                  cache=None):

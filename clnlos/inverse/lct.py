@@ -18,6 +18,10 @@ Input: transient [t, y, x], bin 0 starting at t = 0 (round trip from the scan pl
 of ``bin_width_s``, scan of width ``scan_width_m`` (cell centres). Output: albedo volume
 [z, y, x], depth bin k covering [k, k+1) * c * bin_width_s / 2, same lateral grid.
 Left out: surface normals and BRDF (assumed isotropic scatterers), occlusions.
+Behind a slab the input is the slab's Wiener deconvolution, whose leftover smoothing this
+closed form cannot model (it acts in t, the light cone in v): :class:`LCTMethod` asks the
+pipeline for a deeper one than cross-validation's (CLOSED_FORM_SLAB_SNR_MIN,
+:mod:`clnlos.inverse.pipeline`).
 """
 
 from __future__ import annotations
@@ -32,7 +36,12 @@ from clnlos.config import FALLOFF_RANGE, METHOD_FALLOFF
 from clnlos.errors import ParameterError, ShapeError
 from clnlos.inverse.gcv import GcvBins
 from clnlos.inverse.methods import Inversion, InversionGrid
-from clnlos.inverse.snr import LIGHTCONE_RULE, LIGHTCONE_SNR_MAX, LIGHTCONE_SNR_MIN
+from clnlos.inverse.snr import (
+    CLOSED_FORM_SLAB_SNR_MIN,
+    LIGHTCONE_RULE,
+    LIGHTCONE_SNR_MAX,
+    LIGHTCONE_SNR_MIN,
+)
 from clnlos.operators.base import LinearOperator
 from clnlos.operators.resample import AxisResample, overlap_matrix
 from clnlos.operators.spectral import SpectralFilter
@@ -256,6 +265,7 @@ class LCTMethod(Inversion):
     :mod:`clnlos.inverse.methods`)."""
 
     name = "lct"
+    slab_snr_min = CLOSED_FORM_SLAB_SNR_MIN  # Phi not modelled (clnlos.inverse.pipeline)
 
     def __init__(self, grid: InversionGrid, config, *, dtype, queue, scratch=None,
                  cache=None):

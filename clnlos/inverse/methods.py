@@ -85,6 +85,10 @@ class Inversion:
     """Base of the methods (see the module docstring); ``name`` is the registry key."""
 
     name = ""
+    # the least slab Wiener SNR the method takes where the pipeline chooses it from the data
+    # (None: the cross-validated one as it is); a method that takes the deconvolved transient
+    # for the slab-free one asks for a deeper deconvolution (clnlos.inverse.pipeline)
+    slab_snr_min: float | None = None
 
     def __init__(self, grid: InversionGrid, config, *, dtype, queue, scratch=None,
                  cache=None):
