@@ -34,7 +34,7 @@ RESULTS = Path(__file__).resolve().parent / "results"
 
 
 def _ordered(rows: list[dict]) -> list[dict]:
-    """Rows in the order of ORACLE_CASES, then METHODS, then seed."""
+    """Rows in the order of ORACLE_CASES and HOLDOUT_CASES, then METHODS, then seed."""
     order = {c.name: i for i, c in enumerate(ORACLE_CASES + HOLDOUT_CASES)}
     return sorted(rows, key=lambda r: (order.get(r["capture"], len(order)),
                                        METHODS.index(r["method"]), r.get("seed", 0)))

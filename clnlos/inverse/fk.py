@@ -96,6 +96,7 @@ class FKMethod(Inversion):
 
     name = "fk"
     slab_snr_min = CLOSED_FORM_SLAB_SNR_MIN  # Phi not modelled (clnlos.inverse.pipeline)
+    slab_snr_toward_photons = True  # nothing regularised after the slab stage (ditto)
 
     def __init__(self, grid: InversionGrid, config, *, dtype, queue, scratch=None,
                  cache=None):

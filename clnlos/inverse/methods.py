@@ -89,6 +89,9 @@ class Inversion:
     # (None: the cross-validated one as it is); a method that takes the deconvolved transient
     # for the slab-free one asks for a deeper deconvolution (clnlos.inverse.pipeline)
     slab_snr_min: float | None = None
+    # whether the method's slab SNR moves from GCV's pick towards the photon rule's (their
+    # geometric mean where the photon rule's is higher): f-k, which regularises nothing itself
+    slab_snr_toward_photons: bool = False
 
     def __init__(self, grid: InversionGrid, config, *, dtype, queue, scratch=None,
                  cache=None):

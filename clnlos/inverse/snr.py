@@ -53,8 +53,8 @@ SNR_MAX = 1e10
 LIGHTCONE_SNR_MAX = 1e4
 LIGHTCONE_RULE = "upre"  # light-cone SNR of photon counts: "upre" (noise known) or "gcv"
 LIGHTCONE_SNR_MIN = 10.0  # lower end of the light-cone SNRs cross-validation tries
-# the least slab SNR, where it is chosen from the data, of the methods that take the
-# deconvolved transient for the slab-free one (LCT, f-k; :mod:`clnlos.inverse.pipeline`)
+# the least slab SNR, where it is chosen from the data, of a method that takes the deconvolved
+# transient for the slab-free one (Inversion.slab_snr_min; :mod:`clnlos.inverse.pipeline`)
 CLOSED_FORM_SLAB_SNR_MIN = 3e5
 LEAD_FRACTION = 0.05  # the first 5% of the window estimates the background (if signal-free)
 ARRIVAL_SIGMAS = 6.0  # a bin holds signal when above background by this many std
