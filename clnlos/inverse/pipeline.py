@@ -383,9 +383,10 @@ class ReconstructionPipeline:
             params["snr_used"] = snr
             if gcv_snr is not None:
                 params["snr_data"] = gcv_snr  # cross-validation's, before the model's share
-                if data_snr != gcv_snr or self.invert.slab_snr_min is not None:
-                    params["slab_snr_min"] = self.invert.slab_snr_min  # the method's rule
-                    params["slab_snr_raised"] = data_snr != gcv_snr    # and if it acted
+                inv = self.invert
+                if inv.slab_snr_min is not None or inv.slab_snr_toward_photons:  # a rule
+                    params["slab_snr_min"] = inv.slab_snr_min
+                    params["slab_snr_raised"] = data_snr != gcv_snr  # and if it acted
             params["model_snr_used"] = model_snr
             tau = self._timed(timings, "deconvolve", deconv, tau)
             if isinstance(deconv, TailFilledDeconvolution):
