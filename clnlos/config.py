@@ -22,6 +22,11 @@ optional and its default is the field default of :class:`ReconstructionConfig`::
     snr = "auto"                 # Wiener SNR of the slab deconvolution, or "auto": chosen
                                  # from the capture by cross-validation (clnlos.inverse.gcv), with
                                  # model_snr
+    snr_rule = "gcv"             # how "auto" picks it: "gcv" (cross-validation of the slab
+                                 # stage alone) or "thinning" (iterative: GCV's pick or a
+                                 # deeper one, whichever reconstruction of half the photons
+                                 # best predicts the other half, clnlos.inverse.thinning;
+                                 # one reconstruction of half the data per candidate)
     model_snr = "auto"           # accuracy of the slab model as an SNR; "auto": exact for a
                                  # capture clnlos simulated with this slab, else
                                  # clnlos.inverse.snr.MEASURED_MODEL_SNR
@@ -77,6 +82,7 @@ FALLOFF_RANGE = (0.0, 8.0)        # radiometric exponent p
 ITERATIONS_RANGE = (0, 100_000)   # iterative: FISTA iterations
 WEIGHT_RANGE = (0.0, 1e3)         # iterative: relative L1 / TV weights, TV depth scale
 DEPTH_GUARD_M = 0.15  # "auto" support: first-arrival depth minus this (slab delay + noise)
+SNR_RULES = ("gcv", "thinning")  # how an "auto" slab SNR is chosen (clnlos.inverse.pipeline)
 SLAB_MODELS = ("influence", "none")  # iterative: how the slab deconvolution enters the model
 MAX_BINS = 1 << 16    # time bins of a reconstructed volume at most (--bins and the window)
 
@@ -97,6 +103,7 @@ TOML_FIELDS: dict[tuple[str, str], str] = {
     ("preprocess", "bins"): "bins",
     ("preprocess", "normalize"): "normalize",
     ("deconvolution", "snr"): "snr",
+    ("deconvolution", "snr_rule"): "snr_rule",
     ("deconvolution", "model_snr"): "model_snr",
     ("deconvolution", "guard_fraction"): "guard_fraction",
     ("deconvolution", "lateral_pad"): "lateral_pad",
@@ -262,6 +269,7 @@ class ReconstructionConfig:
     slab: Slab | None = None
     n_dipoles: int | None = None
     snr: float | str = "auto"
+    snr_rule: str = "gcv"
     model_snr: float | str = "auto"
     guard_fraction: float = 0.25
     lateral_pad: str = "mirror"
@@ -296,6 +304,11 @@ class ReconstructionConfig:
             v["n_dipoles"] = integer(nm("n_dipoles"), self.n_dipoles, 0, 10000)
         v["normalize"] = choice(nm("normalize"), self.normalize, ("max", "sum", "none"))
         v["snr"] = auto_or_positive(nm("snr"), self.snr, upper=1e30)
+        v["snr_rule"] = choice(nm("snr_rule"), self.snr_rule, SNR_RULES)
+        if v["snr_rule"] == "thinning" and self.method != "iterative":
+            raise ParameterError(nm("snr_rule"), self.snr_rule,
+                                 "\"gcv\" (\"thinning\" needs a method with a forward model "
+                                 "to predict the held-out photons: method \"iterative\")")
         v["model_snr"] = auto_or_positive(nm("model_snr"), self.model_snr, upper=1e30)
         v["guard_fraction"] = positive(nm("guard_fraction"), self.guard_fraction,
                                        allow_zero=True, upper=4.0)

@@ -50,7 +50,8 @@ def main(argv=None) -> None:
     ap.add_argument("--case", action="append", default=[],
                     help="only the cases whose name contains this (repeatable)")
     ap.add_argument("--update", action="store_true",
-                    help="replace these cases' rows in the existing table, keep the others")
+                    help="replace these cases' rows in the existing table (with --seeds: "
+                         "these seeds' rows), keep the others")
     ap.add_argument("--methods", nargs="+", default=list(METHODS), choices=METHODS)
     ap.add_argument("--seeds", nargs="+", type=int, default=None,
                     help="the table over these noise seeds (mean and spread per row)")
@@ -68,9 +69,9 @@ def main(argv=None) -> None:
                            grid=not args.no_grid, queue=args.device)
         stem = RESULTS / ("oracle_holdout" if args.holdout else "oracle_seeds")
         if args.update and stem.with_suffix(".json").is_file():
-            new = {(r["capture"], r["method"]) for r in rows}
+            new = {(r["capture"], r["method"], r["seed"]) for r in rows}  # other seeds kept
             kept = [r for r in json.loads(stem.with_suffix(".json").read_text())
-                    if (r["capture"], r["method"]) not in new]
+                    if (r["capture"], r["method"], r.get("seed", 0)) not in new]
             rows = _ordered(kept + rows)
         print("wrote", *write_rows(rows, stem))
         summary = seed_spread(rows)

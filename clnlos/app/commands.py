@@ -38,6 +38,7 @@ from clnlos.checks import integer
 from clnlos.config import (
     DEPTH_GUARD_M,
     SLAB_MODELS,
+    SNR_RULES,
     ReconstructionConfig,
     check_geometry,
     check_light_in_window,
@@ -91,7 +92,8 @@ def _add_precision(p) -> None:
 # CLI flag -> ReconstructionConfig field (error messages name the flag the user typed)
 RECON_FLAGS = {"scan_width": ("scan_width_m", "--scan-width"),
                "bin_width": ("bin_width_s", "--bin-width"),
-               "snr": ("snr", "--snr"), "inversion_snr": ("inversion_snr", "--inversion-snr"),
+               "snr": ("snr", "--snr"), "snr_rule": ("snr_rule", "--snr-rule"),
+               "inversion_snr": ("inversion_snr", "--inversion-snr"),
                "falloff": ("falloff", "--falloff"), "max_path": ("max_path_m", "--max-path"),
                "bins": ("bins", "--bins"), "method": ("method", "--method"),
                "iterations": ("iterations", "--iterations"),
@@ -216,6 +218,13 @@ def register_reconstruct(sub, add_device) -> None:
                    help="Wiener SNR of the slab deconvolution (dimensionless), or auto: chosen "
                         "from the capture by generalised cross-validation, at most the slab "
                         f"model's accuracy (default {C.snr})")
+    r.add_argument("--snr-rule", choices=SNR_RULES,
+                   help="how an auto slab SNR is chosen: gcv (generalised cross-validation "
+                        "of the slab stage) or thinning (iterative only: GCV's pick, or a "
+                        "deeper one where a reconstruction of half the photons, split "
+                        "binomially, predicts the other half significantly better; 2-4 "
+                        "extra reconstructions of half the data) "
+                        f"(default {C.snr_rule})")
     r.add_argument("--inversion-snr", type=number_or_auto,
                    help="Wiener SNR of the LCT filter (and of the iterative warm start), or "
                         "auto: chosen on the deconvolved transient, for photon counts by the "

@@ -314,3 +314,42 @@ def write_rows(rows: list[dict], stem) -> tuple[Path, Path]:
         with atomic_path(path) as tmp:
             Path(tmp).write_text(text, encoding="utf-8")
     return paths
+
+
+def snr_rule_rows(cases, seeds, stored: list[dict], *, rule: str = "thinning",
+                  method: str = "iterative", iterations: int | None = None, queue=None,
+                  progress=print) -> list[dict]:
+    """The slab SNR rule ``rule`` (``snr_rule``, :mod:`clnlos.inverse.thinning`) against the
+    stored rows of :func:`oracle_rows` (``stored``: the same cases, seeds and method, made
+    with the default rule): per case and seed its IoU and chosen SNR beside the stored
+    default's (``gcv_iou``), today's and the oracle's, its gap to the oracle and its change
+    against today. Cases without a stored row get the default's IoU run here and no oracle."""
+    kw = {} if iterations is None else {"iterations": iterations}
+    index = {(r["capture"], r.get("seed", 0), r["method"]): r for r in stored}
+    rows = []
+    for case in cases:
+        for s in seeds:
+            c = replace(case, seed=int(s))
+            capture, mask = simulate_case(c, queue)
+            base = ReconstructionConfig(slab=capture.recorded_slab()[0], method=method, **kw)
+            v, rec = _run(capture, mask, base.replace(snr_rule=rule).validate(), queue)
+            old = index.get((case.name, c.seed, method), {})
+            gcv = old.get("auto_iou")
+            if gcv is None:
+                gcv = _run(capture, mask, base.validate(), queue)[0]
+            row = {"capture": case.name, "seed": c.seed, "method": method, "rule": rule,
+                   "rule_iou": v, "rule_snr": rec.params.get("snr_used"),
+                   "rule_factor": rec.params.get("thinning_factor"),
+                   "rule_tried": rec.params.get("thinning_tried"),
+                   "rule_time_s": float(sum(rec.timings_s.values())),
+                   "gcv_iou": gcv, "gcv_snr": old.get("auto_snr"),
+                   "today_iou": old.get("today_iou"), "oracle_iou": old.get("oracle_iou")}
+            for k, ref in (("gap", "oracle_iou"), ("vs_today", "today_iou")):
+                r = row[ref]
+                row[k] = None if r is None else (r - v if k == "gap" else v - r)
+            rows.append(row)
+            if progress:
+                progress(f"{case.name} seed {c.seed} [{method}, {rule}]: {v:.3f} (default "
+                         f"{gcv:.3f}, oracle {row['oracle_iou']}, factor "
+                         f"{row['rule_factor']})")
+    return rows

@@ -226,6 +226,7 @@ class IterativeMethod(Inversion):
     are chosen from the data."""
 
     name = "iterative"
+    forward_model = True
 
     def __init__(self, grid: InversionGrid, config, *, dtype, queue, scratch=None,
                  cache=None):
@@ -259,6 +260,13 @@ class IterativeMethod(Inversion):
 
     def report(self) -> dict | None:
         return self.solver.report.as_dict()
+
+    def predict(self, volume: np.ndarray) -> cla.Array:
+        """L rho: the light-cone transport of an albedo volume [z, y, x] on the support of
+        the last call (the slab's influence not applied), on the device."""
+        op, _, _ = self.solver.operator(self.depth_min_m)
+        xi = np.asarray(volume, dtype=np.float64) / self.solver.scale[:, None, None]
+        return op.apply_device(cla.to_device(self.queue, xi.astype(self.dtype)))
 
     def used(self) -> dict:
         r = self.solver.report

@@ -32,6 +32,11 @@ from __future__ import annotations
 
 import importlib
 from dataclasses import dataclass
+from typing import TYPE_CHECKING
+
+if TYPE_CHECKING:  # annotations only: this module imports no OpenCL code
+    import numpy as np
+    import pyopencl.array as cla
 
 
 @dataclass(frozen=True)
@@ -92,6 +97,9 @@ class Inversion:
     # whether the method's slab SNR moves from GCV's pick towards the photon rule's (their
     # geometric mean where the photon rule's is higher): f-k, which regularises nothing itself
     slab_snr_toward_photons: bool = False
+    # whether the method can predict a transient from its volume (:meth:`predict`): what the
+    # slab SNR's cross-validation by Poisson thinning scores (clnlos.inverse.thinning)
+    forward_model: bool = False
 
     def __init__(self, grid: InversionGrid, config, *, dtype, queue, scratch=None,
                  cache=None):
@@ -116,6 +124,11 @@ class Inversion:
 
     def report(self) -> dict | None:
         return None
+
+    def predict(self, volume: np.ndarray) -> cla.Array:
+        """The transient [t, y, x] the method's model predicts for ``volume`` [z, y, x] (on
+        the device; the support of the last call), for methods with ``forward_model``."""
+        raise NotImplementedError(f"method {self.name!r} has no forward model")
 
     def used(self) -> dict:
         return {}

@@ -57,9 +57,14 @@ deconvolves to 1e7), f-k 1 (8; 0.20, a 12 cm 'U' whose oracle image is a blob be
 filled box's IoU). The raised SNR also sets the tail fill's cut level (:func:`cut_level`)
 for these methods. It has no config key: a configured slab SNR (a number) is used as given.
 The iterative method models Phi (``slab_model = "influence"``, :mod:`clnlos.inverse.iterative`)
-and keeps GCV's pick. On a measured capture the model's accuracy (MEASURED_MODEL_SNR) is
-combined with the raised value and dominates it: LCT and f-k take about MEASURED_MODEL_SNR
-there whatever GCV's pick.
+and keeps GCV's pick by default. With ``snr_rule = "thinning"`` (iterative only) it may take a
+deeper one: the counts are split binomially into two independent Poisson halves, and GCV's
+pick is raised by half-decade steps while a reconstruction of the first half predicts the
+second half's deconvolved transient significantly better
+(:meth:`ReconstructionPipeline.thinning_factor`, :mod:`clnlos.inverse.thinning`; about 3x
+the time). On a measured capture the model's accuracy (MEASURED_MODEL_SNR) is combined with
+the raised value and dominates it: LCT and f-k take about MEASURED_MODEL_SNR there whatever
+GCV's pick.
 
 Measured for the light-cone stage at GCV's slab SNR and rejected
 (tools/results/lct_low_exposure_criteria.csv): UPRE of the composed estimate on the raw data
@@ -106,9 +111,20 @@ from clnlos.inverse.snr import (
     NoiseEstimate,
     combined_snr,
     estimate_noise,
+    is_counts,
     lightcone_snr,
 )
 from clnlos.inverse.tail_fill import TailFilledDeconvolution
+from clnlos.inverse.thinning import (
+    CV_FACTOR_RANGE,
+    CV_FOLDS,
+    CV_NOISE_RUNS,
+    CV_SIGNIFICANCE,
+    descend_factor,
+    fitted_residual,
+    scaled_fit,
+    thin_counts,
+)
 from clnlos.io.capture import Capture
 from clnlos.operators.resample import AxisResample, overlap_matrix
 from clnlos.runtime.buffers import Scratch, host_view, round_up
@@ -275,6 +291,10 @@ class ReconstructionPipeline:
     """The composed stages for one capture geometry (shape, bin width, scan width);
     ``setup(step)`` names each step of the construction as it starts."""
 
+    # the factors on GCV's slab SNR the thinning search may reach (clnlos.inverse.thinning;
+    # a measurement may widen it: tools/snr_rule_check.py --both-ways)
+    thinning_factor_range = CV_FACTOR_RANGE
+
     def __init__(self, shape_in, *, bin_width_s: float, start_s: float, scan_width_m: float,
                  config: ReconstructionConfig, dtype=np.float32, queue=None, setup=None):
         setup = setup or (lambda step: None)
@@ -344,11 +364,19 @@ class ReconstructionPipeline:
         return out
 
     def run(self, transient: np.ndarray, *, keep_transient: bool = False,
-            progress=None, model_snr: float = math.inf, setup=None) -> Reconstruction:
+            progress=None, model_snr: float = math.inf, setup=None,
+            slab_snr_factor: float | None = None) -> Reconstruction:
         """Reconstruct one capture. ``progress(k, n)`` is called during the iterative
         method's iterations, ``setup(step)`` as each of its set-up steps before them starts;
-        ``model_snr`` is the slab model's accuracy (:func:`model_snr_for`)."""
+        ``model_snr`` is the slab model's accuracy (:func:`model_snr_for`);
+        ``slab_snr_factor`` multiplies GCV's slab SNR in place of the method's rule (the
+        thinning search's candidates, :meth:`thinning_factor`)."""
         timings: dict[str, float] = {}
+        cv: dict | None = None
+        if slab_snr_factor is None and self._thinning_applies(transient):
+            t0 = time.perf_counter()
+            slab_snr_factor, cv = self.thinning_factor(transient, model_snr, setup)
+            timings["choose_snr_thinning"] = time.perf_counter() - t0
         x = cla.to_device(self.queue, np.ascontiguousarray(transient, self.dtype))
         tau = self._timed(timings, "preprocess", self.pre, x)
         with host_view(tau) as t_host:  # small reductions on the host: no kernel builds
@@ -357,9 +385,7 @@ class ReconstructionPipeline:
         if not peak > 0:
             raise InputFileError("the capture holds no signal in the kept time window "
                                  "(all zero): nothing to reconstruct")
-        k0, k1 = self.raw_window
-        noise = estimate_noise(np.asarray(transient)[k0:k1], self.raw_bin_width_s,
-                               self.raw_start_s + k0 * self.raw_bin_width_s)
+        noise = self.raw_noise(transient)
         norm = self.config.normalize
         scale = 1.0
         if norm != "none":
@@ -373,6 +399,8 @@ class ReconstructionPipeline:
             gcv_snr = self._timed(timings, "choose_snr", self.slab_gcv_snr, tau)
             data_snr = method_slab_snr(gcv_snr, self.invert.slab_snr_min, noise.snr if
                                        self.invert.slab_snr_toward_photons else None)
+            if slab_snr_factor is not None:
+                data_snr = float(np.clip(gcv_snr * slab_snr_factor, SNR_MIN, SNR_MAX))
         snr, inv_snr = auto_snrs(noise, self.config, model_snr, data_snr=data_snr)
         params = self.config.as_attrs()
         notes: list[str] = []
@@ -388,6 +416,8 @@ class ReconstructionPipeline:
                     params["slab_snr_min"] = inv.slab_snr_min
                     params["slab_snr_raised"] = data_snr != gcv_snr  # and if it acted
             params["model_snr_used"] = model_snr
+            if cv is not None:
+                params.update(cv)
             tau = self._timed(timings, "deconvolve", deconv, tau)
             if isinstance(deconv, TailFilledDeconvolution):
                 params["tail_fill_snr"] = deconv.fill_snr  # the fill's SNR (tail_fill)
@@ -417,6 +447,93 @@ class ReconstructionPipeline:
                               transient=tau.get() if keep_transient else None, extents=extents,
                               noise=noise.as_dict(), solver=solve, notes=notes)
 
+    def raw_noise(self, transient: np.ndarray) -> NoiseEstimate:
+        """The noise of the raw capture's bins inside the kept window
+        (:func:`clnlos.inverse.snr.estimate_noise`)."""
+        k0, k1 = self.raw_window
+        return estimate_noise(np.asarray(transient)[k0:k1], self.raw_bin_width_s,
+                              self.raw_start_s + k0 * self.raw_bin_width_s)
+
+    def _thinning_applies(self, transient: np.ndarray) -> bool:
+        """Whether an "auto" slab SNR is chosen by thinning: ``snr_rule = "thinning"``, a
+        slab, a method with a forward model and a capture of photon counts."""
+        c = self.config
+        if not (c.snr_rule == "thinning" and c.snr == "auto" and self.deconv is not None
+                and self.invert.forward_model and is_counts(np.asarray(transient))):
+            return False
+        noise = self.raw_noise(transient)
+        return noise.photon_counts and not noise.noise_free
+
+    def thinning_factor(self, transient: np.ndarray, model_snr: float = math.inf,
+                        setup=None) -> tuple[float, dict]:
+        """(factor on GCV's slab SNR, the params recording the search) by two-fold
+        cross-validation on a binomial split of the counts (:mod:`clnlos.inverse.thinning`):
+        for each candidate, each half is reconstructed at that factor on its own GCV pick and
+        its prediction Phi' L rho scored against the other half deconvolved at that half's
+        own GCV SNR; the score is the mean of the two folds."""
+        halves = thin_counts(np.asarray(transient))
+        folds = []
+        for train, test in list(zip(halves, halves[::-1], strict=True))[:CV_FOLDS]:
+            held, snr, noise = self._held_out(test)
+            folds.append((train, held, self._slab_influence(snr), noise,
+                          float(np.sum(np.square(held, dtype=np.float64)))))
+        gcv_train: list[float] = []
+        fits: dict[float, list[np.ndarray]] = {}
+
+        def score(f: float) -> float:
+            if setup is not None:
+                setup(f"slab SNR by thinning: {f:.3g} x GCV's pick")
+            scores, fits[f] = [], []
+            for train, held, phi, _, _ in folds:
+                rec = self.run(train, model_snr=model_snr, slab_snr_factor=f)
+                gcv_train.append(rec.params.get("snr_data", math.nan))
+                pred = phi.apply_device(self.invert.predict(rec.volume)).get()
+                fits[f].append(scaled_fit(pred, held))
+                scores.append(fitted_residual(pred, held))
+            return float(np.mean(scores))
+
+        def margin(f_new: float, f_best: float) -> float:
+            """CV_SIGNIFICANCE standard errors of the score difference from the held-out
+            halves' noise: 2 <n, q_new - q_best> / ||held||^2 over each fold's noise
+            realisations, the folds' variances averaged as the scores are."""
+            var = 0.0
+            for k, (_, _, _, noise, energy) in enumerate(folds):
+                d = (fits[f_new][k] - fits[f_best][k]).ravel()
+                var += np.mean([(2.0 * float(r.ravel() @ d) / energy) ** 2 for r in noise])
+            return CV_SIGNIFICANCE * math.sqrt(var) / len(folds)
+
+        def clipped(f: float) -> bool:  # past the SNR range: every factor is the same
+            g = gcv_train[0] if gcv_train else math.nan
+            return not SNR_MIN < g * f < SNR_MAX
+
+        factor, tried = descend_factor(score, limit=clipped, margin=margin,
+                                       factor_range=self.thinning_factor_range)
+        return factor, {"snr_rule_used": "thinning", "thinning_factor": factor,
+                        "thinning_tried": json.dumps([[f, v] for f, v in tried])}
+
+    def _held_out(self, y2: np.ndarray) -> tuple[np.ndarray, float, list[np.ndarray]]:
+        """(the held-out half's deconvolved transient on the inverted grid, host; its GCV
+        slab SNR; CV_NOISE_RUNS realisations of its noise through the same steps,
+        :meth:`_noise_like`): preprocessed, normalised as the data are and deconvolved at
+        the SNR GCV picks for it (:meth:`slab_gcv_snr`), tail-filled where the window needs
+        it."""
+        tau = self.pre(cla.to_device(self.queue, np.ascontiguousarray(y2, self.dtype)))
+        with host_view(tau) as t_host:
+            profile = t_host.reshape(t_host.shape[0], -1).sum(axis=1, dtype=np.float64)
+            peak = float(t_host.max())
+        if peak > 0:
+            self._rk.scale_inplace(self.queue, (round_up(tau.size, 256),), None, tau.data,
+                                   self.dtype.type(1.0 / peak), np.int64(tau.size))
+        noise = self.raw_noise(y2)
+        snr = self.slab_gcv_snr(tau)
+        deconv = self._deconvolution_for(profile, noise, snr, {}, [])
+        deconv.set_snr(snr)
+        out = deconv(tau)[:self.shape[0]].get()
+        scale = 1.0 / peak if peak > 0 else 1.0
+        noise_runs = [self._noise_like(y2, scale, deconv, snr, NOISE_PROBE_SEED + 1 + j).get()
+                      for j in range(CV_NOISE_RUNS)]
+        return out, snr, noise_runs
+
     def _slab_influence(self, snr: float):
         """The influence Phi of the slab's Wiener filter at ``snr`` on the inverted
         transient's grid (guard bins dropped: the rows past the volume are zero;
@@ -425,17 +542,17 @@ class ReconstructionPipeline:
         self.deconv.set_snr(snr)
         return self.deconv.influence(in_shape=self.shape)
 
-    def _noise_like(self, transient: np.ndarray, scale: float, deconv, snr: float
-                    ) -> cla.Array:
+    def _noise_like(self, transient: np.ndarray, scale: float, deconv, snr: float,
+                    seed: int = NOISE_PROBE_SEED) -> cla.Array:
         """A realisation of the noise of the transient the inversion receives: Gaussian of
         the capture's Poisson variance (each bin's count; ``transient`` holds counts), seed
-        NOISE_PROBE_SEED, through the same linear steps as the data (preprocessing, the
-        normalisation ``scale``, the slab deconvolution ``deconv`` at ``snr`` when not
-        None, the guard bins dropped): the noise spectrum of
+        ``seed`` (default NOISE_PROBE_SEED), through the same linear steps as the data
+        (preprocessing, the normalisation ``scale``, the slab deconvolution ``deconv`` at
+        ``snr`` when not None, the guard bins dropped): the noise spectrum of
         :meth:`clnlos.inverse.lct.LCT.upre_snr`.
         """
         y = np.asarray(transient)
-        rng = np.random.default_rng(NOISE_PROBE_SEED)
+        rng = np.random.default_rng(seed)
         n = np.sqrt(np.maximum(y, 0), dtype=np.float64) * rng.standard_normal(y.shape)
         t = self.pre(cla.to_device(self.queue, np.ascontiguousarray(n, self.dtype)))
         if scale != 1.0:

@@ -1,0 +1,140 @@
+"""The slab SNR by cross-validation on Poisson thinning (clnlos.inverse.thinning, issue 24):
+the split, the score, the search, and the pipeline's use of them."""
+
+import json
+import math
+
+import numpy as np
+import pytest
+
+from clnlos.bench.oracle import OracleCase, simulate_case
+from clnlos.config import ReconstructionConfig
+from clnlos.errors import ParameterError
+from clnlos.inverse.pipeline import ReconstructionPipeline, reconstruct, resolve_geometry
+from clnlos.inverse.thinning import CV_STEP, descend_factor, fitted_residual, thin_counts
+from clnlos.study.metrics import mip_iou
+
+# 'UT' 0.3 m tall 0.5 m behind the CDT slab, 16 x 16 scan of 0.6 m, 128 bins of 64 ps,
+# ~1.2e7 photons
+SMALL = OracleCase("small UT", "UT", 0.3, 0.5, 0.6, 0.01, points=16, bins=128,
+                   bin_width_s=64e-12, seed=3)
+
+
+def test_thinned_halves_are_independent_poisson_of_half_the_mean():
+    """Binomial thinning of Poisson(mu) counts: y1 + y2 = y exactly, each half of mean and
+    variance mu / 2, and the halves uncorrelated (independent for Poisson y), to 3 standard
+    errors over 2e5 draws."""
+    mu, n = 7.0, 200_000
+    y = np.random.default_rng(0).poisson(mu, n).astype(np.float32)
+    y1, y2 = thin_counts(y, seed=5)
+    assert y1.dtype == y.dtype and np.array_equal(y1 + y2, y)
+    assert y1.min() >= 0 and y2.min() >= 0
+    se_mean = math.sqrt(mu / 2 / n)
+    se_var = math.sqrt(2 * (mu / 2) ** 2 / n + mu / 2 / n)  # Poisson: var of s^2
+    for h in (y1, y2):
+        assert abs(h.mean() - mu / 2) < 3 * se_mean
+        assert abs(h.var() - mu / 2) < 3 * se_var
+    assert abs(np.corrcoef(y1, y2)[0, 1]) < 3 / math.sqrt(n)
+    # reproducible with its seed; another seed another split
+    assert np.array_equal(thin_counts(y, seed=5)[0], y1)
+    assert not np.array_equal(thin_counts(y, seed=6)[0], y1)
+    with pytest.raises(ValueError):
+        thin_counts(np.array([1.0, -1.0]))
+
+
+def test_fitted_residual_ignores_the_scale_only():
+    rng = np.random.default_rng(1)
+    d = rng.standard_normal(500)
+    assert fitted_residual(3.7 * d, d) == pytest.approx(0.0, abs=1e-12)
+    other = rng.standard_normal(500)
+    r = fitted_residual(other, d)
+    a = (other @ d) / (other @ other)
+    assert r == pytest.approx(np.sum((d - max(a, 0) * other) ** 2) / np.sum(d * d))
+    assert fitted_residual(-d, d) == pytest.approx(1.0)  # a >= 0: an inverted prediction
+    assert fitted_residual(np.zeros(5), np.zeros(5)) == 0.0
+
+
+@pytest.mark.parametrize("best", [1e-2, 10 ** -1.5, 0.1, 1.0, 10 ** 0.5, 10.0, 100.0])
+def test_descent_finds_the_minimum_of_a_unimodal_score(best):
+    calls = []
+
+    def score(f):
+        calls.append(f)
+        return (math.log10(f) - math.log10(best)) ** 2
+
+    f, tried = descend_factor(score, factor_range=(1e-2, 1e2))
+    assert f == pytest.approx(best, rel=1e-9)
+    assert len(calls) == len(set(calls)) == len(tried)  # nothing scored twice
+    steps = round(abs(math.log(best) / math.log(CV_STEP)))
+    assert len(calls) <= steps + 3  # 1, the wrong side once at most, one past the minimum
+
+
+def test_descent_by_default_only_deepens_gcvs_pick():
+    """CV_FACTOR_RANGE starts at 1: a score that falls towards shallower deconvolutions
+    leaves GCV's pick, after one candidate above it."""
+    f, tried = descend_factor(lambda f: f)
+    assert f == 1.0 and [t for t, _ in tried] == [1.0, CV_STEP]
+
+
+def test_a_step_inside_the_noise_margin_is_not_taken():
+    def score(f):
+        return {1.0: 1.0, CV_STEP: 0.99, 10.0: 0.5}.get(f, 0.9)
+
+    assert descend_factor(score, margin=lambda a, b: 0.001)[0] == 10.0
+    f, tried = descend_factor(score, margin=lambda a, b: 0.02)  # 0.01 < 0.02: noise
+    assert f == 1.0 and len(tried) == 2
+
+
+def test_descent_stops_at_the_range_and_at_a_limit():
+    f, _ = descend_factor(lambda f: -f)  # better without end: the range ends it
+    assert f == pytest.approx(100.0)
+    f, tried = descend_factor(lambda f: -f, limit=lambda f: f > 5)
+    assert f == pytest.approx(CV_STEP) and max(t for t, _ in tried) < 5
+
+
+def test_thinning_needs_a_method_with_a_forward_model():
+    with pytest.raises(ParameterError, match="snr_rule.*iterative"):
+        ReconstructionConfig(method="lct", snr_rule="thinning").validate()
+    with pytest.raises(ParameterError, match="snr_rule"):
+        ReconstructionConfig(method="iterative", snr_rule="cv").validate()
+    assert ReconstructionConfig(method="iterative", snr_rule="thinning").validate()
+
+
+@pytest.fixture(scope="module")
+def small_capture(queue):
+    return simulate_case(SMALL, queue)
+
+
+def test_pipeline_takes_the_factor_of_least_held_out_error(small_capture, queue):
+    """The slab SNR is GCV's pick times the factor of least held-out error; every
+    candidate's score is the prediction error of an independent half, recomputed here from
+    the recorded factors; the result is reproducible."""
+    cap, mask = small_capture
+    base = ReconstructionConfig(slab=cap.recorded_slab()[0], method="iterative",
+                                iterations=60)
+    rec = reconstruct(cap, base.replace(snr_rule="thinning").validate(), device=queue)
+    p = rec.params
+    tried = json.loads(p["thinning_tried"])
+    assert p["snr_rule_used"] == "thinning" and len(tried) >= 3
+    factors, scores = zip(*tried, strict=True)
+    assert p["thinning_factor"] == factors[int(np.argmin(scores))]
+    assert p["snr_used"] == pytest.approx(p["snr_data"] * p["thinning_factor"], rel=1e-6)
+    assert all(0 < s < 1 for s in scores)
+    again = reconstruct(cap, base.replace(snr_rule="thinning").validate(), device=queue)
+    assert again.params["thinning_tried"] == p["thinning_tried"]
+    # the search's best candidate is no worse on the truth than GCV's own pick by much:
+    # the held-out error and the IoU agree to a grid step on this capture
+    gcv = reconstruct(cap, base.validate(), device=queue)
+    assert "thinning_factor" not in gcv.params
+    assert mip_iou(rec.volume, mask)[0] >= mip_iou(gcv.volume, mask)[0] - 0.05
+
+
+def test_thinning_skips_data_that_are_not_counts(small_capture, queue):
+    cap, _ = small_capture
+    cfg = ReconstructionConfig(slab=cap.recorded_slab()[0], method="iterative",
+                               iterations=20, snr_rule="thinning").validate()
+    bw, start, sw = resolve_geometry(cap, cfg)
+    pipe = ReconstructionPipeline(cap.transient.shape, bin_width_s=bw, start_s=start,
+                                  scan_width_m=sw, config=cfg, queue=queue)
+    rec = pipe.run(cap.transient * 1.0001)  # no longer integers: no binomial split
+    assert "thinning_factor" not in rec.params
