@@ -305,10 +305,12 @@ class ReconstructionConfig:
         v["normalize"] = choice(nm("normalize"), self.normalize, ("max", "sum", "none"))
         v["snr"] = auto_or_positive(nm("snr"), self.snr, upper=1e30)
         v["snr_rule"] = choice(nm("snr_rule"), self.snr_rule, SNR_RULES)
-        if v["snr_rule"] == "thinning" and self.method != "iterative":
+        if v["snr_rule"] == "thinning" and (self.method != "iterative"
+                                            or self.slab_model != "influence"):
             raise ParameterError(nm("snr_rule"), self.snr_rule,
-                                 "\"gcv\" (\"thinning\" needs a method with a forward model "
-                                 "to predict the held-out photons: method \"iterative\")")
+                                 "\"gcv\" (\"thinning\" scores the model the method fits "
+                                 "on the held-out photons: method \"iterative\" with "
+                                 "slab_model \"influence\")")
         v["model_snr"] = auto_or_positive(nm("model_snr"), self.model_snr, upper=1e30)
         v["guard_fraction"] = positive(nm("guard_fraction"), self.guard_fraction,
                                        allow_zero=True, upper=4.0)

@@ -222,7 +222,7 @@ def register_reconstruct(sub, add_device) -> None:
                    help="how an auto slab SNR is chosen: gcv (generalised cross-validation "
                         "of the slab stage) or thinning (iterative only: GCV's pick, or a "
                         "deeper one where a reconstruction of half the photons, split "
-                        "binomially, predicts the other half significantly better; 2-4 "
+                        "binomially, predicts the other half significantly better; 2-5 "
                         "extra reconstructions of half the data) "
                         f"(default {C.snr_rule})")
     r.add_argument("--inversion-snr", type=number_or_auto,

@@ -29,17 +29,19 @@ deeper deconvolution (a 'Y' on 48 ps bins: IoU 0.75 at GCV's pick, 0.84 at 10x),
 nothing in the slab stage alone to show it. The held-out photons show it.
 
 Only deeper. CV_FACTOR_RANGE starts at 1: the search may raise GCV's pick, never lower it.
-On 30 probes searched both ways (seed 1 of the 16 held-out captures, the 10 table captures
-and the exposure sweep at seed 0, tools/results/snr_rule_thinning.csv) the search went below
+On 30 captures searched both ways (seed 1 of the 16 held-out captures, the 10 table
+captures and the exposure sweep at seed 0, whose 0.01 and 0.1 s points repeat two table
+captures: 32 rows, tools/results/snr_rule_thinning_both_ways.csv) the search went below
 GCV's pick 6 times: it lowered the IoU on 5 (by 0.008-0.105; a '+' 0.75 m deep, 0.658 ->
 0.553, its blob wider) and raised it on the sweep's 1e11 photons (0.712 -> 0.785). It went
-above 15 times: IoU up by more than 0.01 on 7 (up to +0.060, the 'C' on a 24-point scan; the
-48 ps 'Y' +0.052), down by more than 0.01 on 4 (at most 0.042, an 'F' at 20 s that both
-rules draw above the oracle). That asymmetry was seen before the range was set, so the fresh
-captures of the closing note are its check.
+above 15 times (16 rows): IoU up by more than 0.01 on 7 (up to +0.060, the 'C' on a
+24-point scan; the 48 ps 'Y' +0.052), down by more than 0.01 on 4 (at most 0.042, an 'F' at
+20 s that both rules draw above the oracle). That asymmetry was seen before the range was
+set, so captures it had not seen are its check (tools/results/snr_rule_thinning.csv: 22
+captures, IoU up by more than 0.01 on 11, down on 2, mean +0.011).
 
-Opt-in (``snr_rule = "thinning"``): it costs 2-4 reconstructions of half the data on top
-of the one (about 3x the time), and it does not remove every regression against today's
+Opt-in (``snr_rule = "thinning"``): it costs 2-5 reconstructions of half the data on top
+of the one (3-6x the time), and it does not remove every regression against today's
 rule that GCV's pick has (issue 24's closing note has the table).
 """
 
@@ -94,14 +96,14 @@ def descend_factor(score: Callable[[float], float], *, step: float = CV_STEP,
                    limit: Callable[[float], bool] | None = None,
                    margin: Callable[[float, float], float] | None = None
                    ) -> tuple[float, list[tuple[float, float]]]:
-    """(the factor of least ``score``, every (factor, score) tried) by descent on a log grid
+    """(the factor the descent stops at, every (factor, score) tried) on a log grid
     from 1: try 1 and ``step``, then keep stepping (up, or down from 1 when ``step`` was
     worse) while the score falls, within ``factor_range`` and while ``limit(factor)`` is
     false (a factor past which nothing changes, such as a clipped SNR). With ``margin(new,
     best)``, a step is taken only where the score falls by more than that margin (a
     multiple of the difference's standard error: a move the noise could make does not
-    count). Assumes the score is unimodal in log(factor), as it was on every probe; 3-5
-    evaluations in practice."""
+    count). Assumes the score is unimodal in log(factor), as it was on every probe; with
+    the default range (1 to 100, deeper only) 2-5 evaluations."""
     lo, hi = (math.log(r) / math.log(step) for r in factor_range)
     tried: dict[float, float] = {}
 
