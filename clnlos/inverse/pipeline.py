@@ -373,8 +373,9 @@ class ReconstructionPipeline:
         ``slab_snr_factor`` multiplies GCV's slab SNR in place of the method's rule (the
         thinning search's candidates, :meth:`thinning_factor`)."""
         timings: dict[str, float] = {}
+        noise = self.raw_noise(transient)
         cv: dict | None = None
-        if slab_snr_factor is None and self._thinning_applies(transient):
+        if slab_snr_factor is None and self._thinning_applies(transient, noise):
             t0 = time.perf_counter()
             slab_snr_factor, cv = self.thinning_factor(transient, model_snr, setup)
             timings["choose_snr_thinning"] = time.perf_counter() - t0
@@ -386,7 +387,6 @@ class ReconstructionPipeline:
         if not peak > 0:
             raise InputFileError("the capture holds no signal in the kept time window "
                                  "(all zero): nothing to reconstruct")
-        noise = self.raw_noise(transient)
         norm = self.config.normalize
         scale = 1.0
         if norm != "none":
@@ -458,15 +458,14 @@ class ReconstructionPipeline:
         return estimate_noise(np.asarray(transient)[k0:k1], self.raw_bin_width_s,
                               self.raw_start_s + k0 * self.raw_bin_width_s)
 
-    def _thinning_applies(self, transient: np.ndarray) -> bool:
+    def _thinning_applies(self, transient: np.ndarray, noise: NoiseEstimate) -> bool:
         """Whether an "auto" slab SNR is chosen by thinning: ``snr_rule = "thinning"``, a
-        slab, a method with a forward model and a capture of photon counts."""
+        slab, a method with a forward model and a capture of photon counts (``noise``: the
+        raw capture's, :meth:`raw_noise`)."""
         c = self.config
-        if not (c.snr_rule == "thinning" and c.snr == "auto" and self.deconv is not None
-                and self.invert.forward_model and is_counts(np.asarray(transient))):
-            return False
-        noise = self.raw_noise(transient)
-        return noise.photon_counts and not noise.noise_free
+        return (c.snr_rule == "thinning" and c.snr == "auto" and self.deconv is not None
+                and self.invert.forward_model and noise.photon_counts
+                and not noise.noise_free and is_counts(np.asarray(transient)))
 
     def thinning_factor(self, transient: np.ndarray, model_snr: float = math.inf,
                         setup=None) -> tuple[float, dict]:
@@ -497,7 +496,7 @@ class ReconstructionPipeline:
                 gcv_train.append(rec.params.get("snr_data", math.nan))
                 pred = phi.apply_device(self.invert.predict(rec.volume)).get()
                 fits[f].append(scaled_fit(pred, held))
-                scores.append(fitted_residual(pred, held))
+                scores.append(fitted_residual(fits[f][-1], held, scaled=True))
             return float(np.mean(scores))
 
         def margin(f_new: float, f_best: float) -> float:

@@ -78,17 +78,17 @@ def scaled_fit(prediction: np.ndarray, data: np.ndarray) -> np.ndarray:
     return p * (max(float(np.sum(p * d)) / pp, 0.0) if pp > 0 else 0.0)
 
 
-def fitted_residual(prediction: np.ndarray, data: np.ndarray) -> float:
+def fitted_residual(prediction: np.ndarray, data: np.ndarray, *,
+                    scaled: bool = False) -> float:
     """min_{a >= 0} ||data - a prediction||^2 / ||data||^2 (dimensionless, in [0, 1]):
-    the held-out error of a prediction known up to its scale."""
-    p = np.asarray(prediction, dtype=np.float64).ravel()
-    d = np.asarray(data, dtype=np.float64).ravel()
-    dd = float(d @ d)
+    the held-out error of a prediction known up to its scale (``scaled``: the prediction
+    is :func:`scaled_fit`'s already)."""
+    d = np.asarray(data, dtype=np.float64)
+    dd = float(np.sum(d * d))
     if not dd > 0:
         return 0.0
-    pp, pd = float(p @ p), float(p @ d)
-    a = max(pd / pp, 0.0) if pp > 0 else 0.0
-    return max(0.0, (dd - 2 * a * pd + a * a * pp) / dd)
+    q = np.asarray(prediction, dtype=np.float64) if scaled else scaled_fit(prediction, d)
+    return min(1.0, float(np.sum((d - q) ** 2)) / dd)
 
 
 def descend_factor(score: Callable[[float], float], *, step: float = CV_STEP,
