@@ -18,9 +18,12 @@ from clnlos.bench.oracle import (
     case_named,
     compare_method,
     exposure_sweep,
+    grid_rows,
+    grid_settings,
     seed_spread,
     simulate_case,
     sweep_summary,
+    transfer_rows,
     write_rows,
 )
 from clnlos.config import ReconstructionConfig
@@ -285,6 +288,54 @@ def test_seed_spread_tells_a_regression_from_seed_luck():
     assert out["a"]["today_iou_spread"] == pytest.approx(0.05)
     assert out["b"]["regression"]
     assert out["b"]["vs_today_mean"] == pytest.approx(-0.055)
+
+
+def _grid_seed(capture, seed, auto, ious):
+    """grid_rows-shaped rows of one seed: auto's IoU and two grid settings'."""
+    rows = [{"capture": capture, "seed": seed, "method": "lct", "setting": "auto",
+             "snr": 3e5, "inversion_snr": 300.0, "iou": auto}]
+    return rows + [{"capture": capture, "seed": seed, "method": "lct", "setting": "grid",
+                    "snr": a, "inversion_snr": 1e3, "iou": v}
+                   for a, v in zip((1e4, 1e6), ious, strict=True)]
+
+
+def test_transfer_tells_noise_luck_from_a_setting_the_capture_needs():
+    """The transferred setting is the best over the other seeds: where one seed's best is
+    luck it loses that seed's lead (transfer_gap > 0), where every seed agrees it is the
+    oracle (transfer_gap 0); gap = transfer_gap + auto_vs_transfer; one seed: no rows."""
+    luck = (_grid_seed("luck", 0, 0.60, (0.70, 0.60)) + _grid_seed("luck", 1, 0.60, (0.60, 0.66))
+            + _grid_seed("luck", 2, 0.60, (0.61, 0.65)))
+    needs = _grid_seed("needs", 0, 0.55, (0.50, 0.75)) + _grid_seed("needs", 1, 0.58, (0.52, 0.72))
+    out = {(r["capture"], r["seed"]): r
+           for r in transfer_rows(luck + needs + _grid_seed("alone", 0, 0.5, (0.4, 0.6)))}
+    assert set(out) == {("luck", 0), ("luck", 1), ("luck", 2), ("needs", 0), ("needs", 1)}
+    r = out["luck", 0]  # the others prefer 1e6 (0.655 against 0.605 on the mean)
+    assert (r["oracle_snr"], r["transfer_snr"]) == (1e4, 1e6)
+    assert r["transfer_gap"] == pytest.approx(0.10) and r["gap"] == pytest.approx(0.10)
+    assert r["auto_vs_transfer"] == pytest.approx(0.0)
+    r = out["luck", 1]
+    assert r["transfer_snr"] == 1e4 and r["transfer_gap"] == pytest.approx(0.06)
+    for s in (0, 1):
+        r = out["needs", s]
+        assert r["transfer_snr"] == r["oracle_snr"] == 1e6 and r["transfer_gap"] == 0.0
+        assert r["auto_vs_transfer"] == pytest.approx(r["gap"]) and r["gap"] > 0.1
+    for r in out.values():
+        assert r["gap"] == pytest.approx(r["transfer_gap"] + r["auto_vs_transfer"])
+
+
+def test_grid_rows_keep_what_compare_method_reduces(tiny_capture, queue):
+    """grid_rows on two seeds of the tiny case: auto and every grid setting per seed, the
+    same auto and oracle IoU as compare_method on that capture; transfer_gap >= 0."""
+    rows = grid_rows([TINY], (0, 1), ("lct",), queue=queue, progress=None)
+    grid = [r for r in rows if r["seed"] == 0 and r["setting"] == "grid"]
+    assert len(grid) == len(grid_settings("lct")) and len(rows) == 2 * (len(grid) + 1)
+    cap, mask = tiny_capture  # TINY at seed 0
+    row = compare_method(cap, mask, "lct", queue=queue)
+    auto = next(r for r in rows if r["seed"] == 0 and r["setting"] == "auto")
+    assert auto["iou"] == row["auto_iou"] and auto["snr"] == row["auto_snr"]
+    moved = {r["seed"]: r for r in transfer_rows(rows)}
+    assert moved[0]["oracle_iou"] == row["oracle_iou"]
+    assert all(r["transfer_gap"] >= 0.0 for r in moved.values())
 
 
 def test_noise_l1_weight_leaves_pure_noise_empty(queue):

@@ -9,6 +9,10 @@ tools/results/exposure_sweep.{csv,json} and prints the worst gaps.
                            the rows of other cases and methods are kept)
         [--holdout]       (HOLDOUT_CASES instead of ORACLE_CASES, with --seeds:
                            tools/results/oracle_holdout{,_summary}.{csv,json})
+        [--grids]         (with --seeds: every grid setting's IoU and the transfer test of
+                           the oracle, clnlos.bench.oracle.transfer_rows:
+                           tools/results/oracle_grids{,_holdout}{,_transfer}.{csv,json};
+                           --methods default lct fk here)
 """
 
 from __future__ import annotations
@@ -17,6 +21,8 @@ import argparse
 import json
 from pathlib import Path
 
+import numpy as np
+
 from clnlos.bench.oracle import (
     HOLDOUT_CASES,
     METHODS,
@@ -24,9 +30,11 @@ from clnlos.bench.oracle import (
     SWEEP_CASE,
     case_named,
     exposure_sweep,
+    grid_rows,
     oracle_rows,
     seed_spread,
     sweep_summary,
+    transfer_rows,
     write_rows,
 )
 
@@ -38,6 +46,26 @@ def _ordered(rows: list[dict]) -> list[dict]:
     order = {c.name: i for i, c in enumerate(ORACLE_CASES + HOLDOUT_CASES)}
     return sorted(rows, key=lambda r: (order.get(r["capture"], len(order)),
                                        METHODS.index(r["method"]), r.get("seed", 0)))
+
+
+def _grids(args) -> None:
+    """--grids: grid_rows over the seeds, transfer_rows of them, and a summary per method."""
+    pool = HOLDOUT_CASES if args.holdout else ORACLE_CASES
+    cases = [c for c in pool if not args.case or any(s in c.name for s in args.case)]
+    rows = grid_rows(cases, args.seeds, args.methods, iterations=args.iterations,
+                     queue=args.device)
+    stem = RESULTS / ("oracle_grids_holdout" if args.holdout else "oracle_grids")
+    print("wrote", *write_rows(rows, stem))
+    moved = transfer_rows(rows)
+    print("wrote", *write_rows(moved, stem.with_name(stem.name + "_transfer")))
+    for m in dict.fromkeys(r["method"] for r in moved):
+        mine = [r for r in moved if r["method"] == m]
+        n = len(mine)
+        print(f"{m}: {n} rows; gap > 0.08 on {sum(r['gap'] > 0.08 for r in mine)}, "
+              f"transfer_gap > 0.08 on {sum(r['transfer_gap'] > 0.08 for r in mine)} "
+              f"(<= 0.01 on {sum(r['transfer_gap'] <= 0.01 for r in mine)}), mean gap "
+              f"{np.mean([r['gap'] for r in mine]):.3f}, mean transfer_gap "
+              f"{np.mean([r['transfer_gap'] for r in mine]):.3f}")
 
 
 def main(argv=None) -> None:
@@ -52,16 +80,28 @@ def main(argv=None) -> None:
     ap.add_argument("--update", action="store_true",
                     help="replace these cases' rows in the existing table (with --seeds: "
                          "these seeds' rows), keep the others")
-    ap.add_argument("--methods", nargs="+", default=list(METHODS), choices=METHODS)
+    ap.add_argument("--methods", nargs="+", default=None, choices=METHODS,
+                    help="default: every method (with --grids: lct fk)")
     ap.add_argument("--seeds", nargs="+", type=int, default=None,
                     help="the table over these noise seeds (mean and spread per row)")
     ap.add_argument("--no-grid", action="store_true",
                     help="with --seeds: auto and today only, no oracle grid")
     ap.add_argument("--holdout", action="store_true",
                     help="with --seeds: the held-out cases (HOLDOUT_CASES)")
+    ap.add_argument("--grids", action="store_true",
+                    help="with --seeds (at least 2): keep every grid setting, test the "
+                         "oracle's lead by transfer across seeds")
     args = ap.parse_args(argv)
-    if args.holdout and args.seeds is None:
-        ap.error("--holdout needs --seeds")
+    for flag in ("holdout", "grids"):
+        if getattr(args, flag) and args.seeds is None:
+            ap.error(f"--{flag} needs --seeds")
+    if args.grids and len(set(args.seeds)) < 2:
+        ap.error("--grids needs at least 2 distinct --seeds (the transfer test)")
+    if args.methods is None:
+        args.methods = ["lct", "fk"] if args.grids else list(METHODS)
+    if args.grids:
+        _grids(args)
+        return
     if args.seeds is not None:
         pool = HOLDOUT_CASES if args.holdout else ORACLE_CASES
         cases = [c for c in pool if not args.case or any(s in c.name for s in args.case)]

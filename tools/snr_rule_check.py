@@ -4,7 +4,7 @@ snr_rule_rows`): writes tools/results/snr_rule_thinning[_both_ways].{csv,json} a
 the mean change, the worst gap and the worst change against today.
 
     .venv/bin/python tools/snr_rule_check.py [--device P:D] [--holdout-seeds 2]
-        [--table-seeds] [--sweep-seeds] [--fresh-seeds 3] [--both-ways]
+        [--table-seeds] [--sweep-seeds] [--fresh-seeds 3] [--both-ways] [--out STEM]
 
 ``--both-ways`` lets the search lower GCV's pick too (factors 1e-2 to 1e2): the measurement
 that set CV_FACTOR_RANGE (deeper only). The defaults are the check after it: captures the
@@ -63,6 +63,9 @@ def main(argv=None) -> None:
     ap.add_argument("--fresh-seeds", nargs="*", type=int, default=[3])
     ap.add_argument("--both-ways", action="store_true",
                     help="let the search lower GCV's pick too (factors 1e-2 to 1e2)")
+    ap.add_argument("--out", default=None,
+                    help="results stem under tools/results (default snr_rule_thinning"
+                         "[_both_ways]): another selection of captures keeps the stored one")
     a = ap.parse_args(argv)
     if a.both_ways:
         ReconstructionPipeline.thinning_factor_range = BOTH_WAYS
@@ -76,7 +79,8 @@ def main(argv=None) -> None:
         stored = [{**r, "capture": f"sweep {e:g} s"} for r in sweep if r["exposure_s"] == e]
         rows += snr_rule_rows([replace(case, name=f"sweep {e:g} s", exposure_s=e)],
                               a.sweep_seeds, stored, queue=a.device)
-    write_rows(rows, RESULTS / ("snr_rule_thinning" + ("_both_ways" if a.both_ways else "")))
+    stem = a.out or "snr_rule_thinning" + ("_both_ways" if a.both_ways else "")
+    print("wrote", *write_rows(rows, RESULTS / stem))
     change = np.array([r["rule_iou"] - r["gcv_iou"] for r in rows])
     print(f"{len(rows)} captures: mean change {change.mean():+.3f}, up by > 0.01 on "
           f"{int(np.sum(change > 0.01))}, down by > 0.01 on {int(np.sum(change < -0.01))} "

@@ -17,7 +17,9 @@ slab flags.
 :func:`oracle_rows` gives one row per capture and method, :func:`exposure_sweep` the auto IoU
 over a range of exposures and noise seeds (auto must not get worse with more photons), and
 :func:`write_rows` writes either as CSV and JSON. ``tools/oracle_params.py`` runs them on
-:data:`ORACLE_CASES` and :data:`SWEEP_EXPOSURES_S`.
+:data:`ORACLE_CASES` and :data:`SWEEP_EXPOSURES_S`. :func:`grid_rows` keeps every grid
+setting's IoU and :func:`transfer_rows` asks of them whether the oracle's lead over auto is
+the truth fitting one noise draw or a setting the capture itself calls for.
 """
 
 from __future__ import annotations
@@ -232,6 +234,72 @@ def oracle_rows(cases=ORACLE_CASES, methods=METHODS, *, iterations: int | None =
                              f"{row['auto_iou']:.3f}, oracle {oracle}, today "
                              f"{row['today_iou']:.3f}")
     return rows
+
+
+def grid_rows(cases, seeds, methods=("lct", "fk"), *, iterations: int | None = None,
+              queue=None, progress=print) -> list[dict]:
+    """Every setting the oracle tries, kept (:func:`compare_method` keeps only the best):
+    per case, noise seed and method one row for the auto run (``setting`` "auto", the SNRs
+    it chose) and one per grid setting (:func:`grid_settings`), with its IoU. The input of
+    :func:`transfer_rows`."""
+    kw = {} if iterations is None else {"iterations": iterations}
+    rows = []
+    for case in cases:
+        for s in seeds:
+            capture, mask = simulate_case(replace(case, seed=int(s)), queue)
+            for m in methods:
+                base = ReconstructionConfig(slab=capture.recorded_slab()[0], method=m, **kw)
+                v, rec = _run(capture, mask, base.validate(), queue)
+                mine = [{"setting": "auto", "snr": rec.params.get("snr_used"),
+                         "inversion_snr": rec.params.get("inversion_snr_used"), "iou": v}]
+                for a, b in grid_settings(m):
+                    cfg = base.replace(snr=a, inversion_snr=b).validate()
+                    mine.append({"setting": "grid", "snr": a,
+                                 "inversion_snr": b if m != "fk" else None,
+                                 "iou": _run(capture, mask, cfg, queue)[0]})
+                rows += [{"capture": case.name, "seed": int(s), "method": m, **r}
+                         for r in mine]
+                if progress:
+                    best = max(r["iou"] for r in mine[1:])
+                    progress(f"{case.name} seed {s} [{m}]: auto {v:.3f}, oracle {best:.3f}")
+    return rows
+
+
+def transfer_rows(rows: list[dict]) -> list[dict]:
+    """Is the oracle's lead noise luck? Per capture, method and seed of :func:`grid_rows`
+    (captures with at least two seeds): the oracle (this seed's best grid IoU and its
+    setting), the transferred setting (the grid setting of the best mean IoU over the
+    *other* seeds: the best fixed choice for this capture that has not seen this seed's
+    noise) and its IoU on this seed, and auto's. ``gap`` = oracle - auto;
+    ``transfer_gap`` = oracle - transferred, the part of the gap a rule blind to the truth
+    cannot be expected to close (the oracle fitting this noise draw);
+    ``auto_vs_transfer`` = transferred - auto, the part a better rule could recover."""
+    def key(r):
+        return r["snr"], r["inversion_snr"]
+
+    groups: dict = {}
+    for r in rows:
+        groups.setdefault((r["capture"], r["method"]), {}).setdefault(r["seed"], []).append(r)
+    out = []
+    for (cap, m), by_seed in groups.items():
+        if len(by_seed) < 2:
+            continue
+        grids = {s: {key(r): r["iou"] for r in rs if r["setting"] == "grid"}
+                 for s, rs in by_seed.items()}
+        for s, rs in sorted(by_seed.items()):
+            auto = next(r for r in rs if r["setting"] == "auto")
+            others = [g for t, g in grids.items() if t != s]
+            moved = max(grids[s], key=lambda k: float(np.mean([g[k] for g in others])))
+            best = max(grids[s], key=grids[s].get)
+            oracle, transferred = grids[s][best], grids[s][moved]
+            out.append({"capture": cap, "method": m, "seed": s, "auto_iou": auto["iou"],
+                        "auto_snr": auto["snr"], "auto_inversion_snr": auto["inversion_snr"],
+                        "oracle_iou": oracle, "oracle_snr": best[0],
+                        "oracle_inversion_snr": best[1], "transfer_iou": transferred,
+                        "transfer_snr": moved[0], "transfer_inversion_snr": moved[1],
+                        "gap": oracle - auto["iou"], "transfer_gap": oracle - transferred,
+                        "auto_vs_transfer": transferred - auto["iou"]})
+    return out
 
 
 def seed_spread(rows: list[dict]) -> list[dict]:
