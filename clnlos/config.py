@@ -22,11 +22,14 @@ optional and its default is the field default of :class:`ReconstructionConfig`::
     snr = "auto"                 # Wiener SNR of the slab deconvolution, or "auto": chosen
                                  # from the capture by cross-validation (clnlos.inverse.gcv), with
                                  # model_snr
-    snr_rule = "gcv"             # how "auto" picks it: "gcv" (cross-validation of the slab
-                                 # stage alone) or "thinning" (iterative: GCV's pick or a
-                                 # deeper one, whichever reconstruction of half the photons
-                                 # best predicts the other half, clnlos.inverse.thinning;
-                                 # one reconstruction of half the data per candidate)
+    snr_rule = "auto"            # how "auto" picks it: "thinning" for the iterative method
+                                 # with the slab's influence in its model on photon counts
+                                 # the slab model fits exactly (GCV's pick or a deeper one,
+                                 # whichever reconstruction of half the photons best
+                                 # predicts the other half, clnlos.inverse.thinning; 2-5
+                                 # reconstructions of half the data more), "gcv" (cross-
+                                 # validation of the slab stage alone) elsewhere; or either
+                                 # by name
     model_snr = "auto"           # accuracy of the slab model as an SNR; "auto": exact for a
                                  # capture clnlos simulated with this slab, else
                                  # clnlos.inverse.snr.MEASURED_MODEL_SNR
@@ -82,7 +85,7 @@ FALLOFF_RANGE = (0.0, 8.0)        # radiometric exponent p
 ITERATIONS_RANGE = (0, 100_000)   # iterative: FISTA iterations
 WEIGHT_RANGE = (0.0, 1e3)         # iterative: relative L1 / TV weights, TV depth scale
 DEPTH_GUARD_M = 0.15  # "auto" support: first-arrival depth minus this (slab delay + noise)
-SNR_RULES = ("gcv", "thinning")  # how an "auto" slab SNR is chosen (clnlos.inverse.pipeline)
+SNR_RULES = ("auto", "gcv", "thinning")  # how an "auto" slab SNR is chosen (inverse.pipeline)
 SLAB_MODELS = ("influence", "none")  # iterative: how the slab deconvolution enters the model
 MAX_BINS = 1 << 16    # time bins of a reconstructed volume at most (--bins and the window)
 
@@ -269,7 +272,7 @@ class ReconstructionConfig:
     slab: Slab | None = None
     n_dipoles: int | None = None
     snr: float | str = "auto"
-    snr_rule: str = "gcv"
+    snr_rule: str = "auto"
     model_snr: float | str = "auto"
     guard_fraction: float = 0.25
     lateral_pad: str = "mirror"
@@ -354,6 +357,16 @@ class ReconstructionConfig:
         if "slab" in d:
             kw["slab"], kw["n_dipoles"] = slab_from_table(d["slab"])
         return cls(**kw).validate()
+
+    @property
+    def thinning(self) -> bool:
+        """Whether the rule for an "auto" slab SNR is thinning (:mod:`clnlos.inverse.thinning`):
+        ``snr_rule`` "thinning", or "auto" with the method "iterative" and its slab model
+        "influence" (the model the held-out photons score). Whether it then acts depends on
+        the capture as well (:meth:`clnlos.inverse.pipeline.ReconstructionPipeline.run`)."""
+        if self.snr_rule == "auto":
+            return self.method == "iterative" and self.slab_model == "influence"
+        return self.snr_rule == "thinning"
 
     def as_attrs(self) -> dict:
         d = asdict(self)

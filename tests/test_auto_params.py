@@ -236,7 +236,8 @@ def test_closed_form_methods_take_a_deeper_slab_stage(queue):
     (IoU 0.43 against an oracle of 0.56). LCT raises it to the floor
     CLOSED_FORM_SLAB_SNR_MIN, is within 0.08 of the oracle grid again and well above its
     IoU at GCV's pick; f-k takes the same floor; the iterative method, which models the
-    deconvolution's smoothing, keeps GCV's."""
+    deconvolution's smoothing, keeps GCV's (``snr_rule = "gcv"``: the default's thinning
+    may deepen it, tests/test_thinning.py)."""
     from clnlos.inverse.snr import CLOSED_FORM_SLAB_SNR_MIN
 
     cap, mask = simulate_case(ORACLE_CASES[0], queue)
@@ -246,8 +247,8 @@ def test_closed_form_methods_take_a_deeper_slab_stage(queue):
     base = ReconstructionConfig(slab=cap.recorded_slab()[0])
     fk = reconstruct(cap, base.replace(method="fk").validate(), device=queue)
     assert fk.params["snr_used"] == fk.params["slab_snr_min"] == CLOSED_FORM_SLAB_SNR_MIN
-    it = reconstruct(cap, base.replace(method="iterative", iterations=5).validate(),
-                     device=queue)
+    it = reconstruct(cap, base.replace(method="iterative", iterations=5,
+                                       snr_rule="gcv").validate(), device=queue)
     assert it.params["snr_used"] == it.params["snr_data"] < CLOSED_FORM_SLAB_SNR_MIN / 3
     assert "slab_snr_min" not in it.params
 
@@ -413,7 +414,8 @@ def test_slab_influence_in_the_model_recovers_a_deep_plus(queue):
     against 0.80 on the oracle table's 32 x 32 case), at the same slab SNR."""
     case = replace(case_named("plus 0.25 m, scan 0.5 m, 0.7 m deep, 0.5 s"), points=24)
     cap, mask = simulate_case(case, queue)
-    base = ReconstructionConfig(slab=cap.recorded_slab()[0], method="iterative")
+    base = ReconstructionConfig(slab=cap.recorded_slab()[0], method="iterative",
+                                snr_rule="gcv")  # the same slab SNR for both models
     recs = {m: reconstruct(cap, base.replace(slab_model=m).validate(), device=queue)
             for m in ("none", "influence")}
     iou = {m: mip_iou(r.volume, mask)[0] for m, r in recs.items()}

@@ -3,6 +3,7 @@ the split, the score, the search, and the pipeline's use of them."""
 
 import json
 import math
+from dataclasses import replace
 
 import numpy as np
 import pytest
@@ -11,6 +12,7 @@ from clnlos.bench.oracle import OracleCase, simulate_case
 from clnlos.config import ReconstructionConfig
 from clnlos.errors import ParameterError
 from clnlos.inverse.pipeline import ReconstructionPipeline, reconstruct, resolve_geometry
+from clnlos.inverse.snr import MEASURED_MODEL_SNR
 from clnlos.inverse.thinning import (
     CV_STEP,
     THINNING_SEED,
@@ -149,7 +151,7 @@ def test_pipeline_takes_the_factor_the_held_out_half_prefers(small_capture, queu
     again = reconstruct(cap, cfg, device=queue)
     assert again.params["thinning_tried"] == p["thinning_tried"]
     # the search's choice is no worse on the truth than GCV's own pick by much
-    gcv = reconstruct(cap, base.validate(), device=queue)
+    gcv = reconstruct(cap, base.replace(snr_rule="gcv").validate(), device=queue)
     assert "thinning_factor" not in gcv.params
     assert mip_iou(rec.volume, mask)[0] >= mip_iou(gcv.volume, mask)[0] - 0.05
 
@@ -170,6 +172,29 @@ def test_a_broken_model_changes_the_score(small_capture, queue):
     finally:
         solver.scale[:] = saved
     assert abs(bad - good) > 1e-3 * good
+
+
+def test_auto_thins_only_where_the_slab_model_is_exact(small_capture, queue):
+    """snr_rule "auto" (the default): the iterative method with the slab's influence thins a
+    capture reconstructed with the slab it records (the model exact); given another slab (a
+    measured capture's case, the model's accuracy MEASURED_MODEL_SNR) GCV's pick stands,
+    without a note; "thinning" by name still thins there; "gcv", LCT and f-k never."""
+    cap, _ = small_capture
+    cfg = ReconstructionConfig(slab=cap.recorded_slab()[0], method="iterative",
+                               iterations=20).validate()
+    assert cfg.snr_rule == "auto" and cfg.thinning
+    assert not cfg.replace(snr_rule="gcv").thinning
+    assert not cfg.replace(slab_model="none").validate().thinning
+    assert not any(ReconstructionConfig(method=m).validate().thinning for m in ("lct", "fk"))
+    assert reconstruct(cap, cfg, device=queue).params["snr_rule_used"] == "thinning"
+    other = replace(cap.recorded_slab()[0], mu_a=0.6)  # not the slab it was simulated with
+    rec = reconstruct(cap, cfg.replace(slab=other).validate(), device=queue)
+    assert rec.params["model_snr_used"] == MEASURED_MODEL_SNR
+    assert "thinning_factor" not in rec.params
+    assert not any("thinning" in n for n in rec.notes)
+    named = reconstruct(cap, cfg.replace(slab=other, snr_rule="thinning").validate(),
+                        device=queue)
+    assert named.params["snr_rule_used"] == "thinning"
 
 
 def test_thinning_skips_data_that_are_not_counts(small_capture, queue):

@@ -220,10 +220,12 @@ def register_reconstruct(sub, add_device) -> None:
                         f"model's accuracy (default {C.snr})")
     r.add_argument("--snr-rule", choices=SNR_RULES,
                    help="how an auto slab SNR is chosen: gcv (generalised cross-validation "
-                        "of the slab stage) or thinning (iterative only: GCV's pick, or a "
+                        "of the slab stage), thinning (iterative only: GCV's pick, or a "
                         "deeper one where a reconstruction of half the photons, split "
                         "binomially, predicts the other half significantly better; 2-5 "
-                        "extra reconstructions of half the data) "
+                        "extra reconstructions of half the data), or auto: thinning for "
+                        "the iterative method on photon counts its slab model fits exactly "
+                        "(a capture simulated with this slab), gcv elsewhere "
                         f"(default {C.snr_rule})")
     r.add_argument("--inversion-snr", type=number_or_auto,
                    help="Wiener SNR of the LCT filter (and of the iterative warm start), or "

@@ -190,6 +190,7 @@ def compare_method(capture, mask, method: str, *, iterations: int | None = None,
     if method == "iterative":  # today's constant L1 weight (auto: from the noise), Wiener first
         today = today.replace(l1_weight=FIXED_L1_WEIGHT, slab_model="none")
         row["auto_l1_weight"] = rec.params.get("l1_weight_used")
+        row["auto_thinning_factor"] = rec.params.get("thinning_factor")  # None: GCV's pick
     if rec.params.get("slab_snr_raised"):  # the method's rule raised GCV's pick: without it
         row["auto_gcv_slab_iou"] = _run(capture, mask, base.replace(
             snr=combined_snr(rec.params["snr_data"], rec.params["model_snr_used"])
@@ -389,9 +390,10 @@ def snr_rule_rows(cases, seeds, stored: list[dict], *, rule: str = "thinning",
                   progress=print) -> list[dict]:
     """The slab SNR rule ``rule`` (``snr_rule``, :mod:`clnlos.inverse.thinning`) against the
     stored rows of :func:`oracle_rows` (``stored``: the same cases, seeds and method, made
-    with the default rule): per case and seed its IoU and chosen SNR beside the stored
-    default's (``gcv_iou``), today's and the oracle's, its gap to the oracle and its change
-    against today. Cases without a stored row get the default's IoU run here and no oracle."""
+    with GCV's pick, ``snr_rule = "gcv"``): per case and seed its IoU and chosen SNR beside
+    the stored GCV rule's (``gcv_iou``), today's and the oracle's, its gap to the oracle and
+    its change against today. Cases without a stored row get GCV's IoU run here and no
+    oracle."""
     kw = {} if iterations is None else {"iterations": iterations}
     index = {(r["capture"], r.get("seed", 0), r["method"]): r for r in stored}
     rows = []
@@ -404,7 +406,7 @@ def snr_rule_rows(cases, seeds, stored: list[dict], *, rule: str = "thinning",
             old = index.get((case.name, c.seed, method), {})
             gcv = old.get("auto_iou")
             if gcv is None:
-                gcv = _run(capture, mask, base.validate(), queue)[0]
+                gcv = _run(capture, mask, base.replace(snr_rule="gcv").validate(), queue)[0]
             row = {"capture": case.name, "seed": c.seed, "method": method, "rule": rule,
                    "rule_iou": v, "rule_snr": rec.params.get("snr_used"),
                    "rule_factor": rec.params.get("thinning_factor"),

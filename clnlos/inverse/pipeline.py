@@ -57,13 +57,14 @@ deconvolves to 1e7), f-k 1 (8; 0.20, a 12 cm 'U' whose oracle image is a blob be
 filled box's IoU). The raised SNR also sets the tail fill's cut level (:func:`cut_level`)
 for these methods. It has no config key: a configured slab SNR (a number) is used as given.
 The iterative method models Phi (``slab_model = "influence"``, :mod:`clnlos.inverse.iterative`)
-and keeps GCV's pick by default. With ``snr_rule = "thinning"`` (iterative only) it may take a
-deeper one: the counts are split binomially into two independent Poisson halves, and GCV's
-pick is raised by half-decade steps while a reconstruction of the first half predicts the
-second half's deconvolved transient significantly better
-(:meth:`ReconstructionPipeline.thinning_factor`, :mod:`clnlos.inverse.thinning`; 3-6x
-the time). On a measured capture the model's accuracy (MEASURED_MODEL_SNR) is combined with
-the raised value and dominates it: LCT and f-k take about MEASURED_MODEL_SNR there whatever
+and by default (``snr_rule = "auto"``, on counts its slab model fits exactly; "thinning"
+on any counts, "gcv" never) may take a deeper pick than GCV's: the counts are split
+binomially into two independent Poisson halves, and GCV's pick is raised by half-decade
+steps while a reconstruction of the first half predicts the second half's deconvolved
+transient significantly better (:meth:`ReconstructionPipeline.thinning_factor`,
+:mod:`clnlos.inverse.thinning`; 3-4x the time). On a measured capture the model's accuracy
+(MEASURED_MODEL_SNR) is combined with the raised value and dominates it (and "auto" does not
+thin there): LCT and f-k take about MEASURED_MODEL_SNR there whatever
 GCV's pick.
 
 Measured for the light-cone stage at GCV's slab SNR and rejected
@@ -375,7 +376,7 @@ class ReconstructionPipeline:
         timings: dict[str, float] = {}
         noise = self.raw_noise(transient)
         cv: dict | None = None
-        if slab_snr_factor is None and self._thinning_applies(transient, noise):
+        if slab_snr_factor is None and self._thinning_applies(transient, noise, model_snr):
             t0 = time.perf_counter()
             slab_snr_factor, cv = self.thinning_factor(transient, model_snr, setup)
             timings["choose_snr_thinning"] = time.perf_counter() - t0
@@ -458,14 +459,22 @@ class ReconstructionPipeline:
         return estimate_noise(np.asarray(transient)[k0:k1], self.raw_bin_width_s,
                               self.raw_start_s + k0 * self.raw_bin_width_s)
 
-    def _thinning_applies(self, transient: np.ndarray, noise: NoiseEstimate) -> bool:
-        """Whether an "auto" slab SNR is chosen by thinning: ``snr_rule = "thinning"``, a
-        slab, a method with a forward model and a capture of photon counts (``noise``: the
-        raw capture's, :meth:`raw_noise`)."""
+    def _thinning_applies(self, transient: np.ndarray, noise: NoiseEstimate,
+                          model_snr: float = math.inf) -> bool:
+        """Whether an "auto" slab SNR is chosen by thinning: the config's rule is thinning
+        (:attr:`clnlos.config.ReconstructionConfig.thinning`), with a slab, a method with a
+        forward model and a capture of photon counts (``noise``: the raw capture's,
+        :meth:`raw_noise`); under ``snr_rule = "auto"`` also only where the slab model is
+        exact (``model_snr`` infinite: a capture clnlos simulated with this slab). The score
+        takes Phi2 L rho for the held-out photons' mean: on a measured capture the model's
+        own error (MEASURED_MODEL_SNR, 1e4) exceeds the photon noise it would judge by, and
+        the combined SNR is capped at it anyway."""
         c = self.config
-        return (c.snr_rule == "thinning" and c.snr == "auto" and self.deconv is not None
-                and self.invert.forward_model and noise.photon_counts
-                and not noise.noise_free and is_counts(np.asarray(transient)))
+        if not c.thinning or (c.snr_rule == "auto" and math.isfinite(model_snr)):
+            return False
+        return (c.snr == "auto" and self.deconv is not None and self.invert.forward_model
+                and noise.photon_counts and not noise.noise_free
+                and is_counts(np.asarray(transient)))
 
     def thinning_factor(self, transient: np.ndarray, model_snr: float = math.inf,
                         setup=None) -> tuple[float, dict]:

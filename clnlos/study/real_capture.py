@@ -252,7 +252,10 @@ def compare_real_capture(path, method: str = "lct", *, iterations: int | None = 
     name = capture_name(path)
     grid = StudyGrid() if grid is None else grid
     queue = get_queue(queue)
-    cfg = capture_config(name, method, iterations=iterations)
+    # the study grid's slab SNR rule for both: the simulation's slab model is exact, so
+    # under "auto" the iterative method would choose it by thinning there and not on the real
+    cfg = capture_config(name, method, iterations=iterations).replace(
+        snr_rule=grid.snr_rule).validate()
     real_cap = read_capture(path)
     rec_real = reconstruct(real_cap, cfg, device=queue)
     letters = estimate_letters(rec_real.volume, rec_real.extents)

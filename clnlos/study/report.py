@@ -519,7 +519,8 @@ def write_report(out_dir, results, plan, res, real=None) -> None:
         f"n 1.12), 35 ps pulse, {g['rep_rate_hz'] / 1e6:.0f} MHz, {g['power_w'] * 1e3:.0f} mW "
         f"at {g['wavelength_m'] * 1e9:.0f} nm, 0.1 s per scan point unless swept; "
         f"reconstruction: {g['method']}"
-        + (f" ({g['iterations']} iterations)" if g["method"] == "iterative" else "")
+        + (f" ({g['iterations']} iterations, slab SNR by {g.get('snr_rule', 'gcv')})"
+           if g["method"] == "iterative" else "")
         + f"; glyphs {''.join(results['options']['glyphs'])} (K = "
         f"{len(results['options']['glyphs'])}), {results['options']['seeds']} noise "
         f"realisation(s) each; {results['n_dataset']} reconstructions in all.</p>",

@@ -73,7 +73,7 @@ class ResolutionGeometry:
 
     Fields left None are the study grid's (:class:`clnlos.study.dataset.StudyGrid`, filled
     by :meth:`resolve`): ``scan_width_m``, ``points``, ``bin_width_s``, ``pulse_width_s``,
-    ``iterations``, and ``max_path_m`` (the study's window for this depth,
+    ``iterations``, ``snr_rule``, and ``max_path_m`` (the study's window for this depth,
     :func:`clnlos.study.dataset.window_m`)."""
 
     depth_m: float = 0.5
@@ -84,6 +84,7 @@ class ResolutionGeometry:
     pulse_width_s: float | None = None
     max_path_m: float | None = None
     iterations: int | None = None
+    snr_rule: str | None = None
     patch_m: float = 0.01
     density_per_m2: float = 4e6  # 400 surface elements on the 1 cm patch
     text: str = "UT"
@@ -104,7 +105,7 @@ class ResolutionGeometry:
     def resolve(self, grid) -> ResolutionGeometry:
         """A copy with every None field taken from the study ``grid``."""
         fill = {f: getattr(grid, f) for f in ("scan_width_m", "points", "bin_width_s",
-                                              "pulse_width_s", "iterations")
+                                              "pulse_width_s", "iterations", "snr_rule")
                 if getattr(self, f) is None}
         if self.max_path_m is None:
             fill["max_path_m"] = window_m({"depth_m": self.depth_m}, grid)
@@ -291,8 +292,9 @@ def _measure(capture, geometry: ResolutionGeometry, methods, queue) -> dict:
     out: dict = {}
     gamma = None
     for m in methods:
+        rule = {} if g.snr_rule is None else {"snr_rule": g.snr_rule}
         cfg = ReconstructionConfig(max_path_m=g.max_path_m, slab=g.slab, method=m,
-                                   iterations=g.iterations).validate()
+                                   iterations=g.iterations, **rule).validate()
         rec = reconstruct(capture, cfg, device=queue, keep_transient=gamma is None)
         e = rec.extents
         out[m] = volume_fwhm(rec.volume, e["voxel_lateral_m"], e["voxel_depth_m"], (iy, ix))

@@ -340,6 +340,7 @@ def resolution_geometry(geo: Geometry, grid: StudyGrid) -> ResolutionGeometry:
         scan_width_m=geo.scan_width_m, points=grid.points, depth_m=geo.depth_m,
         bin_width_s=grid.bin_width_s, pulse_width_s=grid.pulse_width_s,
         max_path_m=window_m({"depth_m": geo.depth_m}, grid), iterations=grid.iterations,
+        snr_rule=grid.snr_rule,
         text="E", letter_height_m=geo.letter_height_m, stroke_m=geo.stroke_m)
 
 
