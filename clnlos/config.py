@@ -311,9 +311,9 @@ class ReconstructionConfig:
         if v["snr_rule"] == "thinning" and (self.method != "iterative"
                                             or self.slab_model != "influence"):
             raise ParameterError(nm("snr_rule"), self.snr_rule,
-                                 "\"gcv\" (\"thinning\" scores the model the method fits "
-                                 "on the held-out photons: method \"iterative\" with "
-                                 "slab_model \"influence\")")
+                                 "\"auto\" or \"gcv\" (\"thinning\" scores the model the "
+                                 "method fits on the held-out photons: method "
+                                 "\"iterative\" with slab_model \"influence\")")
         v["model_snr"] = auto_or_positive(nm("model_snr"), self.model_snr, upper=1e30)
         v["guard_fraction"] = positive(nm("guard_fraction"), self.guard_fraction,
                                        allow_zero=True, upper=4.0)

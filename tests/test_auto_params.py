@@ -291,12 +291,14 @@ def test_seed_spread_tells_a_regression_from_seed_luck():
     assert out["b"]["vs_today_mean"] == pytest.approx(-0.055)
 
 
-def _grid_seed(capture, seed, auto, ious):
-    """grid_rows-shaped rows of one seed: auto's IoU and two grid settings'."""
-    rows = [{"capture": capture, "seed": seed, "method": "lct", "setting": "auto",
-             "snr": 3e5, "inversion_snr": 300.0, "iou": auto}]
-    return rows + [{"capture": capture, "seed": seed, "method": "lct", "setting": "grid",
-                    "snr": a, "inversion_snr": 1e3, "iou": v}
+def _grid_seed(capture, seed, auto, ious, method="lct"):
+    """grid_rows-shaped rows of one seed: auto's IoU and two grid settings' (f-k: no
+    light-cone SNR)."""
+    inv = None if method == "fk" else 1e3
+    rows = [{"capture": capture, "seed": seed, "method": method, "setting": "auto",
+             "snr": 3e5, "inversion_snr": None if inv is None else 300.0, "iou": auto}]
+    return rows + [{"capture": capture, "seed": seed, "method": method, "setting": "grid",
+                    "snr": a, "inversion_snr": inv, "iou": v}
                    for a, v in zip((1e4, 1e6), ious, strict=True)]
 
 
@@ -322,6 +324,13 @@ def test_transfer_tells_noise_luck_from_a_setting_the_capture_needs():
         assert r["auto_vs_transfer"] == pytest.approx(r["gap"]) and r["gap"] > 0.1
     for r in out.values():
         assert r["gap"] == pytest.approx(r["transfer_gap"] + r["auto_vs_transfer"])
+    # f-k rows (no light-cone SNR) and a tie: the first grid setting, as compare_method takes
+    fk = transfer_rows(_grid_seed("fk", 0, 0.5, (0.6, 0.6), "fk")
+                       + _grid_seed("fk", 1, 0.5, (0.55, 0.7), "fk"))
+    r0, r1 = sorted(fk, key=lambda r: r["seed"])
+    assert r0["method"] == "fk" and r0["oracle_snr"] == 1e4 and r0["transfer_snr"] == 1e6
+    assert r0["transfer_inversion_snr"] is None and r0["transfer_gap"] == 0.0
+    assert r1["transfer_snr"] == 1e4 and r1["transfer_gap"] == pytest.approx(0.15)
 
 
 def test_grid_rows_keep_what_compare_method_reduces(tiny_capture, queue):
@@ -336,7 +345,13 @@ def test_grid_rows_keep_what_compare_method_reduces(tiny_capture, queue):
     assert auto["iou"] == row["auto_iou"] and auto["snr"] == row["auto_snr"]
     moved = {r["seed"]: r for r in transfer_rows(rows)}
     assert moved[0]["oracle_iou"] == row["oracle_iou"]
-    assert all(r["transfer_gap"] >= 0.0 for r in moved.values())
+    for s, r in moved.items():  # the transferred setting's IoU is this seed's at it
+        at = {(g["snr"], g["inversion_snr"]): g["iou"] for g in rows
+              if g["seed"] == s and g["setting"] == "grid"}
+        assert r["transfer_iou"] == at[r["transfer_snr"], r["transfer_inversion_snr"]]
+        other = {(g["snr"], g["inversion_snr"]): g["iou"] for g in rows
+                 if g["seed"] != s and g["setting"] == "grid"}
+        assert other[r["transfer_snr"], r["transfer_inversion_snr"]] == max(other.values())
 
 
 def test_noise_l1_weight_leaves_pure_noise_empty(queue):

@@ -190,7 +190,7 @@ def test_auto_thins_only_where_the_slab_model_is_exact(small_capture, queue):
     other = replace(cap.recorded_slab()[0], mu_a=0.6)  # not the slab it was simulated with
     rec = reconstruct(cap, cfg.replace(slab=other).validate(), device=queue)
     assert rec.params["model_snr_used"] == MEASURED_MODEL_SNR
-    assert "thinning_factor" not in rec.params
+    assert "thinning_factor" not in rec.params and rec.params["snr_rule_used"] == "gcv"
     assert not any("thinning" in n for n in rec.notes)
     named = reconstruct(cap, cfg.replace(slab=other, snr_rule="thinning").validate(),
                         device=queue)

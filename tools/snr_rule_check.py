@@ -1,5 +1,5 @@
 """The slab SNR's thinning rule (``snr_rule = "thinning"``, :mod:`clnlos.inverse.thinning`)
-against the default rule and the stored oracle tables (:func:`clnlos.bench.oracle.
+against GCV's pick (``snr_rule = "gcv"``) and the stored oracle tables (:func:`clnlos.bench.oracle.
 snr_rule_rows`): writes tools/results/snr_rule_thinning[_both_ways].{csv,json} and prints
 the mean change, the worst gap and the worst change against today.
 
@@ -9,7 +9,8 @@ the mean change, the worst gap and the worst change against today.
 ``--both-ways`` lets the search lower GCV's pick too (factors 1e-2 to 1e2): the measurement
 that set CV_FACTOR_RANGE (deeper only). The defaults are the check after it: captures the
 choice had not seen (the held-out captures at noise seed 2, FRESH_CASES at seed 3).
-Captures without a stored oracle row get the default rule's IoU run here and no oracle.
+Captures without a stored oracle row (or whose row was not made at GCV's pick) get GCV's IoU
+run here and no oracle.
 """
 
 from __future__ import annotations

@@ -190,6 +190,7 @@ def compare_method(capture, mask, method: str, *, iterations: int | None = None,
     if method == "iterative":  # today's constant L1 weight (auto: from the noise), Wiener first
         today = today.replace(l1_weight=FIXED_L1_WEIGHT, slab_model="none")
         row["auto_l1_weight"] = rec.params.get("l1_weight_used")
+        row["auto_snr_rule"] = rec.params.get("snr_rule_used", "gcv")
         row["auto_thinning_factor"] = rec.params.get("thinning_factor")  # None: GCV's pick
     if rec.params.get("slab_snr_raised"):  # the method's rule raised GCV's pick: without it
         row["auto_gcv_slab_iou"] = _run(capture, mask, base.replace(
@@ -404,7 +405,8 @@ def snr_rule_rows(cases, seeds, stored: list[dict], *, rule: str = "thinning",
             base = ReconstructionConfig(slab=capture.recorded_slab()[0], method=method, **kw)
             v, rec = _run(capture, mask, base.replace(snr_rule=rule).validate(), queue)
             old = index.get((case.name, c.seed, method), {})
-            gcv = old.get("auto_iou")
+            # rows stored before "auto" thinned (no auto_snr_rule) are GCV's
+            gcv = old.get("auto_iou") if old.get("auto_snr_rule", "gcv") == "gcv" else None
             if gcv is None:
                 gcv = _run(capture, mask, base.replace(snr_rule="gcv").validate(), queue)[0]
             row = {"capture": case.name, "seed": c.seed, "method": method, "rule": rule,
@@ -419,7 +421,7 @@ def snr_rule_rows(cases, seeds, stored: list[dict], *, rule: str = "thinning",
                 row[k] = None if r is None else (r - v if k == "gap" else v - r)
             rows.append(row)
             if progress:
-                progress(f"{case.name} seed {c.seed} [{method}, {rule}]: {v:.3f} (default "
+                progress(f"{case.name} seed {c.seed} [{method}, {rule}]: {v:.3f} (GCV "
                          f"{gcv:.3f}, oracle {row['oracle_iou']}, factor "
                          f"{row['rule_factor']})")
     return rows

@@ -416,7 +416,9 @@ def bench_iterative(b: Bench):
         cover = np.clip(coverage_image(fm.samples.elements, scene.scan_centres()), 0, 1)
         mask = cover >= 0.5
         # the iterative method at each iteration count with the default slab model, and at
-        # the largest with Wiener first (slab_model "none": the knob's accuracy and cost)
+        # the largest with Wiener first (slab_model "none": the knob's accuracy and cost);
+        # all at GCV's slab SNR, so that the rows differ by the knob alone (the default's
+        # thinning is its own row of auto_params, and would deepen far at 5 iterations)
         settings = ([("lct", None, None), ("fk", None, None)]
                     + [("iterative", k, None) for k in iters] + [("iterative", iters[-1], "none")])
         for method, k, slab_model in settings:
@@ -424,7 +426,7 @@ def bench_iterative(b: Bench):
             if slab_model:
                 extra["slab_model"] = slab_model
             cfg = ReconstructionConfig(max_path_m=1.6, slab=CDT_SLAB, method=method,
-                                       **extra).validate()
+                                       snr_rule="gcv", **extra).validate()
 
             def run(cfg=cfg, cap=cap):
                 return reconstruct(cap, cfg, device=b.q)

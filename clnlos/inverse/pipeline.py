@@ -423,6 +423,9 @@ class ReconstructionPipeline:
             params["model_snr_used"] = model_snr
             if cv is not None:
                 params.update(cv)
+            elif gcv_snr is not None and slab_snr_factor is None:
+                params["snr_rule_used"] = "gcv"  # what "auto" came to (the method's floor
+                #                                  on top where it has one: slab_snr_raised)
             tau = self._timed(timings, "deconvolve", deconv, tau)
             if isinstance(deconv, TailFilledDeconvolution):
                 params["tail_fill_snr"] = deconv.fill_snr  # the fill's SNR (tail_fill)
@@ -460,7 +463,7 @@ class ReconstructionPipeline:
                               self.raw_start_s + k0 * self.raw_bin_width_s)
 
     def _thinning_applies(self, transient: np.ndarray, noise: NoiseEstimate,
-                          model_snr: float = math.inf) -> bool:
+                          model_snr: float) -> bool:
         """Whether an "auto" slab SNR is chosen by thinning: the config's rule is thinning
         (:attr:`clnlos.config.ReconstructionConfig.thinning`), with a slab, a method with a
         forward model and a capture of photon counts (``noise``: the raw capture's,

@@ -63,9 +63,10 @@ class StudyGrid:
     method: str = "iterative"
     iterations: int = 50  # the study's budget (a quarter of the config's default): most of
     #                       the iterative gain is in by 50 iterations at this grid
-    snr_rule: str = "gcv"  # the study's budget too: GCV's slab SNR, not the config's
-    #                        "auto" (thinning for the iterative method, 3-4x the time of a
-    #                        sample: 18-22 s against 5-8 s measured; clnlos.inverse.thinning)
+    snr_rule: str = "gcv"  # the iterative method's slab SNR rule, the study's budget too:
+    #                        GCV's pick, not the config's "auto" (which thins the counts,
+    #                        3-4x the time of a sample: 18-22 s against 5-8 s measured;
+    #                        clnlos.inverse.thinning)
     # the detector: the scene's defaults (seed Table 1), but for the etendue and dark counts
     # of the study's SPAD behind the slab
     power_w: float = Detector.power_w
@@ -187,9 +188,10 @@ def render_sample(sample: dict, grid: StudyGrid, device: str | None = None) -> d
     scene = Scene.from_dict(scene_dict(sample, grid))
     fm = ForwardModel(scene, queue=queue)
     cap = fm.capture()
+    rule = {"snr_rule": grid.snr_rule} if grid.method == "iterative" else {}  # its rule
     cfg = ReconstructionConfig(max_path_m=window_m(sample, grid), slab=scene.slab,
                                method=grid.method, iterations=grid.iterations,
-                               snr_rule=grid.snr_rule).validate()
+                               **rule).validate()
     rec = reconstruct(cap, cfg, device=queue)
     vol = rec.volume
     mip = vol.max(axis=0)

@@ -81,11 +81,15 @@ def capture_name(path) -> str:
 
 
 def capture_config(name: str, method: str = "lct", *, published_snr: bool = False,
-                   iterations: int | None = None) -> ReconstructionConfig:
+                   iterations: int | None = None,
+                   snr_rule: str | None = None) -> ReconstructionConfig:
     """Reconstruction settings for a shared CDT capture: its published scan width and slab,
     HIDDEN_PATH_M rebinned to PUBLISHED_BINS; SNRs "auto" (the defaults) or, with
-    ``published_snr``, the published 1e4 (examples/cdt_letters_ut.toml)."""
+    ``published_snr``, the published 1e4 (examples/cdt_letters_ut.toml); ``snr_rule``, where
+    given, the iterative method's slab SNR rule (the study grid's)."""
     kw = {} if iterations is None else {"iterations": iterations}
+    if snr_rule is not None and method == "iterative":  # the study grid's (the others': GCV)
+        kw["snr_rule"] = snr_rule
     if published_snr:
         kw.update(snr=PUBLISHED_SNR, inversion_snr=PUBLISHED_SNR)
     return ReconstructionConfig(scan_width_m=PUBLISHED_SCAN_WIDTH_M[name],
@@ -254,8 +258,7 @@ def compare_real_capture(path, method: str = "lct", *, iterations: int | None = 
     queue = get_queue(queue)
     # the study grid's slab SNR rule for both: the simulation's slab model is exact, so
     # under "auto" the iterative method would choose it by thinning there and not on the real
-    cfg = capture_config(name, method, iterations=iterations).replace(
-        snr_rule=grid.snr_rule).validate()
+    cfg = capture_config(name, method, iterations=iterations, snr_rule=grid.snr_rule)
     real_cap = read_capture(path)
     rec_real = reconstruct(real_cap, cfg, device=queue)
     letters = estimate_letters(rec_real.volume, rec_real.extents)

@@ -292,7 +292,8 @@ def _measure(capture, geometry: ResolutionGeometry, methods, queue) -> dict:
     out: dict = {}
     gamma = None
     for m in methods:
-        rule = {} if g.snr_rule is None else {"snr_rule": g.snr_rule}
+        # the grid's slab SNR rule is the iterative method's (the others' is GCV's anyway)
+        rule = {"snr_rule": g.snr_rule} if g.snr_rule is not None and m == "iterative" else {}
         cfg = ReconstructionConfig(max_path_m=g.max_path_m, slab=g.slab, method=m,
                                    iterations=g.iterations, **rule).validate()
         rec = reconstruct(capture, cfg, device=queue, keep_transient=gamma is None)

@@ -54,6 +54,7 @@ from scipy.special import stdtrit  # Student's t quantile (what scipy.stats.t.pp
 from clnlos.app.progress import counter, progress_bar
 from clnlos.brdf.models import BRDFModel
 from clnlos.brdf.presets import preset_model, preset_table
+from clnlos.config import SNR_RULES
 from clnlos.errors import ParameterError
 from clnlos.forward.scene import Scene
 from clnlos.inverse.methods import method_names
@@ -188,6 +189,8 @@ class StudyOptions:
             raise ParameterError("--labels", self.labels, " or ".join(LABEL_METRICS))
         if self.grid.method not in method_names():
             raise ParameterError("--method", self.grid.method, ", ".join(method_names()))
+        if self.grid.snr_rule not in SNR_RULES:  # the iterative method's (StudyGrid)
+            raise ParameterError("snr_rule", self.grid.snr_rule, ", ".join(SNR_RULES))
         if self.n_dataset < 0:
             raise ParameterError("--n-dataset", self.n_dataset, ">= 0")
         if self.seeds < 1:
@@ -521,7 +524,8 @@ def real_captures_cnn(cdt: Path, predict, grid: StudyGrid, device=None) -> list[
         path = cdt / f"{name}.mat"
         if not path.is_file():
             continue
-        cfg = capture_config(name, grid.method, iterations=grid.iterations)
+        cfg = capture_config(name, grid.method, iterations=grid.iterations,
+                             snr_rule=grid.snr_rule)
         mip = reconstruct(read_capture(path), cfg, device=device).volume.max(axis=0)
         if mip.shape != (grid.points, grid.points):
             mip = zoom(mip, (grid.points / mip.shape[0], grid.points / mip.shape[1]), order=1)
