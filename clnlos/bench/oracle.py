@@ -172,6 +172,14 @@ def grid_settings(method: str) -> list[tuple[float, float]]:
     return [(a, b) for a in slab for b in inv]
 
 
+def grid_ious(capture, mask, base: ReconstructionConfig, method: str, queue=None
+              ) -> list[tuple[float, float, float]]:
+    """(slab SNR, light-cone SNR, IoU) for every setting of :func:`grid_settings` (``base``:
+    the config the settings replace the SNRs of), in the grid's order."""
+    return [(a, b, _run(capture, mask, base.replace(snr=a, inversion_snr=b).validate(),
+                        queue)[0]) for a, b in grid_settings(method)]
+
+
 def compare_method(capture, mask, method: str, *, iterations: int | None = None,
                    grid: bool = True, queue=None) -> dict:
     """auto, today's photon rule and the oracle grid for one capture and method: a row
@@ -204,13 +212,9 @@ def compare_method(capture, mask, method: str, *, iterations: int | None = None,
     if not grid:
         return {**row, "oracle_iou": None, "oracle_snr": None, "oracle_inversion_snr": None,
                 "gap": None}
-    best = (-1.0, None, None)
-    for a, b in grid_settings(method):
-        v = _run(capture, mask, base.replace(snr=a, inversion_snr=b).validate(), queue)[0]
-        if v > best[0]:
-            best = (v, a, b)
-    row["oracle_iou"], row["oracle_snr"] = best[0], best[1]
-    row["oracle_inversion_snr"] = best[2] if method != "fk" else None
+    a, b, v = max(grid_ious(capture, mask, base, method, queue), key=lambda t: t[2])  # first best
+    row["oracle_iou"], row["oracle_snr"] = v, a
+    row["oracle_inversion_snr"] = b if method != "fk" else None
     row["gap"] = row["oracle_iou"] - auto_iou
     row["vs_today"] = row.pop("vs_today")  # the column after gap, as before
     return row
@@ -254,11 +258,9 @@ def grid_rows(cases, seeds, methods=("lct", "fk"), *, iterations: int | None = N
                 v, rec = _run(capture, mask, base.validate(), queue)
                 mine = [{"setting": "auto", "snr": rec.params.get("snr_used"),
                          "inversion_snr": rec.params.get("inversion_snr_used"), "iou": v}]
-                for a, b in grid_settings(m):
-                    cfg = base.replace(snr=a, inversion_snr=b).validate()
-                    mine.append({"setting": "grid", "snr": a,
-                                 "inversion_snr": b if m != "fk" else None,
-                                 "iou": _run(capture, mask, cfg, queue)[0]})
+                mine += [{"setting": "grid", "snr": a,
+                          "inversion_snr": b if m != "fk" else None, "iou": iou}
+                         for a, b, iou in grid_ious(capture, mask, base, m, queue)]
                 rows += [{"capture": case.name, "seed": int(s), "method": m, **r}
                          for r in mine]
                 if progress:

@@ -64,8 +64,7 @@ steps while a reconstruction of the first half predicts the second half's deconv
 transient significantly better (:meth:`ReconstructionPipeline.thinning_factor`,
 :mod:`clnlos.inverse.thinning`; 3-4x the time). On a measured capture the model's accuracy
 (MEASURED_MODEL_SNR) is combined with the raised value and dominates it (and "auto" does not
-thin there): LCT and f-k take about MEASURED_MODEL_SNR there whatever
-GCV's pick.
+thin there): LCT and f-k take about MEASURED_MODEL_SNR there whatever GCV's pick.
 
 Measured for the light-cone stage at GCV's slab SNR and rejected
 (tools/results/lct_low_exposure_criteria.csv): UPRE of the composed estimate on the raw data
@@ -382,9 +381,8 @@ class ReconstructionPipeline:
             timings["choose_snr_thinning"] = time.perf_counter() - t0
         x = cla.to_device(self.queue, np.ascontiguousarray(transient, self.dtype))
         tau = self._timed(timings, "preprocess", self.pre, x)
-        with host_view(tau) as t_host:  # small reductions on the host: no kernel builds
-            profile = t_host.reshape(t_host.shape[0], -1).sum(axis=1, dtype=np.float64)
-            peak, total = float(t_host.max()), float(profile.sum())
+        profile, peak = self._profile_peak(tau)
+        total = float(profile.sum())
         if not peak > 0:
             raise InputFileError("the capture holds no signal in the kept time window "
                                  "(all zero): nothing to reconstruct")
@@ -394,8 +392,7 @@ class ReconstructionPipeline:
             s = peak if norm == "max" else total
             if s > 0:
                 scale = 1.0 / s
-                self._rk.scale_inplace(self.queue, (round_up(tau.size, 256),), None, tau.data,
-                                       self.dtype.type(scale), np.int64(tau.size))
+                self._scale_inplace(tau, scale)
         data_snr = gcv_snr = None
         if self.deconv is not None and self.config.snr == "auto" and not noise.noise_free:
             gcv_snr = self._timed(timings, "choose_snr", self.slab_gcv_snr, tau)
@@ -536,16 +533,13 @@ class ReconstructionPipeline:
     def _held_out(self, y2: np.ndarray) -> tuple[np.ndarray, float, list[np.ndarray]]:
         """(the held-out half's deconvolved transient on the inverted grid, host; its GCV
         slab SNR; CV_NOISE_RUNS realisations of its noise through the same steps,
-        :meth:`_noise_like`): preprocessed, normalised as the data are and deconvolved at
-        the SNR GCV picks for it (:meth:`slab_gcv_snr`), tail-filled where the window needs
-        it."""
+        :meth:`_noise_like`): preprocessed, divided by its peak (the score fits the scale)
+        and deconvolved at the SNR GCV picks for it (:meth:`slab_gcv_snr`), tail-filled where
+        the window needs it."""
         tau = self.pre(cla.to_device(self.queue, np.ascontiguousarray(y2, self.dtype)))
-        with host_view(tau) as t_host:
-            profile = t_host.reshape(t_host.shape[0], -1).sum(axis=1, dtype=np.float64)
-            peak = float(t_host.max())
+        profile, peak = self._profile_peak(tau)
         if peak > 0:
-            self._rk.scale_inplace(self.queue, (round_up(tau.size, 256),), None, tau.data,
-                                   self.dtype.type(1.0 / peak), np.int64(tau.size))
+            self._scale_inplace(tau, 1.0 / peak)
         noise = self.raw_noise(y2)
         snr = self.slab_gcv_snr(tau)
         deconv = self._deconvolution_for(profile, noise, snr, {}, [])
@@ -555,6 +549,19 @@ class ReconstructionPipeline:
         noise_runs = [self._noise_like(y2, scale, deconv, snr, NOISE_PROBE_SEED + 1 + j).get()
                       for j in range(CV_NOISE_RUNS)]
         return out, snr, noise_runs
+
+    @staticmethod
+    def _profile_peak(tau: cla.Array) -> tuple[np.ndarray, float]:
+        """(the scan-summed profile [t], float64; the peak) of a preprocessed transient:
+        small reductions on the host, no kernel builds."""
+        with host_view(tau) as t_host:
+            profile = t_host.reshape(t_host.shape[0], -1).sum(axis=1, dtype=np.float64)
+            return profile, float(t_host.max())
+
+    def _scale_inplace(self, a: cla.Array, s: float) -> None:
+        """a *= s on the device (the normalisation of a transient and of its noise)."""
+        self._rk.scale_inplace(self.queue, (round_up(a.size, 256),), None, a.data,
+                               self.dtype.type(s), np.int64(a.size))
 
     def _slab_influence(self, snr: float):
         """The influence Phi of the slab's Wiener filter at ``snr`` on the inverted
@@ -578,8 +585,7 @@ class ReconstructionPipeline:
         n = np.sqrt(np.maximum(y, 0), dtype=np.float64) * rng.standard_normal(y.shape)
         t = self.pre(cla.to_device(self.queue, np.ascontiguousarray(n, self.dtype)))
         if scale != 1.0:
-            self._rk.scale_inplace(self.queue, (round_up(t.size, 256),), None, t.data,
-                                   self.dtype.type(scale), np.int64(t.size))
+            self._scale_inplace(t, scale)
         if deconv is not None:
             deconv.set_snr(snr)
             t = deconv(t)
