@@ -20,16 +20,19 @@ optional and its default is the field default of :class:`ReconstructionConfig`::
     n_dipoles = 20               # optional (default: auto)
     [deconvolution]
     snr = "auto"                 # Wiener SNR of the slab deconvolution, or "auto": chosen
-                                 # from the capture by cross-validation (clnlos.inverse.gcv), with
-                                 # model_snr
-    snr_rule = "auto"            # how "auto" picks it: "thinning" for the iterative method
-                                 # with the slab's influence in its model on photon counts
-                                 # the slab model fits exactly (GCV's pick or a deeper one,
-                                 # whichever reconstruction of half the photons best
+                                 # from the capture by snr_rule (below), with model_snr
+    snr_rule = "auto"            # how "auto" picks it, on photon counts the slab model
+                                 # fits exactly: for the iterative method with the slab's
+                                 # influence in its model "thinning" (GCV's pick or a deeper
+                                 # one, whichever reconstruction of half the photons best
                                  # predicts the other half, clnlos.inverse.thinning; 2-5
-                                 # reconstructions of half the data more), "gcv" (cross-
-                                 # validation of the slab stage alone) elsewhere; or either
-                                 # by name
+                                 # reconstructions of half the data more); for LCT
+                                 # "reproducibility" (the least regularised slab and light-
+                                 # cone SNRs whose two halves of the photons give agreeing
+                                 # thresholded images, clnlos.inverse.reproducibility; up
+                                 # to 18 half reconstructions more); "gcv" (cross-validation
+                                 # of the slab stage alone) elsewhere; or any by name
+                                 # ("reproducibility" also for f-k)
     model_snr = "auto"           # accuracy of the slab model as an SNR; "auto": exact for a
                                  # capture clnlos simulated with this slab, else
                                  # clnlos.inverse.snr.MEASURED_MODEL_SNR
@@ -39,9 +42,10 @@ optional and its default is the field default of :class:`ReconstructionConfig`::
     [inversion]
     method = "lct"               # a registered method: "lct", "fk" or "iterative"
     snr = "auto"                 # Wiener SNR of the LCT light-cone filter (and of the
-                                 # iterative method's LCT warm start); "auto": chosen from
-                                 # the deconvolved transient by cross-validation
-                                 # (clnlos.inverse.gcv)
+                                 # iterative method's LCT warm start); "auto": with the slab
+                                 # SNR where [deconvolution] snr_rule searches both (LCT),
+                                 # else from the deconvolved transient by UPRE or cross-
+                                 # validation (clnlos.inverse.gcv)
     falloff = 4.0                # radiometric exponent p (default: LCT 4, f-k 2)
     iterations = 200             # iterative: FISTA iterations at most
     l1_weight = "auto"           # iterative: L1 weight relative to max(L^T I), or "auto":
@@ -73,7 +77,7 @@ from clnlos.checks import (
     real,
 )
 from clnlos.errors import InputFileError, ParameterError
-from clnlos.inverse.methods import default_falloffs, method_names
+from clnlos.inverse.methods import auto_snr_rule, default_falloffs, method_names
 from clnlos.physics.slab import Slab
 
 # falloff = None: the method's own radiometric exponent p of (t/T)^p (its registry entry):
@@ -85,9 +89,21 @@ FALLOFF_RANGE = (0.0, 8.0)        # radiometric exponent p
 ITERATIONS_RANGE = (0, 100_000)   # iterative: FISTA iterations
 WEIGHT_RANGE = (0.0, 1e3)         # iterative: relative L1 / TV weights, TV depth scale
 DEPTH_GUARD_M = 0.15  # "auto" support: first-arrival depth minus this (slab delay + noise)
-SNR_RULES = ("auto", "gcv", "thinning")  # how an "auto" slab SNR is chosen (inverse.pipeline)
+# how "auto" SNRs are chosen (clnlos.inverse.pipeline; "auto": the method's, MethodEntry)
+SNR_RULES = ("auto", "gcv", "thinning", "reproducibility")
 SLAB_MODELS = ("influence", "none")  # iterative: how the slab deconvolution enters the model
 MAX_BINS = 1 << 16    # time bins of a reconstructed volume at most (--bins and the window)
+
+def snr_rule_applies(rule: str, method: str) -> bool:
+    """Whether ``snr_rule = rule`` is valid for the registered ``method`` ("auto" and "gcv"
+    for any; "thinning" for the method whose rule it is, the iterative one; "reproducibility"
+    for the others, the closed forms): where a caller sets one rule for several methods
+    (the study), the methods it is not valid for keep their default."""
+    if rule in ("auto", "gcv"):
+        return True
+    thins = auto_snr_rule(method) == "thinning"
+    return thins if rule == "thinning" else rule == "reproducibility" and not thins
+
 
 # The one range table of the capture geometry (SI units): (low, high, low allowed). The flags,
 # the [capture] table and the values read from capture files are all checked against it.
@@ -314,6 +330,12 @@ class ReconstructionConfig:
                                  "\"auto\" or \"gcv\" (\"thinning\" scores the model the "
                                  "method fits on the held-out photons: method "
                                  "\"iterative\" with slab_model \"influence\")")
+        if (v["snr_rule"] == "reproducibility" and self.method in method_names()
+                and auto_snr_rule(self.method) == "thinning"):
+            raise ParameterError(nm("snr_rule"), self.snr_rule,
+                                 "\"auto\", \"gcv\" or \"thinning\" (\"reproducibility\" "
+                                 "chooses the SNRs of the closed-form methods \"lct\" and "
+                                 "\"fk\")")
         v["model_snr"] = auto_or_positive(nm("model_snr"), self.model_snr, upper=1e30)
         v["guard_fraction"] = positive(nm("guard_fraction"), self.guard_fraction,
                                        allow_zero=True, upper=4.0)
@@ -361,12 +383,23 @@ class ReconstructionConfig:
     @property
     def thinning(self) -> bool:
         """Whether the rule for an "auto" slab SNR is thinning (:mod:`clnlos.inverse.thinning`):
-        ``snr_rule`` "thinning", or "auto" with the method "iterative" and its slab model
-        "influence" (the model the held-out photons score). Whether it then acts depends on
-        the capture as well (:meth:`clnlos.inverse.pipeline.ReconstructionPipeline.run`)."""
+        ``snr_rule`` "thinning", or "auto" with a method whose rule it is (the iterative
+        method, :class:`clnlos.inverse.methods.MethodEntry`) and its slab model "influence"
+        (the model the held-out photons score). Whether it then acts depends on the capture
+        as well (:meth:`clnlos.inverse.pipeline.ReconstructionPipeline.run`)."""
         if self.snr_rule == "auto":
-            return self.method == "iterative" and self.slab_model == "influence"
+            return auto_snr_rule(self.method) == "thinning" and self.slab_model == "influence"
         return self.snr_rule == "thinning"
+
+    @property
+    def reproducibility(self) -> bool:
+        """Whether "auto" SNRs are chosen by split-half reproducibility
+        (:mod:`clnlos.inverse.reproducibility`): ``snr_rule`` "reproducibility" (LCT or
+        f-k), or "auto" with a method whose rule it is (LCT). Whether it then acts depends on the
+        capture as well (:meth:`clnlos.inverse.pipeline.ReconstructionPipeline.run`)."""
+        if self.snr_rule == "auto":
+            return auto_snr_rule(self.method) == "reproducibility"
+        return self.snr_rule == "reproducibility"
 
     def as_attrs(self) -> dict:
         d = asdict(self)

@@ -9,6 +9,9 @@ tools/results/exposure_sweep.{csv,json} and prints the worst gaps.
                            the rows of other cases and methods are kept)
         [--holdout]       (HOLDOUT_CASES instead of ORACLE_CASES, with --seeds:
                            tools/results/oracle_holdout{,_summary}.{csv,json})
+        [--random SEED [--count N]]
+                          (N captures drawn by clnlos.bench.oracle.random_cases(SEED), with
+                           --seeds: tools/results/oracle_random_SEED{,_summary}.{csv,json})
         [--grids]         (with --seeds: every grid setting's IoU and the transfer test of
                            the oracle, clnlos.bench.oracle.transfer_rows:
                            tools/results/oracle_grids{,_holdout}{,_transfer}.{csv,json};
@@ -32,6 +35,7 @@ from clnlos.bench.oracle import (
     exposure_sweep,
     grid_rows,
     oracle_rows,
+    random_cases,
     seed_spread,
     sweep_summary,
     transfer_rows,
@@ -88,13 +92,20 @@ def main(argv=None) -> None:
                     help="with --seeds: auto and today only, no oracle grid")
     ap.add_argument("--holdout", action="store_true",
                     help="with --seeds: the held-out cases (HOLDOUT_CASES)")
+    ap.add_argument("--random", type=int, default=None, metavar="SEED",
+                    help="with --seeds: captures drawn by random_cases(SEED)")
+    ap.add_argument("--count", type=int, default=16, help="with --random: how many")
     ap.add_argument("--grids", action="store_true",
                     help="with --seeds (at least 2): keep every grid setting, test the "
                          "oracle's lead by transfer across seeds")
     args = ap.parse_args(argv)
-    for flag in ("holdout", "grids"):
-        if getattr(args, flag) and args.seeds is None:
+    for flag in ("holdout", "grids", "random"):
+        if getattr(args, flag) not in (None, False) and args.seeds is None:
             ap.error(f"--{flag} needs --seeds")
+    if args.count != 16 and args.random is None:
+        ap.error("--count needs --random")
+    if args.holdout and args.random is not None:
+        ap.error("--holdout and --random choose different captures: give one")
     if args.grids and len(set(args.seeds)) < 2:
         ap.error("--grids needs at least 2 distinct --seeds (the transfer test)")
     if args.methods is None:
@@ -103,11 +114,13 @@ def main(argv=None) -> None:
         _grids(args)
         return
     if args.seeds is not None:
-        pool = HOLDOUT_CASES if args.holdout else ORACLE_CASES
+        pool = (HOLDOUT_CASES if args.holdout else ORACLE_CASES if args.random is None
+                else random_cases(args.random, args.count))
         cases = [c for c in pool if not args.case or any(s in c.name for s in args.case)]
         rows = oracle_rows(cases, args.methods, iterations=args.iterations, seeds=args.seeds,
                            grid=not args.no_grid, queue=args.device)
-        stem = RESULTS / ("oracle_holdout" if args.holdout else "oracle_seeds")
+        stem = RESULTS / ("oracle_holdout" if args.holdout else "oracle_seeds"
+                          if args.random is None else f"oracle_random_{args.random}")
         if args.update and stem.with_suffix(".json").is_file():
             new = {(r["capture"], r["method"], r["seed"]) for r in rows}  # other seeds kept
             kept = [r for r in json.loads(stem.with_suffix(".json").read_text())
@@ -143,8 +156,13 @@ def main(argv=None) -> None:
             print(f"{m}: worst gap {g['gap']:+.3f} ({g['capture']}), worst against today "
                   f"{t['vs_today']:+.3f} ({t['capture']})")
     if not args.no_sweep:
-        rows = exposure_sweep(case_named(SWEEP_CASE), iterations=args.iterations,
-                              queue=args.device)
+        rows = exposure_sweep(case_named(SWEEP_CASE), methods=args.methods,
+                              iterations=args.iterations, queue=args.device)
+        sweep = RESULTS / "exposure_sweep.json"
+        if args.update and sweep.is_file():  # the other methods' rows kept
+            kept = [r for r in json.loads(sweep.read_text()) if r["method"] not in args.methods]
+            rows = sorted(kept + rows, key=lambda r: (r["exposure_s"], r["seed"],
+                                                      METHODS.index(r["method"])))
         print("wrote", *write_rows(rows, RESULTS / "exposure_sweep"))
         summary = sweep_summary(rows)
         print("wrote", *write_rows(summary, RESULTS / "exposure_sweep_summary"))

@@ -6,6 +6,7 @@ from __future__ import annotations
 
 import argparse
 import importlib.util
+import math
 import sys
 from dataclasses import replace
 from pathlib import Path
@@ -51,6 +52,9 @@ from clnlos.forward.scene import Scene
 from clnlos.inverse.methods import METHODS as METHOD_ENTRIES
 from clnlos.inverse.methods import default_falloffs, method_names
 from clnlos.inverse.pipeline import device_bytes_needed, resolve_geometry, setup_slab
+from clnlos.inverse.reproducibility import KAPPA_MIN
+from clnlos.inverse.reproducibility import LIGHTCONE_SNRS as RP_LC
+from clnlos.inverse.reproducibility import SLAB_SNRS as RP_SLAB
 from clnlos.io.figures import volume_figure
 from clnlos.io.files import read_capture, read_volume, save_figure
 from clnlos.io.outputs import HDF5_SUFFIXES, check_outputs
@@ -101,6 +105,13 @@ RECON_FLAGS = {"scan_width": ("scan_width_m", "--scan-width"),
                "l1_weight": ("l1_weight", "--l1-weight"),
                "depth_min": ("depth_min_m", "--depth-min"),
                "slab_model": ("slab_model", "--slab-model")}
+
+
+def _decades(values) -> str:
+    """'1e2-1e7' for a range of powers of ten (the help texts' grids)."""
+    return "-".join(f"1e{round(math.log10(v))}" for v in (values[0], values[-1]))
+
+
 SLAB_FLAGS = {"slab_thickness": ("thickness_m", "--slab-thickness"), "mu_a": ("mu_a", "--mu-a"),
               "mu_s_prime": ("mu_s_prime", "--mu-s-prime"), "n": ("n", "--n")}
 
@@ -216,22 +227,30 @@ def register_reconstruct(sub, add_device) -> None:
     r.add_argument("--bin-width", type=float, help=f"histogram bin width (s) {from_file}")
     r.add_argument("--snr", type=number_or_auto,
                    help="Wiener SNR of the slab deconvolution (dimensionless), or auto: chosen "
-                        "from the capture by generalised cross-validation, at most the slab "
-                        f"model's accuracy (default {C.snr})")
+                        "from the capture by --snr-rule (generalised cross-validation, at most "
+                        f"the slab model's accuracy, unless a split search applies) (default "
+                        f"{C.snr})")
     r.add_argument("--snr-rule", choices=SNR_RULES,
-                   help="how an auto slab SNR is chosen: gcv (generalised cross-validation "
+                   help="how auto SNRs are chosen: gcv (generalised cross-validation "
                         "of the slab stage), thinning (iterative only: GCV's pick, or a "
                         "deeper one where a reconstruction of half the photons, split "
                         "binomially, predicts the other half significantly better; 2-5 "
-                        "extra reconstructions of half the data), or auto: thinning for "
-                        "the iterative method on photon counts its slab model fits exactly "
+                        "extra reconstructions of half the data), reproducibility (lct and "
+                        "fk only: the least regularised slab and light-cone SNRs, "
+                        f"{_decades(RP_SLAB)} x {_decades(RP_LC)}, whose "
+                        "two halves of the photons give thresholded images that agree, "
+                        f"Cohen's kappa >= {KAPPA_MIN:g}; up to "
+                        f"{2 * len(RP_SLAB) * len(RP_LC)} extra reconstructions of half the "
+                        "data), or auto: thinning for the iterative method and "
+                        "reproducibility for lct on photon counts the slab model fits exactly "
                         "(a capture simulated with this slab), gcv elsewhere "
                         f"(default {C.snr_rule})")
     r.add_argument("--inversion-snr", type=number_or_auto,
                    help="Wiener SNR of the LCT filter (and of the iterative warm start), or "
-                        "auto: chosen on the deconvolved transient, for photon counts by the "
-                        "unbiased predictive risk with the capture's own noise, otherwise by "
-                        f"generalised cross-validation (default {C.inversion_snr})")
+                        "auto: with the slab SNR where --snr-rule reproducibility searches "
+                        "both, else chosen on the deconvolved transient, for photon counts by "
+                        "the unbiased predictive risk with the capture's own noise, otherwise "
+                        f"by generalised cross-validation (default {C.inversion_snr})")
     r.add_argument("--falloff", type=float,
                    help="radiometric exponent p (dimensionless) of the (t/T)^p weighting "
                         "before the inversion (default: the method's own, " + ", ".join(

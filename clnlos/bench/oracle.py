@@ -27,6 +27,7 @@ from __future__ import annotations
 import csv
 import io
 import json
+import math
 from dataclasses import dataclass, replace
 from pathlib import Path
 
@@ -140,6 +141,34 @@ HOLDOUT_CASES = (
 )
 
 
+# the glyphs random_cases draws from: letters none of the table's or the held-out captures
+# spell, two pairs, and the '+' (whose bars both sets have at other sizes and depths)
+RANDOM_GLYPHS = tuple("ADGJMNORVWZ") + ("NO", "AV", "plus")
+
+
+def random_cases(seed: int, count: int = 16) -> list[OracleCase]:
+    """``count`` captures drawn with numpy's generator ``seed``, for checks on captures no
+    constant was chosen on: a glyph of RANDOM_GLYPHS, scan 0.3-0.7 m, glyph height 0.35-0.65
+    of the scan, depth 0.4-0.8 m, exposure 5 ms-20 s (log-uniform; about 3e6-3e10 photons),
+    24, 32 or 40 scan points, 256 bins of 32 ps or 192 of 48 ps. The name spells it out."""
+    rng = np.random.default_rng(seed)
+    out = []
+    for _ in range(count):
+        glyph = RANDOM_GLYPHS[rng.integers(len(RANDOM_GLYPHS))]
+        scan = float(np.round(rng.uniform(0.3, 0.7), 2))
+        size = float(np.round(rng.uniform(0.35, 0.65) * scan, 2))
+        depth = float(np.round(rng.uniform(0.4, 0.8), 2))
+        exposure = float(f"{10 ** rng.uniform(math.log10(0.005), math.log10(20.0)):.2g}")
+        points = int(rng.choice([24, 32, 32, 40]))
+        bin_width = float(rng.choice([32e-12, 32e-12, 48e-12]))
+        bins = 256 if bin_width == 32e-12 else 192
+        name = (f"random {glyph} {size} m, scan {scan} m, {depth} m deep, {exposure} s, "
+                f"{points} points, {bin_width * 1e12:.0f} ps")
+        out.append(OracleCase(name, glyph, size, depth, scan, exposure, points=points,
+                              bins=bins, bin_width_s=bin_width))
+    return out
+
+
 def case_named(name: str) -> OracleCase:
     """The case of :data:`ORACLE_CASES` (or :data:`HOLDOUT_CASES`) called ``name`` (cases
     are referred to by name, not by position: the table grows)."""
@@ -195,11 +224,15 @@ def compare_method(capture, mask, method: str, *, iterations: int | None = None,
     old = combined_snr(rec.noise["snr"], rec.params.get("model_snr_used", float("inf")))
     old_inv = lightcone_snr(old)
     today = base.replace(snr=old, inversion_snr=old_inv)
+    row["auto_snr_rule"] = rec.params.get("snr_rule_used", "gcv")
     if method == "iterative":  # today's constant L1 weight (auto: from the noise), Wiener first
         today = today.replace(l1_weight=FIXED_L1_WEIGHT, slab_model="none")
         row["auto_l1_weight"] = rec.params.get("l1_weight_used")
-        row["auto_snr_rule"] = rec.params.get("snr_rule_used", "gcv")
         row["auto_thinning_factor"] = rec.params.get("thinning_factor")  # None: GCV's pick
+    if row["auto_snr_rule"] == "reproducibility":  # and the GCV rule it replaced
+        row["auto_kappa"] = rec.params.get("reproducibility_kappa")
+        row["gcv_rule_iou"] = _run(capture, mask, base.replace(snr_rule="gcv").validate(),
+                                   queue)[0]
     if rec.params.get("slab_snr_raised"):  # the method's rule raised GCV's pick: without it
         row["auto_gcv_slab_iou"] = _run(capture, mask, base.replace(
             snr=combined_snr(rec.params["snr_data"], rec.params["model_snr_used"])
@@ -317,9 +350,10 @@ def seed_spread(rows: list[dict]) -> list[dict]:
     for cap, m in keys:
         mine = [r for r in rows if r["capture"] == cap and r["method"] == m]
         row = {"capture": cap, "method": m, "seeds": len(mine)}
-        for k in ("auto_iou", "auto_gcv_slab_iou", "today_iou", "oracle_iou", "gap",
-                  "vs_today"):
-            optional = k == "auto_gcv_slab_iou"  # only for a method with a slab floor
+        for k in ("auto_iou", "auto_gcv_slab_iou", "gcv_rule_iou", "today_iou", "oracle_iou",
+                  "gap", "vs_today"):
+            # only for a method with a slab floor / whose auto rule is not GCV's
+            optional = k in ("auto_gcv_slab_iou", "gcv_rule_iou")
             if any((r.get(k) if optional else r[k]) is None for r in mine):  # no grid run
                 row[f"{k}_mean"] = row[f"{k}_spread"] = None
                 continue

@@ -463,19 +463,20 @@ def bench_auto_params(b: Bench):
                   lambda cfg=cfg, cap=cap: reconstruct(cap, cfg, device=b.q),
                   max(0.0, row["gap"]), error_kind="oracle IoU - auto IoU",
                   **{k: v for k, v in row.items() if k != "method"})
-            if method == "iterative":  # GCV's pick (the study's rule) beside the default
+            if row["auto_snr_rule"] != "gcv":  # the GCV rule beside a split search
                 _bench_gcv_rule(b, case, cap, mask, cfg, row)
 
 
 def _bench_gcv_rule(b: Bench, case, cap, mask, cfg, row: dict) -> None:
-    """The iterative method with ``snr_rule = "gcv"`` (GCV's slab SNR, the study's budget
-    rule, :class:`clnlos.study.dataset.StudyGrid`) on one capture: its time and its gap to
-    the oracle of the default's ``row`` (the default thins the counts,
-    :mod:`clnlos.inverse.thinning`)."""
+    """A method with ``snr_rule = "gcv"`` (GCV's slab SNR: the iterative method's in the
+    study's budget, :class:`clnlos.study.dataset.StudyGrid`) on one capture where the
+    default searched a split of the counts (thinning, :mod:`clnlos.inverse.thinning`;
+    reproducibility, :mod:`clnlos.inverse.reproducibility`): its time and its gap to the
+    oracle of the default's ``row``."""
     cfg = cfg.replace(snr_rule="gcv").validate()
     rec = reconstruct(cap, cfg, device=b.q)
     iou = mip_iou(rec.volume, mask)[0]
-    b.add("auto_params", f"gap@{case.name}", "iterative snr_rule=gcv", np.float32,
+    b.add("auto_params", f"gap@{case.name}", f"{cfg.method} snr_rule=gcv", np.float32,
           lambda: reconstruct(cap, cfg, device=b.q), max(0.0, row["oracle_iou"] - iou),
           error_kind="oracle IoU - auto IoU", auto_iou=iou, oracle_iou=row["oracle_iou"],
           auto_snr=rec.params.get("snr_used"), default_rule_iou=row["auto_iou"],

@@ -227,6 +227,7 @@ class IterativeMethod(Inversion):
 
     name = "iterative"
     forward_model = True
+    lightcone_filter = True  # its LCT warm start
 
     def __init__(self, grid: InversionGrid, config, *, dtype, queue, scratch=None,
                  cache=None):
@@ -240,9 +241,9 @@ class IterativeMethod(Inversion):
         self.slab_influence = None
 
     def configure(self, tau_g, noise, rule_snr: float, timed, probe=None,
-                  slab_influence=None) -> dict:
+                  slab_influence=None, rule: str | None = None) -> dict:
         snr, rule = choose_lightcone_snr(self.solver.warm, self.config, noise, tau_g, rule_snr,
-                                         timed, probe)
+                                         timed, probe, rule)
         self.solver.warm.set_snr(snr)
         self.depth_min_m = support_depth_m(noise, self.config)
         # "auto" L1 weight: from a realisation of the noise (photon counts), else fixed

@@ -239,13 +239,16 @@ def initial_inversion_snr(config) -> float:
 
 
 def choose_lightcone_snr(lct: LCT, config, noise, tau_g, rule_snr: float, timed,
-                         probe=None) -> tuple[float, str | None]:
+                         probe=None, rule: str | None = None) -> tuple[float, str | None]:
     """(light-cone Wiener SNR, rule) for this capture, within [LIGHTCONE_SNR_MIN,
     LIGHTCONE_SNR_MAX] when the config says "auto" and the capture is noisy: for photon
     counts the unbiased predictive risk estimate with the noise realisation ``probe()``
     (:meth:`LCT.upre_snr`; LIGHTCONE_RULE), else generalised cross-validation
     (:meth:`LCT.gcv_snr`); otherwise ``rule_snr`` (the configured number, or the photon rule
-    on noise-free data) and rule None."""
+    on noise-free data) and rule None; ``rule_snr`` and ``rule`` where ``rule`` is given (a
+    choice the pipeline made, :meth:`clnlos.inverse.methods.Inversion.configure`)."""
+    if rule is not None:
+        return rule_snr, rule
     if config.inversion_snr != "auto" or noise.noise_free:
         return rule_snr, None
     if noise.photon_counts and LIGHTCONE_RULE == "upre" and probe is not None:
@@ -266,6 +269,7 @@ class LCTMethod(Inversion):
 
     name = "lct"
     slab_snr_min = CLOSED_FORM_SLAB_SNR_MIN  # Phi not modelled (clnlos.inverse.pipeline)
+    lightcone_filter = True
 
     def __init__(self, grid: InversionGrid, config, *, dtype, queue, scratch=None,
                  cache=None):
@@ -274,9 +278,9 @@ class LCTMethod(Inversion):
                        **self.geometry(), cache=cache)
 
     def configure(self, tau_g, noise, rule_snr: float, timed, probe=None,
-                  slab_influence=None) -> dict:
+                  slab_influence=None, rule: str | None = None) -> dict:
         snr, rule = choose_lightcone_snr(self.lct, self.config, noise, tau_g, rule_snr, timed,
-                                         probe)
+                                         probe, rule)
         self.lct.set_snr(snr)
         return lightcone_snr_params(snr, rule)
 

@@ -18,7 +18,12 @@ risk or cross-validation, :mod:`clnlos.inverse.gcv`; ``rule_snr`` is the photon 
 influence operator on ``tau_g``'s grid, :meth:`clnlos.operators.spectral.SpectralFilter.
 influence`, for a method that models what the deconvolution leaves, None without a slab)
 and returns the parameters it chose (recorded in the volume's ``params``);
-``timed(name, fn, *args)`` runs a step and records its time.
+``timed(name, fn, *args)`` runs a step and records its time. A method with a light-cone
+Wiener filter (``lightcone_filter = True``) also takes ``rule=``: the name of the pipeline's
+rule that chose ``rule_snr`` (the reproducibility search), which it then uses as given.
+Class attributes the pipeline reads: ``slab_snr_min``, ``slab_snr_toward_photons``,
+``forward_model`` (:meth:`predict` exists), ``lightcone_filter``; the registry entry's
+``auto_snr_rule`` says what ``snr_rule = "auto"`` stands for with it.
 ``__call__(tau_g, *, progress=None, setup=None)`` returns the volume [z, y, x] on the
 device; ``report()`` what the solver did (or None); ``used()`` parameters settled during
 the call (recorded in ``params``).
@@ -51,28 +56,44 @@ class InversionGrid:
 @dataclass(frozen=True)
 class MethodEntry:
     """A registered method: where its class lives, its default radiometric falloff (the
-    power of 1/r applied per bin before the inversion; None: the method has its own model)
-    and a one-line summary for the CLI help."""
+    power of 1/r applied per bin before the inversion; None: the method has its own model),
+    a one-line summary for the CLI help, and how ``snr_rule = "auto"`` chooses its SNRs on
+    photon counts its slab model fits exactly: "thinning" (a forward model scores held-out
+    photons, :mod:`clnlos.inverse.thinning`) or "reproducibility" (the halves' thresholded
+    images must agree, :mod:`clnlos.inverse.reproducibility`)."""
 
     module: str
     cls: str
     falloff: float | None
     summary: str
+    auto_snr_rule: str = "gcv"
+
+    def __post_init__(self):
+        if self.auto_snr_rule not in ("gcv", "thinning", "reproducibility"):
+            raise ValueError(f"auto_snr_rule {self.auto_snr_rule!r}: \"gcv\", \"thinning\" "
+                             "or \"reproducibility\"")
 
 
 METHODS: dict[str, MethodEntry] = {
     "lct": MethodEntry("clnlos.inverse.lct", "LCTMethod", 4.0,
-                       "light-cone transform with a Wiener filter (O'Toole et al. 2018)"),
+                       "light-cone transform with a Wiener filter (O'Toole et al. 2018)",
+                       "reproducibility"),
     "fk": MethodEntry("clnlos.inverse.fk", "FKMethod", 2.0,
                       "f-k (Stolt) migration (Lindell et al. 2019)"),
     "iterative": MethodEntry("clnlos.inverse.iterative", "IterativeMethod", None,
                              "FISTA on the light-cone transport, L1 + TV, warm-started by "
-                             "LCT"),
+                             "LCT", "thinning"),
 }
 
 
 def method_names() -> tuple[str, ...]:
     return tuple(METHODS)
+
+
+def auto_snr_rule(name: str) -> str:
+    """The rule ``snr_rule = "auto"`` stands for with the registered method ``name`` (on
+    photon counts its slab model fits exactly; :class:`MethodEntry`)."""
+    return METHODS[name].auto_snr_rule
 
 
 def default_falloffs() -> dict[str, float]:
@@ -100,6 +121,10 @@ class Inversion:
     # whether the method can predict a transient from its volume (:meth:`predict`): what the
     # slab SNR's cross-validation by Poisson thinning scores (clnlos.inverse.thinning)
     forward_model: bool = False
+    # whether the method has a light-cone Wiener filter whose SNR the config sets
+    # (``inversion_snr``; the candidates of the reproducibility search, clnlos.inverse.pipeline,
+    # which hands its choice to :meth:`configure` as ``rule``: such a method accepts it)
+    lightcone_filter: bool = False
 
     def __init__(self, grid: InversionGrid, config, *, dtype, queue, scratch=None,
                  cache=None):
@@ -116,7 +141,11 @@ class Inversion:
         return {} if self.config.falloff is None else {"falloff": self.config.falloff}
 
     def configure(self, tau_g, noise, rule_snr: float, timed, probe=None,
-                  slab_influence=None) -> dict:
+                  slab_influence=None, rule: str | None = None) -> dict:
+        """Set up for the transient ``tau_g``: ``rule_snr`` is the light-cone SNR of the
+        config or the photon rule, or where ``rule`` names the pipeline's choice (the
+        reproducibility search) that choice, used as given; the method's own data rule
+        (UPRE, GCV) otherwise. Returns what the volume records of it."""
         return {}
 
     def __call__(self, tau_g, *, progress=None, setup=None):

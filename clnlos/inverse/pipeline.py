@@ -29,11 +29,20 @@ assumption put the light-cone SNR up to 7x too low (a 0.7 m deep '+' : 1.3e3 aga
 UPRE's 1e4, LCT IoU 0.59 against 0.66). The same noise realisation sets the iterative
 method's "auto" L1 weight (twice max(L^T n), :mod:`clnlos.inverse.iterative`).
 
-The slab SNR of LCT and f-k. GCV's slab SNR is the predictive-risk optimum of the slab
-stage alone (within two steps of 16 per decade of the true optimum on 5 captures). That
-deconvolution leaves the smoothed transient Phi I (Phi = W B, the filter's influence,
-:meth:`clnlos.operators.spectral.SpectralFilter.influence`), and a closed-form inverse takes
-the smoothing for light from the hidden side. At the seed geometry at 1e7 photons LCT drew
+The SNRs of LCT by default (``snr_rule = "auto"``, on photon counts the slab model fits
+exactly; f-k by name): the least regularised (slab, light-cone) setting of a decade grid whose
+reconstructions from the two halves of a binomial split of the counts give agreeing
+thresholded images (:mod:`clnlos.inverse.reproducibility`,
+:meth:`ReconstructionPipeline.reproducibility_snrs`). The rule below (GCV with a floor,
+UPRE for the light cone) is the one measured captures get (their model error is the same
+in both halves) and ``snr_rule = "gcv"`` names.
+
+The slab SNR of LCT and f-k under the GCV rule (f-k's default). GCV's slab SNR is the
+predictive-risk optimum of the slab stage alone (within two steps of 16 per decade of the
+true optimum on 5 captures). That deconvolution leaves the smoothed transient Phi I
+(Phi = W B, the filter's influence,
+:meth:`clnlos.operators.spectral.SpectralFilter.influence`), and a closed-form inverse
+takes the smoothing for light from the hidden side. At the seed geometry at 1e7 photons LCT drew
 bright arcs at the scan border in front of the target (IoU 0.38 against an oracle of 0.57,
 3 seeds), even from the noise-free capture deconvolved at the same SNR (0.40). The two
 closed forms therefore take a deeper deconvolution, at least CLOSED_FORM_SLAB_SNR_MIN
@@ -103,6 +112,15 @@ from clnlos.errors import InputFileError, ParameterError
 from clnlos.forward.blur import blur_time_scales, slab_blur
 from clnlos.inverse.gcv import GcvBins
 from clnlos.inverse.methods import InversionGrid, method_class
+from clnlos.inverse.reproducibility import (
+    KAPPA_MIN,
+    LIGHTCONE_SNRS,
+    SLAB_SNRS,
+    candidate_order,
+    first_reproducible,
+    mask_agreement,
+    otsu_mask,
+)
 from clnlos.inverse.snr import (
     ARRIVAL_SIGMAS,
     MEASURED_MODEL_SNR,
@@ -366,12 +384,16 @@ class ReconstructionPipeline:
 
     def run(self, transient: np.ndarray, *, keep_transient: bool = False,
             progress=None, model_snr: float = math.inf, setup=None,
-            slab_snr_factor: float | None = None) -> Reconstruction:
+            slab_snr_factor: float | None = None,
+            snrs: tuple[float, float | None] | None = None) -> Reconstruction:
         """Reconstruct one capture. ``progress(k, n)`` is called during the iterative
         method's iterations, ``setup(step)`` as each of its set-up steps before them starts;
         ``model_snr`` is the slab model's accuracy (:func:`model_snr_for`);
         ``slab_snr_factor`` multiplies GCV's slab SNR in place of the method's rule (the
-        thinning search's candidates, :meth:`thinning_factor`)."""
+        thinning search's candidates, :meth:`thinning_factor`); ``snrs`` = (slab SNR,
+        light-cone SNR or None: the config's) replaces an "auto" slab SNR (combined with
+        ``model_snr``) and the light-cone rule (the reproducibility search's candidates,
+        :meth:`reproducibility_snrs`)."""
         timings: dict[str, float] = {}
         noise = self.raw_noise(transient)
         cv: dict | None = None
@@ -379,6 +401,11 @@ class ReconstructionPipeline:
             t0 = time.perf_counter()
             slab_snr_factor, cv = self.thinning_factor(transient, model_snr, setup)
             timings["choose_snr_thinning"] = time.perf_counter() - t0
+        if (snrs is None and slab_snr_factor is None
+                and self._reproducibility_applies(transient, noise, model_snr)):
+            t0 = time.perf_counter()
+            snrs, cv = self.reproducibility_snrs(transient, model_snr, setup)
+            timings["choose_snr_reproducibility"] = time.perf_counter() - t0
         x = cla.to_device(self.queue, np.ascontiguousarray(transient, self.dtype))
         tau = self._timed(timings, "preprocess", self.pre, x)
         profile, peak = self._profile_peak(tau)
@@ -394,18 +421,30 @@ class ReconstructionPipeline:
                 scale = 1.0 / s
                 self._scale_inplace(tau, scale)
         data_snr = gcv_snr = None
-        if self.deconv is not None and self.config.snr == "auto" and not noise.noise_free:
+        if snrs is not None:  # a candidate of the search, as given (no model share)
+            model_snr = math.inf
+            data_snr = snrs[0]
+        elif self.deconv is not None and self.config.snr == "auto" and not noise.noise_free:
             gcv_snr = self._timed(timings, "choose_snr", self.slab_gcv_snr, tau)
             data_snr = method_slab_snr(gcv_snr, self.invert.slab_snr_min, noise.snr if
                                        self.invert.slab_snr_toward_photons else None)
             if slab_snr_factor is not None:
                 data_snr = float(np.clip(gcv_snr * slab_snr_factor, SNR_MIN, SNR_MAX))
-        snr, inv_snr = auto_snrs(noise, self.config, model_snr, data_snr=data_snr)
+        snr, inv_snr = auto_snrs(noise, self.config, model_snr, data_snr=data_snr,
+                                 data_inversion_snr=None if snrs is None else snrs[1])
+        inv_rule = None if snrs is None or snrs[1] is None else "reproducibility"
         params = self.config.as_attrs()
         notes: list[str] = []
-        if self.config.snr_rule == "thinning" and slab_snr_factor is None and cv is None:
-            notes.append("snr_rule thinning not applied (it needs an \"auto\" slab SNR, a "
-                         "slab and photon counts): the slab SNR is GCV's pick")
+        named = self.config.snr_rule
+        if named in ("thinning", "reproducibility") and cv is None and (
+                slab_snr_factor is None and snrs is None):
+            notes.append(f"snr_rule {named} not applied (it needs an \"auto\" slab SNR, a "
+                         "slab and photon counts): the GCV rule or the configured SNRs")
+        if cv is not None and cv.get("snr_rule_used", "").startswith("gcv ("):
+            notes.append(f"no split search ({cv['snr_rule_used'][5:-1]}): the GCV rule")
+        elif cv is not None and cv.get("reproducibility_agreed") is False:
+            notes.append(f"no candidate's halves agreed to kappa >= {KAPPA_MIN:g}: the most "
+                         f"reproducible (kappa {cv['reproducibility_kappa']:.2f}) was taken")
         deconv = None
         if self.deconv is not None:
             deconv = self._deconvolution_for(profile, noise, snr, params, notes)
@@ -420,7 +459,7 @@ class ReconstructionPipeline:
             params["model_snr_used"] = model_snr
             if cv is not None:
                 params.update(cv)
-            elif gcv_snr is not None and slab_snr_factor is None:
+            elif gcv_snr is not None and slab_snr_factor is None and snrs is None:
                 params["snr_rule_used"] = "gcv"  # what "auto" came to (the method's floor
                 #                                  on top where it has one: slab_snr_raised)
             tau = self._timed(timings, "deconvolve", deconv, tau)
@@ -435,7 +474,7 @@ class ReconstructionPipeline:
                      lambda: self._slab_influence(snr))
         params.update(self.invert.configure(
             tau, noise, inv_snr, lambda name, fn, *a: self._timed(timings, name, fn, *a),
-            probe, influence))
+            probe, influence, **({} if inv_rule is None else {"rule": inv_rule})))
         vol = self._timed(timings, f"invert:{method}", self.invert, tau, progress=progress,
                           setup=setup)
         solve = self.invert.report()
@@ -475,6 +514,60 @@ class ReconstructionPipeline:
         return (c.snr == "auto" and self.deconv is not None and self.invert.forward_model
                 and noise.photon_counts and not noise.noise_free
                 and is_counts(np.asarray(transient)))
+
+    def _reproducibility_applies(self, transient: np.ndarray, noise: NoiseEstimate,
+                                 model_snr: float) -> bool:
+        """Whether "auto" SNRs are chosen by split-half reproducibility: the config's rule
+        is it (:attr:`clnlos.config.ReconstructionConfig.reproducibility`: LCT and f-k under
+        "auto"), with a slab, an "auto" slab SNR and a capture of photon counts; under
+        ``snr_rule = "auto"`` also only where the slab model is exact (``model_snr``
+        infinite). On a measured capture the model's error is the same in both halves: they
+        would agree on it, and the combined SNR is capped at MEASURED_MODEL_SNR anyway."""
+        c = self.config
+        if not c.reproducibility or (c.snr_rule == "auto" and math.isfinite(model_snr)):
+            return False
+        return (c.snr == "auto" and self.deconv is not None and noise.photon_counts
+                and not noise.noise_free and is_counts(np.asarray(transient)))
+
+    def reproducibility_candidates(self) -> list[tuple[float, float | None]]:
+        """The (slab SNR, light-cone SNR) settings the search tries, least regularised first
+        (:func:`clnlos.inverse.reproducibility.candidate_order`): the light-cone SNRs where
+        the method has a light-cone filter and the config leaves its SNR to "auto"."""
+        lc = (LIGHTCONE_SNRS if self.invert.lightcone_filter
+              and self.config.inversion_snr == "auto" else (None,))
+        return candidate_order(SLAB_SNRS, lc)
+
+    def reproducibility_snrs(self, transient: np.ndarray, model_snr: float = math.inf,
+                             setup=None) -> tuple[tuple[float, float | None] | None, dict]:
+        """((slab SNR, light-cone SNR or None), the params recording the search): the first
+        of :meth:`reproducibility_candidates` at which the two halves of a binomial split of
+        the counts (:func:`clnlos.inverse.thinning.thin_counts`) give Otsu masks of their
+        max-intensity projections that agree with Cohen's kappa >= KAPPA_MIN, else the most
+        reproducible candidate (:mod:`clnlos.inverse.reproducibility`; a note says so). The
+        candidates are used as given: on a measured capture (``snr_rule`` by name) the
+        model's accuracy is not combined with them. Where a half holds no counts in the
+        window, the method's GCV rule stands (None, and a note)."""
+        halves = thin_counts(np.asarray(transient))
+        k0, k1 = self.raw_window
+        if not all(np.any(h[k0:k1]) for h in halves):
+            return None, {"snr_rule_used": "gcv (a half of the split holds no counts)"}
+
+        def agreement(cand: tuple[float, float | None]) -> float:
+            if setup is not None:
+                lc = "" if cand[1] is None else f", light cone {cand[1]:.3g}"
+                setup(f"SNRs by reproducibility: slab {cand[0]:.3g}{lc}")
+            masks = [otsu_mask(self.run(h, model_snr=model_snr, snrs=cand).volume)
+                     for h in halves]
+            return mask_agreement(*masks)
+
+        chosen, tried, agreed = first_reproducible(self.reproducibility_candidates(),
+                                                   agreement)
+        kappa = dict(tried)[chosen]
+        return chosen, {"snr_rule_used": "reproducibility", "reproducibility_kappa": kappa,
+                        "reproducibility_kappa_min": KAPPA_MIN,
+                        "reproducibility_agreed": agreed,
+                        "reproducibility_tried": json.dumps([[c[0], c[1], k]
+                                                             for c, k in tried])}
 
     def thinning_factor(self, transient: np.ndarray, model_snr: float = math.inf,
                         setup=None) -> tuple[float, dict]:

@@ -95,9 +95,11 @@ class NoiseEstimate:
 
 
 def combined_snr(photon_snr: float, model_snr: float) -> float:
-    """1 / (1/photon + 1/model), clipped to [SNR_MIN, SNR_MAX] (model_snr may be inf)."""
-    inv = 1.0 / photon_snr + (0.0 if math.isinf(model_snr) else 1.0 / model_snr)
-    return float(np.clip(1.0 / inv, SNR_MIN, SNR_MAX))
+    """1 / (1/photon + 1/model), clipped to [SNR_MIN, SNR_MAX] (model_snr may be inf: the
+    photon SNR as it is)."""
+    if math.isinf(model_snr):
+        return float(np.clip(photon_snr, SNR_MIN, SNR_MAX))
+    return float(np.clip(1.0 / (1.0 / photon_snr + 1.0 / model_snr), SNR_MIN, SNR_MAX))
 
 
 def lightcone_snr(snr: float) -> float:

@@ -35,7 +35,7 @@ import numpy as np
 from tqdm import tqdm
 
 from clnlos import C0, __version__
-from clnlos.config import ReconstructionConfig
+from clnlos.config import ReconstructionConfig, snr_rule_applies
 from clnlos.errors import ParameterError
 from clnlos.forward.model import ForwardModel
 from clnlos.forward.scene import Detector, Scene
@@ -63,10 +63,11 @@ class StudyGrid:
     method: str = "iterative"
     iterations: int = 50  # the study's budget (a quarter of the config's default): most of
     #                       the iterative gain is in by 50 iterations at this grid
-    snr_rule: str = "gcv"  # the iterative method's slab SNR rule, the study's budget too:
-    #                        GCV's pick, not the config's "auto" (which thins the counts,
-    #                        3-4x the time of a sample: 18-22 s against 5-8 s measured;
-    #                        clnlos.inverse.thinning)
+    snr_rule: str = "gcv"  # the SNR rule of every method, the study's budget too: GCV's
+    #                        pick, not the config's "auto" (which for the iterative method
+    #                        thins the counts, 3-4x the time of a sample: 18-22 s against
+    #                        5-8 s measured, clnlos.inverse.thinning; for LCT searches the
+    #                        halves' agreement, clnlos.inverse.reproducibility)
     # the detector: the scene's defaults (seed Table 1), but for the etendue and dark counts
     # of the study's SPAD behind the slab
     power_w: float = Detector.power_w
@@ -188,7 +189,7 @@ def render_sample(sample: dict, grid: StudyGrid, device: str | None = None) -> d
     scene = Scene.from_dict(scene_dict(sample, grid))
     fm = ForwardModel(scene, queue=queue)
     cap = fm.capture()
-    rule = {"snr_rule": grid.snr_rule} if grid.method == "iterative" else {}  # its rule
+    rule = {"snr_rule": grid.snr_rule} if snr_rule_applies(grid.snr_rule, grid.method) else {}
     cfg = ReconstructionConfig(max_path_m=window_m(sample, grid), slab=scene.slab,
                                method=grid.method, iterations=grid.iterations,
                                **rule).validate()

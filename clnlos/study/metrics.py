@@ -5,24 +5,10 @@ from __future__ import annotations
 import numpy as np
 
 from clnlos.forward.geometry import letters_mask
+from clnlos.inverse.reproducibility import otsu_mask, otsu_threshold
 
-
-def otsu_threshold(img: np.ndarray, bins: int = 256) -> float:
-    """Threshold maximising the between-class variance of the intensity histogram."""
-    v = np.asarray(img, np.float64).ravel()
-    lo, hi = float(v.min()), float(v.max())
-    if hi <= lo:
-        return hi
-    hist, edges = np.histogram(v, bins=bins, range=(lo, hi))
-    p = hist / hist.sum()
-    centres = (edges[:-1] + edges[1:]) / 2
-    w0 = np.cumsum(p)
-    m = np.cumsum(p * centres)
-    mt = m[-1]
-    with np.errstate(divide="ignore", invalid="ignore"):
-        between = (mt * w0 - m) ** 2 / (w0 * (1 - w0))
-    between[~np.isfinite(between)] = -1
-    return float(edges[1:][int(np.argmax(between))])
+__all__ = ["otsu_threshold", "iou", "letters_truth_mask", "coverage_image", "truth_mask",
+           "peak_depth_m", "mip_iou"]
 
 
 def iou(pred: np.ndarray, truth: np.ndarray) -> float:
@@ -65,6 +51,5 @@ def peak_depth_m(volume: np.ndarray, voxel_depth_m: float) -> float:
 
 def mip_iou(volume: np.ndarray, truth: np.ndarray) -> tuple[float, np.ndarray]:
     """IoU of the Otsu-thresholded max-intensity projection with the true mask."""
-    mip = volume.max(axis=0)
-    pred = mip > otsu_threshold(mip)
+    pred = otsu_mask(volume)
     return iou(pred, truth), pred

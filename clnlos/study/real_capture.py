@@ -40,7 +40,7 @@ from pathlib import Path
 import numpy as np
 from scipy import ndimage
 
-from clnlos.config import ReconstructionConfig, slab_table
+from clnlos.config import ReconstructionConfig, slab_table, snr_rule_applies
 from clnlos.errors import ParameterError
 from clnlos.forward.geometry import text_extent
 from clnlos.forward.model import ForwardModel
@@ -86,9 +86,9 @@ def capture_config(name: str, method: str = "lct", *, published_snr: bool = Fals
     """Reconstruction settings for a shared CDT capture: its published scan width and slab,
     HIDDEN_PATH_M rebinned to PUBLISHED_BINS; SNRs "auto" (the defaults) or, with
     ``published_snr``, the published 1e4 (examples/cdt_letters_ut.toml); ``snr_rule``, where
-    given, the iterative method's slab SNR rule (the study grid's)."""
+    given and valid for ``method``, the study grid's SNR rule."""
     kw = {} if iterations is None else {"iterations": iterations}
-    if snr_rule is not None and method == "iterative":  # the study grid's (the others': GCV)
+    if snr_rule is not None and snr_rule_applies(snr_rule, method):  # the study grid's
         kw["snr_rule"] = snr_rule
     if published_snr:
         kw.update(snr=PUBLISHED_SNR, inversion_snr=PUBLISHED_SNR)

@@ -43,7 +43,7 @@ from scipy.ndimage import map_coordinates, maximum_filter
 from scipy.optimize import brentq
 
 from clnlos import C0
-from clnlos.config import ReconstructionConfig, slab_table
+from clnlos.config import ReconstructionConfig, slab_table, snr_rule_applies
 from clnlos.forward.geometry import sample_letters
 from clnlos.forward.model import ForwardModel
 from clnlos.forward.noise import photon_counts
@@ -292,8 +292,9 @@ def _measure(capture, geometry: ResolutionGeometry, methods, queue) -> dict:
     out: dict = {}
     gamma = None
     for m in methods:
-        # the grid's slab SNR rule is the iterative method's (the others' is GCV's anyway)
-        rule = {"snr_rule": g.snr_rule} if g.snr_rule is not None and m == "iterative" else {}
+        # the grid's SNR rule, for each method it is valid for (clnlos.config)
+        rule = ({"snr_rule": g.snr_rule}
+                if g.snr_rule is not None and snr_rule_applies(g.snr_rule, m) else {})
         cfg = ReconstructionConfig(max_path_m=g.max_path_m, slab=g.slab, method=m,
                                    iterations=g.iterations, **rule).validate()
         rec = reconstruct(capture, cfg, device=queue, keep_transient=gamma is None)

@@ -189,7 +189,7 @@ class StudyOptions:
             raise ParameterError("--labels", self.labels, " or ".join(LABEL_METRICS))
         if self.grid.method not in method_names():
             raise ParameterError("--method", self.grid.method, ", ".join(method_names()))
-        if self.grid.snr_rule not in SNR_RULES:  # the iterative method's (StudyGrid)
+        if self.grid.snr_rule not in SNR_RULES:  # every method it is valid for (StudyGrid)
             raise ParameterError("snr_rule", self.grid.snr_rule, ", ".join(SNR_RULES))
         if self.n_dataset < 0:
             raise ParameterError("--n-dataset", self.n_dataset, ">= 0")

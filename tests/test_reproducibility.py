@@ -1,0 +1,238 @@
+"""LCT's and f-k's "auto" SNRs by split-half reproducibility (clnlos.inverse.reproducibility,
+issue 24): the agreement measure, the search order, and the pipeline's use of them."""
+
+import json
+from dataclasses import replace
+
+import numpy as np
+import pytest
+
+from clnlos.bench.oracle import OracleCase, simulate_case
+from clnlos.config import ReconstructionConfig
+from clnlos.errors import ParameterError
+from clnlos.inverse.pipeline import ReconstructionPipeline, reconstruct, resolve_geometry
+from clnlos.inverse.reproducibility import (
+    KAPPA_MIN,
+    LIGHTCONE_SNRS,
+    SLAB_SNRS,
+    candidate_order,
+    cohen_kappa,
+    first_reproducible,
+    mask_agreement,
+    otsu_mask,
+)
+from clnlos.inverse.snr import MEASURED_MODEL_SNR
+from clnlos.inverse.thinning import thin_counts
+from clnlos.study.metrics import mip_iou
+
+# 'UT' 0.3 m tall 0.5 m behind the CDT slab, 16 x 16 scan of 0.6 m, 128 bins of 64 ps,
+# ~1.2e8 photons
+SMALL = OracleCase("small UT", "UT", 0.3, 0.5, 0.6, 0.1, points=16, bins=128,
+                   bin_width_s=64e-12, seed=4)
+
+
+def _kappa_from_table(a: np.ndarray, b: np.ndarray) -> float:
+    """Cohen's kappa from the 2 x 2 contingency table (float64), the form
+    2 (n11 n00 - n10 n01) / ((n11 + n10)(n10 + n00) + (n11 + n01)(n01 + n00))."""
+    a, b = a.ravel(), b.ravel()
+    n11 = float(np.sum(a & b))
+    n00 = float(np.sum(~a & ~b))
+    n10 = float(np.sum(a & ~b))
+    n01 = float(np.sum(~a & b))
+    return 2 * (n11 * n00 - n10 * n01) / ((n11 + n10) * (n10 + n00)
+                                          + (n11 + n01) * (n01 + n00))
+
+
+def test_kappa_against_the_contingency_table_form():
+    """On random masks of several areas and correlations, kappa equals the contingency
+    table's form to 1e-12; the same mask gives 1, its complement -1 (half the area) and
+    independent masks of 2e5 pixels |kappa| < 0.02."""
+    rng = np.random.default_rng(3)
+    for p, q, rho in ((0.5, 0.5, 0.0), (0.2, 0.35, 0.5), (0.05, 0.1, 0.9), (0.7, 0.3, 0.2)):
+        a = rng.random((40, 50)) < p
+        b = np.where(rng.random(a.shape) < rho, a, rng.random(a.shape) < q)
+        assert cohen_kappa(a, b) == pytest.approx(_kappa_from_table(a, b), abs=1e-12)
+    a = rng.random((64, 64)) < 0.5
+    assert cohen_kappa(a, a) == 1.0
+    half = np.zeros((8, 8), bool)
+    half[:4] = True
+    assert cohen_kappa(half, ~half) == pytest.approx(-1.0)
+    big = rng.random(200_000) < 0.3
+    assert abs(cohen_kappa(big, rng.random(200_000) < 0.4)) < 0.02
+
+
+def test_kappa_hard_cases():
+    """Two equal constant masks agree (1.0: nothing to disagree on); opposite constant
+    masks have chance agreement 0 and kappa 0; shapes must match. The search scores a
+    constant mask 0 whatever the other (an empty or flat image is not a reproducible one)."""
+    empty, full = np.zeros((4, 4), bool), np.ones((4, 4), bool)
+    assert cohen_kappa(empty, empty) == 1.0 and cohen_kappa(full, full) == 1.0
+    assert cohen_kappa(empty, full) == 0.0
+    with pytest.raises(ValueError, match="shapes"):
+        cohen_kappa(empty, np.zeros((4, 5), bool))
+    some = np.eye(4, dtype=bool)
+    assert mask_agreement(empty, empty) == mask_agreement(full, full) == 0.0
+    assert mask_agreement(some, full) == 0.0 and mask_agreement(some, some) == 1.0
+
+
+def test_candidates_from_the_least_regularised_down():
+    """By the product of the SNRs, at equal products the deeper slab deconvolution first;
+    a method without a light-cone filter (None) by its slab SNR alone."""
+    order = candidate_order(SLAB_SNRS, LIGHTCONE_SNRS)
+    assert len(order) == len(SLAB_SNRS) * len(LIGHTCONE_SNRS)
+    assert order[0] == (1e7, 1e4) and order[-1] == (SLAB_SNRS[0], 1e2)
+    assert order[1:3] == [(1e7, 1e3), (1e6, 1e4)]
+    products = [a * b for a, b in order]
+    assert products == sorted(products, reverse=True)
+    assert candidate_order(SLAB_SNRS, (None,)) == [(s, None) for s in SLAB_SNRS[::-1]]
+
+
+def test_the_first_reproducible_candidate_stops_the_search():
+    calls = []
+    kappas = {(1e3, None): 0.2, (1e2, None): 0.95, (10.0, None): 0.99}
+
+    def agreement(c):
+        calls.append(c)
+        return kappas[c]
+
+    chosen, tried, agreed = first_reproducible(list(kappas), agreement, 0.7)
+    assert chosen == (1e2, None) and calls == [(1e3, None), (1e2, None)] and agreed
+    assert tried == [((1e3, None), 0.2), ((1e2, None), 0.95)]
+    chosen, tried, agreed = first_reproducible(list(kappas), lambda c: 0.5 - c[0] / 1e4, 0.7)
+    assert chosen == (10.0, None) and len(tried) == 3  # none agrees: the most reproducible
+    assert not agreed
+    with pytest.raises(ValueError):
+        first_reproducible([], agreement)
+
+
+def test_the_mask_compared_is_the_mask_scored():
+    """otsu_mask is the thresholded MIP that mip_iou scores (one threshold rule)."""
+    v = np.random.default_rng(1).gamma(2.0, size=(12, 9, 11))
+    truth = np.zeros((9, 11), bool)
+    assert np.array_equal(otsu_mask(v), mip_iou(v, truth)[1])
+
+
+@pytest.fixture(scope="module")
+def small_capture(queue):
+    return simulate_case(SMALL, queue)
+
+
+def _config(cap, **kw):
+    return ReconstructionConfig(slab=cap.recorded_slab()[0], **kw).validate()
+
+
+def test_lct_takes_the_first_candidate_whose_halves_agree(small_capture, queue):
+    """The default for LCT on a capture with its own slab: the candidates are tried in
+    candidate_order, every one before the chosen has kappa < KAPPA_MIN, the chosen one
+    at least KAPPA_MIN, and its SNRs are the ones used. The kappas recorded are recomputed
+    here through the public path (the halves of thin_counts reconstructed with those SNRs
+    given as numbers), and a second run repeats the choice."""
+    cap, _ = small_capture
+    cfg = _config(cap, method="lct")
+    assert cfg.reproducibility and not cfg.replace(snr_rule="gcv").reproducibility
+    rec = reconstruct(cap, cfg, device=queue)
+    p = rec.params
+    assert p["snr_rule_used"] == "reproducibility"
+    assert p["inversion_snr_rule"] == "reproducibility"
+    tried = [((s, c), k) for s, c, k in json.loads(p["reproducibility_tried"])]
+    order = candidate_order(SLAB_SNRS, LIGHTCONE_SNRS)
+    assert [c for c, _ in tried] == order[:len(tried)]
+    assert all(k < KAPPA_MIN for _, k in tried[:-1]) and tried[-1][1] >= KAPPA_MIN
+    assert (p["snr_used"], p["inversion_snr_used"]) == tried[-1][0]
+    assert p["reproducibility_kappa"] == tried[-1][1]
+    halves = [replace(cap, transient=h) for h in thin_counts(np.asarray(cap.transient))]
+    for (s, c), k in (tried[-1], tried[0]):
+        given = cfg.replace(snr=s, inversion_snr=c)
+        masks = [otsu_mask(reconstruct(h, given, device=queue).volume) for h in halves]
+        assert cohen_kappa(*masks) == pytest.approx(k, abs=1e-9)
+    again = reconstruct(cap, cfg, device=queue)
+    assert again.params["reproducibility_tried"] == p["reproducibility_tried"]
+    assert np.array_equal(again.volume, rec.volume)
+    given = reconstruct(cap, cfg.replace(snr=p["snr_used"], inversion_snr=p["inversion_snr_used"]),
+                        device=queue)  # the chosen SNRs as numbers: the same volume
+    assert np.array_equal(given.volume, rec.volume)
+    assert SLAB_SNRS[0] == 1e5 and SLAB_SNRS[-1] == 1e7  # a decade below the GCV rule's floor
+
+
+def test_no_candidate_agreeing_takes_the_most_reproducible(small_capture, queue, monkeypatch):
+    """Where no candidate reaches the threshold (here: a threshold above 1), every candidate
+    is tried, the most reproducible is used, and a note says so."""
+    import clnlos.inverse.pipeline as pipeline
+
+    cap, _ = small_capture
+    strict = lambda cands, agreement: first_reproducible(cands, agreement, 1.01)  # noqa: E731
+    monkeypatch.setattr(pipeline, "first_reproducible", strict)
+    rec = reconstruct(cap, _config(cap, method="lct"), device=queue)
+    tried = json.loads(rec.params["reproducibility_tried"])
+    assert len(tried) == len(SLAB_SNRS) * len(LIGHTCONE_SNRS)
+    best = max(tried, key=lambda t: t[2])
+    assert (rec.params["snr_used"], rec.params["inversion_snr_used"]) == (best[0], best[1])
+    assert any("no candidate's halves agreed" in n for n in rec.notes)
+
+
+def test_fk_searches_its_slab_snr_alone(small_capture, queue):
+    """f-k by name (its default is the GCV rule): the slab SNR alone is searched."""
+    cap, _ = small_capture
+    assert reconstruct(cap, _config(cap, method="fk"), device=queue
+                       ).params["snr_rule_used"] == "gcv"
+    rec = reconstruct(cap, _config(cap, method="fk", snr_rule="reproducibility"), device=queue)
+    tried = json.loads(rec.params["reproducibility_tried"])
+    assert rec.params["snr_rule_used"] == "reproducibility"
+    assert all(c is None for _, c, _ in tried)
+    assert [s for s, _, _ in tried] == list(SLAB_SNRS[::-1])[:len(tried)]
+    assert rec.params["snr_used"] == tried[-1][0]
+
+
+def test_a_light_cone_snr_given_is_kept(small_capture, queue):
+    """A configured light-cone SNR with an "auto" slab SNR: the search runs over the slab
+    SNR alone and the light cone keeps the number."""
+    cap, _ = small_capture
+    rec = reconstruct(cap, _config(cap, method="lct", inversion_snr=300.0), device=queue)
+    tried = json.loads(rec.params["reproducibility_tried"])
+    assert all(c is None for _, c, _ in tried) and rec.params["inversion_snr_used"] == 300.0
+
+
+def test_measured_captures_keep_the_gcv_rule(small_capture, queue):
+    """Given another slab than the one it was simulated with (a measured capture's case:
+    the model's error is in both halves alike), "auto" keeps the GCV rule without a note;
+    "reproducibility" by name searches there too."""
+    cap, _ = small_capture
+    other = replace(cap.recorded_slab()[0], mu_a=0.6)
+    cfg = _config(cap, method="lct").replace(slab=other).validate()
+    rec = reconstruct(cap, cfg, device=queue)
+    assert rec.params["model_snr_used"] == MEASURED_MODEL_SNR
+    assert rec.params["snr_rule_used"] == "gcv" and "reproducibility_kappa" not in rec.params
+    assert rec.params["inversion_snr_rule"] == "upre" and not rec.notes
+    named = reconstruct(cap, cfg.replace(snr_rule="reproducibility").validate(), device=queue)
+    assert named.params["snr_rule_used"] == "reproducibility"
+    assert named.params["snr_used"] in SLAB_SNRS  # as given: no model share combined
+
+
+def test_no_split_without_counts(small_capture, queue):
+    """Data that are not counts have no binomial split: by name, a note says the rule was
+    not applied; one photon leaves a half empty and the GCV rule stands."""
+    cap, _ = small_capture
+    cfg = _config(cap, method="lct", snr_rule="reproducibility")
+    bw, start, sw = resolve_geometry(cap, cfg)
+    pipe = ReconstructionPipeline(cap.transient.shape, bin_width_s=bw, start_s=start,
+                                  scan_width_m=sw, config=cfg, queue=queue)
+    rec = pipe.run(cap.transient * 1.0001)
+    assert "reproducibility_kappa" not in rec.params
+    assert any("reproducibility not applied" in n for n in rec.notes)
+    one = np.zeros_like(cap.transient)
+    one[0, 0, 0] = 1.0
+    chosen, params = pipe.reproducibility_snrs(one)
+    assert chosen is None and params["snr_rule_used"].startswith("gcv")
+    rec = pipe.run(one)
+    assert rec.params["snr_rule_used"].startswith("gcv (a half")
+    assert any("no split search" in n for n in rec.notes)
+
+
+def test_the_rule_by_name_is_for_the_closed_forms():
+    with pytest.raises(ParameterError, match="snr_rule"):
+        ReconstructionConfig(method="iterative", snr_rule="reproducibility").validate()
+    assert not ReconstructionConfig(method="fk").validate().reproducibility
+    assert ReconstructionConfig(method="fk", snr_rule="reproducibility").validate(
+    ).reproducibility
+    assert not ReconstructionConfig(method="iterative").validate().reproducibility
+    assert ReconstructionConfig(method="lct", snr_rule="reproducibility").validate().reproducibility
