@@ -26,7 +26,7 @@ regularised reproducible setting rather than the most reproducible one.
 
 Agreement measures the noise, not the bias. A setting that draws a deterministic artefact
 draws it in both halves: slab SNRs below 1e5 with a light-cone SNR of 1e3-1e4 gave IoU 0.00
-at kappa 0.8-0.96 on a 'G' 0.18 m, 0.78 m deep at 5e6 photons (the rule without the bound
+at kappa 0.8-0.96 on a 'G' 0.18 m, 0.78 m deep at 1.6e6 photons (the rule without the bound
 chose one of them). That is the closed forms' failure at a shallow slab deconvolution that
 the GCV rule's floor CLOSED_FORM_SLAB_SNR_MIN (3e5) answers (:mod:`clnlos.inverse.pipeline`):
 the slab candidates start a decade below it, at 1e5. KAPPA_MIN = 0.7 is the middle of the
