@@ -306,6 +306,11 @@ def auto_snrs(noise: NoiseEstimate, config: ReconstructionConfig,
     return snr, inv
 
 
+# what a split search records where a half of the split holds no counts (the GCV rule kept)
+SPLIT_EMPTY_REASON = "a half of the split holds no counts"
+SPLIT_EMPTY = f"gcv ({SPLIT_EMPTY_REASON})"
+
+
 class ReconstructionPipeline:
     """The composed stages for one capture geometry (shape, bin width, scan width);
     ``setup(step)`` names each step of the construction as it starts."""
@@ -391,9 +396,9 @@ class ReconstructionPipeline:
         ``model_snr`` is the slab model's accuracy (:func:`model_snr_for`);
         ``slab_snr_factor`` multiplies GCV's slab SNR in place of the method's rule (the
         thinning search's candidates, :meth:`thinning_factor`); ``snrs`` = (slab SNR,
-        light-cone SNR or None: the config's) replaces an "auto" slab SNR (combined with
-        ``model_snr``) and the light-cone rule (the reproducibility search's candidates,
-        :meth:`reproducibility_snrs`)."""
+        light-cone SNR or None: the config's) replaces an "auto" slab SNR (as given, the
+        model's accuracy not combined) and the light-cone rule (the reproducibility
+        search's candidates, :meth:`reproducibility_snrs`)."""
         timings: dict[str, float] = {}
         noise = self.raw_noise(transient)
         cv: dict | None = None
@@ -440,8 +445,8 @@ class ReconstructionPipeline:
                 slab_snr_factor is None and snrs is None):
             notes.append(f"snr_rule {named} not applied (it needs an \"auto\" slab SNR, a "
                          "slab and photon counts): the GCV rule or the configured SNRs")
-        if cv is not None and cv.get("snr_rule_used", "").startswith("gcv ("):
-            notes.append(f"no split search ({cv['snr_rule_used'][5:-1]}): the GCV rule")
+        if cv is not None and cv.get("snr_rule_used") == SPLIT_EMPTY:
+            notes.append(f"no split search ({SPLIT_EMPTY_REASON}): the GCV rule")
         elif cv is not None and cv.get("reproducibility_agreed") is False:
             notes.append(f"no candidate's halves agreed to kappa >= {KAPPA_MIN:g}: the most "
                          f"reproducible (kappa {cv['reproducibility_kappa']:.2f}) was taken")
@@ -508,12 +513,8 @@ class ReconstructionPipeline:
         takes Phi2 L rho for the held-out photons' mean: on a measured capture the model's
         own error (MEASURED_MODEL_SNR, 1e4) exceeds the photon noise it would judge by, and
         the combined SNR is capped at it anyway."""
-        c = self.config
-        if not c.thinning or (c.snr_rule == "auto" and math.isfinite(model_snr)):
-            return False
-        return (c.snr == "auto" and self.deconv is not None and self.invert.forward_model
-                and noise.photon_counts and not noise.noise_free
-                and is_counts(np.asarray(transient)))
+        return self.invert.forward_model and self._split_search_applies(
+            self.config.thinning, transient, noise, model_snr)
 
     def _reproducibility_applies(self, transient: np.ndarray, noise: NoiseEstimate,
                                  model_snr: float) -> bool:
@@ -523,11 +524,28 @@ class ReconstructionPipeline:
         ``snr_rule = "auto"`` also only where the slab model is exact (``model_snr``
         infinite). On a measured capture the model's error is the same in both halves: they
         would agree on it, and the combined SNR is capped at MEASURED_MODEL_SNR anyway."""
+        return self._split_search_applies(self.config.reproducibility, transient, noise,
+                                          model_snr)
+
+    def _split_search_applies(self, rule_on: bool, transient: np.ndarray,
+                              noise: NoiseEstimate, model_snr: float) -> bool:
+        """The gate both split searches share: their rule on (``rule_on``), not under
+        ``snr_rule = "auto"`` where the slab model is inexact (``model_snr`` finite), an
+        "auto" slab SNR, a slab, and a capture of photon counts (``noise``: the raw
+        capture's, :meth:`raw_noise`)."""
         c = self.config
-        if not c.reproducibility or (c.snr_rule == "auto" and math.isfinite(model_snr)):
+        if not rule_on or (c.snr_rule == "auto" and math.isfinite(model_snr)):
             return False
         return (c.snr == "auto" and self.deconv is not None and noise.photon_counts
                 and not noise.noise_free and is_counts(np.asarray(transient)))
+
+    def _split(self, transient: np.ndarray) -> tuple[np.ndarray, np.ndarray] | None:
+        """The binomial split of the counts (:func:`clnlos.inverse.thinning.thin_counts`),
+        or None where a half holds no counts in the kept window (the searches then keep
+        the GCV rule, recorded as :data:`SPLIT_EMPTY`)."""
+        halves = thin_counts(np.asarray(transient))
+        k0, k1 = self.raw_window
+        return halves if all(np.any(h[k0:k1]) for h in halves) else None
 
     def reproducibility_candidates(self) -> list[tuple[float, float | None]]:
         """The (slab SNR, light-cone SNR) settings the search tries, least regularised first
@@ -547,10 +565,9 @@ class ReconstructionPipeline:
         candidates are used as given: on a measured capture (``snr_rule`` by name) the
         model's accuracy is not combined with them. Where a half holds no counts in the
         window, the method's GCV rule stands (None, and a note)."""
-        halves = thin_counts(np.asarray(transient))
-        k0, k1 = self.raw_window
-        if not all(np.any(h[k0:k1]) for h in halves):
-            return None, {"snr_rule_used": "gcv (a half of the split holds no counts)"}
+        halves = self._split(transient)
+        if halves is None:
+            return None, {"snr_rule_used": SPLIT_EMPTY}
 
         def agreement(cand: tuple[float, float | None]) -> float:
             if setup is not None:
@@ -577,10 +594,9 @@ class ReconstructionPipeline:
         prediction Phi2 L rho scored against the second half deconvolved at that half's own
         GCV SNR (with CV_FOLDS = 2 also the other way round, the score the folds' mean).
         Where a half holds no counts in the window, GCV's pick (factor 1) stands."""
-        halves = thin_counts(np.asarray(transient))
-        k0, k1 = self.raw_window
-        if not all(np.any(h[k0:k1]) for h in halves):
-            return 1.0, {"snr_rule_used": "gcv (a half of the split holds no counts)"}
+        halves = self._split(transient)
+        if halves is None:
+            return 1.0, {"snr_rule_used": SPLIT_EMPTY}
         folds = []
         for train, test in list(zip(halves, halves[::-1], strict=True))[:CV_FOLDS]:
             held, snr, noise = self._held_out(test)
