@@ -26,13 +26,13 @@ optional and its default is the field default of :class:`ReconstructionConfig`::
                                  # influence in its model "thinning" (GCV's pick or a deeper
                                  # one, whichever reconstruction of half the photons best
                                  # predicts the other half, clnlos.inverse.thinning; 2-5
-                                 # reconstructions of half the data more); for LCT
-                                 # "reproducibility" (the least regularised slab and light-
-                                 # cone SNRs whose two halves of the photons give agreeing
-                                 # thresholded images, clnlos.inverse.reproducibility; up
-                                 # to 18 half reconstructions more); "gcv" (cross-validation
+                                 # reconstructions of half the data more); for LCT and
+                                 # f-k "reproducibility" (the least regularised slab and
+                                 # light-cone SNRs whose two halves of the photons give
+                                 # agreeing thresholded images,
+                                 # clnlos.inverse.reproducibility; up to 18 half
+                                 # reconstructions more, f-k 8); "gcv" (cross-validation
                                  # of the slab stage alone) elsewhere; or any by name
-                                 # ("reproducibility" also for f-k)
     model_snr = "auto"           # accuracy of the slab model as an SNR; "auto": exact for a
                                  # capture clnlos simulated with this slab, else
                                  # clnlos.inverse.snr.MEASURED_MODEL_SNR
@@ -395,8 +395,9 @@ class ReconstructionConfig:
     def reproducibility(self) -> bool:
         """Whether "auto" SNRs are chosen by split-half reproducibility
         (:mod:`clnlos.inverse.reproducibility`): ``snr_rule`` "reproducibility" (LCT or
-        f-k), or "auto" with a method whose rule it is (LCT). Whether it then acts depends on the
-        capture as well (:meth:`clnlos.inverse.pipeline.ReconstructionPipeline.run`)."""
+        f-k), or "auto" with a method whose rule it is (LCT, f-k). Whether it then acts
+        depends on the capture as well
+        (:meth:`clnlos.inverse.pipeline.ReconstructionPipeline.run`)."""
         if self.snr_rule == "auto":
             return auto_snr_rule(self.method) == "reproducibility"
         return self.snr_rule == "reproducibility"

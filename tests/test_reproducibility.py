@@ -13,11 +13,14 @@ from clnlos.errors import ParameterError
 from clnlos.inverse.pipeline import ReconstructionPipeline, reconstruct, resolve_geometry
 from clnlos.inverse.reproducibility import (
     KAPPA_MIN,
+    KAPPA_MIN_SLAB_ONLY,
     LIGHTCONE_SNRS,
     SLAB_SNRS,
+    SLAB_SNRS_SLAB_ONLY,
     candidate_order,
     cohen_kappa,
     first_reproducible,
+    kappa_min,
     mask_agreement,
     otsu_mask,
 )
@@ -160,27 +163,39 @@ def test_no_candidate_agreeing_takes_the_most_reproducible(small_capture, queue,
     import clnlos.inverse.pipeline as pipeline
 
     cap, _ = small_capture
-    strict = lambda cands, agreement: first_reproducible(cands, agreement, 1.01)  # noqa: E731
-    monkeypatch.setattr(pipeline, "first_reproducible", strict)
+    monkeypatch.setattr(pipeline, "kappa_min", lambda lightcone_filter: 1.01)
     rec = reconstruct(cap, _config(cap, method="lct"), device=queue)
     tried = json.loads(rec.params["reproducibility_tried"])
     assert len(tried) == len(SLAB_SNRS) * len(LIGHTCONE_SNRS)
     best = max(tried, key=lambda t: t[2])
     assert (rec.params["snr_used"], rec.params["inversion_snr_used"]) == (best[0], best[1])
-    assert any("no candidate's halves agreed" in n for n in rec.notes)
+    assert any("no candidate's halves agreed to kappa >= 1.01" in n for n in rec.notes)
 
 
-def test_fk_searches_its_slab_snr_alone(small_capture, queue):
-    """f-k by name (its default is the GCV rule): the slab SNR alone is searched."""
+def test_fk_searches_its_slab_snr_alone_to_its_own_bar(small_capture, queue):
+    """f-k's default on a capture with its own slab: the slab SNR alone is searched, from
+    the highest down, to KAPPA_MIN_SLAB_ONLY (no light-cone filter follows the slab stage);
+    every earlier candidate is below that bar, the chosen one at least at it; "gcv" by
+    name keeps GCV's pick."""
     cap, _ = small_capture
-    assert reconstruct(cap, _config(cap, method="fk"), device=queue
-                       ).params["snr_rule_used"] == "gcv"
-    rec = reconstruct(cap, _config(cap, method="fk", snr_rule="reproducibility"), device=queue)
-    tried = json.loads(rec.params["reproducibility_tried"])
-    assert rec.params["snr_rule_used"] == "reproducibility"
+    assert kappa_min(True) == KAPPA_MIN < kappa_min(False) == KAPPA_MIN_SLAB_ONLY
+    rec = reconstruct(cap, _config(cap, method="fk"), device=queue)
+    p = rec.params
+    tried = json.loads(p["reproducibility_tried"])
+    assert p["snr_rule_used"] == "reproducibility"
+    assert p["reproducibility_kappa_min"] == KAPPA_MIN_SLAB_ONLY
     assert all(c is None for _, c, _ in tried)
-    assert [s for s, _, _ in tried] == list(SLAB_SNRS[::-1])[:len(tried)]
-    assert rec.params["snr_used"] == tried[-1][0]
+    assert [s for s, _, _ in tried] == list(SLAB_SNRS_SLAB_ONLY[::-1])[:len(tried)]
+    assert SLAB_SNRS_SLAB_ONLY == SLAB_SNRS + (1e8,)
+    agreed = p["reproducibility_agreed"]
+    assert all(k < KAPPA_MIN_SLAB_ONLY for *_, k in tried[:-1])
+    assert (tried[-1][2] >= KAPPA_MIN_SLAB_ONLY) == agreed
+    if agreed:
+        assert p["snr_used"] == tried[-1][0]
+    else:
+        assert p["snr_used"] == max(tried, key=lambda t: t[2])[0]
+    assert reconstruct(cap, _config(cap, method="fk", snr_rule="gcv"), device=queue
+                       ).params["snr_rule_used"] == "gcv"
 
 
 def test_a_light_cone_snr_given_is_kept(small_capture, queue):
@@ -231,8 +246,7 @@ def test_no_split_without_counts(small_capture, queue):
 def test_the_rule_by_name_is_for_the_closed_forms():
     with pytest.raises(ParameterError, match="snr_rule"):
         ReconstructionConfig(method="iterative", snr_rule="reproducibility").validate()
-    assert not ReconstructionConfig(method="fk").validate().reproducibility
-    assert ReconstructionConfig(method="fk", snr_rule="reproducibility").validate(
-    ).reproducibility
+    assert ReconstructionConfig(method="fk").validate().reproducibility
+    assert not ReconstructionConfig(method="fk", snr_rule="gcv").validate().reproducibility
     assert not ReconstructionConfig(method="iterative").validate().reproducibility
     assert ReconstructionConfig(method="lct", snr_rule="reproducibility").validate().reproducibility

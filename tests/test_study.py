@@ -183,6 +183,7 @@ def test_tiny_study_serial_and_dask_agree(tmp_path):
     html = (tmp_path / "serial" / "report.html").read_text()
     assert html.count("data:image/png;base64,") == 9 and "standard white plate" in html
     assert "dataset.overflow" in html and "max-width" in html and "box baseline" in html
+    assert "SNRs by gcv)" in html  # the rule the study pins, named for every method
     res = json.loads((tmp_path / "serial" / "results.json").read_text())
     _check_contract(res, TINY)
     assert 0 <= res["cnn"]["val_accuracy"] <= 1 and 0 < res["cnn"]["majority_baseline"] <= 1

@@ -52,9 +52,10 @@ from clnlos.forward.scene import Scene
 from clnlos.inverse.methods import METHODS as METHOD_ENTRIES
 from clnlos.inverse.methods import default_falloffs, method_names
 from clnlos.inverse.pipeline import device_bytes_needed, resolve_geometry, setup_slab
-from clnlos.inverse.reproducibility import KAPPA_MIN
+from clnlos.inverse.reproducibility import kappa_min
 from clnlos.inverse.reproducibility import LIGHTCONE_SNRS as RP_LC
 from clnlos.inverse.reproducibility import SLAB_SNRS as RP_SLAB
+from clnlos.inverse.reproducibility import SLAB_SNRS_SLAB_ONLY as RP_SLAB_ONLY
 from clnlos.io.figures import volume_figure
 from clnlos.io.files import read_capture, read_volume, save_figure
 from clnlos.io.outputs import HDF5_SUFFIXES, check_outputs
@@ -237,13 +238,15 @@ def register_reconstruct(sub, add_device) -> None:
                         "binomially, predicts the other half significantly better; 2-5 "
                         "extra reconstructions of half the data), reproducibility (lct and "
                         "fk only: the least regularised slab and light-cone SNRs, "
-                        f"{_decades(RP_SLAB)} x {_decades(RP_LC)}, whose "
+                        f"{_decades(RP_SLAB)} x {_decades(RP_LC)} (fk: the slab SNR, "
+                        f"{_decades(RP_SLAB_ONLY)}), whose "
                         "two halves of the photons give thresholded images that agree, "
-                        f"Cohen's kappa >= {KAPPA_MIN:g}; up to "
+                        f"Cohen's kappa >= {kappa_min(True):g} (fk: "
+                        f">= {kappa_min(False):g}); up to "
                         f"{2 * len(RP_SLAB) * len(RP_LC)} extra reconstructions of half the "
                         "data), or auto: thinning for the iterative method and "
-                        "reproducibility for lct on photon counts the slab model fits exactly "
-                        "(a capture simulated with this slab), gcv elsewhere "
+                        "reproducibility for lct and fk on photon counts the slab model fits "
+                        "exactly (a capture simulated with this slab), gcv elsewhere "
                         f"(default {C.snr_rule})")
     r.add_argument("--inversion-snr", type=number_or_auto,
                    help="Wiener SNR of the LCT filter (and of the iterative warm start), or "

@@ -45,8 +45,9 @@ from clnlos.physics.slab import CDT_SLAB
 from clnlos.study.metrics import mip_iou, truth_mask
 
 SLAB_SNRS = (1e2, 1e3, 1e4, 1e5)  # the grid, the iterative method's
-# LCT and f-k take slab SNRs of at least CLOSED_FORM_SLAB_SNR_MIN: their grid reaches past it
-CLOSED_FORM_SLAB_SNRS = SLAB_SNRS + (1e6, 1e7)
+# LCT and f-k take slab SNRs of at least CLOSED_FORM_SLAB_SNR_MIN: their grid reaches past
+# it, up to the top of f-k's reproducibility candidates (clnlos.inverse.reproducibility)
+CLOSED_FORM_SLAB_SNRS = SLAB_SNRS + (1e6, 1e7, 1e8)
 INVERSION_SNRS = (1e2, 1e3, 1e4)
 METHODS = tuple(sorted(method_names(), key=lambda m: m != "iterative"))  # iterative first
 # 1e7 to 1e12 photons at the seed geometry: past 1e12 the photon rule reached its cap

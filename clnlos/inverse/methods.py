@@ -79,7 +79,7 @@ METHODS: dict[str, MethodEntry] = {
                        "light-cone transform with a Wiener filter (O'Toole et al. 2018)",
                        "reproducibility"),
     "fk": MethodEntry("clnlos.inverse.fk", "FKMethod", 2.0,
-                      "f-k (Stolt) migration (Lindell et al. 2019)"),
+                      "f-k (Stolt) migration (Lindell et al. 2019)", "reproducibility"),
     "iterative": MethodEntry("clnlos.inverse.iterative", "IterativeMethod", None,
                              "FISTA on the light-cone transport, L1 + TV, warm-started by "
                              "LCT", "thinning"),

@@ -29,15 +29,15 @@ assumption put the light-cone SNR up to 7x too low (a 0.7 m deep '+' : 1.3e3 aga
 UPRE's 1e4, LCT IoU 0.59 against 0.66). The same noise realisation sets the iterative
 method's "auto" L1 weight (twice max(L^T n), :mod:`clnlos.inverse.iterative`).
 
-The SNRs of LCT by default (``snr_rule = "auto"``, on photon counts the slab model fits
-exactly; f-k by name): the least regularised (slab, light-cone) setting of a decade grid whose
+The SNRs of LCT and f-k by default (``snr_rule = "auto"``, on photon counts the slab model
+fits exactly): the least regularised (slab, light-cone) setting of a decade grid whose
 reconstructions from the two halves of a binomial split of the counts give agreeing
 thresholded images (:mod:`clnlos.inverse.reproducibility`,
 :meth:`ReconstructionPipeline.reproducibility_snrs`). The rule below (GCV with a floor,
 UPRE for the light cone) is the one measured captures get (their model error is the same
 in both halves) and ``snr_rule = "gcv"`` names.
 
-The slab SNR of LCT and f-k under the GCV rule (f-k's default). GCV's slab SNR is the
+The slab SNR of LCT and f-k under the GCV rule. GCV's slab SNR is the
 predictive-risk optimum of the slab stage alone (within two steps of 16 per decade of the
 true optimum on 5 captures). That deconvolution leaves the smoothed transient Phi I
 (Phi = W B, the filter's influence,
@@ -113,13 +113,13 @@ from clnlos.forward.blur import blur_time_scales, slab_blur
 from clnlos.inverse.gcv import GcvBins
 from clnlos.inverse.methods import InversionGrid, method_class
 from clnlos.inverse.reproducibility import (
-    KAPPA_MIN,
     LIGHTCONE_SNRS,
-    SLAB_SNRS,
     candidate_order,
     first_reproducible,
+    kappa_min,
     mask_agreement,
     otsu_mask,
+    slab_snrs,
 )
 from clnlos.inverse.snr import (
     ARRIVAL_SIGMAS,
@@ -448,7 +448,8 @@ class ReconstructionPipeline:
         if cv is not None and cv.get("snr_rule_used") == SPLIT_EMPTY:
             notes.append(f"no split search ({SPLIT_EMPTY_REASON}): the GCV rule")
         elif cv is not None and cv.get("reproducibility_agreed") is False:
-            notes.append(f"no candidate's halves agreed to kappa >= {KAPPA_MIN:g}: the most "
+            notes.append(f"no candidate's halves agreed to kappa >= "
+                         f"{cv['reproducibility_kappa_min']:g}: the most "
                          f"reproducible (kappa {cv['reproducibility_kappa']:.2f}) was taken")
         deconv = None
         if self.deconv is not None:
@@ -553,14 +554,15 @@ class ReconstructionPipeline:
         the method has a light-cone filter and the config leaves its SNR to "auto"."""
         lc = (LIGHTCONE_SNRS if self.invert.lightcone_filter
               and self.config.inversion_snr == "auto" else (None,))
-        return candidate_order(SLAB_SNRS, lc)
+        return candidate_order(slab_snrs(self.invert.lightcone_filter), lc)
 
     def reproducibility_snrs(self, transient: np.ndarray, model_snr: float = math.inf,
                              setup=None) -> tuple[tuple[float, float | None] | None, dict]:
         """((slab SNR, light-cone SNR or None), the params recording the search): the first
         of :meth:`reproducibility_candidates` at which the two halves of a binomial split of
         the counts (:func:`clnlos.inverse.thinning.thin_counts`) give Otsu masks of their
-        max-intensity projections that agree with Cohen's kappa >= KAPPA_MIN, else the most
+        max-intensity projections that agree with Cohen's kappa >= the method's bar
+        (:func:`clnlos.inverse.reproducibility.kappa_min`), else the most
         reproducible candidate (:mod:`clnlos.inverse.reproducibility`; a note says so). The
         candidates are used as given: on a measured capture (``snr_rule`` by name) the
         model's accuracy is not combined with them. Where a half holds no counts in the
@@ -577,11 +579,12 @@ class ReconstructionPipeline:
                      for h in halves]
             return mask_agreement(*masks)
 
+        bar = kappa_min(self.invert.lightcone_filter)
         chosen, tried, agreed = first_reproducible(self.reproducibility_candidates(),
-                                                   agreement)
+                                                   agreement, bar)
         kappa = dict(tried)[chosen]
         return chosen, {"snr_rule_used": "reproducibility", "reproducibility_kappa": kappa,
-                        "reproducibility_kappa_min": KAPPA_MIN,
+                        "reproducibility_kappa_min": bar,
                         "reproducibility_agreed": agreed,
                         "reproducibility_tried": json.dumps([[c[0], c[1], k]
                                                              for c, k in tried])}

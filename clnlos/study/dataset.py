@@ -66,8 +66,8 @@ class StudyGrid:
     snr_rule: str = "gcv"  # the SNR rule of every method, the study's budget too: GCV's
     #                        pick, not the config's "auto" (which for the iterative method
     #                        thins the counts, 3-4x the time of a sample: 18-22 s against
-    #                        5-8 s measured, clnlos.inverse.thinning; for LCT searches the
-    #                        halves' agreement, clnlos.inverse.reproducibility)
+    #                        5-8 s measured, clnlos.inverse.thinning; for LCT and f-k
+    #                        searches the halves' agreement, clnlos.inverse.reproducibility)
     # the detector: the scene's defaults (seed Table 1), but for the etendue and dark counts
     # of the study's SPAD behind the slab
     power_w: float = Detector.power_w

@@ -472,6 +472,13 @@ def _transport_section(comparison) -> list[str]:
             f"{_png(fig_transport(comparison))}'/>"]
 
 
+def _reconstruction_detail(grid: dict) -> str:
+    """The study's reconstruction settings for the setup line: the iterations (iterative
+    method) and the rule its "auto" SNRs came from (the study pins one, StudyGrid.snr_rule)."""
+    rule = f"SNRs by {grid.get('snr_rule', 'gcv')}"
+    return f"{grid['iterations']} iterations, {rule}" if grid["method"] == "iterative" else rule
+
+
 def write_report(out_dir, results, plan, res, real=None) -> None:
     import matplotlib
 
@@ -519,8 +526,7 @@ def write_report(out_dir, results, plan, res, real=None) -> None:
         f"n 1.12), 35 ps pulse, {g['rep_rate_hz'] / 1e6:.0f} MHz, {g['power_w'] * 1e3:.0f} mW "
         f"at {g['wavelength_m'] * 1e9:.0f} nm, 0.1 s per scan point unless swept; "
         f"reconstruction: {g['method']}"
-        + (f" ({g['iterations']} iterations, slab SNR by {g.get('snr_rule', 'gcv')})"
-           if g["method"] == "iterative" else "")
+        + f" ({_reconstruction_detail(g)})"
         + f"; glyphs {''.join(results['options']['glyphs'])} (K = "
         f"{len(results['options']['glyphs'])}), {results['options']['seeds']} noise "
         f"realisation(s) each; {results['n_dataset']} reconstructions in all.</p>",
