@@ -28,6 +28,7 @@ from clnlos.bench.oracle import (
 )
 from clnlos.config import ReconstructionConfig
 from clnlos.inverse.gcv import GcvBins
+from clnlos.inverse.methods import method_class
 from clnlos.inverse.pipeline import auto_snrs, reconstruct
 from clnlos.inverse.reproducibility import kappa_min
 from clnlos.inverse.snr import (
@@ -179,7 +180,7 @@ def test_auto_within_the_oracle_gap(tiny_capture, queue, method):
     cap, mask = tiny_capture
     row = compare_method(cap, mask, method, queue=queue)
     assert row["auto_snr_rule"] == "reproducibility", row
-    assert row["auto_kappa"] >= kappa_min(method == "lct"), row
+    assert row["auto_kappa"] >= kappa_min(method_class(method).lightcone_filter), row
     assert row["gap"] <= 0.08, row
     assert row["vs_today"] >= 0.0, row
     base = ReconstructionConfig(slab=cap.recorded_slab()[0], method=method, snr_rule="gcv")

@@ -105,7 +105,7 @@ def test_the_first_reproducible_candidate_stops_the_search():
     assert chosen == (10.0, None) and len(tried) == 3  # none agrees: the most reproducible
     assert not agreed
     with pytest.raises(ValueError):
-        first_reproducible([], agreement)
+        first_reproducible([], agreement, KAPPA_MIN)
 
 
 def test_the_mask_compared_is_the_mask_scored():
@@ -186,7 +186,6 @@ def test_fk_searches_its_slab_snr_alone_to_its_own_bar(small_capture, queue):
     assert p["reproducibility_kappa_min"] == KAPPA_MIN_SLAB_ONLY
     assert all(c is None for _, c, _ in tried)
     assert [s for s, _, _ in tried] == list(SLAB_SNRS_SLAB_ONLY[::-1])[:len(tried)]
-    assert SLAB_SNRS_SLAB_ONLY == SLAB_SNRS + (1e8,)
     agreed = p["reproducibility_agreed"]
     assert all(k < KAPPA_MIN_SLAB_ONLY for *_, k in tried[:-1])
     assert (tried[-1][2] >= KAPPA_MIN_SLAB_ONLY) == agreed
@@ -196,6 +195,26 @@ def test_fk_searches_its_slab_snr_alone_to_its_own_bar(small_capture, queue):
         assert p["snr_used"] == max(tried, key=lambda t: t[2])[0]
     assert reconstruct(cap, _config(cap, method="fk", snr_rule="gcv"), device=queue
                        ).params["snr_rule_used"] == "gcv"
+
+
+def test_each_method_searches_to_its_own_bar(small_capture, queue, monkeypatch):
+    """With every pair of halves agreeing at kappa 0.75 (between the two bars): LCT, whose
+    light-cone filter follows the slab stage, takes its first candidate; f-k, whose slab
+    filter is its only regularisation, finds none at KAPPA_MIN_SLAB_ONLY, tries all of
+    SLAB_SNRS_SLAB_ONLY and notes the fallback."""
+    import clnlos.inverse.pipeline as pipeline
+
+    cap, _ = small_capture
+    monkeypatch.setattr(pipeline, "mask_agreement", lambda a, b: 0.75)
+    lct = reconstruct(cap, _config(cap, method="lct"), device=queue).params
+    assert lct["reproducibility_agreed"] and len(json.loads(lct["reproducibility_tried"])) == 1
+    assert (lct["snr_used"], lct["inversion_snr_used"]) == (SLAB_SNRS[-1], LIGHTCONE_SNRS[-1])
+    fk = reconstruct(cap, _config(cap, method="fk"), device=queue)
+    tried = json.loads(fk.params["reproducibility_tried"])
+    assert not fk.params["reproducibility_agreed"]
+    assert [s for s, _, _ in tried] == list(SLAB_SNRS_SLAB_ONLY[::-1])
+    assert fk.params["snr_used"] == SLAB_SNRS_SLAB_ONLY[-1]  # ties: the first tried
+    assert any(f"kappa >= {KAPPA_MIN_SLAB_ONLY:g}" in n for n in fk.notes)
 
 
 def test_a_light_cone_snr_given_is_kept(small_capture, queue):

@@ -17,6 +17,7 @@ from clnlos.forward.geometry import letters_mask
 from clnlos.study.clarity import clarity_label, clarity_score, label_thresholds
 from clnlos.study.classify import dihedral
 from clnlos.study.dataset import StudyGrid, dataset_samples, scene_dict, window_m
+from clnlos.study.report import _reconstruction_detail
 from clnlos.study.quality import (
     central_energy,
     depth_coherence,
@@ -175,6 +176,19 @@ def _check_contract(res, opts):
     assert {s["variable"] for s in res["sweeps"]} == {"scan_width_m", "depth_m",
                                                        "slab_thickness_m"}
     assert all(0 <= s["iou"] <= 1 and "identification" in s for s in res["sweeps"])
+
+
+def test_setup_line_names_the_snr_rule_each_method_ran():
+    """The report's setup line names the SNR rule of every method: the study's pinned rule
+    where it is valid for the method, else the method's own "auto"."""
+    assert _reconstruction_detail({"method": "lct", "snr_rule": "gcv"}) == "SNRs by gcv"
+    assert _reconstruction_detail({"method": "iterative", "snr_rule": "gcv",
+                                   "iterations": 50}) == "50 iterations, SNRs by gcv"
+    assert _reconstruction_detail({"method": "fk", "snr_rule": "thinning"}) == (
+        "SNRs by auto (reproducibility on counts of the slab simulated)")
+    assert _reconstruction_detail({"method": "iterative", "snr_rule": "reproducibility",
+                                   "iterations": 5}).endswith("SNRs by auto (thinning on "
+                                                              "counts of the slab simulated)")
 
 
 @pytest.mark.slow

@@ -243,10 +243,11 @@ def register_reconstruct(sub, add_device) -> None:
                         "two halves of the photons give thresholded images that agree, "
                         f"Cohen's kappa >= {kappa_min(True):g} (fk: "
                         f">= {kappa_min(False):g}); up to "
-                        f"{2 * len(RP_SLAB) * len(RP_LC)} extra reconstructions of half the "
-                        "data), or auto: thinning for the iterative method and "
-                        "reproducibility for lct and fk on photon counts the slab model fits "
-                        "exactly (a capture simulated with this slab), gcv elsewhere "
+                        f"{2 * len(RP_SLAB) * len(RP_LC)} (fk {2 * len(RP_SLAB_ONLY)}) extra "
+                        "reconstructions of half the data), or auto: thinning for the "
+                        "iterative method and reproducibility for lct and fk on photon "
+                        "counts the slab model fits exactly (a capture simulated with this "
+                        "slab), gcv elsewhere "
                         f"(default {C.snr_rule})")
     r.add_argument("--inversion-snr", type=number_or_auto,
                    help="Wiener SNR of the LCT filter (and of the iterative warm start), or "

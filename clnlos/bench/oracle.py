@@ -1,7 +1,10 @@
 """The "auto" reconstruction parameters against an oracle that knows the truth.
 
 For simulated captures (Lambertian shapes through the CDT slab, photon noise), each method
-is run with its default "auto" SNRs (:mod:`clnlos.inverse.gcv`), with the photon rule the auto SNRs
+is run with its default "auto" SNRs (on these captures of their own slab: LCT and f-k by
+split-half reproducibility, :mod:`clnlos.inverse.reproducibility`; the iterative method by
+thinning, :mod:`clnlos.inverse.thinning`; the GCV rule, :mod:`clnlos.inverse.gcv`,
+elsewhere), with the photon rule the auto SNRs
 replaced (SNR = photons / K_SNR and its square root, :mod:`clnlos.inverse.snr`: "today"), and
 with every setting of the grid SLAB_SNRS x INVERSION_SNRS (LCT and f-k: CLOSED_FORM_SLAB_SNRS,
 which reaches past their slab floor; f-k has no light-cone SNR: the slab SNRs alone). The
@@ -39,15 +42,17 @@ from clnlos.forward.scene import Scene
 from clnlos.inverse.iterative import FIXED_L1_WEIGHT
 from clnlos.inverse.methods import method_class, method_names
 from clnlos.inverse.pipeline import reconstruct
+from clnlos.inverse.reproducibility import SLAB_SNRS_SLAB_ONLY as REPRODUCIBILITY_SLAB_SNRS
 from clnlos.inverse.snr import combined_snr, lightcone_snr
 from clnlos.io.files import atomic_path
 from clnlos.physics.slab import CDT_SLAB
 from clnlos.study.metrics import mip_iou, truth_mask
 
 SLAB_SNRS = (1e2, 1e3, 1e4, 1e5)  # the issue's grid, the iterative method's
-# LCT and f-k take slab SNRs of at least CLOSED_FORM_SLAB_SNR_MIN: their grid reaches past
-# it, up to the top of f-k's reproducibility candidates (clnlos.inverse.reproducibility)
-CLOSED_FORM_SLAB_SNRS = SLAB_SNRS + (1e6, 1e7, 1e8)
+# LCT and f-k: under the GCV rule slab SNRs of at least CLOSED_FORM_SLAB_SNR_MIN, by
+# reproducibility from 1e5 to 1e8 (f-k): their grid reaches the top of those candidates
+CLOSED_FORM_SLAB_SNRS = SLAB_SNRS + tuple(s for s in REPRODUCIBILITY_SLAB_SNRS
+                                          if s > SLAB_SNRS[-1])
 INVERSION_SNRS = (1e2, 1e3, 1e4)
 METHODS = tuple(sorted(method_names(), key=lambda m: m != "iterative"))  # iterative first
 # 1e7 to 1e12 photons at the seed geometry: past 1e12 the photon rule reached its cap

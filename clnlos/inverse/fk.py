@@ -91,8 +91,9 @@ class FKMigration:
 
 class FKMethod(Inversion):
     """``method = "fk"`` (:class:`FKMigration` behind the inversion contract of
-    :mod:`clnlos.inverse.methods`; nothing of its own is chosen from the data, its slab SNR
-    has the floor CLOSED_FORM_SLAB_SNR_MIN)."""
+    :mod:`clnlos.inverse.methods`; nothing of its own is chosen from the data; under the
+    GCV rule its slab SNR has the floor CLOSED_FORM_SLAB_SNR_MIN, by default the
+    reproducibility search chooses it, :mod:`clnlos.inverse.reproducibility`)."""
 
     name = "fk"
     slab_snr_min = CLOSED_FORM_SLAB_SNR_MIN  # Phi not modelled (clnlos.inverse.pipeline)

@@ -58,8 +58,9 @@ oracle deconvolves to 1e6-1e7 where GCV picks 2e5-2e6 (a 'C' at 1.4e9 photons: 0
 floor, 0.70 at the mean, oracle 0.73). The floor was chosen on the oracle table and the
 first eight held-out captures (LCT's worst gap with floors 3e4, 1e5 and 3e5: 0.16, 0.08,
 0.06; with factors 3 and 5 on GCV's pick: 0.13, 0.09), the mean after all sixteen
-(:data:`clnlos.bench.oracle.HOLDOUT_CASES`); the grid of LCT and f-k reaches slab SNRs of
-1e7 (tools/results/oracle_seeds*, oracle_holdout*). On the table (3 seeds) the worst gap is
+(:data:`clnlos.bench.oracle.HOLDOUT_CASES`); the grid of LCT and f-k reached slab SNRs of
+1e7 then (it reaches 1e8 now; tools/results/oracle_seeds*, oracle_holdout* hold the
+default's rows, the GCV rule's IoU beside them). On the table (3 seeds) the worst gap is
 0.05 for LCT (0.20 at GCV's pick) and for f-k (0.05). On the 16 held-out captures (2 seeds)
 gaps above 0.08: LCT 3 of 16 (7 at GCV's pick; worst 0.14, the 'C', whose oracle
 deconvolves to 1e7), f-k 1 (8; 0.20, a 12 cm 'U' whose oracle image is a blob below the

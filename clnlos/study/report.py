@@ -17,6 +17,8 @@ import numpy as np
 from clnlos import C0
 from clnlos.brdf.models import retro_slice
 from clnlos.brdf.presets import preset_model
+from clnlos.config import snr_rule_applies
+from clnlos.inverse.methods import auto_snr_rule
 from clnlos.io.files import atomic_path
 from clnlos.io.outputs import HTML_GENERATOR
 from clnlos.study.quality import METRICS
@@ -474,9 +476,14 @@ def _transport_section(comparison) -> list[str]:
 
 def _reconstruction_detail(grid: dict) -> str:
     """The study's reconstruction settings for the setup line: the iterations (iterative
-    method) and the rule its "auto" SNRs came from (the study pins one, StudyGrid.snr_rule)."""
-    rule = f"SNRs by {grid.get('snr_rule', 'gcv')}"
-    return f"{grid['iterations']} iterations, {rule}" if grid["method"] == "iterative" else rule
+    method) and the rule its "auto" SNRs came from: StudyGrid.snr_rule where it is valid
+    for the method, else the method's own "auto" (:func:`clnlos.config.snr_rule_applies`,
+    as the samples are reconstructed)."""
+    method, rule = grid["method"], grid.get("snr_rule", "gcv")
+    if not snr_rule_applies(rule, method):
+        rule = f"auto ({auto_snr_rule(method)} on counts of the slab simulated)"
+    text = f"SNRs by {rule}"
+    return f"{grid['iterations']} iterations, {text}" if method == "iterative" else text
 
 
 def write_report(out_dir, results, plan, res, real=None) -> None:
