@@ -331,7 +331,7 @@ class ReconstructionConfig:
                                  "method fits on the held-out photons: method "
                                  "\"iterative\" with slab_model \"influence\")")
         if (v["snr_rule"] == "reproducibility" and self.method in method_names()
-                and auto_snr_rule(self.method) == "thinning"):
+                and not snr_rule_applies("reproducibility", self.method)):
             raise ParameterError(nm("snr_rule"), self.snr_rule,
                                  "\"auto\", \"gcv\" or \"thinning\" (\"reproducibility\" "
                                  "chooses the SNRs of the closed-form methods \"lct\" and "
