@@ -33,7 +33,7 @@ def main(argv=None) -> int:
 
     from clnlos.bench.oracle import write_rows
     from clnlos.config import ReconstructionConfig
-    from clnlos.inverse.pipeline import reconstruct
+    from clnlos.inverse.pipeline import reconstruct, resolve_geometry
     from clnlos.inverse.snr import combined_snr, lightcone_snr
     from clnlos.io.files import atomic_path, read_capture, save_figure_file
 
@@ -64,21 +64,31 @@ def main(argv=None) -> int:
                          "today_snr": old, "published_snr": published.snr,
                          "published_inversion_snr": published.inversion_snr,
                          "corr_wiener_first": first})
-            mips.append((f"{cap_name} {m}", pub.volume.max(axis=0), dflt.volume.max(axis=0)))
+            mips.append((f"{cap_name} {m}", pub.volume.max(axis=0), dflt.volume.max(axis=0),
+                         resolve_geometry(cap, published)[2]))
             r = rows[-1]
             print(f"{cap_name} {m}: corr(default, published) {r['corr_default']:.3f}, "
                   f"today {r['corr_today']:.3f}; SNRs {r['default_snr']:.3g} / "
                   f"{r['default_inversion_snr'] or 0:.3g}", flush=True)
     print("wrote", *write_rows(rows, RESULTS / "real_cdt_defaults"))
-    fig = Figure(figsize=(2 * 2.2 * 3, 2.2 * len(CAPTURES) * len(METHODS) / 3 * 1.05),
-                 layout="constrained")
-    axes = fig.subplots(len(mips) // 3 * 1, 6, squeeze=False)
-    for k, (title, pub, dflt) in enumerate(mips):
+    fig = Figure(figsize=(6 * 2.3, 2.3 * len(CAPTURES) + 0.4), layout="constrained")
+    axes = fig.subplots(len(CAPTURES), 2 * len(METHODS), squeeze=False)
+    for k, (title, pub, dflt, width) in enumerate(mips):
+        row = axes[k // len(METHODS)]
+        ext = (-width / 2, width / 2, -width / 2, width / 2)  # the scan grid, wall coordinates
         for j, (img, what) in enumerate(((pub, "published"), (dflt, "default"))):
-            ax = axes[k // 3, 2 * (k % 3) + j]
-            ax.imshow(img / max(img.max(), 1e-30), origin="lower", cmap="gray")
-            ax.set_title(f"{title}\n{what}", fontsize=7)
-            ax.set_axis_off()
+            ax = row[2 * (k % len(METHODS)) + j]
+            im = ax.imshow(img / max(img.max(), 1e-30), origin="lower", cmap="gray",
+                           extent=ext, vmin=0, vmax=1)
+            ax.set_title(f"{title}\n{what} SNRs", fontsize=7)
+            ax.tick_params(labelsize=6)
+            ax.set_xlabel("x (m)", fontsize=7)
+            if ax is row[0]:
+                ax.set_ylabel("y (m)", fontsize=7)
+        if k % len(METHODS) == len(METHODS) - 1:
+            cb = fig.colorbar(im, ax=list(row), shrink=0.9, pad=0.01)
+            cb.set_label("max-intensity projection / its max", fontsize=7)
+            cb.ax.tick_params(labelsize=6)
     out = RESULTS / "real_cdt_defaults.png"
     with atomic_path(out) as tmp:
         save_figure_file(fig, tmp)
