@@ -58,6 +58,20 @@ were not looked at before: against the grid of 1e2-1e8 f-k is more than 0.08 bel
 of 32 rows, the GCV rule on 7, and no capture is flagged as a regression against the photon
 rule (the GCV rule: 1).
 
+Draw 20261206 was drawn after both bars and both candidate sets were fixed (nothing on it
+chose anything): LCT more than 0.08 below the oracle grid on 7 of its 32 rows (the GCV rule:
+8), f-k on 3 (GCV: 6); flagged against the photon rule, LCT 1 capture of 16 (GCV: 3), f-k 0
+(GCV: 4). Its LCT misses show both ways the criterion fails. Agreement measures the noise,
+so a deterministic artefact passes: (1e5, 1e4) at kappa 0.77 on a 'V' 0.16 m, 0.75 m deep
+(IoU 0.07 against 0.41 at (1e6, 1e3)), and at 5.5e9 photons (1e7, 1e4) at kappa 0.92 on a
+'+' 0.28 m (0.73 against 0.86 at (1e6, 1e4)). And a best setting whose halves do not agree
+is not seen: half the photons are too few for it, all of them are enough. Measured on the
+rows above and not taken, each against the candidates' best (LCT, 120 rows): ordering by
+SNR1^a SNR2 (16, 10, 10, 13 and 13 misses at a = 0.5, 1, 1.5, 2 and 3), the highest
+contrast-to-noise among the agreeing candidates (11 against 8 of 78), leaving out (1e5, 1e4)
+(11 against 10), and a ridge regression of each candidate's IoU on its and its neighbours'
+kappas and the photon count, cross-validated by set (14-15 against 10).
+
 Why (issue 24). The risk estimates GCV and UPRE minimise a mean-square error, and the
 setting a thresholded image is legible at is not the mean-square optimum (the oracle
 per-frequency Wiener filter knowing the true spectrum gave LCT IoU 0.12 against 0.52,
