@@ -110,7 +110,7 @@ import pyopencl.array as cla
 from clnlos import C0
 from clnlos.config import ReconstructionConfig, check_window
 from clnlos.errors import InputFileError, ParameterError
-from clnlos.forward.blur import blur_time_scales, slab_blur
+from clnlos.forward.blur import blur_time_scales, confocal_lag_energy, confocal_psf, slab_blur
 from clnlos.inverse.gcv import GcvBins
 from clnlos.inverse.methods import InversionGrid, method_class
 from clnlos.inverse.reproducibility import (
@@ -128,10 +128,14 @@ from clnlos.inverse.snr import (
     SNR_MAX,
     SNR_MIN,
     NoiseEstimate,
+    column_shift_error,
+    combined_accuracy,
     combined_snr,
     estimate_noise,
     is_counts,
     lightcone_snr,
+    rebinning_error,
+    represented_snr,
 )
 from clnlos.inverse.tail_fill import TailFilledDeconvolution
 from clnlos.inverse.thinning import (
@@ -149,7 +153,7 @@ from clnlos.io.capture import Capture
 from clnlos.operators.resample import AxisResample, overlap_matrix
 from clnlos.runtime.buffers import Scratch, host_view, round_up
 from clnlos.runtime.caches import PIPELINES
-from clnlos.runtime.device import get_queue, require_dtype
+from clnlos.runtime.device import get_queue, has_fp64, require_dtype
 from clnlos.runtime.programs import get_kernels, real_defines
 from clnlos.runtime.spectrum_cache import SpectrumCache
 
@@ -343,6 +347,8 @@ class ReconstructionPipeline:
         setup("preprocess")
         self.pre = AxisResample(A, (ny, nx), dtype=self.dtype, queue=self.queue)
         self.pre.name = "preprocess"
+        self._pre_matrix = A
+        self._rebin_snr: float | None = None  # what the rebinned model represents, on first use
         self._rk = get_kernels(self.queue, "resample", real_defines(self.dtype))
         pitch = scan_width_m / nx
         snr0 = 1.0 if config.snr == "auto" else float(config.snr)  # set per capture if auto
@@ -371,6 +377,50 @@ class ReconstructionPipeline:
             queue=self.queue, scratch=self.scratch, cache=cache)
         self.stages.append(f"invert:{config.method}")
 
+    def resampling_snr(self, time_shifts: np.ndarray | None = None) -> float:
+        """The deepest slab SNR the model represents after the time axis was resampled
+        (:func:`clnlos.inverse.snr.represented_snr`; inf when it was not, or without a
+        slab): by the preprocessing (rebinned, or moved by a fraction of a bin), and by a
+        reader that moved each column by its own ``time_shifts`` [y, x] (raw bins; their
+        fractional parts interpolate)."""
+        if self.deconv is None:
+            return math.inf
+        if self._rebin_snr is None:
+            self._rebin_snr = self._rebinned_model_snr()
+        shifted = math.inf
+        if time_shifts is not None:
+            frac = np.asarray(time_shifts, np.float64) % 1.0
+            if np.ptp(frac) > 0:
+                shifted = self._shifted_model_snr(frac)
+        return combined_accuracy(self._rebin_snr, shifted)
+
+    def _rebinned_model_snr(self) -> float:
+        """:func:`resampling_snr` of the preprocessing alone: inf where it only selects
+        whole bins, else the rebinning error of the slab blur's energy per lag
+        (:func:`clnlos.inverse.snr.rebinning_error`)."""
+        a = self._pre_matrix.tocsr()
+        if np.all(np.diff(a.indptr) <= 1) and np.all(a.data == 1.0):
+            return math.inf
+        slab, nd = self.config.slab, self.config.n_dipoles
+        h_in = confocal_lag_energy(slab, nt=a.shape[1], bin_width_s=self.raw_bin_width_s,
+                                   n_dipoles=nd, queue=self.queue)
+        h_out = confocal_lag_energy(slab, nt=a.shape[0], bin_width_s=self.bin_width_s,
+                                    n_dipoles=nd, queue=self.queue)
+        return represented_snr(*rebinning_error(a, h_in, h_out))
+
+    def _shifted_model_snr(self, fractions: np.ndarray) -> float:
+        """:func:`resampling_snr` of columns moved by their own ``fractions`` of a raw bin
+        (:func:`clnlos.inverse.snr.column_shift_error`), on the deconvolution's grid."""
+        rows, ny, nx = self._pre_matrix.shape[0], self.shape[1], self.shape[2]
+        dt = np.float64 if has_fp64(self.queue.device) else np.float32
+        psf = confocal_psf(self.config.slab, (rows, ny, nx), bin_width_s=self.bin_width_s,
+                           pitch_m=self.scan_width_m / nx, n_dipoles=self.config.n_dipoles,
+                           dtype=dt, queue=self.queue).get()
+        psf_t = np.fft.rfft(psf / psf.sum(dtype=np.float64), axis=0)
+        gain_sq = np.abs(np.fft.fft2(psf_t, axes=(1, 2))) ** 2
+        err = column_shift_error(psf_t, fractions, self.raw_bin_width_s / self.bin_width_s)
+        return represented_snr(gain_sq, err)
+
     def slab_gcv_snr(self, tau: cla.Array) -> float:
         """The slab Wiener SNR in [SNR_MIN, SNR_MAX] that generalised cross-validation
         (:mod:`clnlos.inverse.gcv`) picks for the preprocessed transient ``tau`` (device, guard
@@ -391,7 +441,8 @@ class ReconstructionPipeline:
     def run(self, transient: np.ndarray, *, keep_transient: bool = False,
             progress=None, model_snr: float = math.inf, setup=None,
             slab_snr_factor: float | None = None,
-            snrs: tuple[float, float | None] | None = None) -> Reconstruction:
+            snrs: tuple[float, float | None] | None = None,
+            time_shifts: np.ndarray | None = None) -> Reconstruction:
         """Reconstruct one capture. ``progress(k, n)`` is called during the iterative
         method's iterations, ``setup(step)`` as each of its set-up steps before them starts;
         ``model_snr`` is the slab model's accuracy (:func:`model_snr_for`);
@@ -399,18 +450,24 @@ class ReconstructionPipeline:
         thinning search's candidates, :meth:`thinning_factor`); ``snrs`` = (slab SNR,
         light-cone SNR or None: the config's) replaces an "auto" slab SNR (as given, the
         model's accuracy not combined) and the light-cone rule (the reproducibility
-        search's candidates, :meth:`reproducibility_snrs`)."""
+        search's candidates, :meth:`reproducibility_snrs`); ``time_shifts``: the shifts a
+        reader moved the columns by (:attr:`clnlos.io.capture.Capture.time_shift_bins`).
+        An "auto" slab SNR is bounded by what the resampled model represents
+        (:meth:`resampling_snr`)."""
         timings: dict[str, float] = {}
         noise = self.raw_noise(transient)
+        resampled = self.resampling_snr(time_shifts)
         cv: dict | None = None
         if slab_snr_factor is None and self._thinning_applies(transient, noise, model_snr):
             t0 = time.perf_counter()
-            slab_snr_factor, cv = self.thinning_factor(transient, model_snr, setup)
+            slab_snr_factor, cv = self.thinning_factor(transient, model_snr, setup,
+                                                       time_shifts=time_shifts)
             timings["choose_snr_thinning"] = time.perf_counter() - t0
         if (snrs is None and slab_snr_factor is None
                 and self._reproducibility_applies(transient, noise, model_snr)):
             t0 = time.perf_counter()
-            snrs, cv = self.reproducibility_snrs(transient, model_snr, setup)
+            snrs, cv = self.reproducibility_snrs(transient, model_snr, setup,
+                                                 time_shifts=time_shifts)
             timings["choose_snr_reproducibility"] = time.perf_counter() - t0
         x = cla.to_device(self.queue, np.ascontiguousarray(transient, self.dtype))
         tau = self._timed(timings, "preprocess", self.pre, x)
@@ -427,8 +484,10 @@ class ReconstructionPipeline:
                 scale = 1.0 / s
                 self._scale_inplace(tau, scale)
         data_snr = gcv_snr = None
-        if snrs is not None:  # a candidate of the search, as given (no model share)
-            model_snr = math.inf
+        unbounded = model_snr
+        model_snr = combined_accuracy(model_snr, resampled)
+        if snrs is not None:  # a candidate of the search, as given (no model share but
+            model_snr = unbounded = resampled  # what the resampling leaves representable)
             data_snr = snrs[0]
         elif self.deconv is not None and self.config.snr == "auto" and not noise.noise_free:
             gcv_snr = self._timed(timings, "choose_snr", self.slab_gcv_snr, tau)
@@ -441,6 +500,11 @@ class ReconstructionPipeline:
         inv_rule = None if snrs is None or snrs[1] is None else "reproducibility"
         params = self.config.as_attrs()
         notes: list[str] = []
+        if math.isfinite(resampled) and self.deconv is not None:
+            params["resampling_snr"] = resampled
+            free = auto_snrs(noise, self.config, unbounded, data_snr=data_snr)[0]
+            if snrs is None and snr < free / 2:
+                notes.append(self._resampling_note(snr, free, time_shifts))
         named = self.config.snr_rule
         if named in ("thinning", "reproducibility") and cv is None and (
                 slab_snr_factor is None and snrs is None):
@@ -558,7 +622,8 @@ class ReconstructionPipeline:
         return candidate_order(slab_snrs(self.invert.lightcone_filter), lc)
 
     def reproducibility_snrs(self, transient: np.ndarray, model_snr: float = math.inf,
-                             setup=None) -> tuple[tuple[float, float | None] | None, dict]:
+                             setup=None, *, time_shifts: np.ndarray | None = None
+                             ) -> tuple[tuple[float, float | None] | None, dict]:
         """((slab SNR, light-cone SNR or None), the params recording the search): the first
         of :meth:`reproducibility_candidates` at which the two halves of a binomial split of
         the counts (:func:`clnlos.inverse.thinning.thin_counts`) give Otsu masks of their
@@ -576,7 +641,8 @@ class ReconstructionPipeline:
             if setup is not None:
                 lc = "" if cand[1] is None else f", light cone {cand[1]:.3g}"
                 setup(f"SNRs by reproducibility: slab {cand[0]:.3g}{lc}")
-            masks = [otsu_mask(self.run(h, model_snr=model_snr, snrs=cand).volume)
+            masks = [otsu_mask(self.run(h, model_snr=model_snr, snrs=cand,
+                                        time_shifts=time_shifts).volume)
                      for h in halves]
             return mask_agreement(*masks)
 
@@ -591,7 +657,8 @@ class ReconstructionPipeline:
                                                              for c, k in tried])}
 
     def thinning_factor(self, transient: np.ndarray, model_snr: float = math.inf,
-                        setup=None) -> tuple[float, dict]:
+                        setup=None, *, time_shifts: np.ndarray | None = None
+                        ) -> tuple[float, dict]:
         """(factor on GCV's slab SNR, the params recording the search) by cross-validation
         on a binomial split of the counts (:mod:`clnlos.inverse.thinning`): for each
         candidate the first half is reconstructed at that factor on its own GCV pick and its
@@ -614,7 +681,8 @@ class ReconstructionPipeline:
                 setup(f"slab SNR by thinning: {f:.3g} x GCV's pick")
             scores, fits[f] = [], []
             for train, held, phi, _, _ in folds:
-                rec = self.run(train, model_snr=model_snr, slab_snr_factor=f)
+                rec = self.run(train, model_snr=model_snr, slab_snr_factor=f,
+                               time_shifts=time_shifts)
                 gcv_train.append(rec.params.get("snr_data", math.nan))
                 pred = phi.apply_device(self.invert.predict(rec.volume)).get()
                 fits[f].append(scaled_fit(pred, held))
@@ -703,6 +771,18 @@ class ReconstructionPipeline:
             deconv.set_snr(snr)
             t = deconv(t)
         return t[:self.shape[0]] if self.n_guard else t
+
+    def _resampling_note(self, snr: float, free: float, time_shifts) -> str:
+        """One line: the slab SNR a resampling bounded, and why."""
+        how = []
+        if self._rebin_snr is not None and math.isfinite(self._rebin_snr):
+            how.append(f"rebinned from {self.raw_bin_width_s * 1e12:.3g} ps to "
+                       f"{self.bin_width_s * 1e12:.3g} ps bins")
+        if time_shifts is not None and np.ptp(np.asarray(time_shifts) % 1.0) > 0:
+            how.append("its columns moved by different fractions of a bin when read")
+        return (f"the time axis was resampled ({' and '.join(how) or 'preprocessing'}): the "
+                f"slab deconvolution stops at SNR {snr:.3g}, the deepest the resampled model "
+                f"represents (it would be {free:.3g} without the resampling)")
 
     def _deconvolution_for(self, profile, noise: NoiseEstimate, snr: float, params: dict,
                            notes: list[str]):
@@ -797,8 +877,27 @@ def reconstruct(capture: Capture, config: ReconstructionConfig, *, dtype=np.floa
     pipe = PIPELINES.get(key, lambda: ReconstructionPipeline(
         capture.transient.shape, bin_width_s=bw, start_s=start, scan_width_m=sw,
         config=config, dtype=dtype, queue=queue, setup=setup), queue)
-    return pipe.run(capture.transient, keep_transient=keep_transient, progress=progress,
-                    model_snr=model_snr_for(capture, config), setup=setup)
+    rec = pipe.run(capture.transient, keep_transient=keep_transient, progress=progress,
+                   model_snr=model_snr_for(capture, config), setup=setup,
+                   time_shifts=capture.time_shift_bins)
+    note = aligned_window_note(capture)
+    if note:
+        rec.notes.insert(0, note)
+    return rec
+
+
+def aligned_window_note(capture: Capture) -> str | None:
+    """One line where a reader cut the window to the bins every scan point recorded after
+    moving the columns to align them (:func:`clnlos.io.formats.common.align_columns`)."""
+    recorded = capture.attrs.get("aligned_from_bins")
+    shifts = capture.time_shift_bins
+    kept = capture.transient.shape[0]
+    if shifts is None or recorded is None or kept >= recorded:
+        return None
+    bw = capture.bin_width_s or 0.0
+    return (f"the columns were moved {np.min(shifts):.4g}-{np.max(shifts):.4g} bins earlier "
+            f"to align the scan points: the window is cut to the {kept} bins "
+            f"({kept * bw * 1e9:.3g} ns) every scan point recorded, of {recorded}")
 
 
 

@@ -37,6 +37,11 @@ class Capture:
     scan_width_m: float | None
     source: str = ""
     attrs: dict = field(default_factory=dict)
+    # [y, x]: how far (in bins) a reader moved each column earlier to align the scan points
+    # (y-tal's first and last bounces, an f-k tofgrid); None when it did not. Fractional
+    # parts interpolate, which the reconstruction counts as a model error
+    # (clnlos.inverse.pipeline.ReconstructionPipeline.resampling_snr).
+    time_shift_bins: np.ndarray | None = None
 
     def __post_init__(self):
         fmt = self.attrs.get("format") if isinstance(self.attrs, dict) else None

@@ -17,7 +17,8 @@ of constant pitch along two perpendicular axes in the z = 0 plane. Which grid in
 along x and which along y, and in which direction, comes from the coordinates; the result
 is [t, y, x] with x and y increasing with index. With
 ``t_accounts_first_and_last_bounces`` the per-point flight |laser - p| + |p - sensor| is
-removed (each column moved earlier, fractionally, counts conserved). Anything else
+removed (each column moved earlier, fractionally, counts conserved; the window cut to the
+bins every scan point recorded; the shifts kept in ``Capture.time_shift_bins``). Anything else
 (non-confocal, irregular grids, another plane) is a one-line error.
 """
 
@@ -31,7 +32,7 @@ import numpy as np
 from clnlos import C0
 from clnlos.errors import InputFileError
 from clnlos.io.capture import Capture
-from clnlos.io.formats.common import declared_dataset, shift_earlier, validate_transient
+from clnlos.io.formats.common import align_columns, declared_dataset, validate_transient
 
 H_FORMAT = {"UNKNOWN": 0, "T_Sx_Sy": 1, "T_Lx_Ly_Sx_Sy": 2, "T_Si": 3, "T_Li_Si": 4}
 GRID_FORMAT = {"UNKNOWN": 0, "N_3": 1, "X_Y_3": 2}
@@ -128,6 +129,7 @@ def read_tal(f, path) -> Capture:
         arr, pos = arr[:, ::-1, :], pos[::-1]
     arr = validate_transient(arr, path)
     bounces = bool(_value(f, "t_accounts_first_and_last_bounces"))
+    shifts = None
     attrs = {"format": "y-tal", "tal_t_accounts_first_and_last_bounces": bounces}
     if bounces:
         lx = _value(f, "laser_xyz")
@@ -137,7 +139,10 @@ def read_tal(f, path) -> Capture:
                                  "laser_xyz / sensor_xyz")
         flight = (np.linalg.norm(pos - np.asarray(lx, np.float64), axis=-1)
                   + np.linalg.norm(pos - np.asarray(sx, np.float64), axis=-1))
-        arr = shift_earlier(arr, flight / delta_t)
+        attrs["aligned_from_bins"] = arr.shape[0]
+        arr, shifts = align_columns(arr, flight / delta_t, path,
+                                    "t_accounts_first_and_last_bounces (the flight from "
+                                    "laser_xyz and to sensor_xyz)")
     info = _value(f, "scene_info")
     if isinstance(info, str):
         attrs["tal_scene_info"] = info
@@ -148,7 +153,8 @@ def read_tal(f, path) -> Capture:
         if isinstance(recorded, dict):
             attrs.update({k: v for k, v in recorded.items() if k in ("scene", "slab")})
     ny, nx = arr.shape[1:]
-    return Capture(arr, float(delta_t) / C0, t_start / C0, pitch * nx, str(path), attrs)
+    return Capture(arr, float(delta_t) / C0, t_start / C0, pitch * nx, str(path), attrs,
+                   time_shift_bins=shifts)
 
 
 def write_tal(path, transient: np.ndarray, *, bin_width_s: float, start_s: float,
