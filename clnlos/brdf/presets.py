@@ -10,13 +10,14 @@ from __future__ import annotations
 
 import importlib.resources
 import json
+import warnings
 from functools import lru_cache
 from pathlib import Path
 
 import numpy as np
 
 from clnlos.brdf.models import BRDFModel, make_model, retro_slice
-from clnlos.brdf.texture import read_texture
+from clnlos.brdf.texture import checked_retro, read_texture
 from clnlos.checks import did_you_mean
 from clnlos.errors import ParameterError
 
@@ -54,12 +55,17 @@ def material_names() -> list[str]:
 def material_retro(material, base_dir, n_theta: int) -> np.ndarray | None:
     """The confocal retro slice f(theta) (1/sr) on ``n_theta`` angles over [0, pi/2] of a
     scene material, or None for Lambertian. ``material``: a model table (dict), a BRDF
-    texture file (.h5/.hdf5, its retro slice), a seed preset or an analytic preset name."""
+    texture file (.h5/.hdf5, its retro slice checked against its model:
+    :func:`clnlos.brdf.texture.checked_retro`, one warning line where it was taken from the
+    model), a seed preset or an analytic preset name."""
     if isinstance(material, dict):
         return retro_slice(make_model(material), n_theta)
     if str(material).endswith((".h5", ".hdf5")):
-        r = read_texture(Path(base_dir) / material).retro.astype(float)
-        return np.interp(np.linspace(0, 1, n_theta), np.linspace(0, 1, len(r)), r)
+        path = Path(base_dir) / material
+        retro, note = checked_retro(read_texture(path), path, n_theta)
+        if note:
+            warnings.warn(note, UserWarning, stacklevel=2)
+        return retro
     key = str(material).lower()
     if key in preset_table():
         return retro_slice(preset_model(key), n_theta)
