@@ -4,7 +4,7 @@ Reconstruction parameters (``clnlos reconstruct --config PARAMS.toml``); every k
 optional and its default is the field default of :class:`ReconstructionConfig`::
 
     [capture]                    # geometry not stored in the capture file (CDT .mat)
-    scan_width_m = 0.7           # side of the scanned square
+    scan_width_m = 0.7           # side of the scanned area along x (pitch x columns)
     bin_width_s = 16e-12         # overrides the file
     start_s = 0.0                # time of the start of bin 0
     [preprocess]
@@ -77,7 +77,7 @@ from clnlos.checks import (
     real,
 )
 from clnlos.errors import InputFileError, ParameterError
-from clnlos.inverse.methods import auto_snr_rule, default_falloffs, method_names
+from clnlos.inverse.methods import auto_snr_rule, default_falloffs, method_names, methods_reading
 from clnlos.physics.slab import Slab
 
 # falloff = None: the method's own radiometric exponent p of (t/T)^p (its registry entry):
@@ -108,7 +108,7 @@ def snr_rule_applies(rule: str, method: str) -> bool:
 # The one range table of the capture geometry (SI units): (low, high, low allowed). The flags,
 # the [capture] table and the values read from capture files are all checked against it.
 GEOMETRY_LIMITS: dict[str, tuple[float, float, bool]] = {
-    "scan_width_m": (0.0, 1e3, False),   # side of the scanned square (m), > 0
+    "scan_width_m": (0.0, 1e3, False),   # side of the scanned area along x (m), > 0
     "bin_width_s": (0.0, 1e-6, False),   # histogram bin (s), > 0
     "start_s": (-1e-3, 1e-3, True),      # start of bin 0, round trip (s)
 }
@@ -190,9 +190,13 @@ def slab_from_table(t: dict, section: str = "slab", names: dict | None = None
     for k in ("thickness_m", "mu_a", "mu_s_prime", "n", "ze_m"):
         if k in t and t[k] is not None:
             positive(nm(k), t[k], allow_zero=k in ("mu_a", "ze_m"))
-    missing = [k for k in ("thickness_m", "mu_a", "mu_s_prime", "n") if k not in t]
+    needed = ("thickness_m", "mu_a", "mu_s_prime", "n")
+    missing = [k for k in needed if k not in t]
     if missing:  # after the values given: a bad one is named before one left out
-        raise ParameterError(nm(missing[0]), None, "required when a slab is given")
+        given = [nm(k) for k in needed if k in t]
+        raise ParameterError(nm(missing[0]), None, "a number: a slab needs all of "
+                             + ", ".join(nm(k) for k in needed)
+                             + (f" (given: {', '.join(given)})" if given else ""))
     try:
         slab = Slab(thickness_m=t["thickness_m"], mu_a=t["mu_a"], mu_s_prime=t["mu_s_prime"],
                     n=t["n"], ze_m=t.get("ze_m"))
@@ -327,15 +331,14 @@ class ReconstructionConfig:
         if v["snr_rule"] == "thinning" and (self.method != "iterative"
                                             or self.slab_model != "influence"):
             raise ParameterError(nm("snr_rule"), self.snr_rule,
-                                 "\"auto\" or \"gcv\" (\"thinning\" scores the model the "
-                                 "method fits on the held-out photons: method "
+                                 f"{self._rules_for_method()} (\"thinning\" scores the model "
+                                 "the method fits on the held-out photons: method "
                                  "\"iterative\" with slab_model \"influence\")")
         if (v["snr_rule"] == "reproducibility" and self.method in method_names()
                 and not snr_rule_applies("reproducibility", self.method)):
             raise ParameterError(nm("snr_rule"), self.snr_rule,
-                                 "\"auto\", \"gcv\" or \"thinning\" (\"reproducibility\" "
-                                 "chooses the SNRs of the closed-form methods \"lct\" and "
-                                 "\"fk\")")
+                                 f"{self._rules_for_method()} (\"reproducibility\" chooses "
+                                 "the SNRs of the closed-form methods \"lct\" and \"fk\")")
         v["model_snr"] = auto_or_positive(nm("model_snr"), self.model_snr, upper=1e30)
         v["guard_fraction"] = positive(nm("guard_fraction"), self.guard_fraction,
                                        allow_zero=True, upper=4.0)
@@ -355,7 +358,20 @@ class ReconstructionConfig:
                                      "\"auto\" or a depth in m from 0 to 1000")
             v["depth_min_m"] = real(nm("depth_min_m"), self.depth_min_m, 0.0, 1e3)
         v["slab_model"] = choice(nm("slab_model"), self.slab_model, SLAB_MODELS)
+        for field in names:  # what the user set for a method that does not read it
+            readers = methods_reading(field)
+            if self.method in method_names() and self.method not in readers:
+                raise ParameterError(nm(field), getattr(self, field), "only with method "
+                                     + " or ".join(f"\"{m}\"" for m in readers)
+                                     + f" (method \"{self.method}\" does not use it)")
         return dataclasses.replace(self, **v)
+
+    def _rules_for_method(self) -> str:
+        """The snr_rule values that apply with this config's method, quoted."""
+        rules = [r for r in SNR_RULES if r in ("auto", "gcv") or (
+            self.method in method_names() and snr_rule_applies(r, self.method)
+            and (r != "thinning" or self.slab_model == "influence"))]
+        return ", ".join(f"\"{r}\"" for r in rules[:-1]) + f" or \"{rules[-1]}\""
 
     def replace(self, **changes) -> ReconstructionConfig:
         return dataclasses.replace(self, **changes)
@@ -363,6 +379,13 @@ class ReconstructionConfig:
     @classmethod
     def from_toml(cls, path) -> ReconstructionConfig:
         return cls.from_dict(load_toml(path))
+
+    @staticmethod
+    def given_fields(d: dict) -> dict[str, str]:
+        """Field -> "section.key" for the keys a TOML table (parsed) sets (what the user
+        asked for, e.g. for :meth:`validate`'s check of fields a method does not read)."""
+        return {TOML_FIELDS[(sec, key)]: f"{sec}.{key}" for sec, table in d.items()
+                if isinstance(table, dict) for key in table if (sec, key) in TOML_FIELDS}
 
     @classmethod
     def from_dict(cls, d: dict) -> ReconstructionConfig:

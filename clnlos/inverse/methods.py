@@ -67,6 +67,9 @@ class MethodEntry:
     falloff: float | None
     summary: str
     auto_snr_rule: str = "gcv"
+    # the config fields of the inversion that only some methods read which this one reads
+    # (a user who sets one for a method that does not read it is told so: clnlos.config)
+    reads: tuple[str, ...] = ()
 
     def __post_init__(self):
         if self.auto_snr_rule not in ("gcv", "thinning", "reproducibility"):
@@ -77,12 +80,15 @@ class MethodEntry:
 METHODS: dict[str, MethodEntry] = {
     "lct": MethodEntry("clnlos.inverse.lct", "LCTMethod", 4.0,
                        "light-cone transform with a Wiener filter (O'Toole et al. 2018)",
-                       "reproducibility"),
+                       "reproducibility", ("falloff", "inversion_snr")),
     "fk": MethodEntry("clnlos.inverse.fk", "FKMethod", 2.0,
-                      "f-k (Stolt) migration (Lindell et al. 2019)", "reproducibility"),
+                      "f-k (Stolt) migration (Lindell et al. 2019)", "reproducibility",
+                      ("falloff",)),
     "iterative": MethodEntry("clnlos.inverse.iterative", "IterativeMethod", None,
                              "FISTA on the light-cone transport, L1 + TV, warm-started by "
-                             "LCT", "thinning"),
+                             "LCT", "thinning",
+                             ("inversion_snr", "iterations", "l1_weight", "tv_weight",
+                              "depth_min_m", "slab_model")),
 }
 
 
@@ -94,6 +100,15 @@ def auto_snr_rule(name: str) -> str:
     """The rule ``snr_rule = "auto"`` stands for with the registered method ``name`` (on
     photon counts its slab model fits exactly; :class:`MethodEntry`)."""
     return METHODS[name].auto_snr_rule
+
+
+def methods_reading(field: str) -> tuple[str, ...]:
+    """The registered methods that read the method-specific config ``field``
+    (:attr:`MethodEntry.reads`; every method when no method lists it: a common field)."""
+    listed = tuple(n for n, e in METHODS.items() if field in e.reads)
+    if not listed and not any(field in e.reads for e in METHODS.values()):
+        return tuple(METHODS)
+    return listed
 
 
 def default_falloffs() -> dict[str, float]:

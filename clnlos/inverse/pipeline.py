@@ -94,7 +94,8 @@ SNR is passed).
 
 Output volume [z, y, x]: depth bin k spans [k, k+1) * c * dt / 2 behind the scan plane
 (the slab's hidden face), x and y the scan-cell centres, x increasing with the column
-index and y with the row index (images are drawn with +x to the right and +y up).
+index and y with the row index (images are drawn with +x to the right and +y up), the
+extents centred where the capture's scan grid is (``Capture.scan_center_m``).
 """
 
 from __future__ import annotations
@@ -124,6 +125,7 @@ from clnlos.inverse.reproducibility import (
 )
 from clnlos.inverse.snr import (
     ARRIVAL_SIGMAS,
+    LEAD_FRACTION,
     MEASURED_MODEL_SNR,
     SNR_MAX,
     SNR_MIN,
@@ -207,6 +209,7 @@ class NoiseProbe:
             self.value = self.make()
         return self.value
 
+MIN_DEPTH_BINS = 2  # a volume with fewer depth bins has no depth to resolve (a note says so)
 GUARD_PEAKS = 2.0  # a cut is harmless behind this many blur peak lags of guard bins (the
 #                   deconvolved bins past the volume): the inverse filter's ringing stays there
 
@@ -551,6 +554,8 @@ class ReconstructionPipeline:
         solve = self.invert.report()
         params.update(self.invert.used())
         volume = vol.get()
+        if snrs is None and slab_snr_factor is None:  # the searches' own runs say nothing
+            notes.extend(self.result_notes(volume, noise, params, transient))
         nt, ny, nx = self.shape
         dz = C0 * self.bin_width_s / 2
         w = self.scan_width_m
@@ -772,6 +777,64 @@ class ReconstructionPipeline:
             t = deconv(t)
         return t[:self.shape[0]] if self.n_guard else t
 
+    def result_notes(self, volume: np.ndarray, noise: NoiseEstimate, params: dict,
+                     transient: np.ndarray) -> list[str]:
+        """One line each for a result that holds little or nothing, naming the cause: a
+        volume of fewer than MIN_DEPTH_BINS depth bins, a kept window that ends before the
+        capture's first arrival, a capture with no light above its background, a
+        configured depth_min_m behind the first arrival, an all-zero volume."""
+        out = []
+        n, dz = self.shape[0], C0 * self.bin_width_s / 2
+        c = self.config
+        if n < MIN_DEPTH_BINS:
+            k0, k1 = self.raw_window
+            cause = (f"bins = {c.bins}" if c.bins is not None and c.bins < MIN_DEPTH_BINS
+                     else f"max_path_m = {c.max_path_m:g} m keeps {n * dz * 2:.3g} m of path"
+                     if c.max_path_m is not None
+                     else f"the capture has {k1 - k0} bin(s) after t = 0")
+            out.append(f"the volume has {n} depth bin(s) of {dz:.3g} m: {cause}; there is "
+                       "no depth to resolve")
+        behind = self._support_behind_arrival(noise)
+        if behind:
+            out.append(behind)
+        raw = np.asarray(transient)
+        whole = (noise if self.raw_window == (0, raw.shape[0]) else
+                 estimate_noise(raw, self.raw_bin_width_s, self.raw_start_s))
+        end_path = 2 * n * dz
+        if whole.first_arrival_s is not None and C0 * whole.first_arrival_s >= end_path:
+            out.append(f"the kept window ends at {end_path:.3g} m of path, before the "
+                       f"capture's first arrival at {C0 * whole.first_arrival_s:.3g} m: the "
+                       "volume holds none of the scene's light (a longer max_path_m)")
+        elif whole.first_arrival_s is None:
+            out.append("no bin of the capture rises above its background (the level of its "
+                       f"first {100 * LEAD_FRACTION:g}% of bins) by {ARRIVAL_SIGMAS:g} noise "
+                       "standard deviations: the volume shows noise, not a hidden scene")
+        if not np.any(volume):
+            out.append("the volume is all zero: " + self._empty_cause(noise, params))
+        return out
+
+    def _support_behind_arrival(self, noise: NoiseEstimate) -> str | None:
+        """A configured depth_min_m behind the capture's first arrival (the method puts
+        the nearest light deeper than it is), or None."""
+        c, near = self.config, noise.nearest_depth_m
+        if isinstance(c.depth_min_m, int | float) and near is not None \
+                and c.depth_min_m > near:
+            return (f"depth_min_m = {c.depth_min_m:g} m starts the volume behind the "
+                    f"capture's first arrival ({near:.3g} m): what lies in front of it is "
+                    "placed deeper or lost")
+        return None
+
+    def _empty_cause(self, noise: NoiseEstimate, params: dict) -> str:
+        """Why an inversion returned nothing, from what the user set."""
+        c = self.config
+        if self._support_behind_arrival(noise):
+            return "depth_min_m (above)"
+        used = params.get("l1_weight_used")
+        if isinstance(c.l1_weight, int | float) and used is not None and used >= 1:
+            return (f"l1_weight = {c.l1_weight:g} (relative to max L^T I) sets every voxel "
+                    "to zero (any weight of 1 or more does)")
+        return f"method {c.method} returned no signal from this capture"
+
     def _resampling_note(self, snr: float, free: float, time_shifts) -> str:
         """One line: the slab SNR a resampling bounded, and why."""
         how = []
@@ -846,14 +909,22 @@ def resolve_geometry(capture: Capture, config: ReconstructionConfig, *,
     """(bin_width_s, start_s, scan_width_m): the config overrides the file; the time window
     is checked (:func:`clnlos.config.check_window`, errors naming ``names`` or the TOML
     fields)."""
+    src = capture.source or "the capture"
     bw = config.bin_width_s if config.bin_width_s is not None else capture.bin_width_s
     if bw is None:
-        raise ParameterError("--bin-width", None, "> 0: the capture does not store its bin "
+        raise ParameterError("--bin-width", None, f"> 0: {src} does not store its bin "
                              "width; give --bin-width or [capture] bin_width_s")
     sw = config.scan_width_m if config.scan_width_m is not None else capture.scan_width_m
     if sw is None:
-        raise ParameterError("--scan-width", None, "> 0: the capture does not store the scan "
-                             "width; give --scan-width or [capture] scan_width_m")
+        why = capture.attrs.get("scan_width_unknown", f"{src} does not store the scan width")
+        raise ParameterError("--scan-width", None, f"> 0: {why}; give --scan-width (the "
+                             "side along x, m) or [capture] scan_width_m")
+    ny, nx = capture.transient.shape[1:]
+    if config.scan_width_m is None and capture.scan_height_m is not None and not math.isclose(
+            capture.scan_height_m / ny, sw / nx, rel_tol=1e-6):
+        raise InputFileError(f"{capture.source or 'the capture'}: a scan pitch of "
+                             f"{sw / nx:.4g} m along x and {capture.scan_height_m / ny:.4g} m "
+                             "along y: clnlos reconstructs scans of square cells only")
     start = config.start_s if config.start_s is not None else capture.start_s
     check_window(capture.transient.shape[0], float(bw), float(start), config, names=names,
                  source=capture.source or "the capture")
@@ -883,7 +954,17 @@ def reconstruct(capture: Capture, config: ReconstructionConfig, *, dtype=np.floa
     note = aligned_window_note(capture)
     if note:
         rec.notes.insert(0, note)
+    rec.extents = centred_extents(rec.extents, capture.scan_center_m)
     return rec
+
+
+def centred_extents(extents: dict, center) -> dict:
+    """The volume's lateral extents moved to a scan grid centred at ``center`` (x, y) m."""
+    cx, cy = (float(v) for v in center)
+    out = dict(extents)
+    for key, shift in (("x_min_m", cx), ("x_max_m", cx), ("y_min_m", cy), ("y_max_m", cy)):
+        out[key] = extents[key] + shift
+    return out
 
 
 def aligned_window_note(capture: Capture) -> str | None:
