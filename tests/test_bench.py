@@ -63,7 +63,12 @@ def test_lightcone_grid_rows(section_rows):
     grid = {(r["dtype"], r["impl"]): r for r in rows if r["knob"] == "grid"}
     assert {("float32", "opencl"), ("float64", "numpy")} <= set(grid)
     assert all(r["pairs_per_s"] > 0 and r["elements"] > 0 for r in grid.values())
-    assert grid[("float64", "numpy")]["error"] < 1e-6  # the same sum as the device's
+    # the same sum as the device's most precise run (float64 where the device has it, else
+    # float32 -- rusticl, many GPUs): the float32 light cone rounds its splat sums to a few
+    # tens of eps32 (2.8e-6 measured on rusticl), float64 to far below 1e-6
+    ref = "float64" if ("float64", "opencl") in grid else "float32"
+    tol = 1e-6 if ref == "float64" else 64 * float(np.finfo(np.float32).eps)
+    assert grid[("float64", "numpy")]["error"] < tol, (ref, grid[("float64", "numpy")])
     den = [r["error"] for r in rows if (r["knob"], r["dtype"]) ==
            ("density_per_m2@sampled", "float32")]
     assert len(den) >= 3 and all(b < a for a, b in zip(den, den[1:], strict=False)), den

@@ -23,6 +23,7 @@ from clnlos.inverse.tail_fill import TailFilledDeconvolution
 from clnlos.io.capture import Capture
 from clnlos.io.files import read_capture
 from clnlos.physics.slab import CDT_SLAB
+from clnlos.runtime.device import has_fp64
 from clnlos.study.metrics import letters_truth_mask, mip_iou, peak_depth_m
 
 DT = 16e-12
@@ -32,14 +33,20 @@ def _rel(a, b):
     return float(np.linalg.norm(a - b) / np.linalg.norm(b))
 
 
+def _best(queue):
+    """The most precise dtype the device has: the synthetic data's blur (float64, or float32
+    on a device without fp64 -- the tests feed the pipeline float32 either way)."""
+    return np.float64 if has_fp64(queue.device) else np.float32
+
+
 @pytest.fixture(scope="module")
 def patch_transient(queue):
     """A 6 cm patch 0.5 m behind the CDT slab, 16 x 16 points over 0.3 m, 512 bins of 16 ps
-    (the blur has decayed well before the end), float64 blur."""
+    (the blur has decayed well before the end), blurred in the device's best precision."""
     n, width = 16, 0.3
     pts, w = patch_points((0.02, -0.01, 0.5), 0.06)
     tau = points_transient(pts, w, 512, n, width, DT)
-    op = slab_blur(CDT_SLAB, tau.shape, bin_width_s=DT, pitch_m=width / n, dtype=np.float64,
+    op = slab_blur(CDT_SLAB, tau.shape, bin_width_s=DT, pitch_m=width / n, dtype=_best(queue),
                    queue=queue)
     return np.maximum(op(tau), 0.0), width
 
@@ -55,7 +62,7 @@ def test_tail_fill_at_a_near_inverse_snr_does_not_diverge(queue, snr):
     pts, w = patch_points((0.02, -0.01, 0.5), 0.06)
     tau = points_transient(pts, w, 160, n, width, dt)
     kw = dict(bin_width_s=dt, pitch_m=width / n, lateral_pad="mirror", queue=queue)
-    tau = np.maximum(slab_blur(CDT_SLAB, tau.shape, dtype=np.float64, bin_width_s=dt,
+    tau = np.maximum(slab_blur(CDT_SLAB, tau.shape, dtype=_best(queue), bin_width_s=dt,
                                pitch_m=width / n, queue=queue)(tau), 0.0)
     x_ref = slab_blur(CDT_SLAB, tau.shape, mode="wiener", snr=snr, **kw)(
         tau.astype(np.float32))
