@@ -462,26 +462,22 @@ def test_slab_influence_in_the_model_recovers_a_deep_plus(queue):
 
 # --- the resampled model (clnlos.inverse.snr: represented_snr, rebinning_error) -------------
 
-def test_represented_snr_ends_the_pass_band_where_the_error_reaches_the_signal():
-    """|H|^2 falls a decade per frequency step, the error is 1e-4 of the signal at DC and
-    grows 10x per step (its ratio to |H|^2 100x): the ratio reaches 1 at |H|^2 = 1e-2, so
-    the bound is the top of that level, 10^1.5; no error, or an error below the signal
-    everywhere, gives no bound."""
+def test_represented_snr_is_that_of_white_noise_of_the_errors_power():
+    """The bound is 1 / mean |E|^2 (white noise of the error's power, as the photon rule
+    turns a noise level into an SNR); no error gives none; independent errors add."""
     from clnlos.inverse.snr import combined_accuracy, represented_snr
 
-    h2 = 10.0 ** -np.arange(8.0)
-    err = 1e-4 * h2 * 100.0 ** np.arange(8.0)
-    assert represented_snr(h2, err) == pytest.approx(10 ** 1.5)
-    assert represented_snr(h2, np.zeros(8)) == math.inf
-    assert represented_snr(h2, 0.5 * h2) == math.inf
+    err = np.array([0.0, 1e-6, 3e-6, 4e-6])
+    assert represented_snr(err) == pytest.approx(5e5)
+    assert represented_snr(np.zeros(8)) == math.inf
     assert combined_accuracy(math.inf, 1e6, 1e6) == pytest.approx(5e5)
     assert combined_accuracy(math.inf) == math.inf
 
 
 def test_rebinning_error_is_zero_for_whole_bins_and_grows_with_the_bin_ratio():
-    """Selecting whole bins (a shift by 3 bins) or the identity leaves the slab model exact;
-    rebinning 16 ps to 128, 64, 41 ps bins leaves a bound that rises as the bins shrink
-    (the sub-bin arrival time the model loses matters less)."""
+    """Selecting whole bins (a shift by 3 bins) leaves the slab model exact; rebinning 16 ps
+    to 128, 64, 41 ps bins leaves a bound that rises as the bins shrink (the sub-bin
+    arrival time the model loses matters less): 1.7e3, 1.3e4, 1.1e5 measured."""
     from clnlos.forward.blur import confocal_lag_energy
     from clnlos.inverse.pipeline import preprocess_matrix
     from clnlos.inverse.snr import rebinning_error, represented_snr
@@ -490,10 +486,10 @@ def test_rebinning_error_is_zero_for_whole_bins_and_grows_with_the_bin_ratio():
     nt, dt = 512, 16e-12
     h_in = confocal_lag_energy(CDT_SLAB, nt=nt, bin_width_s=dt)
     shift, _, n = preprocess_matrix(nt, dt, -3 * dt, None, None)
-    assert represented_snr(*rebinning_error(shift, h_in, h_in[:n])) == math.inf
+    assert represented_snr(rebinning_error(shift, h_in, h_in[:n])) > 1e20  # round-off
     bounds = []
     for bins in (64, 128, 200):
         a, dto, n = preprocess_matrix(nt, dt, 0.0, None, bins)
         h_out = confocal_lag_energy(CDT_SLAB, nt=a.shape[0], bin_width_s=dto)
-        bounds.append(represented_snr(*rebinning_error(a, h_in, h_out)))
-    assert 1e3 < bounds[0] < bounds[1] < bounds[2] < 1e9, bounds
+        bounds.append(represented_snr(rebinning_error(a, h_in, h_out)))
+    assert 1e2 < bounds[0] < bounds[1] < bounds[2] < 1e8, bounds

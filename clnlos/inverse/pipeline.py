@@ -409,7 +409,7 @@ class ReconstructionPipeline:
                                    n_dipoles=nd, queue=self.queue)
         h_out = confocal_lag_energy(slab, nt=a.shape[0], bin_width_s=self.bin_width_s,
                                     n_dipoles=nd, queue=self.queue)
-        return represented_snr(*rebinning_error(a, h_in, h_out))
+        return represented_snr(rebinning_error(a, h_in, h_out))
 
     def _shifted_model_snr(self, fractions: np.ndarray) -> float:
         """:func:`resampling_snr` of columns moved by their own ``fractions`` of a raw bin
@@ -420,9 +420,8 @@ class ReconstructionPipeline:
                            pitch_m=self.scan_width_m / nx, n_dipoles=self.config.n_dipoles,
                            dtype=dt, queue=self.queue).get()
         psf_t = np.fft.rfft(psf / psf.sum(dtype=np.float64), axis=0)
-        gain_sq = np.abs(np.fft.fft2(psf_t, axes=(1, 2))) ** 2
-        err = column_shift_error(psf_t, fractions, self.raw_bin_width_s / self.bin_width_s)
-        return represented_snr(gain_sq, err)
+        return represented_snr(column_shift_error(psf_t, fractions,
+                                                  self.raw_bin_width_s / self.bin_width_s))
 
     def slab_gcv_snr(self, tau: cla.Array) -> float:
         """The slab Wiener SNR in [SNR_MIN, SNR_MAX] that generalised cross-validation

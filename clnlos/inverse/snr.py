@@ -38,11 +38,11 @@ moved by fractions of a bin (a reader aligning y-tal's first and last bounces or
 tofgrid) -- is no longer exactly the slab blur of anything on its grid: rebinning does not
 commute with the blur (a sub-bin arrival time is lost in the bin), and a fractional shift
 that differs between scan points does not commute with the blur's lateral spread. That
-error e = R H - H R, for an arrival (a delta) anywhere, has a spectrum E; at the
-frequencies where |E|^2 reaches the signal |H|^2 a deeper deconvolution restores the error,
-not the scene. :func:`represented_snr` turns the ratio into the bound: the Wiener SNR whose
-pass band (|H|^2 > 1/SNR) ends at the first level of |H|^2 where the error is as large as
-the signal. It is combined with the model's accuracy like a second model error
+error e = R H - H R of a unit arrival has a spectrum |E|^2 (relative to the DC power of the
+blurred arrival, |H(0)|^2 = 1), and the deconvolution cannot tell it from noise: like the
+photon rule, which turns a noise level into the SNR of white noise of that power,
+:func:`represented_snr` takes the white noise of the error's mean power, SNR = 1 / mean
+|E|^2. It is combined with the model's accuracy like a second model error
 (:func:`combined_accuracy`), so that the depth does not depend on the bins a capture was
 resampled to.
 
@@ -175,50 +175,28 @@ def estimate_noise(y: np.ndarray, bin_width_s: float, start_s: float = 0.0) -> N
     return NoiseEstimate(counts, total, background, signal, sigma, n_eq, snr, first)
 
 
-RESAMPLING_LEVELS_PER_DECADE = 2  # |H|^2 levels over which the error-to-signal ratio is averaged
-
-
 def combined_accuracy(*snrs: float) -> float:
     """Independent model errors given as SNRs combined: 1 / sum(1 / snr) (inf: no error)."""
     inv = sum(0.0 if math.isinf(s) else 1.0 / s for s in snrs)
     return math.inf if inv == 0 else 1.0 / inv
 
 
-def represented_snr(gain_sq: np.ndarray, error_sq: np.ndarray) -> float:
-    """The deepest Wiener SNR that restores only what a resampled model represents.
-
-    ``gain_sq``: |H|^2 of the blur at unit DC gain; ``error_sq``: |E|^2 of the resampling
-    error of a unit arrival at the same frequencies (module docstring). The frequencies are
-    grouped by level of |H|^2 (RESAMPLING_LEVELS_PER_DECADE per decade) and the mean ratio
-    |E|^2 / |H|^2 taken per level; the bound is 1 / (the upper edge of the highest level
-    whose ratio reaches 1): above it every level the filter restores holds more signal than
-    error. inf where no level reaches 1 (no resampling error that matters)."""
-    g = np.asarray(gain_sq, np.float64).ravel()
-    e = np.asarray(error_sq, np.float64).ravel()
-    keep = g > 0
-    if not keep.any():
-        return math.inf
-    g, e = g[keep], e[keep]
-    level = np.floor(np.log10(g) * RESAMPLING_LEVELS_PER_DECADE).astype(np.int64)
-    top = int(level.max())
-    idx = top - level  # 0 for the level with the largest gain
-    ratio = (np.bincount(idx, weights=e / g) / np.maximum(np.bincount(idx), 1))
-    counted = np.bincount(idx) > 0
-    bad = np.nonzero(counted & (ratio >= 1.0))[0]
-    if not bad.size:
-        return math.inf
-    upper = (top - int(bad[0]) + 1) / RESAMPLING_LEVELS_PER_DECADE  # log10 of the level's top
-    return float(10.0 ** -upper)
+def represented_snr(error_sq: np.ndarray) -> float:
+    """The slab SNR a resampled model supports: 1 / the mean of ``error_sq``, the spectrum
+    |E|^2 of the resampling error of a unit arrival relative to the blur's DC power (the
+    SNR of white noise of the error's power; module docstring); inf without an error."""
+    m = float(np.mean(np.asarray(error_sq, np.float64))) if np.size(error_sq) else 0.0
+    return math.inf if not m > 0 else 1.0 / m
 
 
 def rebinning_error(matrix, kernel_in: np.ndarray, kernel_out: np.ndarray,
-                    probes: int = 512) -> tuple[np.ndarray, np.ndarray]:
-    """(|H|^2, |E|^2) of a time-axis resampling ``matrix`` (rows: output bins, columns: input
-    bins; scipy sparse) against the slab blur's energy per lag on the input grid
-    (``kernel_in``) and on the output grid (``kernel_out``), on the output grid padded to
-    twice its length (the deconvolution's). E is the mean over ``probes`` consecutive input
-    bins m (every phase of m against the output bins) of F[A (h_in * delta_m) -
-    h_out * (A delta_m)] over the mean |F[A delta_m]|^2, h_out normalised to unit DC."""
+                    probes: int = 512) -> np.ndarray:
+    """|E|^2 of a time-axis resampling ``matrix`` (rows: output bins, columns: input bins;
+    scipy sparse) against the slab blur's energy per lag on the input grid (``kernel_in``)
+    and on the output grid (``kernel_out``), on the output grid padded to twice its length
+    (the deconvolution's): the mean over ``probes`` consecutive input bins m (every phase
+    of m against the output bins) of |F[A (h_in * delta_m) - h_out * (A delta_m)]|^2 over
+    the mean |F[A delta_m]|^2, h_out normalised to unit DC."""
     a = matrix.tocsc()
     rows, cols = a.shape
     h_in = np.asarray(kernel_in, np.float64)
@@ -228,7 +206,7 @@ def rebinning_error(matrix, kernel_in: np.ndarray, kernel_out: np.ndarray,
     gain = np.fft.rfft(h_out, n_fft)
     dc = gain[0].real if gain.size else 0.0
     if not used.size or not dc > 0:
-        return np.zeros(n_fft // 2 + 1), np.zeros(n_fft // 2 + 1)
+        return np.zeros(n_fft // 2 + 1)
     m = np.arange(used[0], min(cols, used[0] + probes))
     lag = np.arange(cols)[:, None] - m[None, :]
     shifted = np.where((lag >= 0) & (lag < h_in.size), h_in[np.clip(lag, 0, h_in.size - 1)],
@@ -239,8 +217,7 @@ def rebinning_error(matrix, kernel_in: np.ndarray, kernel_out: np.ndarray,
                          axis=0)[:rows]                   # h_out * (A delta_m)
     err = np.abs(np.fft.rfft(truth - model, n_fft, axis=0)) ** 2
     sig = np.abs(np.fft.rfft(moved, n_fft, axis=0)) ** 2
-    return (np.abs(gain / dc) ** 2,
-            err.mean(axis=1) / max(float(sig.mean()), 1e-300) / (dc * dc))
+    return err.mean(axis=1) / max(float(sig.mean()), 1e-300) / (dc * dc)
 
 
 def column_shift_error(psf_t_spectrum: np.ndarray, fractions: np.ndarray,

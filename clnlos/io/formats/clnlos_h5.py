@@ -8,6 +8,8 @@ and the recorded setup (``scene``, ``slab``, ``stages``, ``pulse_width_s``,
 
 from __future__ import annotations
 
+import json
+
 import h5py
 import numpy as np
 
@@ -64,8 +66,10 @@ def _center(at: dict, path) -> tuple[float, float]:
     """(x, y) of attribute ``scan_center_m`` (m), (0, 0) when absent."""
     if "scan_center_m" not in at:
         return (0.0, 0.0)
+    raw = plain_attr(at["scan_center_m"])
     try:
-        c = np.asarray(at["scan_center_m"], np.float64).reshape(2)
+        c = np.asarray(json.loads(raw) if isinstance(raw, str) else raw,
+                       np.float64).reshape(2)
     except (TypeError, ValueError):
         raise InputFileError(f"{path}: attribute 'scan_center_m' must be two numbers (x, y) "
                              "in m") from None
