@@ -56,6 +56,11 @@ optional and its default is the field default of :class:`ReconstructionConfig`::
     slab_model = "influence"     # iterative: "influence" fits Phi o L to the deconvolved
                                  # transient (Phi the slab Wiener filter's own smoothing,
                                  # clnlos.inverse.iterative), "none" fits L (Wiener first)
+
+A field that only some methods read (clnlos.inverse.methods.MethodEntry.reads: falloff for
+lct and fk, [inversion] snr for lct and iterative, iterations, l1_weight, tv_weight,
+depth_min_m and slab_model for iterative) is refused when the user sets it -- as a key of
+the TOML or as a flag -- for a method that does not read it.
 """
 
 from __future__ import annotations
