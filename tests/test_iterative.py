@@ -54,8 +54,30 @@ def test_prox_kernels_vs_numpy(queue, dtype):
     assert rel_l2(z - step * g - shift, v.get()) < TOL[dtype]
     pk.restart_terms(zg, x1, x0g, r)
     assert rel_l2((z - ref) * (ref - x0), r.get()) < 10 * TOL[dtype]
-    pk.momentum(x1, x0g, zg, 0.7)
-    assert rel_l2(ref + 0.7 * (ref - x0), zg.get()) < TOL[dtype]
+    # the momentum sequence on the device: no restart (sum r <= 0) advances t, a restart
+    # resets it; z = x1 + beta (x1 - x0) with beta read on the device
+    state = pk.new_state()
+    t, beta = 1.0, 0.0
+    for restart in (False, False, True, False):
+        rr = _dev(queue, np.full(shape, 1.0 if restart else -1.0), dtype)
+        pk.momentum(rr, state, x1, x0g, zg)
+        t1 = 1.0 if restart else (1 + np.sqrt(1 + 4 * t * t)) / 2
+        beta = 0.0 if restart else (t - 1) / t1
+        t = t1
+        assert np.allclose(state.get()[:2], [t, beta], rtol=1e-6)
+        assert rel_l2(ref + beta * (ref - x0), zg.get()) < TOL[dtype] or beta == 0
+    assert state.get()[2] == 1  # one restart counted
+    # the working set: support rows, x > 0 or a gradient that lifts the variable
+    ws, old = cla.empty(queue, shape, np.uint8), cla.zeros(queue, shape, np.uint8)
+    size, entering = pk.working_set(x1, gg, old, ws, shift, row_min)
+    want = (ref > 0) | ((ref <= 0) & (g + shift < 0))
+    want[:row_min] = False
+    assert np.array_equal(ws.get().astype(bool), want) and size == want.sum()
+    assert entering == ((ref <= 0) & (g + shift < 0))[row_min:].sum()
+    assert np.array_equal(pk.masked(zg, ws).get(), np.where(want, zg.get(), 0))
+    held = cla.empty_like(zg)
+    pk.prox_step(zg, gg, x0g, held, r, step, shift, row_min, ws)
+    assert not held.get()[~want].any()
     w = rng.random(shape)
     out = cla.empty_like(zg)
     pk.weighted_residual(x1, x0g, _dev(queue, w, dtype), out)

@@ -504,10 +504,13 @@ def test_phi_spectrum_is_the_3d_dft_of_the_psf_table(queue, dtype, shape, period
     squared too."""
     from clnlos.diffusion import diffusion_psf, lateral_integral_profile, support_of
     from clnlos.forward.blur import phi_spectrum
+    from clnlos.physics.grid import padded_length
 
     slab, dt, pitch = CDT_SLAB, 48e-12, 0.02
     nt, ny, nx = shape
-    pad = (2 * nt, ny, nx) if periodic else (2 * nt, 2 * ny, 2 * nx)
+    pt = padded_length(nt)  # at least 2 nt, 5-smooth
+    assert pt >= 2 * nt and pt % 2 == 0 and padded_length(709) == 1440
+    pad = (pt, ny, nx) if periodic else (pt, 2 * ny, 2 * nx)
     lags = support_of(lateral_integral_profile(slab, nt=nt, bin_width_s=dt, queue=queue))
     assert lags < 2 * nt
     table = diffusion_psf(slab, nt=pad[0], bin_width_s=dt, ny=pad[1], nx=pad[2], pitch_m=pitch,

@@ -33,7 +33,7 @@ from clnlos.diffusion import (
 )
 from clnlos.errors import ParameterError
 from clnlos.operators.spectral import SpectralFilter, folded_shape
-from clnlos.physics.grid import grid_offsets
+from clnlos.physics.grid import grid_offsets, padded_length
 from clnlos.physics.slab import Slab
 from clnlos.runtime.buffers import fill_zero, host_view
 from clnlos.runtime.caches import CACHES, FORWARD_BLURS
@@ -42,8 +42,12 @@ from clnlos.runtime.fft import COMPLEX_OF, RealFFT3
 
 
 def _padded_grid(shape, periodic_xy: bool) -> tuple[int, int, int]:
+    """The slab filters' padded grid for transients of ``shape``: time to
+    :func:`clnlos.physics.grid.padded_length` (at least 2 nt), laterally 2 ny x 2 nx (or
+    ny x nx, ``periodic_xy``)."""
     nt, ny, nx = (int(s) for s in shape)
-    return (2 * nt, ny, nx) if periodic_xy else (2 * nt, 2 * ny, 2 * nx)
+    pt = padded_length(nt)
+    return (pt, ny, nx) if periodic_xy else (pt, 2 * ny, 2 * nx)
 
 
 def phi_lateral_factors(plan: SlabTransmittance, *, lags: int, bin_width_s: float,
@@ -188,16 +192,17 @@ def confocal_spectrum(slab: Slab, shape: tuple[int, int, int], *, bin_width_s: f
 def confocal_psf(slab: Slab, shape: tuple[int, int, int], *, bin_width_s: float,
                  pitch_m: float, n_dipoles: int | None = None, periodic_xy: bool = False,
                  dtype=np.float32, queue=None) -> cla.Array:
-    """Phi * Phi on the padded grid (2 nt, 2 ny, 2 nx) for transients of ``shape``.
+    """Phi * Phi on the padded grid (:func:`_padded_grid`: at least 2 nt, 2 ny, 2 nx) for
+    transients of ``shape``.
 
-    ``periodic_xy``: the grid is (2 nt, ny, nx), a convolution that wraps laterally -- for
+    ``periodic_xy``: the grid is (>= 2 nt, ny, nx), a convolution that wraps laterally -- for
     a forward model whose input already extends past the kept area by the blur's reach
     (:func:`lateral_reach_m`), where the wrapped border is cropped away.
 
     Phi is :func:`~clnlos.diffusion.diffusion_psf` with ``normalize="physical"`` (so the
     sum of Phi * Phi approximates the squared total transmittance) over its temporal
     support (all but SUPPORT_TOL of its energy; zero after), transformed by
-    :func:`phi_spectrum`; the self-convolution is exact on the 2 nt grid and is then cut to
+    :func:`phi_spectrum`; the self-convolution is exact on the >= 2 nt grid and is then cut to
     lags 0..nt-1, the only ones that reach the time window from inside it -- longer lags
     would wrap around the padded FFT.
     """

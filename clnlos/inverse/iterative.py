@@ -78,7 +78,7 @@ from clnlos.inverse.lct import (
     lightcone_snr_params,
 )
 from clnlos.inverse.methods import Inversion, InversionGrid
-from clnlos.inverse.solvers import fista, lipschitz
+from clnlos.inverse.solvers import DEFAULT_TOL, fista, lipschitz
 from clnlos.operators.base import LinearOperator
 from clnlos.runtime.buffers import Scratch
 from clnlos.runtime.device import get_queue, require_dtype
@@ -111,14 +111,15 @@ class IterativeInversion:
     tv_weight (relative, see module docstring; their defaults are those of
     :class:`clnlos.config.ReconstructionConfig`); tv_depth_scale (weight of the depth
     difference in TV; 0 = lateral TV only); warm_snr (Wiener SNR of the LCT warm start);
-    tol (relative change that stops the solver, :mod:`clnlos.inverse.solvers`); scratch (work
+    tol (relative decrease of the objective that stops the solver,
+    :mod:`clnlos.inverse.solvers`); scratch (work
     buffers shared with a plan's other stages, :class:`clnlos.runtime.buffers.Scratch`); cache
     (on-disk spectra of the warm start, :class:`clnlos.runtime.spectrum_cache.SpectrumCache`).
     """
 
     def __init__(self, shape, *, bin_width_s: float, scan_width_m: float,
                  iterations: int, l1_weight: float, tv_weight: float,
-                 tv_depth_scale: float = 1.0, warm_snr: float = DEFAULT_SNR, tol: float = 1e-4,
+                 tv_depth_scale: float = 1.0, warm_snr: float = DEFAULT_SNR, tol: float = DEFAULT_TOL,
                  dtype=np.float32, queue=None, scratch=None, cache=None):
         self.queue = get_queue(queue)
         self.dtype = require_dtype(self.queue.device, dtype)
