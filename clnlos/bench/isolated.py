@@ -56,6 +56,23 @@ def peak_rss_bytes() -> int:
     return resource.getrusage(resource.RUSAGE_SELF).ru_maxrss * 1024
 
 
+def reset_peak_rss() -> int:
+    """Reset this process's peak resident set (VmHWM) to its current size (writing 5 to
+    /proc/self/clear_refs, Linux >= 4.0) and return that size; where /proc refuses, the
+    peak since the exec stands and the current size (VmRSS) is returned."""
+    try:
+        Path("/proc/self/clear_refs").write_text("5")
+    except OSError:
+        pass
+    try:
+        for line in Path("/proc/self/status").read_text().splitlines():
+            if line.startswith("VmRSS:"):
+                return int(line.split()[1]) * 1024
+    except OSError:
+        pass
+    return peak_rss_bytes()
+
+
 def worker(impl: str, n: int, device: str | None, size: str) -> list[dict]:
     """Plan and time each stage (deconvolve, LCT, f-k, end to end: upload, deconvolve, LCT,
     download) of ``impl`` on a 4n x n x n grid; returns its rows (kernel

@@ -133,6 +133,7 @@ class IterativeInversion:
                         ("tv_depth_scale", tv_depth_scale)):
             real(name, v, *WEIGHT_RANGE)
         self.iterations, self.tol = int(iterations), float(tol)
+        self.working_set = True  # the solver's working-set steps (tools/solver_check.py: off)
         self.l1_weight, self.tv_weight = float(l1_weight), float(tv_weight)
         self.tv_depth_scale = float(tv_depth_scale)
         nt = self.shape[0]
@@ -201,6 +202,7 @@ class IterativeInversion:
         tv = self.tv_weight * max(lam_max, 0.0)
         res = fista(op, y, x0_g, l1=l1, tv=tv, wz=self.tv_depth_scale, row_min=row_min,
                     iterations=self.iterations, tol=self.tol, lipschitz_const=L,
+                    working_set=self.working_set,
                     callback=callback)
         self.report = SolveReport(res.iterations, res.restarts, L, l1, tv,
                                   row_min * C0 * self.bin_width_s / 2, res.objective,

@@ -67,14 +67,19 @@ deconvolves to 1e7), f-k 1 (8; 0.20, a 12 cm 'U' whose oracle image is a blob be
 filled box's IoU). The raised SNR also sets the tail fill's cut level (:func:`cut_level`)
 for these methods. It has no config key: a configured slab SNR (a number) is used as given.
 The iterative method models Phi (``slab_model = "influence"``, :mod:`clnlos.inverse.iterative`)
-and by default (``snr_rule = "auto"``, on counts its slab model fits exactly; "thinning"
-on any counts, "gcv" never) may take a deeper pick than GCV's: the counts are split
-binomially into two independent Poisson halves, and GCV's pick is raised by half-decade
-steps while a reconstruction of the first half predicts the second half's deconvolved
-transient significantly better (:meth:`ReconstructionPipeline.thinning_factor`,
-:mod:`clnlos.inverse.thinning`; 3-4x the time). On a measured capture the model's accuracy
-(MEASURED_MODEL_SNR) is combined with the raised value and dominates it (and "auto" does not
-thin there): LCT and f-k take about MEASURED_MODEL_SNR there whatever GCV's pick.
+and takes GCV's pick by default; with ``snr_rule = "thinning"`` (on counts) it may take a
+deeper one: the counts are split binomially into two independent Poisson halves, and GCV's
+pick is raised by half-decade steps while a reconstruction of the first half predicts the
+second half's deconvolved transient significantly better
+(:meth:`ReconstructionPipeline.thinning_factor`, :mod:`clnlos.inverse.thinning`; 2-3
+reconstructions of half the data more). On a measured capture the model's accuracy
+(MEASURED_MODEL_SNR) is combined with the raised value and dominates it: LCT and f-k take
+about MEASURED_MODEL_SNR there whatever GCV's pick.
+
+A split search's candidates share what does not depend on them
+(:class:`PreparedCapture`): each half is preprocessed, normalised and its GCV pick taken
+once, deconvolved once per slab SNR (a tail fill once per fill SNR) and its noise
+realisation preprocessed once; the last hold the volumes a search compares.
 
 Measured for the light-cone stage at GCV's slab SNR and rejected
 (tools/results/lct_low_exposure_criteria.csv): UPRE of the composed estimate on the raw data

@@ -40,7 +40,7 @@ def padded_length(n: int) -> int:
     return m
 
 
-BLOCK_VALUES = 1 << 22  # values per block of a host pass over a large array (~32 MB float64)
+BLOCK_VALUES = 1 << 20  # values per block of a host pass over a large array (8 MB float64)
 
 
 def row_blocks(shape, values: int = BLOCK_VALUES) -> list[tuple[int, int]]:
