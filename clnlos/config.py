@@ -47,7 +47,9 @@ optional and its default is the field default of :class:`ReconstructionConfig`::
                                  # else from the deconvolved transient by UPRE or cross-
                                  # validation (clnlos.inverse.gcv)
     falloff = 4.0                # radiometric exponent p (default: LCT 4, f-k 2)
-    iterations = 200             # iterative: FISTA iterations at most
+    iterations = 200             # iterative: FISTA iterations at most (the solver stops
+                                 # earlier where the objective stops falling,
+                                 # clnlos.inverse.solvers)
     l1_weight = "auto"           # iterative: L1 weight relative to max(L^T I), or "auto":
                                  # twice max(L^T n), n the capture's own noise
     tv_weight = 0.0              # iterative: TV weight relative to max(L^T I)

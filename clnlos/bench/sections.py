@@ -419,8 +419,8 @@ def bench_iterative(b: Bench):
         mask = cover >= 0.5
         # the iterative method at each iteration count with the default slab model, and at
         # the largest with Wiener first (slab_model "none": the knob's accuracy and cost);
-        # all at GCV's slab SNR, so that the rows differ by the knob alone (the default's
-        # thinning is its own row of auto_params, and would deepen far at 5 iterations)
+        # all at GCV's slab SNR, so that the rows differ by the knob alone (thinning is its
+        # own row of auto_params_cost, and would deepen far at 5 iterations)
         settings = ([("lct", None, None), ("fk", None, None)]
                     + [("iterative", k, None) for k in iters] + [("iterative", iters[-1], "none")])
         for method, k, slab_model in settings:
@@ -470,11 +470,10 @@ def bench_auto_params(b: Bench):
 
 
 def _bench_gcv_rule(b: Bench, case, cap, mask, cfg, row: dict) -> None:
-    """A method with ``snr_rule = "gcv"`` (GCV's slab SNR: the iterative method's in the
-    study's budget, :class:`clnlos.study.dataset.StudyGrid`) on one capture where the
-    default searched a split of the counts (thinning, :mod:`clnlos.inverse.thinning`;
-    reproducibility, :mod:`clnlos.inverse.reproducibility`): its time and its gap to the
-    oracle of the default's ``row``."""
+    """A method with ``snr_rule = "gcv"`` (GCV's slab SNR: the study's rule,
+    :class:`clnlos.study.dataset.StudyGrid`) on one capture where the default searched a
+    split of the counts (reproducibility, :mod:`clnlos.inverse.reproducibility`): its time
+    and its gap to the oracle of the default's ``row``."""
     cfg = cfg.replace(snr_rule="gcv").validate()
     rec = reconstruct(cap, cfg, device=b.q)
     iou = mip_iou(rec.volume, mask)[0]

@@ -7,7 +7,8 @@ deconvolution, :mod:`clnlos.forward.blur`; the capture itself without a slab), s
 
 with L the light-cone transport of :mod:`clnlos.forward.transport` (the physics of
 ``clnlos simulate``: Lambertian voxels facing the scan plane, z^4 / (pi r^8) falloff), by
-FISTA with gradient restart (:mod:`clnlos.inverse.solvers`), warm-started from LCT. The solver's
+FISTA with gradient restart and working-set steps, stopped where the objective stops
+falling (:mod:`clnlos.inverse.solvers`), warm-started from LCT. The solver's
 variable is xi = rho / (z / R)^4 (R the deepest depth), which gives every depth a column of
 similar norm; the volume returned is rho >= 0 on the reconstruction grid [z, y, x].
 
@@ -61,7 +62,7 @@ occlusion -- as in LCT.
 from __future__ import annotations
 
 import math
-from dataclasses import dataclass
+from dataclasses import dataclass, field
 
 import numpy as np
 import pyopencl.array as cla
@@ -99,6 +100,7 @@ class SolveReport:
     objective: list
     change: list
     lam_max: float = 0.0  # max(L^T I) on the support: the weights are relative to it
+    rounds: list = field(default_factory=list)  # working-set updates (solvers.FistaResult)
 
     def as_dict(self) -> dict:
         return {k: getattr(self, k) for k in self.__dataclass_fields__}
@@ -206,7 +208,7 @@ class IterativeInversion:
                     callback=callback)
         self.report = SolveReport(res.iterations, res.restarts, L, l1, tv,
                                   row_min * C0 * self.bin_width_s / 2, res.objective,
-                                  res.change, max(lam_max, 0.0))
+                                  res.change, max(lam_max, 0.0), res.rounds)
         vol = res.x
         vol *= cla.to_device(q, np.broadcast_to(self.scale[:, None, None],
                                                  self.shape).astype(dt))

@@ -70,7 +70,7 @@ class MethodEntry:
     cls: str
     falloff: float | None
     summary: str
-    split_rule: str
+    split_rule: str = "reproducibility"  # a method without a forward model has only this
     auto_snr_rule: str = "gcv"
 
     def __post_init__(self):

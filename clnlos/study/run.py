@@ -166,14 +166,14 @@ class StudyOptions:
     label: str = "full"
     real_data: Path | None = None       # folder holding cdt/*.mat (the real CDT captures)
     transport: str = "both"             # "both": also the bistatic comparison stage (--full);
-    #                                     "confocal": the quick default (about 9 minutes)
+    #                                     "confocal": the quick default (about 3 minutes)
     transport_glyphs: tuple[str, ...] | None = None  # the comparison's (default: glyphs)
     face_rings: int = COMPARE_RINGS     # the comparison's bistatic face samples
     face_angles: int = COMPARE_ANGLES
 
     @classmethod
     def quick(cls) -> StudyOptions:
-        """The built-in default (the README main job, about 9 minutes on 2 CPU cores): one
+        """The built-in default (the README main job, about 3 minutes on 2 CPU cores): one
         noise realisation per glyph; the geometry sweeps with three values each, three
         glyphs per point and the strong-specular and the Lambertian sweep material; no extra
         random samples; exposures over the two decades below the default."""
