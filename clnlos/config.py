@@ -387,8 +387,9 @@ class ReconstructionConfig:
         """Whether the rule for an "auto" slab SNR is thinning (:mod:`clnlos.inverse.thinning`):
         ``snr_rule`` "thinning", or "auto" with a method whose "auto" rule it is
         (:class:`clnlos.inverse.methods.MethodEntry`: none today, the iterative method's is
-        GCV) and its slab model "influence" (the model the held-out photons score). Whether it then acts depends on the capture
-        as well (:meth:`clnlos.inverse.pipeline.ReconstructionPipeline.run`)."""
+        GCV) and its slab model "influence" (the model the held-out photons score). Whether
+        it then acts depends on the capture as well
+        (:meth:`clnlos.inverse.pipeline.ReconstructionPipeline.run`)."""
         if self.snr_rule == "auto":
             return auto_snr_rule(self.method) == "thinning" and self.slab_model == "influence"
         return self.snr_rule == "thinning"

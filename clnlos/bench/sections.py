@@ -447,13 +447,20 @@ def bench_iterative(b: Bench):
                   grid=f"{points}x{points}x{rec.volume.shape[0]}")
 
 
+def oracle_sample(b: Bench) -> tuple[tuple, int | None]:
+    """(captures, the iterative method's iterations at most) of the sections that run the
+    oracle captures: all of them at ``full`` (the config's iterations), BENCH_CASE on a
+    16 x 16 x 128 grid otherwise (20 iterations at ``tiny``, 50 at ``quick``)."""
+    small = (replace(case_named(BENCH_CASE), points=16, bins=128, bin_width_s=64e-12),)
+    cases = {"tiny": small, "quick": small, "full": ORACLE_CASES}[b.size]
+    return cases, {"tiny": 20, "quick": 50, "full": None}[b.size]
+
+
 def bench_auto_params(b: Bench):
     """The "auto" SNRs against the oracle grid (:mod:`clnlos.bench.oracle`): per capture and
     method the time of the auto reconstruction, error = max(0, oracle IoU - auto IoU)
     (extra fields: the IoUs of auto, the oracle and the photon rule, the SNRs chosen)."""
-    small = (replace(case_named(BENCH_CASE), points=16, bins=128, bin_width_s=64e-12),)
-    cases = {"tiny": small, "quick": small, "full": ORACLE_CASES}[b.size]
-    iterations = {"tiny": 20, "quick": 50, "full": None}[b.size]
+    cases, iterations = oracle_sample(b)
     for case in cases:
         cap, mask = simulate_case(case, b.q)
         for method in ORACLE_METHODS:
@@ -524,9 +531,7 @@ def bench_auto_params_cost(b: Bench):
     device buffers) and above its start, and the IoU gain over the fixed SNRs (FIXED_SNRS)
     on the same capture; error = 1 - IoU. On the oracle captures (``full``), a reduced
     one otherwise."""
-    small = (replace(case_named(BENCH_CASE), points=16, bins=128, bin_width_s=64e-12),)
-    cases = {"tiny": small, "quick": small, "full": ORACLE_CASES}[b.size]
-    iterations = {"tiny": 20, "quick": 50, "full": None}[b.size]
+    cases, iterations = oracle_sample(b)
     for case in cases:
         cap, mask = simulate_case(case, b.q)
         for method in ORACLE_METHODS:

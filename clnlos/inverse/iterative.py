@@ -121,8 +121,8 @@ class IterativeInversion:
 
     def __init__(self, shape, *, bin_width_s: float, scan_width_m: float,
                  iterations: int, l1_weight: float, tv_weight: float,
-                 tv_depth_scale: float = 1.0, warm_snr: float = DEFAULT_SNR, tol: float = DEFAULT_TOL,
-                 dtype=np.float32, queue=None, scratch=None, cache=None):
+                 tv_depth_scale: float = 1.0, warm_snr: float = DEFAULT_SNR,
+                 tol: float = DEFAULT_TOL, dtype=np.float32, queue=None, scratch=None, cache=None):
         self.queue = get_queue(queue)
         self.dtype = require_dtype(self.queue.device, dtype)
         self.shape = tuple(int(s) for s in shape)

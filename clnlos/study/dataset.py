@@ -237,9 +237,9 @@ def figure8_slices(transient: np.ndarray, volume: np.ndarray) -> dict[str, np.nd
 # what render_sample returns: float32 [points, points] images and float64 numbers
 RESULT_IMAGES = ("mip", "truth", "depth_map", "meas_image")
 RESULT_SLICES = ("meas_xt", "meas_yt", "vol_xz", "vol_yz")  # float32 [t or z, points]
+RESULT_TIMES = ("simulate_s", "reconstruct_s")  # seconds: all a re-render may change
 RESULT_NUMBERS = ("iou", "iou_box_baseline", "depth_m", "true_depth_m", "depth_error_m",
-                  "psnr_db", "counts", "bin_width_s", "voxel_depth_m", "simulate_s",
-                  "reconstruct_s",
+                  "psnr_db", "counts", "bin_width_s", "voxel_depth_m", *RESULT_TIMES,
                   *(f"q_{m}" for m in METRICS))
 # the entry's own fields beside the result
 ENTRY_KEY, ENTRY_CHECKSUM = "_key", "_checksum"
