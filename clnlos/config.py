@@ -22,17 +22,17 @@ optional and its default is the field default of :class:`ReconstructionConfig`::
     snr = "auto"                 # Wiener SNR of the slab deconvolution, or "auto": chosen
                                  # from the capture by snr_rule (below), with model_snr
     snr_rule = "auto"            # how "auto" picks it, on photon counts the slab model
-                                 # fits exactly: for the iterative method with the slab's
-                                 # influence in its model "thinning" (GCV's pick or a deeper
-                                 # one, whichever reconstruction of half the photons best
-                                 # predicts the other half, clnlos.inverse.thinning; 2-5
-                                 # reconstructions of half the data more); for LCT and
-                                 # f-k "reproducibility" (the least regularised slab and
-                                 # light-cone SNRs whose two halves of the photons give
-                                 # agreeing thresholded images,
+                                 # fits exactly: for LCT and f-k "reproducibility" (the
+                                 # least regularised slab and light-cone SNRs whose two
+                                 # halves of the photons give agreeing thresholded images,
                                  # clnlos.inverse.reproducibility; up to 18 half
                                  # reconstructions more, f-k 8); "gcv" (cross-validation
-                                 # of the slab stage alone) elsewhere; or any by name
+                                 # of the slab stage alone) elsewhere; or any by name:
+                                 # "thinning" for the iterative method with the slab's
+                                 # influence in its model (GCV's pick or a deeper one,
+                                 # whichever reconstruction of half the photons best
+                                 # predicts the other half, clnlos.inverse.thinning; 2-3
+                                 # reconstructions of half the data more)
     model_snr = "auto"           # accuracy of the slab model as an SNR; "auto": exact for a
                                  # capture clnlos simulated with this slab, else
                                  # clnlos.inverse.snr.MEASURED_MODEL_SNR
@@ -47,7 +47,9 @@ optional and its default is the field default of :class:`ReconstructionConfig`::
                                  # else from the deconvolved transient by UPRE or cross-
                                  # validation (clnlos.inverse.gcv)
     falloff = 4.0                # radiometric exponent p (default: LCT 4, f-k 2)
-    iterations = 200             # iterative: FISTA iterations at most
+    iterations = 200             # iterative: FISTA iterations at most (the solver stops
+                                 # earlier where the objective stops falling,
+                                 # clnlos.inverse.solvers)
     l1_weight = "auto"           # iterative: L1 weight relative to max(L^T I), or "auto":
                                  # twice max(L^T n), n the capture's own noise
     tv_weight = 0.0              # iterative: TV weight relative to max(L^T I)
@@ -82,7 +84,13 @@ from clnlos.checks import (
     real,
 )
 from clnlos.errors import InputFileError, ParameterError
-from clnlos.inverse.methods import auto_snr_rule, default_falloffs, method_names, methods_reading
+from clnlos.inverse.methods import (
+    auto_snr_rule,
+    default_falloffs,
+    method_names,
+    methods_reading,
+    split_rule,
+)
 from clnlos.physics.slab import Slab
 
 # falloff = None: the method's own radiometric exponent p of (t/T)^p (its registry entry):
@@ -101,13 +109,13 @@ MAX_BINS = 1 << 16    # time bins of a reconstructed volume at most (--bins and 
 
 def snr_rule_applies(rule: str, method: str) -> bool:
     """Whether ``snr_rule = rule`` is valid for the registered ``method`` ("auto" and "gcv"
-    for any; "thinning" for the method whose rule it is, the iterative one; "reproducibility"
-    for the others, the closed forms): where a caller sets one rule for several methods
-    (the study), the methods it is not valid for keep their default."""
+    for any; a split search for the methods it can choose the SNRs of, its
+    :func:`clnlos.inverse.methods.split_rule`: "thinning" for the iterative method,
+    "reproducibility" for the closed forms): where a caller sets one rule for several
+    methods (the study), the methods it is not valid for keep their default."""
     if rule in ("auto", "gcv"):
         return True
-    thins = auto_snr_rule(method) == "thinning"
-    return thins if rule == "thinning" else rule == "reproducibility" and not thins
+    return rule == split_rule(method)
 
 
 # The one range table of the capture geometry (SI units): (low, high, low allowed). The flags,
@@ -411,10 +419,11 @@ class ReconstructionConfig:
     @property
     def thinning(self) -> bool:
         """Whether the rule for an "auto" slab SNR is thinning (:mod:`clnlos.inverse.thinning`):
-        ``snr_rule`` "thinning", or "auto" with a method whose rule it is (the iterative
-        method, :class:`clnlos.inverse.methods.MethodEntry`) and its slab model "influence"
-        (the model the held-out photons score). Whether it then acts depends on the capture
-        as well (:meth:`clnlos.inverse.pipeline.ReconstructionPipeline.run`)."""
+        ``snr_rule`` "thinning", or "auto" with a method whose "auto" rule it is
+        (:class:`clnlos.inverse.methods.MethodEntry`: none today, the iterative method's is
+        GCV) and its slab model "influence" (the model the held-out photons score). Whether
+        it then acts depends on the capture as well
+        (:meth:`clnlos.inverse.pipeline.ReconstructionPipeline.run`)."""
         if self.snr_rule == "auto":
             return auto_snr_rule(self.method) == "thinning" and self.slab_model == "influence"
         return self.snr_rule == "thinning"

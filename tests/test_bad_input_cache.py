@@ -204,6 +204,8 @@ def _npz_legacy(path):
                                     _npz_wrong_shape, _npz_wrong_dtype, _npz_changed_value,
                                     _npz_legacy])
 def test_bad_study_entry_is_deleted_recomputed_and_named_in_one_warning(study_entry, damage):
+    from clnlos.study.dataset import RESULT_TIMES
+
     cache, entry, res, renders = study_entry
     damage(entry)
     (again,), notes = _run_study_samples(cache)
@@ -212,7 +214,8 @@ def test_bad_study_entry_is_deleted_recomputed_and_named_in_one_warning(study_en
     assert "\n" not in notes[0]
     assert sorted(again) == sorted(res)
     for k, v in res.items():
-        np.testing.assert_array_equal(again[k], v)
+        if k not in RESULT_TIMES:  # the render's own seconds
+            np.testing.assert_array_equal(again[k], v)
     (third,), notes = _run_study_samples(cache)  # stored again, read back silently
     assert len(renders) == 1 and notes == []
     assert third["iou"] == res["iou"]

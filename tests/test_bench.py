@@ -168,3 +168,25 @@ def test_iterative_rows_beside_lct_and_fk(bench_doc):
 def test_cli_bench(tmp_path):
     assert cli_main(["bench", "--tiny", "--only", "diffusion", "-o", str(tmp_path)]) == 0
     assert json.loads((tmp_path / "bench.json").read_text())["rows"]
+
+
+def test_auto_params_cost_rows(section_rows):
+    """A row per method and rule (fixed, GCV, UPRE where a light-cone filter has it, both,
+    the method's split search, auto): the split searches alone run reconstructions besides
+    the one returned, the fixed row's gain is zero and every gain is against it."""
+    from clnlos.bench.sections import auto_params_rules
+
+    rows = section_rows["auto_params_cost"].rows
+    for method in ("lct", "fk", "iterative"):
+        mine = {r["rule"]: r for r in rows if r["method"] == method}
+        assert set(mine) == {rule for rule, _ in auto_params_rules(method)}
+        assert mine["fixed"]["iou_gain"] == 0.0
+        for rule, r in mine.items():
+            assert r["iou_gain"] == pytest.approx(r["iou"] - mine["fixed"]["iou"])
+            assert r["error"] == pytest.approx(1 - r["iou"])
+            split = rule in ("thinning", "reproducibility") or (
+                rule == "auto" and r["snr_rule_used"] in ("thinning", "reproducibility"))
+            assert (r["extra_reconstructions"] > 0) == split, (method, rule, r)
+            assert r["peak_mem_bytes"] > 0 and r["peak_above_start_bytes"] >= 0
+    assert {"upre", "gcv+upre"} <= {r["rule"] for r in rows if r["method"] == "lct"}
+    assert "upre" not in {r["rule"] for r in rows if r["method"] == "fk"}

@@ -531,10 +531,13 @@ def test_phi_spectrum_is_the_3d_dft_of_the_cell_tables(queue, dtype, shape, peri
     sizes, one-row grids, periodic and padded laterally -- against the closed forms of the
     float64 reference."""
     from clnlos.forward.blur import phi_spectrum
+    from clnlos.physics.grid import padded_length
 
     slab, dt, pitch = CDT_SLAB, 48e-12, 0.02
     nt, ny, nx = shape
-    pad = (2 * nt, ny, nx) if periodic else (2 * nt, 2 * ny, 2 * nx)
+    pt = padded_length(nt)  # at least 2 nt, 5-smooth
+    assert pt >= 2 * nt and pt % 2 == 0 and padded_length(709) == 1440
+    pad = (pt, ny, nx) if periodic else (pt, 2 * ny, 2 * nx)
     bound = 1e-9 if dtype == np.float64 else 1e-5
     for square, closed in ((False, phi_ref), (True, confocal_psf_ref)):
         want = np.fft.rfftn(closed(CDT, slab.ze, shape, dt, pitch, pad=pad))

@@ -187,8 +187,7 @@ def test_setup_line_names_the_snr_rule_each_method_ran():
     assert _reconstruction_detail({"method": "fk", "snr_rule": "thinning"}) == (
         "SNRs by auto (reproducibility on counts of the slab simulated)")
     assert _reconstruction_detail({"method": "iterative", "snr_rule": "reproducibility",
-                                   "iterations": 5}).endswith("SNRs by auto (thinning on "
-                                                              "counts of the slab simulated)")
+                                   "iterations": 5}).endswith("SNRs by auto (gcv)")
 
 
 @pytest.mark.slow

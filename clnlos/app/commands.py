@@ -250,7 +250,7 @@ def register_reconstruct(sub, add_device) -> None:
                    help="how auto SNRs are chosen: gcv (generalised cross-validation "
                         "of the slab stage), thinning (iterative only: GCV's pick, or a "
                         "deeper one where a reconstruction of half the photons, split "
-                        "binomially, predicts the other half significantly better; 2-5 "
+                        "binomially, predicts the other half significantly better; 2-3 "
                         "extra reconstructions of half the data), reproducibility (lct and "
                         "fk only: the least regularised slab and light-cone SNRs, "
                         f"{_decades(RP_SLAB)} x {_decades(RP_LC)} (fk: the slab SNR, "
@@ -259,10 +259,10 @@ def register_reconstruct(sub, add_device) -> None:
                         f"Cohen's kappa >= {kappa_min(True):g} (fk: "
                         f">= {kappa_min(False):g}); up to "
                         f"{2 * len(RP_SLAB) * len(RP_LC)} (fk {2 * len(RP_SLAB_ONLY)}) extra "
-                        "reconstructions of half the data), or auto: thinning for the "
-                        "iterative method and reproducibility for lct and fk on photon "
-                        "counts the slab model fits exactly (a capture simulated with this "
-                        "slab), gcv elsewhere "
+                        "reconstructions of half the data), or auto: reproducibility for lct "
+                        "and fk on photon counts the slab model fits exactly (a capture "
+                        "simulated with this slab), gcv elsewhere and for the iterative "
+                        "method "
                         f"(default {C.snr_rule})")
     r.add_argument("--inversion-snr", type=number_or_auto,
                    help="Wiener SNR of the LCT filter (and of the iterative warm start), or "
@@ -577,7 +577,7 @@ def register_study(sub, add_device) -> None:
     g.add_argument("--quick", action="store_true", help=f"built-in default: "
                    f"{len(quick.glyphs)} glyphs x {quick.seeds} noise realisation(s) per "
                    f"material and geometry, {len(quick.sweep_glyphs)} glyphs per geometry-"
-                   f"sweep point, {quick.n_dataset} extra random samples (about 9 minutes on "
+                   f"sweep point, {quick.n_dataset} extra random samples (about 3 minutes on "
                    "2 cores)")
     g.add_argument("--full", action="store_true", help=f"{len(full.glyphs)} glyphs x "
                    f"{full.seeds} noise realisations per material and geometry, "

@@ -32,7 +32,7 @@ from clnlos.diffusion import (
 )
 from clnlos.errors import ParameterError
 from clnlos.operators.spectral import SpectralFilter, folded_shape
-from clnlos.physics.grid import grid_offsets
+from clnlos.physics.grid import grid_offsets, padded_length
 from clnlos.physics.slab import Slab
 from clnlos.runtime.buffers import fill_zero, host_view
 from clnlos.runtime.caches import CACHES, FORWARD_BLURS
@@ -41,8 +41,12 @@ from clnlos.runtime.fft import COMPLEX_OF, RealFFT3
 
 
 def _padded_grid(shape, periodic_xy: bool) -> tuple[int, int, int]:
+    """The slab filters' padded grid for transients of ``shape``: time to
+    :func:`clnlos.physics.grid.padded_length` (at least 2 nt), laterally 2 ny x 2 nx (or
+    ny x nx, ``periodic_xy``)."""
     nt, ny, nx = (int(s) for s in shape)
-    return (2 * nt, ny, nx) if periodic_xy else (2 * nt, 2 * ny, 2 * nx)
+    pt = padded_length(nt)
+    return (pt, ny, nx) if periodic_xy else (pt, 2 * ny, 2 * nx)
 
 
 def cell_gaussian(offsets_m: np.ndarray, a_m2: np.ndarray, pitch_m: float) -> np.ndarray:
@@ -249,7 +253,8 @@ def confocal_spectrum(slab: Slab, shape: tuple[int, int, int], *, bin_width_s: f
 def confocal_psf(slab: Slab, shape: tuple[int, int, int], *, bin_width_s: float,
                  pitch_m: float, n_dipoles: int | None = None, periodic_xy: bool = False,
                  dtype=np.float32, queue=None) -> cla.Array:
-    """Phi * Phi on the padded grid (2 nt, 2 ny, 2 nx) for transients of ``shape``.
+    """Phi * Phi on the padded grid (:func:`_padded_grid`: at least 2 nt, 2 ny, 2 nx) for
+    transients of ``shape``.
 
     ``periodic_xy``: the grid is (2 nt, ny, nx), a convolution that wraps laterally -- for
     a forward model whose input already extends past the kept area by the blur's reach

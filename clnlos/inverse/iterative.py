@@ -7,7 +7,8 @@ deconvolution, :mod:`clnlos.forward.blur`; the capture itself without a slab), s
 
 with L the light-cone transport of :mod:`clnlos.forward.transport` (the physics of
 ``clnlos simulate``: Lambertian voxels facing the scan plane, z^4 / (pi r^8) falloff), by
-FISTA with gradient restart (:mod:`clnlos.inverse.solvers`), warm-started from LCT. The solver's
+FISTA with gradient restart and working-set steps, stopped where the objective stops
+falling (:mod:`clnlos.inverse.solvers`), warm-started from LCT. The solver's
 variable is xi = rho / (z / R)^4 (R the deepest depth), which gives every depth a column of
 similar norm; the volume returned is rho >= 0 on the reconstruction grid [z, y, x].
 
@@ -61,7 +62,7 @@ occlusion -- as in LCT.
 from __future__ import annotations
 
 import math
-from dataclasses import dataclass
+from dataclasses import dataclass, field
 
 import numpy as np
 import pyopencl.array as cla
@@ -78,7 +79,7 @@ from clnlos.inverse.lct import (
     lightcone_snr_params,
 )
 from clnlos.inverse.methods import Inversion, InversionGrid
-from clnlos.inverse.solvers import fista, lipschitz
+from clnlos.inverse.solvers import DEFAULT_TOL, fista, lipschitz
 from clnlos.operators.base import LinearOperator
 from clnlos.runtime.buffers import Scratch
 from clnlos.runtime.device import get_queue, require_dtype
@@ -99,6 +100,7 @@ class SolveReport:
     objective: list
     change: list
     lam_max: float = 0.0  # max(L^T I) on the support: the weights are relative to it
+    rounds: list = field(default_factory=list)  # working-set updates (solvers.FistaResult)
 
     def as_dict(self) -> dict:
         return {k: getattr(self, k) for k in self.__dataclass_fields__}
@@ -111,15 +113,16 @@ class IterativeInversion:
     tv_weight (relative, see module docstring; their defaults are those of
     :class:`clnlos.config.ReconstructionConfig`); tv_depth_scale (weight of the depth
     difference in TV; 0 = lateral TV only); warm_snr (Wiener SNR of the LCT warm start);
-    tol (relative change that stops the solver, :mod:`clnlos.inverse.solvers`); scratch (work
+    tol (relative decrease of the objective that stops the solver,
+    :mod:`clnlos.inverse.solvers`); scratch (work
     buffers shared with a plan's other stages, :class:`clnlos.runtime.buffers.Scratch`); cache
     (on-disk spectra of the warm start, :class:`clnlos.runtime.spectrum_cache.SpectrumCache`).
     """
 
     def __init__(self, shape, *, bin_width_s: float, scan_width_m: float,
                  iterations: int, l1_weight: float, tv_weight: float,
-                 tv_depth_scale: float = 1.0, warm_snr: float = DEFAULT_SNR, tol: float = 1e-4,
-                 dtype=np.float32, queue=None, scratch=None, cache=None):
+                 tv_depth_scale: float = 1.0, warm_snr: float = DEFAULT_SNR,
+                 tol: float = DEFAULT_TOL, dtype=np.float32, queue=None, scratch=None, cache=None):
         self.queue = get_queue(queue)
         self.dtype = require_dtype(self.queue.device, dtype)
         self.shape = tuple(int(s) for s in shape)
@@ -132,6 +135,7 @@ class IterativeInversion:
                         ("tv_depth_scale", tv_depth_scale)):
             real(name, v, *WEIGHT_RANGE)
         self.iterations, self.tol = int(iterations), float(tol)
+        self.working_set = True  # the solver's working-set steps (tools/solver_check.py: off)
         self.l1_weight, self.tv_weight = float(l1_weight), float(tv_weight)
         self.tv_depth_scale = float(tv_depth_scale)
         nt = self.shape[0]
@@ -200,10 +204,11 @@ class IterativeInversion:
         tv = self.tv_weight * max(lam_max, 0.0)
         res = fista(op, y, x0_g, l1=l1, tv=tv, wz=self.tv_depth_scale, row_min=row_min,
                     iterations=self.iterations, tol=self.tol, lipschitz_const=L,
+                    working_set=self.working_set,
                     callback=callback)
         self.report = SolveReport(res.iterations, res.restarts, L, l1, tv,
                                   row_min * C0 * self.bin_width_s / 2, res.objective,
-                                  res.change, max(lam_max, 0.0))
+                                  res.change, max(lam_max, 0.0), res.rounds)
         vol = res.x
         vol *= cla.to_device(q, np.broadcast_to(self.scale[:, None, None],
                                                  self.shape).astype(dt))

@@ -67,14 +67,19 @@ deconvolves to 1e7), f-k 1 (8; 0.20, a 12 cm 'U' whose oracle image is a blob be
 filled box's IoU). The raised SNR also sets the tail fill's cut level (:func:`cut_level`)
 for these methods. It has no config key: a configured slab SNR (a number) is used as given.
 The iterative method models Phi (``slab_model = "influence"``, :mod:`clnlos.inverse.iterative`)
-and by default (``snr_rule = "auto"``, on counts its slab model fits exactly; "thinning"
-on any counts, "gcv" never) may take a deeper pick than GCV's: the counts are split
-binomially into two independent Poisson halves, and GCV's pick is raised by half-decade
-steps while a reconstruction of the first half predicts the second half's deconvolved
-transient significantly better (:meth:`ReconstructionPipeline.thinning_factor`,
-:mod:`clnlos.inverse.thinning`; 3-4x the time). On a measured capture the model's accuracy
-(MEASURED_MODEL_SNR) is combined with the raised value and dominates it (and "auto" does not
-thin there): LCT and f-k take about MEASURED_MODEL_SNR there whatever GCV's pick.
+and takes GCV's pick by default; with ``snr_rule = "thinning"`` (on counts) it may take a
+deeper one: the counts are split binomially into two independent Poisson halves, and GCV's
+pick is raised by half-decade steps while a reconstruction of the first half predicts the
+second half's deconvolved transient significantly better
+(:meth:`ReconstructionPipeline.thinning_factor`, :mod:`clnlos.inverse.thinning`; 2-3
+reconstructions of half the data more). On a measured capture the model's accuracy
+(MEASURED_MODEL_SNR) is combined with the raised value and dominates it: LCT and f-k take
+about MEASURED_MODEL_SNR there whatever GCV's pick.
+
+A split search's candidates share what does not depend on them
+(:class:`PreparedCapture`): each half is preprocessed, normalised and its GCV pick taken
+once, deconvolved once per slab SNR (a tail fill once per fill SNR) and its noise
+realisation preprocessed once; the last hold the volumes a search compares.
 
 Measured for the light-cone stage at GCV's slab SNR and rejected
 (tools/results/lct_low_exposure_criteria.csv): UPRE of the composed estimate on the raw data
@@ -112,7 +117,7 @@ from clnlos import C0
 from clnlos.config import ReconstructionConfig, check_window
 from clnlos.errors import InputFileError, ParameterError
 from clnlos.forward.blur import blur_time_scales, confocal_lag_energy, confocal_psf, slab_blur
-from clnlos.inverse.gcv import GcvBins
+from clnlos.inverse.gcv import GcvBins, binned_power
 from clnlos.inverse.methods import InversionGrid, method_class
 from clnlos.inverse.reproducibility import (
     LIGHTCONE_SNRS,
@@ -153,6 +158,7 @@ from clnlos.inverse.thinning import (
 )
 from clnlos.io.capture import Capture
 from clnlos.operators.resample import AxisResample, overlap_matrix
+from clnlos.physics.grid import row_blocks
 from clnlos.runtime.buffers import Scratch, host_view, round_up
 from clnlos.runtime.caches import PIPELINES
 from clnlos.runtime.device import get_queue, has_fp64, require_dtype
@@ -194,6 +200,7 @@ def preprocess_matrix(nt_in: int, bin_width_s: float, start_s: float, max_path_m
     return overlap_matrix(src_edges, dst_edges), dt_out, n_out
 
 
+INFLUENCE_ENERGY_TOL = 1e-5  # the slab influence's kernel keeps all but this of its energy
 NOISE_PROBE_SEED = 0     # the noise realisation of ReconstructionPipeline._noise_like
 
 
@@ -208,6 +215,40 @@ class NoiseProbe:
         if self.value is None:
             self.value = self.make()
         return self.value
+
+DECONVOLVED_KEPT = 4  # slab SNRs whose deconvolution a prepared capture keeps (a search's)
+
+
+@dataclass
+class PreparedCapture:
+    """A capture preprocessed once for every reconstruction made of it (the candidates of a
+    split search: :meth:`ReconstructionPipeline.reproducibility_snrs`,
+    :meth:`ReconstructionPipeline.thinning_factor`): the raw counts and their noise
+    estimate, the preprocessed and normalised transient ``tau`` (device, guard bins kept;
+    never changed), its scan-summed profile and the normalisation ``scale``; filled in as
+    the candidates need them: the slab GCV pick, the deconvolutions by slab SNR (the last
+    DECONVOLVED_KEPT, with what each added to a volume's params and notes), the tail fills
+    of the data and of the noise realisation (:class:`TailFilledDeconvolution` memos), and
+    the noise realisation preprocessed (:meth:`ReconstructionPipeline._probe`)."""
+
+    transient: np.ndarray
+    noise: NoiseEstimate
+    tau: cla.Array
+    profile: np.ndarray
+    scale: float
+    gcv_snr: float | None = None
+    deconvolved: dict = field(default_factory=dict)
+    fills: dict = field(default_factory=dict)
+    noise_fills: dict = field(default_factory=dict)
+    noise_tau: cla.Array | None = None
+
+    def keep(self, snr: float, entry: tuple) -> tuple:
+        """Keep the deconvolution at ``snr`` (the oldest dropped past DECONVOLVED_KEPT)."""
+        self.deconvolved[snr] = entry
+        while len(self.deconvolved) > DECONVOLVED_KEPT:
+            self.deconvolved.pop(next(iter(self.deconvolved)))
+        return entry
+
 
 MIN_DEPTH_BINS = 2  # a volume with fewer depth bins has no depth to resolve (a note says so)
 GUARD_PEAKS = 2.0  # a cut is harmless behind this many blur peak lags of guard bins (the
@@ -428,9 +469,12 @@ class ReconstructionPipeline:
         (:mod:`clnlos.inverse.gcv`) picks for the preprocessed transient ``tau`` (device, guard
         bins included): V on the deconvolution's padded grid, padded as it pads."""
         if self._gcv_slab is None:
-            self._gcv_slab = GcvBins.from_gain(self.deconv.gain_squared(),
-                                               self.deconv.pad_shape[2])
-        return self._gcv_slab.snr(self.deconv.power_spectrum(tau), SNR_MIN, SNR_MAX)
+            self._gcv_slab = GcvBins.from_blocks(self.deconv.gain_rows,
+                                                 self.deconv.fft.spec_shape,
+                                                 self.deconv.pad_shape[2])
+        bins = self._gcv_slab
+        sums = binned_power(bins, self.deconv.power_blocks(row_blocks(bins.index.shape), tau))
+        return bins.snr_of(sums, SNR_MIN, SNR_MAX)
 
     def _timed(self, timings, name, fn, *a, **kw):
         self.queue.finish()
@@ -463,16 +507,27 @@ class ReconstructionPipeline:
         if slab_snr_factor is None and self._thinning_applies(transient, noise, model_snr):
             t0 = time.perf_counter()
             slab_snr_factor, cv = self.thinning_factor(transient, model_snr, setup,
-                                                       time_shifts=time_shifts)
+                                                       resampled=resampled)
             timings["choose_snr_thinning"] = time.perf_counter() - t0
         if (snrs is None and slab_snr_factor is None
                 and self._reproducibility_applies(transient, noise, model_snr)):
             t0 = time.perf_counter()
             snrs, cv = self.reproducibility_snrs(transient, model_snr, setup,
-                                                 time_shifts=time_shifts)
+                                                 resampled=resampled)
             timings["choose_snr_reproducibility"] = time.perf_counter() - t0
+        prep = self.prepare(transient, noise, timings)
+        return self._reconstruct(prep, timings, keep_transient=keep_transient,
+                                 progress=progress, model_snr=model_snr, setup=setup,
+                                 slab_snr_factor=slab_snr_factor, snrs=snrs, cv=cv,
+                                 resampled=resampled, time_shifts=time_shifts)
+
+    def prepare(self, transient: np.ndarray, noise: NoiseEstimate | None = None,
+                timings: dict | None = None) -> PreparedCapture:
+        """The capture preprocessed and normalised once (:class:`PreparedCapture`), for
+        :meth:`_reconstruct` (every candidate of a split search reuses it)."""
+        noise = self.raw_noise(transient) if noise is None else noise
         x = cla.to_device(self.queue, np.ascontiguousarray(transient, self.dtype))
-        tau = self._timed(timings, "preprocess", self.pre, x)
+        tau = self._timed({} if timings is None else timings, "preprocess", self.pre, x)
         profile, peak = self._profile_peak(tau)
         total = float(profile.sum())
         if not peak > 0:
@@ -485,6 +540,20 @@ class ReconstructionPipeline:
             if s > 0:
                 scale = 1.0 / s
                 self._scale_inplace(tau, scale)
+        return PreparedCapture(np.asarray(transient), noise, tau, profile, scale)
+
+    def _reconstruct(self, prep: PreparedCapture, timings: dict, *,
+                     keep_transient: bool = False, progress=None,
+                     model_snr: float = math.inf, setup=None,
+                     slab_snr_factor: float | None = None,
+                     snrs: tuple[float, float | None] | None = None,
+                     cv: dict | None = None, resampled: float = math.inf,
+                     time_shifts: np.ndarray | None = None) -> Reconstruction:
+        """:meth:`run` on a prepared capture, its SNR rule's search (``cv``) done: the
+        deconvolutions at each slab SNR and the noise realisation through the
+        preprocessing are kept in ``prep`` for the next candidate; ``resampled`` the slab
+        SNR the resampled model represents (:meth:`resampling_snr`, for ``time_shifts``)."""
+        noise, tau = prep.noise, prep.tau
         data_snr = gcv_snr = None
         unbounded = model_snr
         model_snr = combined_accuracy(model_snr, resampled)
@@ -492,7 +561,9 @@ class ReconstructionPipeline:
             model_snr = unbounded = resampled  # what the resampling leaves representable)
             data_snr = snrs[0]
         elif self.deconv is not None and self.config.snr == "auto" and not noise.noise_free:
-            gcv_snr = self._timed(timings, "choose_snr", self.slab_gcv_snr, tau)
+            if prep.gcv_snr is None:
+                prep.gcv_snr = self._timed(timings, "choose_snr", self.slab_gcv_snr, tau)
+            gcv_snr = prep.gcv_snr
             data_snr = method_slab_snr(gcv_snr, self.invert.slab_snr_min, noise.snr if
                                        self.invert.slab_snr_toward_photons else None)
             if slab_snr_factor is not None:
@@ -520,8 +591,6 @@ class ReconstructionPipeline:
                          f"reproducible (kappa {cv['reproducibility_kappa']:.2f}) was taken")
         deconv = None
         if self.deconv is not None:
-            deconv = self._deconvolution_for(profile, noise, snr, params, notes)
-            deconv.set_snr(snr)
             params["snr_used"] = snr
             if gcv_snr is not None:
                 params["snr_data"] = gcv_snr  # cross-validation's, before the model's share
@@ -535,13 +604,11 @@ class ReconstructionPipeline:
             elif gcv_snr is not None and slab_snr_factor is None and snrs is None:
                 params["snr_rule_used"] = "gcv"  # what "auto" came to (the method's floor
                 #                                  on top where it has one: slab_snr_raised)
-            tau = self._timed(timings, "deconvolve", deconv, tau)
-            if isinstance(deconv, TailFilledDeconvolution):
-                params["tail_fill_snr"] = deconv.fill_snr  # the fill's SNR (tail_fill)
-        if self.n_guard:
+            deconv, tau = self._deconvolved(prep, snr, params, notes, timings)
+        elif self.n_guard:
             tau = tau[:self.shape[0]]  # the guard bins dropped: a view of the leading rows
         method = self.config.method
-        probe = (NoiseProbe(lambda: self._noise_like(transient, scale, deconv, snr))
+        probe = (NoiseProbe(lambda: self._probe(prep, deconv, snr))
                  if noise.photon_counts and not noise.noise_free else None)
         influence = (None if self.deconv is None else
                      lambda: self._slab_influence(snr))
@@ -554,7 +621,7 @@ class ReconstructionPipeline:
         params.update(self.invert.used())
         volume = vol.get()
         if snrs is None and slab_snr_factor is None:  # the searches' own runs say nothing
-            notes.extend(self.result_notes(volume, noise, params, transient))
+            notes.extend(self.result_notes(volume, noise, params, prep.transient))
         nt, ny, nx = self.shape
         dz = C0 * self.bin_width_s / 2
         w = self.scan_width_m
@@ -565,6 +632,31 @@ class ReconstructionPipeline:
                               stages=list(self.stages), timings_s=timings, params=params,
                               transient=tau.get() if keep_transient else None, extents=extents,
                               noise=noise.as_dict(), solver=solve, notes=notes)
+
+    def _deconvolved(self, prep: PreparedCapture, snr: float, params: dict, notes: list,
+                     timings: dict) -> tuple:
+        """(the slab deconvolution at ``snr``, the prepared transient deconvolved by it on
+        the inverted grid): computed once per SNR and kept in ``prep`` with what it adds
+        to the params and notes; a tail fill (:mod:`clnlos.inverse.tail_fill`) once per
+        fill SNR."""
+        hit = prep.deconvolved.get(snr)
+        if hit is None:
+            added, extra = {}, []
+            deconv = self._deconvolution_for(prep.profile, prep.noise, snr, added, extra)
+            deconv.set_snr(snr)
+            if isinstance(deconv, TailFilledDeconvolution):
+                out = self._timed(timings, "deconvolve", deconv, prep.tau, prep.fills)
+                added["tail_fill_snr"] = deconv.fill_snr  # the fill's SNR (tail_fill)
+            else:
+                out = self._timed(timings, "deconvolve", deconv, prep.tau)
+            if self.n_guard:
+                out = out[:self.shape[0]]  # the guard bins dropped: the leading rows
+            hit = prep.keep(snr, (deconv, out, added, extra))
+        deconv, out, added, extra = hit
+        deconv.set_snr(snr)
+        params.update(added)
+        notes.extend(extra)
+        return deconv, out
 
     def raw_noise(self, transient: np.ndarray) -> NoiseEstimate:
         """The noise of the raw capture's bins inside the kept window
@@ -626,7 +718,7 @@ class ReconstructionPipeline:
         return candidate_order(slab_snrs(self.invert.lightcone_filter), lc)
 
     def reproducibility_snrs(self, transient: np.ndarray, model_snr: float = math.inf,
-                             setup=None, *, time_shifts: np.ndarray | None = None
+                             setup=None, *, resampled: float = math.inf
                              ) -> tuple[tuple[float, float | None] | None, dict]:
         """((slab SNR, light-cone SNR or None), the params recording the search): the first
         of :meth:`reproducibility_candidates` at which the two halves of a binomial split of
@@ -640,14 +732,15 @@ class ReconstructionPipeline:
         halves = self._split(transient)
         if halves is None:
             return None, {"snr_rule_used": SPLIT_EMPTY}
+        prepared = [self.prepare(h) for h in halves]
 
         def agreement(cand: tuple[float, float | None]) -> float:
             if setup is not None:
                 lc = "" if cand[1] is None else f", light cone {cand[1]:.3g}"
                 setup(f"SNRs by reproducibility: slab {cand[0]:.3g}{lc}")
-            masks = [otsu_mask(self.run(h, model_snr=model_snr, snrs=cand,
-                                        time_shifts=time_shifts).volume)
-                     for h in halves]
+            masks = [otsu_mask(self._reconstruct(h, {}, model_snr=model_snr, snrs=cand,
+                                                 resampled=resampled).volume)
+                     for h in prepared]
             return mask_agreement(*masks)
 
         bar = kappa_min(self.invert.lightcone_filter)
@@ -661,8 +754,7 @@ class ReconstructionPipeline:
                                                              for c, k in tried])}
 
     def thinning_factor(self, transient: np.ndarray, model_snr: float = math.inf,
-                        setup=None, *, time_shifts: np.ndarray | None = None
-                        ) -> tuple[float, dict]:
+                        setup=None, *, resampled: float = math.inf) -> tuple[float, dict]:
         """(factor on GCV's slab SNR, the params recording the search) by cross-validation
         on a binomial split of the counts (:mod:`clnlos.inverse.thinning`): for each
         candidate the first half is reconstructed at that factor on its own GCV pick and its
@@ -675,7 +767,7 @@ class ReconstructionPipeline:
         folds = []
         for train, test in list(zip(halves, halves[::-1], strict=True))[:CV_FOLDS]:
             held, snr, noise = self._held_out(test)
-            folds.append((train, held, self._slab_influence(snr), noise,
+            folds.append((self.prepare(train), held, self._slab_influence(snr), noise,
                           float(np.sum(np.square(held, dtype=np.float64)))))
         gcv_train: list[float] = []
         fits: dict[float, list[np.ndarray]] = {}
@@ -685,8 +777,8 @@ class ReconstructionPipeline:
                 setup(f"slab SNR by thinning: {f:.3g} x GCV's pick")
             scores, fits[f] = [], []
             for train, held, phi, _, _ in folds:
-                rec = self.run(train, model_snr=model_snr, slab_snr_factor=f,
-                               time_shifts=time_shifts)
+                rec = self._reconstruct(train, {}, model_snr=model_snr, slab_snr_factor=f,
+                                        resampled=resampled)
                 gcv_train.append(rec.params.get("snr_data", math.nan))
                 pred = phi.apply_device(self.invert.predict(rec.volume)).get()
                 fits[f].append(scaled_fit(pred, held))
@@ -751,29 +843,58 @@ class ReconstructionPipeline:
     def _slab_influence(self, snr: float):
         """The influence Phi of the slab's Wiener filter at ``snr`` on the inverted
         transient's grid (guard bins dropped: the rows past the volume are zero;
-        :meth:`clnlos.operators.spectral.SpectralFilter.influence`). For a tail-filled window
-        it is the plain filter's: the fill restores the unseen tail the filter then sees."""
+        :meth:`clnlos.operators.spectral.SpectralFilter.influence`), its kernel cut where it
+        holds all but INFLUENCE_ENERGY_TOL of its energy and convolved on the grid that
+        needs (+-25-45 lags and +-1-4 cells at 16 ps and 1.9 cm: 0.56 M points where the
+        slab grid has 4.2 M). For a tail-filled window it is the plain filter's: the fill
+        restores the unseen tail the filter then sees."""
         self.deconv.set_snr(snr)
-        return self.deconv.influence(in_shape=self.shape)
+        return self.deconv.influence(in_shape=self.shape, energy_tol=INFLUENCE_ENERGY_TOL)
 
     def _noise_like(self, transient: np.ndarray, scale: float, deconv, snr: float,
                     seed: int = NOISE_PROBE_SEED) -> cla.Array:
         """A realisation of the noise of the transient the inversion receives: Gaussian of
         the capture's Poisson variance (each bin's count; ``transient`` holds counts), seed
         ``seed`` (default NOISE_PROBE_SEED), through the same linear steps as the data
-        (preprocessing, the normalisation ``scale``, the slab deconvolution ``deconv`` at
-        ``snr`` when not None, the guard bins dropped): the noise spectrum of
-        :meth:`clnlos.inverse.lct.LCT.upre_snr`.
+        (preprocessing, the normalisation ``scale``: :meth:`_noise_preprocessed`; the slab
+        deconvolution ``deconv`` at ``snr`` when not None, the guard bins dropped): the
+        noise spectrum of :meth:`clnlos.inverse.lct.LCT.upre_snr`.
         """
-        y = np.asarray(transient)
-        rng = np.random.default_rng(seed)
-        n = np.sqrt(np.maximum(y, 0), dtype=np.float64) * rng.standard_normal(y.shape)
-        t = self.pre(cla.to_device(self.queue, np.ascontiguousarray(n, self.dtype)))
-        if scale != 1.0:
-            self._scale_inplace(t, scale)
+        t = self._noise_preprocessed(transient, scale, seed)
         if deconv is not None:
             deconv.set_snr(snr)
             t = deconv(t)
+        return t[:self.shape[0]] if self.n_guard else t
+
+    def _noise_preprocessed(self, transient: np.ndarray, scale: float,
+                            seed: int = NOISE_PROBE_SEED) -> cla.Array:
+        """The noise realisation of :meth:`_noise_like` preprocessed and normalised (guard
+        bins kept), drawn block by block of rows (the same stream as one draw; no
+        float64 temporary of the capture's size)."""
+        y = np.asarray(transient)
+        rng = np.random.default_rng(seed)
+        n = np.empty(y.shape, self.dtype)
+        rows = max(1, (1 << 20) // max(1, int(np.prod(y.shape[1:]))))
+        for r0 in range(0, y.shape[0], rows):
+            blk = y[r0:r0 + rows]
+            n[r0:r0 + rows] = np.sqrt(np.maximum(blk, 0), dtype=np.float64) * \
+                rng.standard_normal(blk.shape)
+        t = self.pre(cla.to_device(self.queue, n))
+        if scale != 1.0:
+            self._scale_inplace(t, scale)
+        return t
+
+    def _probe(self, prep: PreparedCapture, deconv, snr: float) -> cla.Array:
+        """:meth:`_noise_like` of a prepared capture (its preprocessed part kept in
+        ``prep``: the same for every candidate of a search), deconvolved by ``deconv`` at
+        ``snr`` (a tail fill's memo kept too)."""
+        if prep.noise_tau is None:
+            prep.noise_tau = self._noise_preprocessed(prep.transient, prep.scale)
+        t = prep.noise_tau
+        if deconv is not None:
+            deconv.set_snr(snr)
+            t = (deconv(t, prep.noise_fills) if isinstance(deconv, TailFilledDeconvolution)
+                 else deconv(t))
         return t[:self.shape[0]] if self.n_guard else t
 
     def result_notes(self, volume: np.ndarray, noise: NoiseEstimate, params: dict,

@@ -481,9 +481,32 @@ def _reconstruction_detail(grid: dict) -> str:
     as the samples are reconstructed)."""
     method, rule = grid["method"], grid.get("snr_rule", "gcv")
     if not snr_rule_applies(rule, method):
-        rule = f"auto ({auto_snr_rule(method)} on counts of the slab simulated)"
+        auto = auto_snr_rule(method)
+        rule = "auto (gcv)" if auto == "gcv" else f"auto ({auto} on counts of the slab simulated)"
     text = f"SNRs by {rule}"
     return f"{grid['iterations']} iterations, {text}" if method == "iterative" else text
+
+
+def _cost_html(results) -> list[str]:
+    """The cost table: each stage's wall time, then per part of the plan its distinct
+    samples and the seconds they took to simulate and reconstruct (summed over workers)."""
+    cost = results.get("cost")
+    t = results["timings_s"]
+    out = ["<h2>Where the time goes</h2>",
+           _table(["stage", "wall time (s)"],
+                  [[k.removesuffix("_s"), f"{v:.1f}"] for k, v in t.items()])]
+    if cost is None:
+        return out
+    rows = [[p["part"], p["entries"], p["samples"], f"{p['simulate_s']:.1f}",
+             f"{p['reconstruct_s']:.1f}",
+             f"{(p['simulate_s'] + p['reconstruct_s']) / max(p['samples'], 1):.2f}"]
+            for p in cost["parts"]]
+    out.append("<p>Samples per part of the study (a sample two parts ask for is rendered "
+               "once, counted where first asked for); seconds summed over the workers, as "
+               "recorded when each sample was rendered (0 for none: all from the cache).</p>")
+    out.append(_table(["part", "entries", "samples rendered", "simulate (s)",
+                       "reconstruct (s)", "per sample (s)"], rows))
+    return out
 
 
 def write_report(out_dir, results, plan, res, real=None) -> None:
@@ -561,8 +584,7 @@ def write_report(out_dir, results, plan, res, real=None) -> None:
             body.append(f"<p>{html.escape(caption)}</p>")
         body.append(f"<img alt='{html.escape(title)}' src='data:image/png;base64,"
                     f"{_png(fig)}'/>")
-    t = results["timings_s"]
-    body.append("<p>Timings: " + ", ".join(f"{k} {v:.1f} s" for k, v in t.items()) + "</p>")
+    body += _cost_html(results)
     doc = (f"<!doctype html><html><head><meta charset='utf-8'>{HTML_GENERATOR}"
            "<meta name='viewport' content='width=device-width, initial-scale=1'>"
            f"<title>clnlos material study</title><style>{STYLE}</style>{OVERFLOW_PROBE}"

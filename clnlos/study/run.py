@@ -166,14 +166,14 @@ class StudyOptions:
     label: str = "full"
     real_data: Path | None = None       # folder holding cdt/*.mat (the real CDT captures)
     transport: str = "both"             # "both": also the bistatic comparison stage (--full);
-    #                                     "confocal": the quick default (about 9 minutes)
+    #                                     "confocal": the quick default (about 3 minutes)
     transport_glyphs: tuple[str, ...] | None = None  # the comparison's (default: glyphs)
     face_rings: int = COMPARE_RINGS     # the comparison's bistatic face samples
     face_angles: int = COMPARE_ANGLES
 
     @classmethod
     def quick(cls) -> StudyOptions:
-        """The built-in default (the README main job, about 9 minutes on 2 CPU cores): one
+        """The built-in default (the README main job, about 3 minutes on 2 CPU cores): one
         noise realisation per glyph; the geometry sweeps with three values each, three
         glyphs per point and the strong-specular and the Lambertian sweep material; no extra
         random samples; exposures over the two decades below the default."""
@@ -688,11 +688,40 @@ def run_study(out_dir: Path, opts: StudyOptions, *, workers: int | None = None,
             "glyphs": list(opts.transport_glyphs or opts.glyphs),
             "geometry": LEGIBLE_GEOMETRY}
     t0 = time.perf_counter()
+    results_json["cost"] = study_cost(plan, results, timings, comparison)
     write_report(out_dir, results_json, plan, results, real)
     timings["report_s"] = time.perf_counter() - t0
+    results_json["cost"] = study_cost(plan, results, timings, comparison)
     with atomic_path(out_dir / "results.json") as tmp:
         tmp.write_text(json.dumps(stamp(results_json), indent=1))
     return results_json
+
+
+def study_cost(plan, results, timings: dict, comparison: dict | None = None) -> dict:
+    """Where the study's time goes: per part of the plan (the main table, each sweep, the
+    random extras, the transport comparison) its entries, the distinct samples they need
+    and the seconds those samples took to simulate and to reconstruct (summed over the
+    workers, as each sample recorded when it was rendered: a sample read from the cache
+    costs nothing now); and each stage's wall time (``timings``)."""
+    parts: dict[str, dict] = {}
+    seen: set[str] = set()
+    entries = list(zip(plan, results, strict=True))
+    if comparison is not None:
+        entries += [(({"set": "transport_comparison"}, s), r) for (_, s), r in
+                    zip(comparison["plan"], comparison["results"], strict=True)]
+    for (meta, sample), r in entries:
+        row = parts.setdefault(meta["set"], {"part": meta["set"], "entries": 0, "samples": 0,
+                                             "simulate_s": 0.0, "reconstruct_s": 0.0})
+        row["entries"] += 1
+        key = json.dumps(sample, sort_keys=True)
+        if key in seen:
+            continue  # rendered once, counted where first asked for
+        seen.add(key)
+        row["samples"] += 1
+        row["simulate_s"] += float(r.get("simulate_s", 0.0))
+        row["reconstruct_s"] += float(r.get("reconstruct_s", 0.0))
+    return {"parts": list(parts.values()), "stages_s": dict(timings),
+            "total_s": float(sum(timings.values()))}
 
 
 def transport_comparison(materials, opts: StudyOptions, cache: Path, resolution: dict,
