@@ -56,6 +56,13 @@ optional and its default is the field default of :class:`ReconstructionConfig`::
     slab_model = "influence"     # iterative: "influence" fits Phi o L to the deconvolved
                                  # transient (Phi the slab Wiener filter's own smoothing,
                                  # clnlos.inverse.iterative), "none" fits L (Wiener first)
+    brdf = "lambertian"          # iterative: the voxels' reflectance: "lambertian", a
+                                 # material name, a BRDF texture or fitted model .h5, or
+                                 # "auto" (the lobe chosen from the capture by held-out
+                                 # photons, clnlos.inverse.brdf_choice); LCT and f-k are
+                                 # Lambertian (clnlos.brdf.lobes)
+    brdf_terms = "auto"          # iterative: separable terms K of the lobe, or "auto" (the
+                                 # fewest within clnlos.physics.lobe.LOBE_TOLERANCE)
 """
 
 from __future__ import annotations
@@ -67,6 +74,7 @@ from dataclasses import asdict, dataclass
 import numpy as np
 
 from clnlos import C0
+from clnlos.brdf.catalog import LAMBERTIAN, check_brdf_spec
 from clnlos.checks import (
     auto_or_positive,
     choice,
@@ -78,6 +86,7 @@ from clnlos.checks import (
 )
 from clnlos.errors import InputFileError, ParameterError
 from clnlos.inverse.methods import auto_snr_rule, default_falloffs, method_names
+from clnlos.physics.lobe import MAX_TERMS
 from clnlos.physics.slab import Slab
 
 # falloff = None: the method's own radiometric exponent p of (t/T)^p (its registry entry):
@@ -134,6 +143,8 @@ TOML_FIELDS: dict[tuple[str, str], str] = {
     ("inversion", "tv_weight"): "tv_weight",
     ("inversion", "depth_min_m"): "depth_min_m",
     ("inversion", "slab_model"): "slab_model",
+    ("inversion", "brdf"): "brdf",
+    ("inversion", "brdf_terms"): "brdf_terms",
 }
 FIELD_NAMES = {f: f"{sec}.{key}" for (sec, key), f in TOML_FIELDS.items()}
 SLAB_KEYS = ("thickness_m", "mu_a", "mu_s_prime", "n", "ze_m", "n_dipoles")
@@ -300,6 +311,8 @@ class ReconstructionConfig:
     tv_weight: float = 0.0
     depth_min_m: float | str = "auto"
     slab_model: str = "influence"
+    brdf: str = LAMBERTIAN
+    brdf_terms: int | str = "auto"
 
     def validate(self, names: dict[str, str] | None = None) -> ReconstructionConfig:
         """A validated copy. ``names`` maps field names to how the user gave them (a CLI
@@ -355,6 +368,13 @@ class ReconstructionConfig:
                                      "\"auto\" or a depth in m from 0 to 1000")
             v["depth_min_m"] = real(nm("depth_min_m"), self.depth_min_m, 0.0, 1e3)
         v["slab_model"] = choice(nm("slab_model"), self.slab_model, SLAB_MODELS)
+        v["brdf"] = check_brdf_spec(self.brdf, nm("brdf"))
+        if v["brdf"] != LAMBERTIAN and self.method != "iterative":
+            raise ParameterError(nm("brdf"), self.brdf, f"\"{LAMBERTIAN}\" with method "
+                                 f"{self.method!r} (LCT and f-k invert Lambertian voxels; a "
+                                 "BRDF needs method \"iterative\")")
+        v["brdf_terms"] = ("auto" if self.brdf_terms == "auto"
+                           else integer(nm("brdf_terms"), self.brdf_terms, 1, MAX_TERMS))
         return dataclasses.replace(self, **v)
 
     def replace(self, **changes) -> ReconstructionConfig:

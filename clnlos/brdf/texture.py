@@ -21,6 +21,7 @@ import numpy as np
 import pyopencl as cl
 import pyopencl.array as cla
 
+from clnlos.brdf.catalog import TEXTURE_FORMAT
 from clnlos.checks import input_file
 from clnlos.errors import InputFileError, ParameterError
 from clnlos.io.files import write_h5
@@ -29,7 +30,7 @@ from clnlos.runtime.device import get_queue, require_dtype
 from clnlos.runtime.limits import check_memory
 from clnlos.runtime.programs import get_kernels, real_defines
 
-FORMAT, VERSION = "clnlos-brdf-texture", 1
+FORMAT, VERSION = TEXTURE_FORMAT, 1
 # tabulate: nodes per model evaluation (bounds its temporaries), host bytes per node of the
 # texture (float32, and its compressed copy while written) and of one evaluation (the
 # MLP's activations, the analytic models' intermediates; generous)

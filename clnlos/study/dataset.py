@@ -1,9 +1,10 @@
 """Study samples: simulate a hidden object through the slab, reconstruct it, score it.
 
 A sample is a JSON-able dict (material, object and its size, pose, depth, exposure, seed, and
-optional overrides of the scan width and slab thickness for the sweeps, and a ``transport``
-table, :class:`clnlos.forward.scene.TransportSettings`, for the bistatic comparison); with the
-grid it defines one scene (:func:`scene_dict`). Its result is cached on disk as
+optional overrides of the scan width and slab thickness for the sweeps, a ``transport``
+table, :class:`clnlos.forward.scene.TransportSettings`, for the bistatic comparison, and a
+``brdf`` the iterative inversion assumes, :mod:`clnlos.brdf.lobes`; absent: Lambertian); with
+the grid it defines one scene (:func:`scene_dict`) and its reconstruction. Its result is cached on disk as
 ``<cache>/<sha1 of sample, grid and code version>.npz`` (written atomically, with the mode
 the umask gives), so reruns and interrupted runs resume and a changed clnlos never reuses an
 old result. Each entry also holds its key and a SHA-256 of its arrays, and is checked when
@@ -35,6 +36,7 @@ import numpy as np
 from tqdm import tqdm
 
 from clnlos import C0, __version__
+from clnlos.brdf.lobes import LAMBERTIAN, lobe_by_name
 from clnlos.config import ReconstructionConfig, snr_rule_applies
 from clnlos.errors import ParameterError
 from clnlos.forward.model import ForwardModel
@@ -190,9 +192,10 @@ def render_sample(sample: dict, grid: StudyGrid, device: str | None = None) -> d
     fm = ForwardModel(scene, queue=queue)
     cap = fm.capture()
     rule = {"snr_rule": grid.snr_rule} if snr_rule_applies(grid.snr_rule, grid.method) else {}
+    brdf = {"brdf": sample["brdf"]} if "brdf" in sample else {}
     cfg = ReconstructionConfig(max_path_m=window_m(sample, grid), slab=scene.slab,
                                method=grid.method, iterations=grid.iterations,
-                               **rule).validate()
+                               **rule, **brdf).validate()
     rec = reconstruct(cap, cfg, device=queue)
     vol = rec.volume
     mip = vol.max(axis=0)
@@ -213,7 +216,17 @@ def render_sample(sample: dict, grid: StudyGrid, device: str | None = None) -> d
             "true_depth_m": true_depth, "depth_error_m": abs(float(depth) - true_depth),
             "psnr_db": float(10 * np.log10(1.0 / max(mse, 1e-12))),
             "counts": float(cap.transient.sum()),
+            "lobe_halfwidth_deg": lobe_halfwidth_deg(rec.params),
             **{f"q_{k}": v for k, v in quality_metrics(vol, dz).items()}}
+
+
+def lobe_halfwidth_deg(params: dict) -> float:
+    """Half width (deg) of the retro lobe a reconstruction assumed (90: Lambertian), from what
+    it recorded (``brdf_used``)."""
+    name = params.get("brdf_used")
+    if name is None or name == LAMBERTIAN:
+        return 90.0
+    return math.degrees(lobe_by_name(name).halfwidth_rad())
 
 
 def figure8_slices(transient: np.ndarray, volume: np.ndarray) -> dict[str, np.ndarray]:
@@ -232,7 +245,7 @@ def figure8_slices(transient: np.ndarray, volume: np.ndarray) -> dict[str, np.nd
 RESULT_IMAGES = ("mip", "truth", "depth_map", "meas_image")
 RESULT_SLICES = ("meas_xt", "meas_yt", "vol_xz", "vol_yz")  # float32 [t or z, points]
 RESULT_NUMBERS = ("iou", "iou_box_baseline", "depth_m", "true_depth_m", "depth_error_m",
-                  "psnr_db", "counts", "bin_width_s", "voxel_depth_m",
+                  "psnr_db", "counts", "bin_width_s", "voxel_depth_m", "lobe_halfwidth_deg",
                   *(f"q_{m}" for m in METRICS))
 # the entry's own fields beside the result
 ENTRY_KEY, ENTRY_CHECKSUM = "_key", "_checksum"
