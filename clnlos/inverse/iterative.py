@@ -57,8 +57,9 @@ captures at 1e7-6e8 photons (0.65 -> 0.60 at 1e7), where neither reads the lette
 The voxels' reflectance (``brdf``, :mod:`clnlos.brdf.lobes`): Lambertian by default (the
 physics of LCT and f-k); a preset, a texture or a fitted model makes L the light-cone
 transport with that BRDF's retro lobe (:mod:`clnlos.physics.lobe`: the lobe averaged over
-each voxel's cell and, behind a slab, over the slab's footprint, as K separable light
-cones), and ``"auto"`` chooses the lobe from the capture (:mod:`clnlos.inverse.brdf_choice`).
+each voxel's cell, as K separable light cones), and ``"auto"`` chooses the lobe from the
+capture (:mod:`clnlos.inverse.brdf_choice`). The slab's footprint is not folded into the
+lobe: against the bistatic transport it did not bring the model closer (docs/brdf.md).
 
 Left out: the surface orientation (voxels face the scan plane; a tilted specular voxel is
 reconstructed where its lobe meets the scan plane, displaced by about z tan(tilt)),
@@ -76,8 +77,7 @@ import pyopencl.array as cla
 from clnlos import C0
 from clnlos.checks import integer, real
 from clnlos.config import DEPTH_GUARD_M, ITERATIONS_RANGE, WEIGHT_RANGE
-from clnlos.brdf.lobes import AUTO, LAMBERTIAN, retro_lobe
-from clnlos.forward.bistatic import face_quadrature
+from clnlos.brdf.lobes import AUTO, retro_lobe
 from clnlos.forward.transport import LightConeTransport
 from clnlos.physics.lobe import RetroLobe
 from clnlos.inverse.lct import (
@@ -127,17 +127,16 @@ class IterativeInversion:
     tol (relative change that stops the solver, :mod:`clnlos.inverse.solvers`); scratch (work
     buffers shared with a plan's other stages, :class:`clnlos.runtime.buffers.Scratch`); cache
     (on-disk spectra of the warm start, :class:`clnlos.runtime.spectrum_cache.SpectrumCache`);
-    lobe (the voxels' retro lobe, :class:`clnlos.physics.lobe.RetroLobe`, default Lambertian),
-    footprint_rms_m (the slab footprint's rms radius that widens it, m; 0 without a slab) and
-    lobe_terms (its separable terms K, default by tolerance): :mod:`clnlos.forward.transport`.
+    lobe (the voxels' retro lobe, :class:`clnlos.physics.lobe.RetroLobe`, default Lambertian)
+    and lobe_terms (its separable terms K, default by tolerance):
+    :mod:`clnlos.forward.transport`.
     """
 
     def __init__(self, shape, *, bin_width_s: float, scan_width_m: float,
                  iterations: int, l1_weight: float, tv_weight: float,
                  tv_depth_scale: float = 1.0, warm_snr: float = DEFAULT_SNR, tol: float = 1e-4,
                  dtype=np.float32, queue=None, scratch=None, cache=None,
-                 lobe: RetroLobe | None = None, footprint_rms_m: float = 0.0,
-                 lobe_terms: int | None = None):
+                 lobe: RetroLobe | None = None, lobe_terms: int | None = None):
         self.queue = get_queue(queue)
         self.dtype = require_dtype(self.queue.device, dtype)
         self.shape = tuple(int(s) for s in shape)
@@ -163,7 +162,7 @@ class IterativeInversion:
         self._ops: dict[tuple, tuple[LightConeTransport, int, float]] = {}
         self.report: SolveReport | None = None
         self.lobe = RetroLobe.lambert() if lobe is None else lobe
-        self.footprint_rms_m, self.lobe_terms = float(footprint_rms_m), lobe_terms
+        self.lobe_terms = lobe_terms
 
     def set_lobe(self, lobe: RetroLobe) -> None:
         """The retro lobe the next calls assume (operators kept per lobe and support)."""
@@ -185,7 +184,6 @@ class IterativeInversion:
                                     depth_min_m=step * DEPTH_QUANTUM_M,
                                     depth_weight=self.scale, dtype=self.dtype,
                                     queue=self.queue, scratch=self.scratch, lobe=self.lobe,
-                                    footprint_rms_m=self.footprint_rms_m,
                                     lobe_terms=self.lobe_terms)
             power = None if setup is None else (
                 lambda k, n: setup(f"step size (power iteration {k}/{n})"))
@@ -246,16 +244,6 @@ def configured_lobe(config) -> RetroLobe | None:
     return None if config.brdf == AUTO else retro_lobe(config.brdf)
 
 
-def footprint_rms_m(config, grid: InversionGrid, queue) -> float:
-    """rms radius (m) of the slab's window-integrated footprint on its hidden face
-    (:func:`clnlos.forward.bistatic.face_quadrature`), which widens a lobe seen through it
-    (:mod:`clnlos.physics.lobe`); 0 without a slab or for a Lambertian reconstruction."""
-    if config.slab is None or config.brdf == LAMBERTIAN:
-        return 0.0
-    return face_quadrature(config.slab, bins=grid.shape[0], bin_width_s=grid.bin_width_s,
-                           rings=1, angles=1, n_dipoles=config.n_dipoles, queue=queue).rms_m
-
-
 def support_depth_m(noise, config) -> float:
     """Shallowest depth of the iterative method's support (m): the configured depth, or for
     "auto" the capture's first arrival (:attr:`clnlos.inverse.snr.NoiseEstimate.
@@ -282,7 +270,6 @@ class IterativeMethod(Inversion):
                                          l1_weight=config.l1_weight, tv_weight=config.tv_weight,
                                          warm_snr=initial_inversion_snr(config), cache=cache,
                                          lobe=configured_lobe(config),
-                                         footprint_rms_m=footprint_rms_m(config, grid, queue),
                                          lobe_terms=None if config.brdf_terms == "auto"
                                          else int(config.brdf_terms), **self.geometry())
         self.depth_min_m = 0.0

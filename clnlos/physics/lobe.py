@@ -108,10 +108,12 @@ class RetroLobe:
 
 
 
-def footprint_average(f: np.ndarray, sigma_rad: float) -> np.ndarray:
+def footprint_average(f: np.ndarray, sigma_rad: float, extent_rad: float = np.pi / 2
+                      ) -> np.ndarray:
     """Eq. (2) on the uniform [0, pi/2] grid of ``f``: the average of a radial function over
     a 2D Gaussian of rms angle ``sigma_rad`` (kernel cut at 7 s; computed at nodes s / 8
-    apart and interpolated between them: the average is smooth on that scale)."""
+    apart and interpolated between them: the average is smooth on that scale), at angles up
+    to ``extent_rad`` + 7 s (past a lobe's extent f is smooth on the scale of s and kept)."""
     f = np.asarray(f, np.float64)
     if not sigma_rad > 0:
         return f.copy()
@@ -121,7 +123,8 @@ def footprint_average(f: np.ndarray, sigma_rad: float) -> np.ndarray:
     s = sigma_rad / math.sqrt(2.0)
     band = int(math.ceil(7.0 * s / h))
     stride = max(1, int(s / (8.0 * h)))
-    rows = np.unique(np.r_[np.arange(0, n, stride), n - 1])
+    last = min(n - 1, int(math.ceil((extent_rad + 7.0 * s) / h)))
+    rows = np.unique(np.r_[np.arange(0, last, stride), last])
     j = rows[:, None] + np.arange(-band, band + 1)[None, :]
     ok = (j >= 0) & (j < n)
     jc = np.clip(j, 0, n - 1)
@@ -131,10 +134,13 @@ def footprint_average(f: np.ndarray, sigma_rad: float) -> np.ndarray:
     tot = kern.sum(axis=1)
     val = np.where(tot > 0, (kern * f[jc]).sum(axis=1) / np.where(tot > 0, tot, 1.0),
                    f[rows])
-    return np.interp(th, th[rows], val)
+    out = f.copy()
+    out[:last + 1] = np.interp(th[:last + 1], th[rows], val)
+    return out
 
 
-SPREAD_STEP = 1.05  # footprint averages on a geometric grid of spreads, interpolated between
+SPREAD_STEP = 1.1  # footprint averages on a geometric grid of spreads, interpolated between
+LOBE_EXTENT_WIDTHS = 8.0  # a lobe varies out to this many half widths (GGX: 2e-4 of its peak)
 
 
 def footprint_averages(lobe: RetroLobe, sigmas_rad) -> np.ndarray:
@@ -148,7 +154,8 @@ def footprint_averages(lobe: RetroLobe, sigmas_rad) -> np.ndarray:
         lo, hi = float(sig[pos].min()), float(sig[pos].max())
         n = max(1, int(math.ceil(math.log(hi / lo) / math.log(SPREAD_STEP))) + 1)
         grid = lo * SPREAD_STEP ** np.arange(n)
-        table = np.stack([footprint_average(lobe.f, g) for g in grid])
+        extent = min(np.pi / 2, LOBE_EXTENT_WIDTHS * lobe.halfwidth_rad())
+        table = np.stack([footprint_average(lobe.f, g, extent) for g in grid])
         x = np.log(sig[pos] / lo) / math.log(SPREAD_STEP)
         i0 = np.clip(np.floor(x).astype(int), 0, max(n - 2, 0))
         w = np.clip(x - i0, 0.0, 1.0)[:, None]
