@@ -33,6 +33,7 @@ LOBE_NOT_SEARCHED = "lambertian (not searched)"
 LOBE_NOT_SEARCHED_REASON = ("the lobe is chosen on held-out photons and the capture is not "
                             "photon counts (or a half of the split is empty)")
 PATIENCE = 2  # lobes in a row without a significant gain that end the walk
+LOBE_SEARCH_ITERATIONS = 50  # iterations of each half reconstruction at most
 
 
 def score_margin(fit_new: np.ndarray, fit_best: np.ndarray, held: np.ndarray,

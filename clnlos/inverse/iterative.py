@@ -69,6 +69,7 @@ occlusion.
 from __future__ import annotations
 
 import math
+from contextlib import contextmanager
 from dataclasses import dataclass
 
 import numpy as np
@@ -301,6 +302,16 @@ class IterativeMethod(Inversion):
     def set_lobe(self, lobe: RetroLobe) -> None:
         """The retro lobe of the next reconstructions (``brdf = "auto"``'s choice)."""
         self.solver.set_lobe(lobe)
+
+    @contextmanager
+    def iteration_budget(self, iterations: int):
+        """At most ``iterations`` iterations inside the block (a search's reconstructions)."""
+        keep = self.solver.iterations
+        self.solver.iterations = min(keep, int(iterations))
+        try:
+            yield
+        finally:
+            self.solver.iterations = keep
 
     def predict(self, volume: np.ndarray) -> cla.Array:
         """L rho: the light-cone transport of an albedo volume [z, y, x] on the support of

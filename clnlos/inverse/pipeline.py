@@ -114,6 +114,7 @@ from clnlos.forward.blur import blur_time_scales, slab_blur
 from clnlos.brdf.lobes import AUTO, auto_ladder
 from clnlos.inverse.brdf_choice import (
     LOBE_NOT_SEARCHED,
+    LOBE_SEARCH_ITERATIONS,
     LOBE_NOT_SEARCHED_REASON,
     choose_lobe,
     score_margin,
@@ -543,7 +544,8 @@ class ReconstructionPipeline:
         def score(cand: RetroLobe) -> float:
             if setup is not None:
                 setup(f"BRDF lobe by thinning: {cand.name}")
-            rec = self.run(train, model_snr=model_snr, slab_snr_factor=1.0, lobe=cand)
+            with self.invert.iteration_budget(LOBE_SEARCH_ITERATIONS):
+                rec = self.run(train, model_snr=model_snr, slab_snr_factor=1.0, lobe=cand)
             pred = self.invert.predict(rec.volume)
             pred = (pred if phi is None else phi.apply_device(pred)).get()
             fits[cand.name] = scaled_fit(pred, held)
