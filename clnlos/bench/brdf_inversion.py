@@ -6,10 +6,10 @@ one on the same captures (the section ``brdf_inversion``).
 The operator check renders a glyph with the forward model (no pulse, no noise) and applies
 the BRDF-aware transport (:mod:`clnlos.forward.transport`) to the scene's own surface,
 voxelised: each surface element's albedo times its area over the cell area, in the depth bin
-and scan cell of its centre. A tilted glyph is voxelised where a confocal scan sees a
-specular lobe put it: each element moved along its normal to the scan plane's foot,
+and scan cell of its centre. A tilted glyph of a lobe narrower than FOOT_LOBE_DEG is voxelised where a
+confocal scan sees the lobe put it: each element moved along its normal to the scan plane,
 (x + z tan(tilt), z / cos(tilt)) for a tilt about y (the inversion assumes voxels facing the
-scan plane). Behind a slab the transport's output, on a grid widened by the blur's reach,
+scan plane); a wider lobe where it is. Behind a slab the transport's output, on a grid widened by the blur's reach,
 goes through the confocal slab blur Phi * Phi (:mod:`clnlos.forward.blur`); against the
 bistatic transport (the seed's Eq. 8 in full) this measures whether the slab footprint
 folded into the lobe (:mod:`clnlos.physics.lobe`) stands in for the light leaving and
@@ -19,6 +19,7 @@ of the transient, after the best common scale (the voxelisation's albedo convent
 
 from __future__ import annotations
 
+import math
 import time
 
 import numpy as np
@@ -35,6 +36,7 @@ from clnlos.physics.slab import CDT_SLAB
 CHECK_MATERIALS = ("quartz glass", "aluminium alloy sample", "gold-plated polyester film",
                    "standard white plate", LAMBERTIAN)
 CHECK_TILTS_DEG = (0.0, 10.0)
+FOOT_LOBE_DEG = 20.0  # a tilted target of a lobe narrower than this is voxelised at its foot
 
 
 def glyph_scene(material: str, *, tilt_deg: float = 0.0, slab: bool = False,
@@ -110,10 +112,12 @@ def operator_check(material: str, *, tilt_deg: float, slab: bool, transport: str
                          pitch_m=pitch, mode="convolve", dtype=np.float64, queue=queue)
     rms = (face_quadrature(scene.slab, bins=scene.bins, bin_width_s=scene.bin_width_s,
                            rings=1, angles=1, queue=queue).rms_m if slab else 0.0)
-    vol = voxelised(fm.samples, scene, lobe_foot=tilt_deg != 0)
-    models = [(LAMBERTIAN, 0.0), (material, rms)]
-    if slab and material != LAMBERTIAN:
-        models.append((material, 0.0))
+    lobe = retro_lobe(material)
+    sharp = lobe.halfwidth_rad() < math.radians(FOOT_LOBE_DEG)
+    vol = voxelised(fm.samples, scene, lobe_foot=tilt_deg != 0 and sharp)
+    models = [(LAMBERTIAN, 0.0)]
+    if material != LAMBERTIAN:
+        models += [(material, rms)] + ([(material, 0.0)] if slab else [])
     rows = []
     for lobe_name, fp in models:
         t0 = time.perf_counter()
