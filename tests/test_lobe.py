@@ -224,9 +224,11 @@ def test_choose_lobe_walks_while_the_score_falls():
     scores = {lb.name: s for lb, s in zip(ladder, (0.6, 0.45, 0.26, 0.30, 0.58), strict=True)}
     chosen, tried = choose_lobe(ladder, lambda lb: scores[lb.name])
     assert chosen.name == ladder[2].name
-    assert [n for n, _ in tried] == [lb.name for lb in ladder]  # two past the best
+    assert [n for n, _ in tried] == [lb.name for lb in ladder[:4]]  # one past the best
     flat = {lb.name: s for lb, s in zip(ladder, (0.05, 0.06, 0.051, 0.07, 0.08), strict=True)}
     chosen, tried = choose_lobe(ladder, lambda lb: flat[lb.name])
+    assert chosen.lambertian and len(tried) == 2
+    chosen, tried = choose_lobe(ladder, lambda lb: flat[lb.name], patience=2)
     assert chosen.lambertian and len(tried) == 3
     # a gain within the margin is not taken
     chosen, _ = choose_lobe(ladder, lambda lb: scores[lb.name], lambda a, b: 1.0)

@@ -14,7 +14,7 @@ cannot put the light where the data have it; a narrower one fits the first half'
 placing voxels in front of each scan point and predicts the second half worse. The ladder is
 walked from the Lambertian: a sharper lobe is taken where its score is lower than the best
 so far by more than CV_SIGNIFICANCE standard errors of the held-out noise's part in the
-difference (:func:`score_margin`), and the walk stops after two lobes in a row that are not.
+difference (:func:`score_margin`), and the walk stops at the first lobe that is not.
 The search never sees the truth, only the capture; it costs one reconstruction of half the
 data per lobe tried (2 to 5).
 """
@@ -32,7 +32,7 @@ from clnlos.physics.lobe import RetroLobe
 LOBE_NOT_SEARCHED = "lambertian (not searched)"
 LOBE_NOT_SEARCHED_REASON = ("the lobe is chosen on held-out photons and the capture is not "
                             "photon counts (or a half of the split is empty)")
-PATIENCE = 2  # lobes in a row without a significant gain that end the walk
+PATIENCE = 1  # lobes in a row without a significant gain that end the walk
 LOBE_SEARCH_ITERATIONS = 50  # iterations of each half reconstruction at most
 
 

@@ -186,9 +186,12 @@ class StudyOptions:
     face_angles: int = COMPARE_ANGLES
     inversions: tuple[str, ...] = INVERSIONS          # per material row (INVERSIONS)
     sweep_inversions: tuple[str, ...] = ("lambertian", "known")  # the legibility sweeps'
+    aware_glyphs: tuple[str, ...] | None = None  # what the BRDF-aware inversions
+    #                                               reconstruct (default: glyphs)
     tilts_deg: tuple[float, ...] = TILTS_DEG
     tilt_materials: tuple[str, ...] = TILT_MATERIALS
     tilt_glyphs: tuple[str, ...] = GLYPHS
+    tilt_inversions: tuple[str, ...] = INVERSIONS
 
     @classmethod
     def quick(cls) -> StudyOptions:
@@ -197,7 +200,8 @@ class StudyOptions:
         glyphs per point and the strong-specular and the Lambertian sweep material; no extra
         random samples; exposures over the two decades below the default."""
         return cls(n_dataset=0, seeds=1, sweep_glyphs=("E", "H", "T"),
-                   tilts_deg=(0.0, 10.0, 20.0), tilt_glyphs=("E", "H", "P", "U"),
+                   aware_glyphs=("E", "H", "P", "U"), tilts_deg=(0.0, 10.0, 20.0),
+                   tilt_glyphs=("E", "H", "P"), tilt_inversions=("lambertian", "known"),
                    legibility_sweeps={**LEGIBILITY_SWEEPS, "exposure_s": (0.001, 0.01, 0.1)},
                    geometry_sweep_materials=(SWEEP_MATERIALS[0], SWEEP_MATERIALS[-1]),
                    sweeps={"scan_width_m": (0.3, 0.6, 0.8), "depth_m": (0.3, 0.5, 0.7),
@@ -227,7 +231,11 @@ class StudyOptions:
                                                  for g in self.transport_glyphs)):
             raise ParameterError("transport_glyphs", self.transport_glyphs,
                                  f"one or more of {''.join(self.glyphs)}")
-        for name in ("inversions", "sweep_inversions"):
+        if self.aware_glyphs is not None and (not self.aware_glyphs or any(
+                g not in self.glyphs for g in self.aware_glyphs)):
+            raise ParameterError("aware_glyphs", self.aware_glyphs,
+                                 f"one or more of {''.join(self.glyphs)}")
+        for name in ("inversions", "sweep_inversions", "tilt_inversions"):
             inv = getattr(self, name)
             if not inv or inv[0] != "lambertian" or any(v not in INVERSIONS for v in inv):
                 raise ParameterError(name, inv, "\"lambertian\" first, then any of "
@@ -310,13 +318,17 @@ def inversion_brdf(inversion: str, material: str) -> dict:
 def _glyph_entries(opts: StudyOptions, geo: Geometry, material: str, glyphs, seeds: int,
                    meta: dict, *, height_m=None, exposure_s=DEFAULT_EXPOSURE_S,
                    scan_width_m=None, depth_m=None, slab_thickness_m=None, tilt_deg=0.0,
-                   inversions=("lambertian",)) -> list:
+                   inversions=("lambertian",), aware_glyphs=None) -> list:
+    """The plan entries of one material at one geometry: each glyph, noise realisation and
+    inversion; the inversions other than the Lambertian for ``aware_glyphs`` only (None:
+    every glyph)."""
     h = geo.letter_height_m if height_m is None else height_m
     stroke = geo.stroke_m if height_m is None else STROKE_PER_HEIGHT * h
     out = []
+    aware = set(glyphs if aware_glyphs is None else aware_glyphs)
     for g in glyphs:
         for k in range(seeds):
-            for inv in inversions:
+            for inv in (v for v in inversions if v == "lambertian" or g in aware):
                 s = glyph_sample(g, material, scan_width_m=scan_width_m or geo.scan_width_m,
                                  height_m=h, stroke_m=stroke, depth_m=depth_m or geo.depth_m,
                                  exposure_s=exposure_s,
@@ -335,7 +347,7 @@ def study_plan(materials, opts: StudyOptions) -> list[tuple[dict, dict]]:
     for geo in opts.geometries:
         for m in materials:
             plan += _glyph_entries(opts, geo, m, opts.glyphs, opts.seeds, {"set": "main"},
-                                   inversions=opts.inversions)
+                                   inversions=opts.inversions, aware_glyphs=opts.aware_glyphs)
     legible = opts.geometry(LEGIBLE_GEOMETRY)
     for var, values in opts.legibility_sweeps.items():
         for v in values:
@@ -344,13 +356,14 @@ def study_plan(materials, opts: StudyOptions) -> list[tuple[dict, dict]]:
                 plan += _glyph_entries(opts, legible, m, opts.glyphs, opts.sweep_seeds,
                                        {"set": "legibility_sweep", "variable": var,
                                         "value": float(v)},
-                                       inversions=opts.sweep_inversions, **kw)
+                                       inversions=opts.sweep_inversions,
+                                       aware_glyphs=opts.aware_glyphs, **kw)
     for t in opts.tilts_deg:
         for m in opts.tilt_materials:
             plan += _glyph_entries(opts, legible, m, opts.tilt_glyphs, opts.sweep_seeds,
                                    {"set": "tilt_sweep", "variable": "tilt_deg",
                                     "value": float(t)}, tilt_deg=t,
-                                   inversions=opts.inversions)
+                                   inversions=opts.tilt_inversions)
     seed_geo = next((g for g in opts.geometries if g.name == SEED_GEOMETRY),
                     opts.geometries[0])
     for var, values in opts.sweeps.items():
