@@ -58,11 +58,18 @@ optional and its default is the field default of :class:`ReconstructionConfig`::
     slab_model = "influence"     # iterative: "influence" fits Phi o L to the deconvolved
                                  # transient (Phi the slab Wiener filter's own smoothing,
                                  # clnlos.inverse.iterative), "none" fits L (Wiener first)
+    brdf = "lambertian"          # iterative: the voxels' reflectance: "lambertian", a
+                                 # material name, a BRDF texture or fitted model .h5, or
+                                 # "auto" (the lobe chosen from the capture by held-out
+                                 # photons, clnlos.inverse.brdf_choice); LCT and f-k are
+                                 # Lambertian (clnlos.brdf.lobes)
+    brdf_terms = "auto"          # iterative: separable terms K of the lobe, or "auto" (the
+                                 # fewest within clnlos.physics.lobe.LOBE_TOLERANCE)
 
 A field that only some methods read (clnlos.inverse.methods.MethodEntry.reads: falloff for
 lct and fk, [inversion] snr for lct and iterative, iterations, l1_weight, tv_weight,
-depth_min_m and slab_model for iterative) is refused when the user sets it -- as a key of
-the TOML or as a flag -- for a method that does not read it.
+depth_min_m, slab_model, brdf and brdf_terms for iterative) is refused when the user sets it
+-- as a key of the TOML or as a flag -- for a method that does not read it.
 """
 
 from __future__ import annotations
@@ -74,6 +81,7 @@ from dataclasses import asdict, dataclass
 import numpy as np
 
 from clnlos import C0
+from clnlos.brdf.catalog import LAMBERTIAN, check_brdf_spec
 from clnlos.checks import (
     auto_or_positive,
     choice,
@@ -91,6 +99,7 @@ from clnlos.inverse.methods import (
     methods_reading,
     split_rule,
 )
+from clnlos.physics.lobe import MAX_TERMS
 from clnlos.physics.slab import Slab
 
 # falloff = None: the method's own radiometric exponent p of (t/T)^p (its registry entry):
@@ -147,6 +156,8 @@ TOML_FIELDS: dict[tuple[str, str], str] = {
     ("inversion", "tv_weight"): "tv_weight",
     ("inversion", "depth_min_m"): "depth_min_m",
     ("inversion", "slab_model"): "slab_model",
+    ("inversion", "brdf"): "brdf",
+    ("inversion", "brdf_terms"): "brdf_terms",
 }
 FIELD_NAMES = {f: f"{sec}.{key}" for (sec, key), f in TOML_FIELDS.items()}
 SLAB_KEYS = ("thickness_m", "mu_a", "mu_s_prime", "n", "ze_m", "n_dipoles")
@@ -317,6 +328,8 @@ class ReconstructionConfig:
     tv_weight: float = 0.0
     depth_min_m: float | str = "auto"
     slab_model: str = "influence"
+    brdf: str = LAMBERTIAN
+    brdf_terms: int | str = "auto"
 
     def validate(self, names: dict[str, str] | None = None) -> ReconstructionConfig:
         """A validated copy. ``names`` maps field names to how the user gave them (a CLI
@@ -371,6 +384,13 @@ class ReconstructionConfig:
                                      "\"auto\" or a depth in m from 0 to 1000")
             v["depth_min_m"] = real(nm("depth_min_m"), self.depth_min_m, 0.0, 1e3)
         v["slab_model"] = choice(nm("slab_model"), self.slab_model, SLAB_MODELS)
+        v["brdf"] = check_brdf_spec(self.brdf, nm("brdf"))
+        if v["brdf"] != LAMBERTIAN and self.method != "iterative":
+            raise ParameterError(nm("brdf"), self.brdf, f"\"{LAMBERTIAN}\" with method "
+                                 f"{self.method!r} (LCT and f-k invert Lambertian voxels; a "
+                                 "BRDF needs method \"iterative\")")
+        v["brdf_terms"] = ("auto" if self.brdf_terms == "auto"
+                           else integer(nm("brdf_terms"), self.brdf_terms, 1, MAX_TERMS))
         for field in names:  # what the user set for a method that does not read it
             readers = methods_reading(field)
             if self.method in method_names() and self.method not in readers:

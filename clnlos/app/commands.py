@@ -62,6 +62,7 @@ from clnlos.inverse.reproducibility import SLAB_SNRS_SLAB_ONLY as RP_SLAB_ONLY
 from clnlos.io.figures import volume_figure
 from clnlos.io.files import read_capture, read_volume, save_figure
 from clnlos.io.outputs import HDF5_SUFFIXES, check_outputs
+from clnlos.physics.lobe import LOBE_TOLERANCE
 from clnlos.runtime.device import get_queue
 from clnlos.runtime.limits import capture_use, check_memory
 from clnlos.study.dataset import MAX_WORKERS, StudyGrid, check_scheduler_address
@@ -114,7 +115,8 @@ RECON_FLAGS = {"scan_width": ("scan_width_m", "--scan-width"),
                "tv_weight": ("tv_weight", "--tv-weight"),
                "l1_weight": ("l1_weight", "--l1-weight"),
                "depth_min": ("depth_min_m", "--depth-min"),
-               "slab_model": ("slab_model", "--slab-model")}
+               "slab_model": ("slab_model", "--slab-model"),
+               "brdf": ("brdf", "--brdf"), "brdf_terms": ("brdf_terms", "--brdf-terms")}
 
 
 def _decades(values) -> str:
@@ -134,6 +136,16 @@ def number_or_auto(text: str):
         return float(text)
     except ValueError:
         raise argparse.ArgumentTypeError(f"expected a number or 'auto', got {text!r}") from None
+
+
+def int_or_auto(text: str):
+    """argparse type: "auto" or an integer (validated later with the flag's name)."""
+    if text.strip().lower() == "auto":
+        return "auto"
+    try:
+        return int(text)
+    except ValueError:
+        raise argparse.ArgumentTypeError(f"expected an integer or 'auto', got {text!r}") from None
 
 
 def flag_names(args) -> dict[str, str]:
@@ -235,7 +247,9 @@ def register_reconstruct(sub, add_device) -> None:
     r.add_argument("--method", choices=list(method_names()), default=None,
                    help="inversion: " + "; ".join(f"{m} ({e.summary})"
                                                   for m, e in METHOD_ENTRIES.items())
-                        + f" (default: the config's [inversion] method, else {C.method})")
+                        + f" (default: the config's [inversion] method, else {C.method}); "
+                          "lct and fk invert Lambertian voxels facing the scan plane, "
+                          "iterative also any reflectance (--brdf)")
     from_file = "(default: from the capture file, else the config's [capture])"
     r.add_argument("--scan-width", type=float,
                    help="side of the scanned area along x (m; the pitch is this over the "
@@ -299,6 +313,18 @@ def register_reconstruct(sub, add_device) -> None:
                         "to the deconvolved transient, modelling the smoothing the slab "
                         "deconvolution leaves; none fits the light cone alone (Wiener first) "
                         f"(default {C.slab_model})")
+    r.add_argument("--brdf",
+                   help="iterative: the voxels' reflectance: lambertian, a material name ("
+                        "clnlos brdf presets: the seed's ten and the analytic ones), a BRDF "
+                        "texture or fitted model .h5 (its retro lobe, averaged over each "
+                        "voxel's cell and over the slab's footprint), or auto: the lobe "
+                        "among a ladder from Lambertian to a 0.4 deg mirror whose "
+                        "reconstruction from half the photons best predicts the other half "
+                        f"(2-5 extra reconstructions of half the data) (default {C.brdf})")
+    r.add_argument("--brdf-terms", type=int_or_auto,
+                   help="iterative: separable terms K of the lobe (each one more FFT per "
+                        "operator apply), or auto: the fewest within a relative error of "
+                        f"{LOBE_TOLERANCE:g} (default {C.brdf_terms})")
     slab = ("(default: the config's [slab]; with no slab flag and no [slab], the slab a "
             "clnlos capture recorded)")
     r.add_argument("--slab-thickness", type=float, help=f"slab thickness (m) {slab}")

@@ -543,7 +543,7 @@ def bench_auto_params_cost(b: Bench):
                 cfg = base.replace(**fields).validate()
                 reconstruct(cap, cfg, device=b.q)  # plans built: the row times the rule
                 start = reset_peak_rss()
-                rec, timing = timed_once(lambda cfg=cfg: reconstruct(cap, cfg, device=b.q),
+                rec, timing = timed_once(lambda cfg=cfg, cap=cap: reconstruct(cap, cfg, device=b.q),
                                          b.q)
                 peak = peak_rss_bytes()
                 iou = mip_iou(rec.volume, mask)[0]

@@ -8,48 +8,25 @@ close (the data itself is never copied into the package).
 
 from __future__ import annotations
 
-import importlib.resources
-import json
 import warnings
-from functools import lru_cache
 from pathlib import Path
 
 import numpy as np
 
+from clnlos.brdf.catalog import (
+    ANALYTIC_PRESETS,
+    CLASSES,
+    material_names,
+    preset_names,
+    preset_table,
+)
 from clnlos.brdf.models import BRDFModel, make_model, retro_slice
 from clnlos.brdf.texture import checked_retro, read_texture
 from clnlos.checks import did_you_mean
 from clnlos.errors import ParameterError
 
-# Analytic presets beside the seed's ten measured-data presets (names are case-insensitive);
-# None is the Lambertian (no BRDF table).
-ANALYTIC_PRESETS: dict[str, BRDFModel | None] = {
-    "lambertian": None,
-    "matte-dark": BRDFModel("minnaert", {"kd": 0.3, "k": 1.5}),
-    "glossy-paint": BRDFModel("phong", {"kd": 0.3, "ks": 0.7, "shininess": 30.0}),
-    "brushed-metal": BRDFModel("microfacet", {"kd": 0.0, "ks": 1.0, "alpha": 0.15, "f0": 0.9}),
-    "mirror-like": BRDFModel("microfacet", {"kd": 0.0, "ks": 1.0, "alpha": 0.01, "f0": 0.95}),
-}
-
-CLASSES = ("strong specular", "strong specular + diffuse", "strong diffuse", "Lambertian")
-
-
-@lru_cache(maxsize=1)
-def preset_table() -> dict:
-    text = importlib.resources.files("clnlos.brdf").joinpath("presets.json").read_text()
-    return json.loads(text)
-
-
 def preset_model(name: str) -> BRDFModel:
     return make_model(preset_table()[name]["model"])
-
-
-def preset_names() -> list[str]:
-    return list(preset_table())
-
-
-def material_names() -> list[str]:
-    return ["lambertian", *preset_table(), *(k for k in ANALYTIC_PRESETS if k != "lambertian")]
 
 
 def material_retro(material, base_dir, n_theta: int) -> np.ndarray | None:
@@ -75,3 +52,7 @@ def material_retro(material, base_dir, n_theta: int) -> np.ndarray | None:
                              "texture .h5 or a model table" + did_you_mean(key, names))
     model = ANALYTIC_PRESETS[key]
     return None if model is None else retro_slice(model, n_theta)
+
+
+__all__ = ["ANALYTIC_PRESETS", "CLASSES", "material_names", "material_retro", "preset_model",
+           "preset_names", "preset_table"]

@@ -29,6 +29,7 @@ import numpy as np
 import pyopencl as cl
 import pyopencl.array as cla
 
+from clnlos.brdf.catalog import TEXTURE_FORMAT
 from clnlos.brdf.mlp import CHECK_QUADRATURE, albedo_quadrature
 from clnlos.brdf.models import GRAZING, hat_samples, make_model, retro_slice
 from clnlos.brdf.store import load_model
@@ -40,7 +41,7 @@ from clnlos.runtime.device import get_queue, require_dtype
 from clnlos.runtime.limits import check_memory
 from clnlos.runtime.programs import get_kernels, real_defines
 
-FORMAT, VERSION = "clnlos-brdf-texture", 1
+FORMAT, VERSION = TEXTURE_FORMAT, 1
 # tabulate: nodes per model evaluation (bounds its temporaries), host bytes per node of the
 # texture (float32, and its compressed copy while written) and of one evaluation (the
 # MLP's activations, the analytic models' intermediates; generous)
@@ -231,7 +232,7 @@ def _sample_nodes(model, tex: np.ndarray, nodes: np.ndarray) -> None:
             (f * w).sum(axis=1)
 
 
-def texture_errors(tex: "BRDFTexture", model) -> tuple[float, float]:
+def texture_errors(tex: BRDFTexture, model) -> tuple[float, float]:
     """(albedo error, retro error) of a texture against the model it tabulates
     (:func:`lobe_errors`, :func:`retro_errors`: the energy parts)."""
     return lobe_errors(tex.texture, model)[0], retro_errors(tex.retro, model)[0]

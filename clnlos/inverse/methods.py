@@ -96,7 +96,7 @@ METHODS: dict[str, MethodEntry] = {
                              "FISTA on the light-cone transport, L1 + TV, warm-started by "
                              "LCT", "thinning", "gcv",
                              ("inversion_snr", "iterations", "l1_weight", "tv_weight",
-                              "depth_min_m", "slab_model")),
+                              "depth_min_m", "slab_model", "brdf", "brdf_terms")),
 }
 
 

@@ -114,9 +114,17 @@ import numpy as np
 import pyopencl.array as cla
 
 from clnlos import C0
+from clnlos.brdf.lobes import AUTO, auto_ladder
 from clnlos.config import ReconstructionConfig, check_window
 from clnlos.errors import InputFileError, ParameterError
 from clnlos.forward.blur import blur_time_scales, confocal_lag_energy, confocal_psf, slab_blur
+from clnlos.inverse.brdf_choice import (
+    LOBE_NOT_SEARCHED,
+    LOBE_NOT_SEARCHED_REASON,
+    LOBE_SEARCH_ITERATIONS,
+    choose_lobe,
+    score_margin,
+)
 from clnlos.inverse.gcv import GcvBins, binned_power
 from clnlos.inverse.methods import InversionGrid, method_class
 from clnlos.inverse.reproducibility import (
@@ -159,6 +167,7 @@ from clnlos.inverse.thinning import (
 from clnlos.io.capture import Capture
 from clnlos.operators.resample import AxisResample, overlap_matrix
 from clnlos.physics.grid import row_blocks
+from clnlos.physics.lobe import RetroLobe
 from clnlos.runtime.buffers import Scratch, host_view, round_up
 from clnlos.runtime.caches import PIPELINES
 from clnlos.runtime.device import get_queue, has_fp64, require_dtype
@@ -488,7 +497,8 @@ class ReconstructionPipeline:
             progress=None, model_snr: float = math.inf, setup=None,
             slab_snr_factor: float | None = None,
             snrs: tuple[float, float | None] | None = None,
-            time_shifts: np.ndarray | None = None) -> Reconstruction:
+            time_shifts: np.ndarray | None = None,
+            lobe: RetroLobe | None = None) -> Reconstruction:
         """Reconstruct one capture. ``progress(k, n)`` is called during the iterative
         method's iterations, ``setup(step)`` as each of its set-up steps before them starts;
         ``model_snr`` is the slab model's accuracy (:func:`model_snr_for`);
@@ -499,11 +509,19 @@ class ReconstructionPipeline:
         search's candidates, :meth:`reproducibility_snrs`); ``time_shifts``: the shifts a
         reader moved the columns by (:attr:`clnlos.io.capture.Capture.time_shift_bins`).
         An "auto" slab SNR is bounded by what the resampled model represents
-        (:meth:`resampling_snr`)."""
+        (:meth:`resampling_snr`); ``lobe`` replaces the retro lobe ``brdf = "auto"``
+        would choose (the lobe search's candidates, :meth:`brdf_lobe`)."""
         timings: dict[str, float] = {}
         noise = self.raw_noise(transient)
         resampled = self.resampling_snr(time_shifts)
         cv: dict | None = None
+        lobe_params: dict = {}
+        if self.config.brdf == AUTO:
+            if lobe is None:
+                t0 = time.perf_counter()
+                lobe, lobe_params = self.brdf_lobe(transient, noise, model_snr, setup)
+                timings["choose_brdf"] = time.perf_counter() - t0
+            self.invert.set_lobe(lobe)
         if slab_snr_factor is None and self._thinning_applies(transient, noise, model_snr):
             t0 = time.perf_counter()
             slab_snr_factor, cv = self.thinning_factor(transient, model_snr, setup,
@@ -519,7 +537,8 @@ class ReconstructionPipeline:
         return self._reconstruct(prep, timings, keep_transient=keep_transient,
                                  progress=progress, model_snr=model_snr, setup=setup,
                                  slab_snr_factor=slab_snr_factor, snrs=snrs, cv=cv,
-                                 resampled=resampled, time_shifts=time_shifts)
+                                 resampled=resampled, time_shifts=time_shifts,
+                                 lobe_params=lobe_params)
 
     def prepare(self, transient: np.ndarray, noise: NoiseEstimate | None = None,
                 timings: dict | None = None) -> PreparedCapture:
@@ -548,11 +567,13 @@ class ReconstructionPipeline:
                      slab_snr_factor: float | None = None,
                      snrs: tuple[float, float | None] | None = None,
                      cv: dict | None = None, resampled: float = math.inf,
-                     time_shifts: np.ndarray | None = None) -> Reconstruction:
+                     time_shifts: np.ndarray | None = None,
+                     lobe_params: dict | None = None) -> Reconstruction:
         """:meth:`run` on a prepared capture, its SNR rule's search (``cv``) done: the
         deconvolutions at each slab SNR and the noise realisation through the
         preprocessing are kept in ``prep`` for the next candidate; ``resampled`` the slab
-        SNR the resampled model represents (:meth:`resampling_snr`, for ``time_shifts``)."""
+        SNR the resampled model represents (:meth:`resampling_snr`, for ``time_shifts``);
+        ``lobe_params`` what the lobe search of ``brdf = "auto"`` recorded."""
         noise, tau = prep.noise, prep.tau
         data_snr = gcv_snr = None
         unbounded = model_snr
@@ -572,7 +593,10 @@ class ReconstructionPipeline:
                                  data_inversion_snr=None if snrs is None else snrs[1])
         inv_rule = None if snrs is None or snrs[1] is None else "reproducibility"
         params = self.config.as_attrs()
+        params.update(lobe_params or {})
         notes: list[str] = []
+        if (lobe_params or {}).get("brdf_rule_used") == LOBE_NOT_SEARCHED:
+            notes.append(f"brdf auto: {LOBE_NOT_SEARCHED_REASON}; the Lambertian lobe")
         if math.isfinite(resampled) and self.deconv is not None:
             params["resampling_snr"] = resampled
             free = auto_snrs(noise, self.config, unbounded, data_snr=data_snr)[0]
@@ -664,6 +688,55 @@ class ReconstructionPipeline:
         k0, k1 = self.raw_window
         return estimate_noise(np.asarray(transient)[k0:k1], self.raw_bin_width_s,
                               self.raw_start_s + k0 * self.raw_bin_width_s)
+
+    def brdf_lobe(self, transient: np.ndarray, noise: NoiseEstimate, model_snr: float,
+                  setup=None) -> tuple[RetroLobe, dict]:
+        """(the retro lobe ``brdf = "auto"`` takes for this capture, the params recording the
+        search): the lobe of :func:`clnlos.brdf.lobes.auto_ladder` whose reconstruction from
+        one half of a binomial split of the counts best predicts the other half
+        (:mod:`clnlos.inverse.brdf_choice`); the Lambertian lobe where the capture is not
+        counts or a half is empty (:data:`LOBE_NOT_SEARCHED`)."""
+        halves = self._split(transient) if (noise.photon_counts and not noise.noise_free
+                                            and is_counts(np.asarray(transient))) else None
+        if halves is None:
+            return RetroLobe.lambert(), {"brdf_rule_used": LOBE_NOT_SEARCHED}
+        train, test = halves
+        held, phi, noise_runs = self._held_out_prediction_target(test)
+        fits: dict[str, np.ndarray] = {}
+
+        def score(cand: RetroLobe) -> float:
+            if setup is not None:
+                setup(f"BRDF lobe by thinning: {cand.name}")
+            with self.invert.iteration_budget(LOBE_SEARCH_ITERATIONS):
+                rec = self.run(train, model_snr=model_snr, slab_snr_factor=1.0, lobe=cand)
+            pred = self.invert.predict(rec.volume)
+            pred = (pred if phi is None else phi.apply_device(pred)).get()
+            fits[cand.name] = scaled_fit(pred, held)
+            return fitted_residual(fits[cand.name], held, scaled=True)
+
+        def margin(new: RetroLobe, best: RetroLobe) -> float:
+            return score_margin(fits[new.name], fits[best.name], held, noise_runs)
+
+        chosen, tried = choose_lobe(auto_ladder(), score, margin)
+        return chosen, {"brdf_rule_used": "thinning", "brdf_chosen": chosen.name,
+                        "brdf_tried": json.dumps([[c, v] for c, v in tried])}
+
+    def _held_out_prediction_target(self, y2: np.ndarray):
+        """(the held-out half as the inversion sees it, host; the slab's influence Phi2 that a
+        prediction goes through, or None without a slab; realisations of its noise): with a
+        slab, :meth:`_held_out` (deconvolved at its own GCV SNR); without, preprocessed and
+        divided by its peak."""
+        if self.deconv is not None:
+            held, snr, noise_runs = self._held_out(y2)
+            return held, self._slab_influence(snr), noise_runs
+        tau = self.pre(cla.to_device(self.queue, np.ascontiguousarray(y2, self.dtype)))
+        _, peak = self._profile_peak(tau)
+        scale = 1.0 / peak if peak > 0 else 1.0
+        if peak > 0:
+            self._scale_inplace(tau, scale)
+        noise_runs = [self._noise_like(y2, scale, None, 0.0, NOISE_PROBE_SEED + 1 + j).get()
+                      for j in range(CV_NOISE_RUNS)]
+        return tau.get(), None, noise_runs
 
     def _thinning_applies(self, transient: np.ndarray, noise: NoiseEstimate,
                           model_snr: float) -> bool:

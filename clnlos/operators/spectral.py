@@ -84,6 +84,19 @@ def kernel_support(kernel: np.ndarray, energy_tol: float) -> tuple[int, ...]:
     return tuple(lags)
 
 
+def multiply_spectrum_into(kernels, H: cla.Array, X: cla.Array, Y: cla.Array, *,
+                           adjoint: bool, accumulate: bool, h_scale: float = 1.0):
+    """Y <- (h_scale H) X or its conjugate (``adjoint``), added to Y when ``accumulate``
+    (``kernels/wiener.cl``), on X's (n0, n1, n2h) half-spectrum grid (H stored whole)."""
+    n0, n1, n2h = X.shape
+    real = np.float32 if X.dtype == np.complex64 else np.float64
+    kernels.spectral_multiply_into(X.queue, (round_up(n2h, 8), n1, n0), None, H.data, X.data,
+                                   Y.data, real(h_scale), np.int32(adjoint),
+                                   np.int32(accumulate), np.int32(0), kernel_int(n0),
+                                   kernel_int(n1), kernel_int(n2h))
+    return Y
+
+
 class SpectralFilter(LinearOperator):
     """Padded convolution (``mode="convolve"``) or Wiener deconvolution (``mode="wiener"``).
 

@@ -1,16 +1,17 @@
 """Study samples: simulate a hidden object through the slab, reconstruct it, score it.
 
-A sample is a JSON-able dict (material, object and its size, pose, depth, exposure, seed, and
-optional overrides of the scan width and slab thickness for the sweeps, and a ``transport``
-table, :class:`clnlos.forward.scene.TransportSettings`, for the bistatic comparison); with the
-grid it defines one scene (:func:`scene_dict`). Its result is cached on disk as
-``<cache>/<sha1 of sample, grid and code version>.npz`` (written atomically, with the mode
-the umask gives), so reruns and interrupted runs resume and a changed clnlos never reuses an
-old result. Each entry also holds its key and a SHA-256 of its arrays, and is checked when
-read (readable, exactly the result's keys, shapes and dtypes, its key, its checksum): a bad
-entry is deleted, recomputed and reported in one warning naming the file. Samples run serially
-or through Dask (local processes with pinned threads, or an existing cluster): each worker
-process builds its own OpenCL context.
+A sample is a JSON-able dict (material, object and its size, pose, depth, exposure, seed,
+and optional overrides of the scan width and slab thickness for the sweeps, a ``transport``
+table, :class:`clnlos.forward.scene.TransportSettings`, for the bistatic comparison, and a
+``brdf`` the iterative inversion assumes, :mod:`clnlos.brdf.lobes`; absent: Lambertian);
+with the grid it defines one scene (:func:`scene_dict`) and its reconstruction. Its result
+is cached on disk as ``<cache>/<sha1 of sample, grid and code version>.npz`` (written
+atomically, with the mode the umask gives), so reruns and interrupted runs resume and a
+changed clnlos never reuses an old result. Each entry also holds its key and a SHA-256 of
+its arrays, and is checked when read (readable, exactly the result's keys, shapes and
+dtypes, its key, its checksum): a bad entry is deleted, recomputed and reported in one
+warning naming the file. Samples run serially or through Dask (local processes with pinned
+threads, or an existing cluster): each worker process builds its own OpenCL context.
 
 Ground truth per sample: the scan cells at least half covered by surfaces facing the scan
 plane (:func:`clnlos.study.metrics.truth_mask`), the mean depth of the surface elements, and
@@ -36,6 +37,7 @@ import numpy as np
 from tqdm import tqdm
 
 from clnlos import C0, __version__
+from clnlos.brdf.lobes import LAMBERTIAN, lobe_by_name
 from clnlos.config import ReconstructionConfig, snr_rule_applies
 from clnlos.errors import ParameterError
 from clnlos.forward.model import ForwardModel
@@ -194,9 +196,10 @@ def render_sample(sample: dict, grid: StudyGrid, device: str | None = None) -> d
     cap = fm.capture()
     t1 = time.perf_counter()
     rule = {"snr_rule": grid.snr_rule} if snr_rule_applies(grid.snr_rule, grid.method) else {}
+    brdf = {"brdf": sample["brdf"]} if "brdf" in sample else {}
     cfg = ReconstructionConfig(max_path_m=window_m(sample, grid), slab=scene.slab,
                                method=grid.method, iterations=grid.iterations,
-                               **rule).validate()
+                               **rule, **brdf).validate()
     rec = reconstruct(cap, cfg, device=queue)
     t2 = time.perf_counter()
     vol = rec.volume
@@ -219,7 +222,17 @@ def render_sample(sample: dict, grid: StudyGrid, device: str | None = None) -> d
             "psnr_db": float(10 * np.log10(1.0 / max(mse, 1e-12))),
             "counts": float(cap.transient.sum()),
             "simulate_s": t1 - t0, "reconstruct_s": t2 - t1,
+            "lobe_halfwidth_deg": lobe_halfwidth_deg(rec.params),
             **{f"q_{k}": v for k, v in quality_metrics(vol, dz).items()}}
+
+
+def lobe_halfwidth_deg(params: dict) -> float:
+    """Half width (deg) of the retro lobe a reconstruction assumed (90: Lambertian), from what
+    it recorded (``brdf_used``)."""
+    name = params.get("brdf_used")
+    if name is None or name == LAMBERTIAN:
+        return 90.0
+    return math.degrees(lobe_by_name(name).halfwidth_rad())
 
 
 def figure8_slices(transient: np.ndarray, volume: np.ndarray) -> dict[str, np.ndarray]:
@@ -239,7 +252,8 @@ RESULT_IMAGES = ("mip", "truth", "depth_map", "meas_image")
 RESULT_SLICES = ("meas_xt", "meas_yt", "vol_xz", "vol_yz")  # float32 [t or z, points]
 RESULT_TIMES = ("simulate_s", "reconstruct_s")  # seconds: all a re-render may change
 RESULT_NUMBERS = ("iou", "iou_box_baseline", "depth_m", "true_depth_m", "depth_error_m",
-                  "psnr_db", "counts", "bin_width_s", "voxel_depth_m", *RESULT_TIMES,
+                  "psnr_db", "counts", "bin_width_s", "voxel_depth_m", "lobe_halfwidth_deg",
+                  *RESULT_TIMES,
                   *(f"q_{m}" for m in METRICS))
 # the entry's own fields beside the result
 ENTRY_KEY, ENTRY_CHECKSUM = "_key", "_checksum"
