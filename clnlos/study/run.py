@@ -190,7 +190,7 @@ class StudyOptions:
     #                                               reconstruct (default: glyphs)
     tilts_deg: tuple[float, ...] = TILTS_DEG
     tilt_materials: tuple[str, ...] = TILT_MATERIALS
-    tilt_glyphs: tuple[str, ...] = GLYPHS
+    tilt_glyphs: tuple[str, ...] | None = None  # default: glyphs
     tilt_inversions: tuple[str, ...] = INVERSIONS
 
     @classmethod
@@ -242,8 +242,8 @@ class StudyOptions:
                                      + ", ".join(INVERSIONS[1:]))
         if any(not 0 <= t < 80 for t in self.tilts_deg):
             raise ParameterError("tilts_deg", self.tilts_deg, "tilts from 0 to below 80 deg")
-        if self.tilts_deg and (not self.tilt_glyphs
-                               or any(g not in self.glyphs for g in self.tilt_glyphs)):
+        if self.tilt_glyphs is not None and (
+                not self.tilt_glyphs or any(g not in self.glyphs for g in self.tilt_glyphs)):
             raise ParameterError("tilt_glyphs", self.tilt_glyphs,
                                  f"one or more of {''.join(self.glyphs)}")
         if LEGIBLE_GEOMETRY not in {g.name for g in self.geometries}:
@@ -360,7 +360,8 @@ def study_plan(materials, opts: StudyOptions) -> list[tuple[dict, dict]]:
                                        aware_glyphs=opts.aware_glyphs, **kw)
     for t in opts.tilts_deg:
         for m in opts.tilt_materials:
-            plan += _glyph_entries(opts, legible, m, opts.tilt_glyphs, opts.sweep_seeds,
+            plan += _glyph_entries(opts, legible, m, opts.tilt_glyphs or opts.glyphs,
+                                   opts.sweep_seeds,
                                    {"set": "tilt_sweep", "variable": "tilt_deg",
                                     "value": float(t)}, tilt_deg=t,
                                    inversions=opts.tilt_inversions)
