@@ -135,11 +135,17 @@ TINY = StudyOptions(
             "slab_thickness_m": (0.0, 0.0254)},
     legibility_sweeps={"letter_height_m": (0.2, 0.3), "exposure_s": (0.1, 1.0)},
     glyphs=("E", "H", "T", "U"), sweep_glyphs=("E", "T"),
-    tilts_deg=(0.0, 10.0), tilt_materials=("quartz glass", "standard white plate"),
-    tilt_glyphs=("E", "T"),
+    aware_glyphs=("E",), tilts_deg=(0.0, 10.0), tilt_materials=("quartz glass",),
+    tilt_glyphs=("E", "T"), tilt_inversions=("lambertian", "known"),
     grid=replace(StudyGrid(), points=12, bin_width_s=64e-12, iterations=10,
                  density_per_m2=2e4),
     label="tiny")
+
+# the distributed runs: two materials, the Lambertian inversion, one point per sweep
+SMALL = replace(TINY, n_dataset=0, materials=TINY.materials[:2], inversions=("lambertian",),
+                sweep_inversions=("lambertian",), tilts_deg=(0.0,), tilt_glyphs=("E",),
+                tilt_inversions=("lambertian",), sweeps={"depth_m": (0.4,)},
+                sweep_materials=("quartz glass",), legibility_sweeps={"exposure_s": (0.1,)})
 
 
 def _check_contract(res, opts):
@@ -189,7 +195,7 @@ def _check_contract(res, opts):
     assert {(t["material"], t["tilt_deg"]) for t in tilts} == {
         (m, t) for m in opts.tilt_materials for t in opts.tilts_deg}
     for t in tilts:
-        for col in (*opts.inversions, "measurement"):
+        for col in (*opts.tilt_inversions, "measurement"):
             assert 0 <= t[col]["identification"]["accuracy"] <= 1 and t[col]["shift_m"] >= 0
     assert "statement" in res["findings"] and "brdf" in res["findings"]["statement"]
     assert {s["variable"] for s in res["sweeps"]} == {"scan_width_m", "depth_m",
@@ -231,8 +237,9 @@ def test_tiny_study_serial_and_dask_agree(tmp_path):
     fft = run_study(tmp_path / "serial", replace(TINY, labels="fft"), workers=1)
     assert fft["labels"]["metric"] == "fft_clarity"
     pytest.importorskip("dask.distributed")
-    dask = run_study(tmp_path / "dask", TINY, workers=2)
-    for a, b in zip(serial["materials"], dask["materials"], strict=True):
+    local = run_study(tmp_path / "local", SMALL, workers=1)
+    dask = run_study(tmp_path / "dask", SMALL, workers=2)
+    for a, b in zip(local["materials"], dask["materials"], strict=True):
         assert a["iou"] == b["iou"] and a["identification"] == b["identification"]
     report = tmp_path / "serial" / "report.html"
     if shutil.which("chromium"):
@@ -255,9 +262,7 @@ def test_study_on_a_separately_started_dask_cluster(tmp_path):
     dask_cli = Path(sys.executable).with_name("dask")
     if not dask_cli.exists():
         pytest.skip("the dask command-line tool is not installed")
-    small = replace(TINY, n_dataset=0, materials=TINY.materials[:2], seeds=1,
-                    sweeps={"depth_m": (0.4, 0.6)}, sweep_materials=("quartz glass",),
-                    legibility_sweeps={"exposure_s": (0.1,)})
+    small = SMALL
     sched_file = tmp_path / "scheduler.json"
     env = dict(os.environ, CLNLOS_THREADS="1", POCL_MAX_PTHREAD_COUNT="1")
     procs = []
