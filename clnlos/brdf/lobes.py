@@ -17,6 +17,7 @@ anode plate's 11.6 deg), a factor of about three apart.
 
 from __future__ import annotations
 
+from functools import lru_cache
 from pathlib import Path
 
 from clnlos.brdf.catalog import (
@@ -49,7 +50,12 @@ def retro_lobe(spec: str, base_dir=".") -> RetroLobe:
             return RetroLobe.from_samples(read_texture(path).retro, str(spec))
         model, _ = load_model(path)
         return model_lobe(model, str(spec))
-    key = spec.lower()
+    return named_lobe(spec.lower())
+
+
+@lru_cache(maxsize=64)
+def named_lobe(key: str) -> RetroLobe:
+    """The retro lobe of a material name (lower case), built once per process."""
     if key == LAMBERTIAN:
         return RetroLobe.lambert()
     if key in preset_table():
@@ -60,6 +66,7 @@ def retro_lobe(spec: str, base_dir=".") -> RetroLobe:
     return model_lobe(model, key)
 
 
+@lru_cache(maxsize=16)
 def ladder_lobe(alpha: float) -> RetroLobe:
     """A GGX lobe of roughness ``alpha`` (ks = 1, f0 = 1) over a Lambertian floor of
     AUTO_FLOOR of its peak."""

@@ -66,6 +66,9 @@ class RetroLobe:
     f: np.ndarray
     name: str
 
+    def __post_init__(self) -> None:
+        self.f.setflags(write=False)  # shared: lobes are built once per process
+
     @property
     def theta(self) -> np.ndarray:
         return np.linspace(0.0, np.pi / 2, self.f.size)
