@@ -112,5 +112,18 @@ def classifier_section(results, thinning, table, png) -> list[str]:
         "P(legible) under each MIP (green: legible), and against photons per capture.</p>"),
         f"<img alt='thinned real captures' src='data:image/png;base64,"
         f"{png(thinning_figure(thinning))}'/>",
+        "<p>" + " ".join(html.escape(_trend(thinning, n))
+                         for n in dict.fromkeys(r["capture"] for r in thinning)) + "</p>",
         table(["capture", "fraction", "photons", "P(legible)"], _thinning_rows(thinning))]
     return out
+
+
+def _trend(rows, capture: str) -> str:
+    """One sentence: P(legible) of ``capture`` at its most photons and the largest rise of
+    P as the photons fall (the thinned series should only fall)."""
+    rs = sorted((r for r in rows if r["capture"] == capture), key=lambda r: -r["photons"])
+    p = [r["p_legible"] for r in rs]
+    rise = max((b - a for a, b in zip(p, p[1:], strict=False)), default=0.0)
+    return (f"{capture}: P(legible) {p[0]:.2f} with all {rs[0]['photons']:.3g} photons, "
+            f"{p[-1]:.2f} with {rs[-1]['photons']:.3g}; largest rise as photons fall "
+            f"{max(rise, 0.0):+.2f}.")
