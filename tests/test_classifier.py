@@ -208,3 +208,12 @@ def test_thinning_the_real_captures_and_the_figure(shared_data):
     assert curve.get_title() == "P(legible) against photons"
     assert list(curve.lines[0].get_ydata()) == pytest.approx([0.9, 0.6, 0.1])
     assert list(curve.lines[0].get_xdata()) == pytest.approx([1e7, 1e6, 1e5])
+
+
+def test_report_names_the_largest_rise_of_p_as_photons_fall():
+    from clnlos.study.classifier_report import _trend
+
+    rows = [{"capture": "s", "photons": n, "p_legible": p}
+            for n, p in ((1e7, 0.9), (1e6, 0.7), (1e5, 0.8), (1e4, 0.2))]
+    assert _trend(rows, "s") == ("s: P(legible) 0.90 with all 1e+07 photons, 0.20 with "
+                                 "1e+04; largest rise as photons fall +0.10.")
