@@ -4,7 +4,7 @@ Reconstruction parameters (``clnlos reconstruct --config PARAMS.toml``); every k
 optional and its default is the field default of :class:`ReconstructionConfig`::
 
     [capture]                    # geometry not stored in the capture file (CDT .mat)
-    scan_width_m = 0.7           # side of the scanned square
+    scan_width_m = 0.7           # side of the scanned area along x (pitch x columns)
     bin_width_s = 16e-12         # overrides the file
     start_s = 0.0                # time of the start of bin 0
     [preprocess]
@@ -22,17 +22,17 @@ optional and its default is the field default of :class:`ReconstructionConfig`::
     snr = "auto"                 # Wiener SNR of the slab deconvolution, or "auto": chosen
                                  # from the capture by snr_rule (below), with model_snr
     snr_rule = "auto"            # how "auto" picks it, on photon counts the slab model
-                                 # fits exactly: for the iterative method with the slab's
-                                 # influence in its model "thinning" (GCV's pick or a deeper
-                                 # one, whichever reconstruction of half the photons best
-                                 # predicts the other half, clnlos.inverse.thinning; 2-5
-                                 # reconstructions of half the data more); for LCT and
-                                 # f-k "reproducibility" (the least regularised slab and
-                                 # light-cone SNRs whose two halves of the photons give
-                                 # agreeing thresholded images,
+                                 # fits exactly: for LCT and f-k "reproducibility" (the
+                                 # least regularised slab and light-cone SNRs whose two
+                                 # halves of the photons give agreeing thresholded images,
                                  # clnlos.inverse.reproducibility; up to 18 half
                                  # reconstructions more, f-k 8); "gcv" (cross-validation
-                                 # of the slab stage alone) elsewhere; or any by name
+                                 # of the slab stage alone) elsewhere; or any by name:
+                                 # "thinning" for the iterative method with the slab's
+                                 # influence in its model (GCV's pick or a deeper one,
+                                 # whichever reconstruction of half the photons best
+                                 # predicts the other half, clnlos.inverse.thinning; 2-3
+                                 # reconstructions of half the data more)
     model_snr = "auto"           # accuracy of the slab model as an SNR; "auto": exact for a
                                  # capture clnlos simulated with this slab, else
                                  # clnlos.inverse.snr.MEASURED_MODEL_SNR
@@ -47,7 +47,9 @@ optional and its default is the field default of :class:`ReconstructionConfig`::
                                  # else from the deconvolved transient by UPRE or cross-
                                  # validation (clnlos.inverse.gcv)
     falloff = 4.0                # radiometric exponent p (default: LCT 4, f-k 2)
-    iterations = 200             # iterative: FISTA iterations at most
+    iterations = 200             # iterative: FISTA iterations at most (the solver stops
+                                 # earlier where the objective stops falling,
+                                 # clnlos.inverse.solvers)
     l1_weight = "auto"           # iterative: L1 weight relative to max(L^T I), or "auto":
                                  # twice max(L^T n), n the capture's own noise
     tv_weight = 0.0              # iterative: TV weight relative to max(L^T I)
@@ -56,6 +58,18 @@ optional and its default is the field default of :class:`ReconstructionConfig`::
     slab_model = "influence"     # iterative: "influence" fits Phi o L to the deconvolved
                                  # transient (Phi the slab Wiener filter's own smoothing,
                                  # clnlos.inverse.iterative), "none" fits L (Wiener first)
+    brdf = "lambertian"          # iterative: the voxels' reflectance: "lambertian", a
+                                 # material name, a BRDF texture or fitted model .h5, or
+                                 # "auto" (the lobe chosen from the capture by held-out
+                                 # photons, clnlos.inverse.brdf_choice); LCT and f-k are
+                                 # Lambertian (clnlos.brdf.lobes)
+    brdf_terms = "auto"          # iterative: separable terms K of the lobe, or "auto" (the
+                                 # fewest within clnlos.physics.lobe.LOBE_TOLERANCE)
+
+A field that only some methods read (clnlos.inverse.methods.MethodEntry.reads: falloff for
+lct and fk, [inversion] snr for lct and iterative, iterations, l1_weight, tv_weight,
+depth_min_m, slab_model, brdf and brdf_terms for iterative) is refused when the user sets it
+-- as a key of the TOML or as a flag -- for a method that does not read it.
 """
 
 from __future__ import annotations
@@ -67,6 +81,7 @@ from dataclasses import asdict, dataclass
 import numpy as np
 
 from clnlos import C0
+from clnlos.brdf.catalog import LAMBERTIAN, check_brdf_spec
 from clnlos.checks import (
     auto_or_positive,
     choice,
@@ -77,7 +92,14 @@ from clnlos.checks import (
     real,
 )
 from clnlos.errors import InputFileError, ParameterError
-from clnlos.inverse.methods import auto_snr_rule, default_falloffs, method_names
+from clnlos.inverse.methods import (
+    auto_snr_rule,
+    default_falloffs,
+    method_names,
+    methods_reading,
+    split_rule,
+)
+from clnlos.physics.lobe import MAX_TERMS
 from clnlos.physics.slab import Slab
 
 # falloff = None: the method's own radiometric exponent p of (t/T)^p (its registry entry):
@@ -96,19 +118,19 @@ MAX_BINS = 1 << 16    # time bins of a reconstructed volume at most (--bins and 
 
 def snr_rule_applies(rule: str, method: str) -> bool:
     """Whether ``snr_rule = rule`` is valid for the registered ``method`` ("auto" and "gcv"
-    for any; "thinning" for the method whose rule it is, the iterative one; "reproducibility"
-    for the others, the closed forms): where a caller sets one rule for several methods
-    (the study), the methods it is not valid for keep their default."""
+    for any; a split search for the methods it can choose the SNRs of, its
+    :func:`clnlos.inverse.methods.split_rule`: "thinning" for the iterative method,
+    "reproducibility" for the closed forms): where a caller sets one rule for several
+    methods (the study), the methods it is not valid for keep their default."""
     if rule in ("auto", "gcv"):
         return True
-    thins = auto_snr_rule(method) == "thinning"
-    return thins if rule == "thinning" else rule == "reproducibility" and not thins
+    return rule == split_rule(method)
 
 
 # The one range table of the capture geometry (SI units): (low, high, low allowed). The flags,
 # the [capture] table and the values read from capture files are all checked against it.
 GEOMETRY_LIMITS: dict[str, tuple[float, float, bool]] = {
-    "scan_width_m": (0.0, 1e3, False),   # side of the scanned square (m), > 0
+    "scan_width_m": (0.0, 1e3, False),   # side of the scanned area along x (m), > 0
     "bin_width_s": (0.0, 1e-6, False),   # histogram bin (s), > 0
     "start_s": (-1e-3, 1e-3, True),      # start of bin 0, round trip (s)
 }
@@ -134,6 +156,8 @@ TOML_FIELDS: dict[tuple[str, str], str] = {
     ("inversion", "tv_weight"): "tv_weight",
     ("inversion", "depth_min_m"): "depth_min_m",
     ("inversion", "slab_model"): "slab_model",
+    ("inversion", "brdf"): "brdf",
+    ("inversion", "brdf_terms"): "brdf_terms",
 }
 FIELD_NAMES = {f: f"{sec}.{key}" for (sec, key), f in TOML_FIELDS.items()}
 SLAB_KEYS = ("thickness_m", "mu_a", "mu_s_prime", "n", "ze_m", "n_dipoles")
@@ -190,9 +214,13 @@ def slab_from_table(t: dict, section: str = "slab", names: dict | None = None
     for k in ("thickness_m", "mu_a", "mu_s_prime", "n", "ze_m"):
         if k in t and t[k] is not None:
             positive(nm(k), t[k], allow_zero=k in ("mu_a", "ze_m"))
-    missing = [k for k in ("thickness_m", "mu_a", "mu_s_prime", "n") if k not in t]
+    needed = ("thickness_m", "mu_a", "mu_s_prime", "n")
+    missing = [k for k in needed if k not in t]
     if missing:  # after the values given: a bad one is named before one left out
-        raise ParameterError(nm(missing[0]), None, "required when a slab is given")
+        given = [nm(k) for k in needed if k in t]
+        raise ParameterError(nm(missing[0]), None, "a number: a slab needs all of "
+                             + ", ".join(nm(k) for k in needed)
+                             + (f" (given: {', '.join(given)})" if given else ""))
     try:
         slab = Slab(thickness_m=t["thickness_m"], mu_a=t["mu_a"], mu_s_prime=t["mu_s_prime"],
                     n=t["n"], ze_m=t.get("ze_m"))
@@ -300,6 +328,8 @@ class ReconstructionConfig:
     tv_weight: float = 0.0
     depth_min_m: float | str = "auto"
     slab_model: str = "influence"
+    brdf: str = LAMBERTIAN
+    brdf_terms: int | str = "auto"
 
     def validate(self, names: dict[str, str] | None = None) -> ReconstructionConfig:
         """A validated copy. ``names`` maps field names to how the user gave them (a CLI
@@ -327,15 +357,14 @@ class ReconstructionConfig:
         if v["snr_rule"] == "thinning" and (self.method != "iterative"
                                             or self.slab_model != "influence"):
             raise ParameterError(nm("snr_rule"), self.snr_rule,
-                                 "\"auto\" or \"gcv\" (\"thinning\" scores the model the "
-                                 "method fits on the held-out photons: method "
+                                 f"{self._rules_for_method()} (\"thinning\" scores the model "
+                                 "the method fits on the held-out photons: method "
                                  "\"iterative\" with slab_model \"influence\")")
         if (v["snr_rule"] == "reproducibility" and self.method in method_names()
                 and not snr_rule_applies("reproducibility", self.method)):
             raise ParameterError(nm("snr_rule"), self.snr_rule,
-                                 "\"auto\", \"gcv\" or \"thinning\" (\"reproducibility\" "
-                                 "chooses the SNRs of the closed-form methods \"lct\" and "
-                                 "\"fk\")")
+                                 f"{self._rules_for_method()} (\"reproducibility\" chooses "
+                                 "the SNRs of the closed-form methods \"lct\" and \"fk\")")
         v["model_snr"] = auto_or_positive(nm("model_snr"), self.model_snr, upper=1e30)
         v["guard_fraction"] = positive(nm("guard_fraction"), self.guard_fraction,
                                        allow_zero=True, upper=4.0)
@@ -355,7 +384,27 @@ class ReconstructionConfig:
                                      "\"auto\" or a depth in m from 0 to 1000")
             v["depth_min_m"] = real(nm("depth_min_m"), self.depth_min_m, 0.0, 1e3)
         v["slab_model"] = choice(nm("slab_model"), self.slab_model, SLAB_MODELS)
+        v["brdf"] = check_brdf_spec(self.brdf, nm("brdf"))
+        if v["brdf"] != LAMBERTIAN and self.method != "iterative":
+            raise ParameterError(nm("brdf"), self.brdf, f"\"{LAMBERTIAN}\" with method "
+                                 f"{self.method!r} (LCT and f-k invert Lambertian voxels; a "
+                                 "BRDF needs method \"iterative\")")
+        v["brdf_terms"] = ("auto" if self.brdf_terms == "auto"
+                           else integer(nm("brdf_terms"), self.brdf_terms, 1, MAX_TERMS))
+        for field in names:  # what the user set for a method that does not read it
+            readers = methods_reading(field)
+            if self.method in method_names() and self.method not in readers:
+                raise ParameterError(nm(field), getattr(self, field), "only with method "
+                                     + " or ".join(f"\"{m}\"" for m in readers)
+                                     + f" (method \"{self.method}\" does not use it)")
         return dataclasses.replace(self, **v)
+
+    def _rules_for_method(self) -> str:
+        """The snr_rule values that apply with this config's method, quoted."""
+        rules = [r for r in SNR_RULES if r in ("auto", "gcv") or (
+            self.method in method_names() and snr_rule_applies(r, self.method)
+            and (r != "thinning" or self.slab_model == "influence"))]
+        return ", ".join(f"\"{r}\"" for r in rules[:-1]) + f" or \"{rules[-1]}\""
 
     def replace(self, **changes) -> ReconstructionConfig:
         return dataclasses.replace(self, **changes)
@@ -363,6 +412,13 @@ class ReconstructionConfig:
     @classmethod
     def from_toml(cls, path) -> ReconstructionConfig:
         return cls.from_dict(load_toml(path))
+
+    @staticmethod
+    def given_fields(d: dict) -> dict[str, str]:
+        """Field -> "section.key" for the keys a TOML table (parsed) sets (what the user
+        asked for, e.g. for :meth:`validate`'s check of fields a method does not read)."""
+        return {TOML_FIELDS[(sec, key)]: f"{sec}.{key}" for sec, table in d.items()
+                if isinstance(table, dict) for key in table if (sec, key) in TOML_FIELDS}
 
     @classmethod
     def from_dict(cls, d: dict) -> ReconstructionConfig:
@@ -383,10 +439,11 @@ class ReconstructionConfig:
     @property
     def thinning(self) -> bool:
         """Whether the rule for an "auto" slab SNR is thinning (:mod:`clnlos.inverse.thinning`):
-        ``snr_rule`` "thinning", or "auto" with a method whose rule it is (the iterative
-        method, :class:`clnlos.inverse.methods.MethodEntry`) and its slab model "influence"
-        (the model the held-out photons score). Whether it then acts depends on the capture
-        as well (:meth:`clnlos.inverse.pipeline.ReconstructionPipeline.run`)."""
+        ``snr_rule`` "thinning", or "auto" with a method whose "auto" rule it is
+        (:class:`clnlos.inverse.methods.MethodEntry`: none today, the iterative method's is
+        GCV) and its slab model "influence" (the model the held-out photons score). Whether
+        it then acts depends on the capture as well
+        (:meth:`clnlos.inverse.pipeline.ReconstructionPipeline.run`)."""
         if self.snr_rule == "auto":
             return auto_snr_rule(self.method) == "thinning" and self.slab_model == "influence"
         return self.snr_rule == "thinning"

@@ -3,6 +3,8 @@
  *
  *   wiener_apply:      X <- conj(G) / (|G|^2 + inv_snr) * X      (adjoint: G / (...) * X)
  *   spectral_multiply: X <- G * X (convolution) or conj(G) * X (correlation = adjoint)
+ *   spectral_multiply_into: Y <- G * X (or conj(G) * X), accumulated into Y when
+ *                      accumulate = 1 (Y += ...): sums of convolutions share one inverse FFT
  *
  * with G = h_scale * H: the normalisation (unit DC gain) is applied on the fly, so a
  * spectrum is never rescaled in a pass of its own (270 MB at 128 x 128 x 512).
@@ -59,4 +61,20 @@ __kernel void spectral_multiply(__global const cplx_t *restrict H, __global cplx
     const size_t i = (w * n1 + ky) * n2h + kx;
     const cplx_t h = spectrum_at(H, w, ky, kx, n0, n1, n2h, folded, h_scale);
     X[i] = CMUL(conjugate ? CCONJ(h) : h, X[i]);
+}
+
+__kernel void spectral_multiply_into(__global const cplx_t *restrict H,
+                                     __global const cplx_t *restrict X,
+                                     __global cplx_t *restrict Y, const real_t h_scale,
+                                     const int conjugate, const int accumulate,
+                                     const int folded, const int n0, const int n1,
+                                     const int n2h)
+{
+    const size_t kx = get_global_id(0), ky = get_global_id(1), w = get_global_id(2);
+    if (kx >= (size_t)n2h || ky >= (size_t)n1 || w >= (size_t)n0)
+        return;
+    const size_t i = (w * n1 + ky) * n2h + kx;
+    const cplx_t h = spectrum_at(H, w, ky, kx, n0, n1, n2h, folded, h_scale);
+    const cplx_t p = CMUL(conjugate ? CCONJ(h) : h, X[i]);
+    Y[i] = accumulate ? CADD(Y[i], p) : p;
 }

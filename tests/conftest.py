@@ -46,7 +46,8 @@ def pytest_runtest_makereport(item, call):
     path it checks is covered against host float64 references by the other tests."""
     outcome = yield
     rep = outcome.get_result()
-    if call.when == "call" and call.excinfo is not None and _fp64_missing(call.excinfo):
+    if call.when in ("setup", "call") and call.excinfo is not None \
+            and _fp64_missing(call.excinfo):
         rep.outcome = "skipped"
         rep.longrepr = (str(item.path), item.location[1] or 0,
                         "Skipped: the device has no fp64, this test needs a float64 device run")

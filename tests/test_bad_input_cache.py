@@ -204,6 +204,8 @@ def _npz_legacy(path):
                                     _npz_wrong_shape, _npz_wrong_dtype, _npz_changed_value,
                                     _npz_legacy])
 def test_bad_study_entry_is_deleted_recomputed_and_named_in_one_warning(study_entry, damage):
+    from clnlos.study.dataset import RESULT_TIMES
+
     cache, entry, res, renders = study_entry
     damage(entry)
     (again,), notes = _run_study_samples(cache)
@@ -212,7 +214,8 @@ def test_bad_study_entry_is_deleted_recomputed_and_named_in_one_warning(study_en
     assert "\n" not in notes[0]
     assert sorted(again) == sorted(res)
     for k, v in res.items():
-        np.testing.assert_array_equal(again[k], v)
+        if k not in RESULT_TIMES:  # the render's own seconds
+            np.testing.assert_array_equal(again[k], v)
     (third,), notes = _run_study_samples(cache)  # stored again, read back silently
     assert len(renders) == 1 and notes == []
     assert third["iou"] == res["iou"]
@@ -501,9 +504,10 @@ def test_texture_resolution_is_bounded_before_allocating(tmp_path, capsys):
 
 
 def test_texture_is_tabulated_in_chunks_like_the_whole_grid():
-    """A grid of three evaluation chunks gives the values of one evaluation of the grid."""
+    """A grid of three evaluation chunks gives the values of one evaluation of the grid
+    (at the nodes the point samples resolve: the others are averaged, tests/test_brdf.py)."""
     from clnlos.brdf.models import BRDFModel
-    from clnlos.brdf.texture import TABULATE_CHUNK, tabulate
+    from clnlos.brdf.texture import TABULATE_CHUNK, grow, sharp_nodes, tabulate
 
     m = BRDFModel("phong", {"kd": 0.2, "ks": 0.8, "shininess": 40.0})
     n, nd = 96, 64
@@ -511,8 +515,10 @@ def test_texture_is_tabulated_in_chunks_like_the_whole_grid():
     th = np.minimum(np.linspace(0, np.pi / 2, n), np.pi / 2 - 1e-6)
     TI, TS, DP = np.meshgrid(th, th, np.linspace(0, np.pi, nd), indexing="ij")
     whole = np.maximum(m(TI.ravel(), 0 * TI.ravel(), TS.ravel(), DP.ravel()), 0)
-    np.testing.assert_array_equal(tabulate(m, n, nd, 8).texture,
-                                  whole.reshape(TI.shape).astype(np.float32))
+    whole = whole.reshape(TI.shape).astype(np.float32)
+    point = ~grow(sharp_nodes(whole))
+    assert point.mean() > 0.9
+    np.testing.assert_array_equal(tabulate(m, n, nd, 8).texture[point], whole[point])
 
 
 def test_texture_file_declaring_a_huge_grid_is_refused_before_reading(tmp_path):

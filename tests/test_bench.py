@@ -5,6 +5,7 @@ import importlib.util
 import json
 from pathlib import Path
 
+import numpy as np
 import pytest
 
 from clnlos import bench
@@ -63,7 +64,12 @@ def test_lightcone_grid_rows(section_rows):
     grid = {(r["dtype"], r["impl"]): r for r in rows if r["knob"] == "grid"}
     assert {("float32", "opencl"), ("float64", "numpy")} <= set(grid)
     assert all(r["pairs_per_s"] > 0 and r["elements"] > 0 for r in grid.values())
-    assert grid[("float64", "numpy")]["error"] < 1e-6  # the same sum as the device's
+    # the same sum as the device's most precise run (float64 where the device has it, else
+    # float32 -- rusticl, many GPUs): the float32 light cone rounds its splat sums to a few
+    # tens of eps32 (2.8e-6 measured on rusticl), float64 to far below 1e-6
+    ref = "float64" if ("float64", "opencl") in grid else "float32"
+    tol = 1e-6 if ref == "float64" else 64 * float(np.finfo(np.float32).eps)
+    assert grid[("float64", "numpy")]["error"] < tol, (ref, grid[("float64", "numpy")])
     den = [r["error"] for r in rows if (r["knob"], r["dtype"]) ==
            ("density_per_m2@sampled", "float32")]
     assert len(den) >= 3 and all(b < a for a, b in zip(den, den[1:], strict=False)), den
@@ -162,3 +168,25 @@ def test_iterative_rows_beside_lct_and_fk(bench_doc):
 def test_cli_bench(tmp_path):
     assert cli_main(["bench", "--tiny", "--only", "diffusion", "-o", str(tmp_path)]) == 0
     assert json.loads((tmp_path / "bench.json").read_text())["rows"]
+
+
+def test_auto_params_cost_rows(section_rows):
+    """A row per method and rule (fixed, GCV, UPRE where a light-cone filter has it, both,
+    the method's split search, auto): the split searches alone run reconstructions besides
+    the one returned, the fixed row's gain is zero and every gain is against it."""
+    from clnlos.bench.sections import auto_params_rules
+
+    rows = section_rows["auto_params_cost"].rows
+    for method in ("lct", "fk", "iterative"):
+        mine = {r["rule"]: r for r in rows if r["method"] == method}
+        assert set(mine) == {rule for rule, _ in auto_params_rules(method)}
+        assert mine["fixed"]["iou_gain"] == 0.0
+        for rule, r in mine.items():
+            assert r["iou_gain"] == pytest.approx(r["iou"] - mine["fixed"]["iou"])
+            assert r["error"] == pytest.approx(1 - r["iou"])
+            split = rule in ("thinning", "reproducibility") or (
+                rule == "auto" and r["snr_rule_used"] in ("thinning", "reproducibility"))
+            assert (r["extra_reconstructions"] > 0) == split, (method, rule, r)
+            assert r["peak_mem_bytes"] > 0 and r["peak_above_start_bytes"] >= 0
+    assert {"upre", "gcv+upre"} <= {r["rule"] for r in rows if r["method"] == "lct"}
+    assert "upre" not in {r["rule"] for r in rows if r["method"] == "fk"}

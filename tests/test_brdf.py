@@ -57,8 +57,16 @@ def test_lambert_albedo_by_quadrature():
 
 
 def test_mirror_like_retro_slice_is_finite_and_peaked():
-    r = retro_slice(BRDFModel("microfacet", {"alpha": 0.001, "f0": 0.95}), 256)
-    assert np.all(np.isfinite(r)) and r[0] > 1e4 and r[-1] < 1e-3 * r[0]
+    """A lobe far narrower than a node (alpha 0.001: 0.06 deg against 0.35 deg nodes): the
+    slice is peaked at normal incidence and, read linearly between its nodes, keeps the
+    model's energy int f(t, t) sin t cos t dt within 1% at 256 nodes and 2% at 16 (point
+    samples: 3.2e5 at the first node, 40x the energy at 256 nodes)."""
+    from clnlos.brdf.texture import retro_errors
+
+    m = BRDFModel("microfacet", {"alpha": 0.001, "f0": 0.95})
+    r = retro_slice(m, 256)
+    assert np.all(np.isfinite(r)) and r[0] > 1e3 and r[-1] < 1e-3 * r[0]
+    assert retro_errors(r, m)[0] < 0.01 and retro_errors(retro_slice(m, 16), m)[0] < 0.02
 
 
 @pytest.mark.parametrize("content,needle", [

@@ -130,12 +130,23 @@ def test_tal_round_trip_and_bounces(tmp_path, data):
             delayed[k0[i, j]:k0[i, j] + NT, i, j] += (1 - f[i, j]) * H[:, i, j]
             delayed[k0[i, j] + 1:k0[i, j] + 1 + NT, i, j] += f[i, j] * H[:, i, j]
     _tal_layout(tmp_path / "b.hdf5", delayed, grid, bounces=True, origin=origin)
-    back = read_capture(tmp_path / "b.hdf5").transient[:NT]
+    read = read_capture(tmp_path / "b.hdf5")
+    back = read.transient[:NT]
     # a fractional shift there and back blurs by up to one bin, but moves no mass and no
     # centroid: per column, equal sums and time centroids within 0.02 bins
     t = np.arange(NT)[:, None, None]
     assert np.allclose(back.sum(0), data.sum(0), rtol=1e-4)
     assert np.abs((back * t).sum(0) / back.sum(0) - (data * t).sum(0) / data.sum(0)).max() < 0.02
+    # the shifts are kept (the reconstruction bounds its slab SNR by them) and the window
+    # ends where the most delayed column's data end: no zeros stand in for unrecorded bins
+    np.testing.assert_allclose(read.time_shift_bins, shift.T, rtol=1e-6)  # float32 delta_t
+    assert read.transient.shape[0] == int(np.floor(NT + 600 - shift.max()))
+    assert read.attrs["aligned_from_bins"] == NT + 600
+    _tal_layout(tmp_path / "c.hdf5", delayed[:500], grid, bounces=True, origin=origin)
+    assert read_capture(tmp_path / "c.hdf5").transient.shape[0] == int(500 - shift.max())
+    _tal_layout(tmp_path / "d.hdf5", delayed[:NT], grid, bounces=True, origin=origin)
+    with pytest.raises(InputFileError, match="t_accounts_first_and_last_bounces.*426.5 bins"):
+        read_capture(tmp_path / "d.hdf5")  # the flight is longer than the window
 
 
 @pytest.mark.parametrize("what,needle", [("non-confocal", "confocal"), ("exhaustive", "confocal"),

@@ -198,7 +198,7 @@ def test_geometry_samplers(tmp_path):
     (lambda d: d["time"].update(bin_width_s=-1), "time.bin_width_s"),
     (lambda d: d["objects"][0].update(shape="cube"), "objects[0].shape"),
     (lambda d: d["objects"][0].update(translate_m=[0, 0]), "objects[0].translate_m"),
-    (lambda d: d["objects"][0].update(material="unobtainium"), "objects.material"),
+    (lambda d: d["objects"][0].update(material="unobtainium"), "objects[0].material"),
     (lambda d: d.update(slab={"thickness_m": 0.01}), "slab.mu_a"),
     (lambda d: d.update(detector={"efficiency": 2.0}), "detector.efficiency"),
     (lambda d: d.update(colour="red"), "colour"),

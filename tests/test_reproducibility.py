@@ -10,7 +10,12 @@ import pytest
 from clnlos.bench.oracle import OracleCase, simulate_case
 from clnlos.config import ReconstructionConfig
 from clnlos.errors import ParameterError
-from clnlos.inverse.pipeline import ReconstructionPipeline, reconstruct, resolve_geometry
+from clnlos.inverse.pipeline import (
+    DECONVOLVED_KEPT,
+    ReconstructionPipeline,
+    reconstruct,
+    resolve_geometry,
+)
 from clnlos.inverse.reproducibility import (
     KAPPA_MIN,
     KAPPA_MIN_SLAB_ONLY,
@@ -25,6 +30,7 @@ from clnlos.inverse.reproducibility import (
     otsu_mask,
 )
 from clnlos.inverse.snr import MEASURED_MODEL_SNR
+from clnlos.inverse.tail_fill import TAIL_FILL_SNR, TailFilledDeconvolution
 from clnlos.inverse.thinning import thin_counts
 from clnlos.study.metrics import mip_iou
 
@@ -269,3 +275,40 @@ def test_the_rule_by_name_is_for_the_closed_forms():
     assert not ReconstructionConfig(method="fk", snr_rule="gcv").validate().reproducibility
     assert not ReconstructionConfig(method="iterative").validate().reproducibility
     assert ReconstructionConfig(method="lct", snr_rule="reproducibility").validate().reproducibility
+
+
+def test_candidates_share_each_half_prepared_once(small_capture, queue, monkeypatch):
+    """A split search prepares each half once, deconvolves it once per slab SNR and fills a
+    cut window's tail once per fill SNR (counted here); a candidate's volume from the
+    prepared half, after the other candidates, equals a fresh run of that half with the
+    candidate's SNRs (what the search shares changes nothing)."""
+    cap, _ = small_capture
+    cfg = _config(cap, method="lct")
+    bw, start, sw = resolve_geometry(cap, cfg)
+    pipe = ReconstructionPipeline(cap.transient.shape, bin_width_s=bw, start_s=start,
+                                  scan_width_m=sw, config=cfg, queue=queue)
+    calls = {"prepare": 0, "deconvolution": 0, "fill": 0}
+
+    def counted(name, fn):
+        def wrapper(*a, **kw):
+            calls[name] += 1
+            return fn(*a, **kw)
+        return wrapper
+
+    monkeypatch.setattr(pipe, "prepare", counted("prepare", pipe.prepare))
+    monkeypatch.setattr(pipe, "_deconvolution_for",
+                        counted("deconvolution", pipe._deconvolution_for))
+    monkeypatch.setattr(TailFilledDeconvolution, "_fill",
+                        counted("fill", TailFilledDeconvolution._fill))
+    chosen, params = pipe.reproducibility_snrs(cap.transient)
+    tried = [(s, c) for s, c, _ in json.loads(params["reproducibility_tried"])]
+    assert calls["prepare"] == 2 and len(tried) >= 2
+    assert calls["deconvolution"] == 2 * len({s for s, _ in tried})
+    assert calls["fill"] <= 2 * len({min(s, TAIL_FILL_SNR) for s, _ in tried})
+    halves = thin_counts(np.asarray(cap.transient))
+    prepared = pipe.prepare(halves[0])
+    for cand in tried[::-1] + tried:  # every slab SNR deconvolved before its second use
+        shared = pipe._reconstruct(prepared, {}, snrs=cand).volume
+        fresh = pipe.run(halves[0], snrs=cand).volume
+        assert np.array_equal(shared, fresh), cand
+    assert len(prepared.deconvolved) <= DECONVOLVED_KEPT

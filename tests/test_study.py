@@ -135,9 +135,17 @@ TINY = StudyOptions(
             "slab_thickness_m": (0.0, 0.0254)},
     legibility_sweeps={"letter_height_m": (0.2, 0.3), "exposure_s": (0.1, 1.0)},
     glyphs=("E", "H", "T", "U"), sweep_glyphs=("E", "T"),
+    aware_glyphs=("E",), tilts_deg=(0.0, 10.0), tilt_materials=("quartz glass",),
+    tilt_glyphs=("E", "T"), tilt_inversions=("lambertian", "known"),
     grid=replace(StudyGrid(), points=12, bin_width_s=64e-12, iterations=10,
                  density_per_m2=2e4),
     label="tiny")
+
+# the distributed runs: two materials, the Lambertian inversion, one point per sweep
+SMALL = replace(TINY, n_dataset=0, materials=TINY.materials[:2], inversions=("lambertian",),
+                sweep_inversions=("lambertian",), tilts_deg=(0.0,), tilt_glyphs=("E",),
+                tilt_inversions=("lambertian",), sweeps={"depth_m": (0.4,)},
+                sweep_materials=("quartz glass",), legibility_sweeps={"exposure_s": (0.1,)})
 
 
 def _check_contract(res, opts):
@@ -170,9 +178,26 @@ def _check_contract(res, opts):
     assert {x["variable"] for x in rows} == {"letter_height_m", "exposure_s"}
     for x in rows:
         assert {"value", "material", "identification", "iou", "iou_box_baseline"} <= set(x)
-    assert [x["material"] for x in res["smallest_legible"]] == list(opts.sweep_materials)
+    invs = (*opts.sweep_inversions, "best")
+    assert [(x["material"], x["inversion"]) for x in res["smallest_legible"]] == [
+        (m, inv) for m in opts.sweep_materials for inv in invs]
     for x in res["smallest_legible"]:
-        assert set(x) == {"material", "letter_height_m", "exposure_s"}
+        assert {"material", "inversion", "letter_height_m", "exposure_s"} <= set(x)
+        if x["inversion"] == "best":
+            for var in ("letter_height_m", "exposure_s"):
+                assert (x[var] is None) == (x[f"{var}_inversion"] is None)
+    # every material row with each inversion; the tilt sweep with the measurement beside
+    for g in res["geometries"]:
+        for m in g["materials"]:
+            assert set(m["inversions"]) == set(opts.inversions)
+            assert m["inversions"]["lambertian"]["identification"] == m["identification"]
+    tilts = res["tilt_sweep"]
+    assert {(t["material"], t["tilt_deg"]) for t in tilts} == {
+        (m, t) for m in opts.tilt_materials for t in opts.tilts_deg}
+    for t in tilts:
+        for col in (*opts.tilt_inversions, "measurement"):
+            assert 0 <= t[col]["identification"]["accuracy"] <= 1 and t[col]["shift_m"] >= 0
+    assert "statement" in res["findings"] and "brdf" in res["findings"]["statement"]
     assert {s["variable"] for s in res["sweeps"]} == {"scan_width_m", "depth_m",
                                                        "slab_thickness_m"}
     assert all(0 <= s["iou"] <= 1 and "identification" in s for s in res["sweeps"])
@@ -187,15 +212,15 @@ def test_setup_line_names_the_snr_rule_each_method_ran():
     assert _reconstruction_detail({"method": "fk", "snr_rule": "thinning"}) == (
         "SNRs by auto (reproducibility on counts of the slab simulated)")
     assert _reconstruction_detail({"method": "iterative", "snr_rule": "reproducibility",
-                                   "iterations": 5}).endswith("SNRs by auto (thinning on "
-                                                              "counts of the slab simulated)")
+                                   "iterations": 5}).endswith("SNRs by auto (gcv)")
 
 
 @pytest.mark.slow
 def test_tiny_study_serial_and_dask_agree(tmp_path):
     serial = run_study(tmp_path / "serial", TINY, workers=1)
     html = (tmp_path / "serial" / "report.html").read_text()
-    assert html.count("data:image/png;base64,") == 9 and "standard white plate" in html
+    assert html.count("data:image/png;base64,") == 10 and "standard white plate" in html
+    assert "Tilted glyphs" in html and "known BRDF" in html
     assert "dataset.overflow" in html and "max-width" in html and "box baseline" in html
     assert "SNRs by gcv)" in html  # the rule the study pins, named for every method
     res = json.loads((tmp_path / "serial" / "results.json").read_text())
@@ -225,8 +250,9 @@ def test_tiny_study_serial_and_dask_agree(tmp_path):
     assert len(seed_cnn["train_loss"]) == 3 and len(seed_cnn["val_loss"]) == 3
     assert fft["classifier"]["splits"] == serial["classifier"]["splits"]  # seeded
     pytest.importorskip("dask.distributed")
-    dask = run_study(tmp_path / "dask", TINY, workers=2)
-    for a, b in zip(serial["materials"], dask["materials"], strict=True):
+    local = run_study(tmp_path / "local", SMALL, workers=1)
+    dask = run_study(tmp_path / "dask", SMALL, workers=2)
+    for a, b in zip(local["materials"], dask["materials"], strict=True):
         assert a["iou"] == b["iou"] and a["identification"] == b["identification"]
     report = tmp_path / "serial" / "report.html"
     if shutil.which("chromium"):
@@ -249,9 +275,7 @@ def test_study_on_a_separately_started_dask_cluster(tmp_path):
     dask_cli = Path(sys.executable).with_name("dask")
     if not dask_cli.exists():
         pytest.skip("the dask command-line tool is not installed")
-    small = replace(TINY, n_dataset=0, materials=TINY.materials[:2], seeds=1,
-                    sweeps={"depth_m": (0.4, 0.6)}, sweep_materials=("quartz glass",),
-                    legibility_sweeps={"exposure_s": (0.1,)})
+    small = SMALL
     sched_file = tmp_path / "scheduler.json"
     env = dict(os.environ, CLNLOS_THREADS="1", POCL_MAX_PTHREAD_COUNT="1")
     procs = []

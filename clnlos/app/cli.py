@@ -119,8 +119,9 @@ def _main(argv: list[str] | None) -> int:
     except Terminated as exc:
         _fail(str(exc))
         return 128 + exc.signum
-    except KeyboardInterrupt:
-        return _fail("interrupted")
+    except KeyboardInterrupt:  # Ctrl-C: the shell's convention, 128 + SIGINT
+        _fail("interrupted")
+        return 128 + signal.SIGINT
     except MemoryError:
         return _fail("out of host memory: use a smaller grid")
     except OSError as exc:  # files a user named: permissions, full disk, ...

@@ -32,6 +32,7 @@ from clnlos.brdf.evaluate import (
     write_rows,
 )
 from clnlos.brdf.fit import fit_to_file
+from clnlos.brdf.models import model_spec
 from clnlos.brdf.plot import brdf_figure, read_samples
 from clnlos.brdf.store import load_model
 from clnlos.brdf.texture import MAX_NODES, MIN_NODES, tabulate, write_texture
@@ -43,6 +44,8 @@ from clnlos.config import (
     ReconstructionConfig,
     check_geometry,
     check_light_in_window,
+    check_window,
+    load_toml,
     slab_from_table,
     slab_table,
 )
@@ -59,10 +62,17 @@ from clnlos.inverse.reproducibility import SLAB_SNRS_SLAB_ONLY as RP_SLAB_ONLY
 from clnlos.io.figures import volume_figure
 from clnlos.io.files import read_capture, read_volume, save_figure
 from clnlos.io.outputs import HDF5_SUFFIXES, check_outputs
+from clnlos.physics.lobe import LOBE_TOLERANCE
 from clnlos.runtime.device import get_queue
 from clnlos.runtime.limits import capture_use, check_memory
 from clnlos.study.dataset import MAX_WORKERS, StudyGrid, check_scheduler_address
-from clnlos.study.run import LABEL_METRICS, TRANSPORT_CHOICES, StudyOptions, run_study
+from clnlos.study.run import (
+    LABEL_METRICS,
+    TRANSPORT_CHOICES,
+    StudyOptions,
+    real_capture_dir,
+    run_study,
+)
 
 DTYPES = {"float32": np.float32, "float64": np.float64}
 
@@ -105,7 +115,8 @@ RECON_FLAGS = {"scan_width": ("scan_width_m", "--scan-width"),
                "tv_weight": ("tv_weight", "--tv-weight"),
                "l1_weight": ("l1_weight", "--l1-weight"),
                "depth_min": ("depth_min_m", "--depth-min"),
-               "slab_model": ("slab_model", "--slab-model")}
+               "slab_model": ("slab_model", "--slab-model"),
+               "brdf": ("brdf", "--brdf"), "brdf_terms": ("brdf_terms", "--brdf-terms")}
 
 
 def _decades(values) -> str:
@@ -127,6 +138,16 @@ def number_or_auto(text: str):
         raise argparse.ArgumentTypeError(f"expected a number or 'auto', got {text!r}") from None
 
 
+def int_or_auto(text: str):
+    """argparse type: "auto" or an integer (validated later with the flag's name)."""
+    if text.strip().lower() == "auto":
+        return "auto"
+    try:
+        return int(text)
+    except ValueError:
+        raise argparse.ArgumentTypeError(f"expected an integer or 'auto', got {text!r}") from None
+
+
 def flag_names(args) -> dict[str, str]:
     """Config field -> the flag the user typed, for the flags given (error messages)."""
     return {field: flag for dest, (field, flag) in RECON_FLAGS.items()
@@ -138,8 +159,10 @@ def config_from_args(args, capture=None):
     the flags' names in error messages. Without slab flags, --no-slab or a [slab] in the
     config, the slab a clnlos capture recorded is used (:func:`clnlos.inverse.pipeline.setup_slab`).
     """
-    cfg = ReconstructionConfig.from_toml(args.config) if args.config else ReconstructionConfig()
-    names = flag_names(args)
+    table = load_toml(args.config) if args.config else {}
+    cfg = ReconstructionConfig.from_dict(table)
+    # what the user set (TOML keys, then flags): a field the method does not read is refused
+    names = {**ReconstructionConfig.given_fields(table), **flag_names(args)}
     changes = {field: getattr(args, dest) for dest, (field, _) in RECON_FLAGS.items()
                if getattr(args, dest, None) is not None}
     slab_given = {k: getattr(args, dest) for dest, (k, _) in SLAB_FLAGS.items()
@@ -158,10 +181,12 @@ def config_from_args(args, capture=None):
     return cfg
 
 
-def _pipeline_fits(capture, cfg, queue, dtype):
+def _pipeline_fits(capture, cfg, queue, dtype, names=None):
     """The check a capture reader runs with the declared size (:func:`clnlos.runtime.limits.
-    capture_use`): the reconstruction's device buffers fit the device (a time axis the file
-    does not store, or stores as no valid number, is left to the later checks)."""
+    capture_use`): the time window the reconstruction keeps (:func:`clnlos.config.
+    check_window`: a start far past zero is named as such, on any device), then the
+    reconstruction's device buffers fit the device (a time axis the file does not store, or
+    stores as no valid number, is left to the later checks)."""
     def check(shape, bin_width_s, start_s):
         bw = cfg.bin_width_s if cfg.bin_width_s is not None else bin_width_s
         start = cfg.start_s if cfg.start_s is not None else start_s
@@ -170,6 +195,7 @@ def _pipeline_fits(capture, cfg, queue, dtype):
             check_geometry("start_s", start)
         except ParameterError:
             return
+        check_window(shape[0], bw, start, cfg, names=names, source=str(capture))
         try:
             total, largest = device_bytes_needed(shape, bin_width_s=bw, start_s=start,
                                                  config=cfg, dtype=dtype)
@@ -190,7 +216,7 @@ def cmd_reconstruct(args) -> int:
                   implied={"figure": None}, force=args.force)
     queue = get_queue(args.device, settings=args.settings)
     names = flag_names(args)
-    with capture_use(_pipeline_fits(args.capture, cfg, queue, DTYPES[args.dtype])):
+    with capture_use(_pipeline_fits(args.capture, cfg, queue, DTYPES[args.dtype], names)):
         capture = read_capture(args.capture)  # the pipeline's size checked before the data
     bw, start, _ = resolve_geometry(capture, cfg, names=names)  # before the slab note
     if not np.any(capture.transient):
@@ -221,10 +247,13 @@ def register_reconstruct(sub, add_device) -> None:
     r.add_argument("--method", choices=list(method_names()), default=None,
                    help="inversion: " + "; ".join(f"{m} ({e.summary})"
                                                   for m, e in METHOD_ENTRIES.items())
-                        + f" (default: the config's [inversion] method, else {C.method})")
+                        + f" (default: the config's [inversion] method, else {C.method}); "
+                          "lct and fk invert Lambertian voxels facing the scan plane, "
+                          "iterative also any reflectance (--brdf)")
     from_file = "(default: from the capture file, else the config's [capture])"
     r.add_argument("--scan-width", type=float,
-                   help=f"side of the scanned square (m) {from_file}")
+                   help="side of the scanned area along x (m; the pitch is this over the "
+                        f"columns, the same along y) {from_file}")
     r.add_argument("--bin-width", type=float, help=f"histogram bin width (s) {from_file}")
     r.add_argument("--snr", type=number_or_auto,
                    help="Wiener SNR of the slab deconvolution (dimensionless), or auto: chosen "
@@ -235,7 +264,7 @@ def register_reconstruct(sub, add_device) -> None:
                    help="how auto SNRs are chosen: gcv (generalised cross-validation "
                         "of the slab stage), thinning (iterative only: GCV's pick, or a "
                         "deeper one where a reconstruction of half the photons, split "
-                        "binomially, predicts the other half significantly better; 2-5 "
+                        "binomially, predicts the other half significantly better; 2-3 "
                         "extra reconstructions of half the data), reproducibility (lct and "
                         "fk only: the least regularised slab and light-cone SNRs, "
                         f"{_decades(RP_SLAB)} x {_decades(RP_LC)} (fk: the slab SNR, "
@@ -244,10 +273,10 @@ def register_reconstruct(sub, add_device) -> None:
                         f"Cohen's kappa >= {kappa_min(True):g} (fk: "
                         f">= {kappa_min(False):g}); up to "
                         f"{2 * len(RP_SLAB) * len(RP_LC)} (fk {2 * len(RP_SLAB_ONLY)}) extra "
-                        "reconstructions of half the data), or auto: thinning for the "
-                        "iterative method and reproducibility for lct and fk on photon "
-                        "counts the slab model fits exactly (a capture simulated with this "
-                        "slab), gcv elsewhere "
+                        "reconstructions of half the data), or auto: reproducibility for lct "
+                        "and fk on photon counts the slab model fits exactly (a capture "
+                        "simulated with this slab), gcv elsewhere and for the iterative "
+                        "method "
                         f"(default {C.snr_rule})")
     r.add_argument("--inversion-snr", type=number_or_auto,
                    help="Wiener SNR of the LCT filter (and of the iterative warm start), or "
@@ -260,7 +289,7 @@ def register_reconstruct(sub, add_device) -> None:
                         "before the inversion (default: the method's own, " + ", ".join(
                             f"{m} {p:g}" for m, p in default_falloffs().items()) + "; "
                         + ", ".join(m for m in method_names() if m not in default_falloffs())
-                        + " models the falloff itself and ignores it)")
+                        + " models the falloff itself: not with it)")
     r.add_argument("--max-path", type=float,
                    help="keep round-trip path lengths c t below this (m) (default: the "
                         "capture's whole time window)")
@@ -284,6 +313,18 @@ def register_reconstruct(sub, add_device) -> None:
                         "to the deconvolved transient, modelling the smoothing the slab "
                         "deconvolution leaves; none fits the light cone alone (Wiener first) "
                         f"(default {C.slab_model})")
+    r.add_argument("--brdf",
+                   help="iterative: the voxels' reflectance: lambertian, a material name ("
+                        "clnlos brdf presets: the seed's ten and the analytic ones), a BRDF "
+                        "texture or fitted model .h5 (its retro lobe, averaged over each "
+                        "voxel's cell and over the slab's footprint), or auto: the lobe "
+                        "among a ladder from Lambertian to a 0.4 deg mirror whose "
+                        "reconstruction from half the photons best predicts the other half "
+                        f"(2-5 extra reconstructions of half the data) (default {C.brdf})")
+    r.add_argument("--brdf-terms", type=int_or_auto,
+                   help="iterative: separable terms K of the lobe (each one more FFT per "
+                        "operator apply), or auto: the fewest within a relative error of "
+                        f"{LOBE_TOLERANCE:g} (default {C.brdf_terms})")
     slab = ("(default: the config's [slab]; with no slab flag and no [slab], the slab a "
             "clnlos capture recorded)")
     r.add_argument("--slab-thickness", type=float, help=f"slab thickness (m) {slab}")
@@ -410,8 +451,10 @@ def cmd_brdf_texture(args) -> int:
     check_outputs({"-o": Path(args.output)}, inputs=[args.model],
                   suffixes={"-o": HDF5_SUFFIXES})
     model, meta = load_model(args.model)
+    spec = model_spec(model)  # stored so the texture can be checked against it when used
     tex = tabulate(model, args.resolution, args.dphi or args.resolution, args.retro,
-                   provenance={"model_file": str(args.model), **meta})
+                   provenance={"model_file": str(args.model), **meta,
+                               **({} if spec is None else {"model_spec": spec})})
     write_texture(args.output, tex)
     print(f"wrote {args.output} texture {tex.shape} [theta_i, theta_s, dphi], "
           f"retro slice {len(tex.retro)}")
@@ -526,7 +569,12 @@ def cmd_study(args) -> int:
     if args.method is not None:
         opts.grid = replace(opts.grid, method=args.method)
     opts.labels = args.labels
-    opts.real_data = args.real_data
+    if args.real_data is not None:  # checked now, not after the simulated study's minutes
+        if not args.real_data.is_dir():
+            raise InputFileError(f"--real-data {args.real_data}: "
+                                 + ("not a folder" if args.real_data.exists()
+                                    else "no such folder"))
+        opts.real_data = args.real_data if real_capture_dir(args.real_data) else None
     if args.transport is not None:
         opts.transport = args.transport
     res = run_study(out, opts.validate(), workers=args.workers, scheduler=args.scheduler,
@@ -557,7 +605,7 @@ def register_study(sub, add_device) -> None:
     g.add_argument("--quick", action="store_true", help=f"built-in default: "
                    f"{len(quick.glyphs)} glyphs x {quick.seeds} noise realisation(s) per "
                    f"material and geometry, {len(quick.sweep_glyphs)} glyphs per geometry-"
-                   f"sweep point, {quick.n_dataset} extra random samples (about 9 minutes on "
+                   f"sweep point, {quick.n_dataset} extra random samples (about 3 minutes on "
                    "2 cores)")
     g.add_argument("--full", action="store_true", help=f"{len(full.glyphs)} glyphs x "
                    f"{full.seeds} noise realisations per material and geometry, "

@@ -30,6 +30,7 @@ def volume_attrs(rec: Reconstruction) -> dict:
             "stages": json.dumps(rec.stages), "timings_s": json.dumps(rec.timings_s),
             "params": json.dumps(rec.params), "noise": json.dumps(rec.noise),
             "solver": json.dumps(rec.solver), "notes": json.dumps(rec.notes),
+            "brdf": rec.params.get("brdf_used", "lambertian"),
             "axes": "volume[z, y, x]; +x with column index, +y with row index",
             "format": "clnlos-volume-1"}
 

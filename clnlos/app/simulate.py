@@ -63,6 +63,7 @@ def simulate_to_file(scene, out, *, fmt: str = "clnlos", dtype=np.float32, queue
         else:
             write_h5_file(tmp_cap, {"transient": np.asarray(tau, np.float32)},
                           capture_attrs(bin_width_s=scene.bin_width_s, start_s=scene.start_s,
-                                        scan_width_m=scene.width_m, attrs=attrs))
+                                        scan_width_m=scene.width_m, attrs=attrs,
+                                        shape=np.shape(tau)))
         save_figure_file(fig, tmp_png)
     return Simulated(tau, list(fm.stages), seconds, out, png)

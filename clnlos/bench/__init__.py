@@ -25,6 +25,7 @@ from clnlos.bench.harness import Bench, print_table
 from clnlos.bench.report import recommendations, write_html
 from clnlos.bench.sections import (
     bench_auto_params,
+    bench_auto_params_cost,
     bench_bistatic,
     bench_blur_reach,
     bench_brdf,
@@ -50,7 +51,7 @@ SECTIONS = {"diffusion": bench_diffusion, "lightcone": bench_lightcone,
             "reconstruction": bench_reconstruction,
             "reconstruction_process": bench_reconstruction_process,
             "iterative": bench_iterative, "end_to_end": bench_end_to_end,
-            "auto_params": bench_auto_params}
+            "auto_params": bench_auto_params, "auto_params_cost": bench_auto_params_cost}
 ONLY_HELP = "comma-separated sections: " + ", ".join(SECTIONS)
 
 

@@ -45,15 +45,33 @@ def grid_of(n: int) -> tuple[int, int, int]:
     return (4 * n, n, n)
 
 
-def peak_rss_bytes() -> int:
-    """This process's peak resident set since its exec (VmHWM; ru_maxrss where /proc lacks it)."""
+def _status_bytes(field: str) -> int | None:
+    """A size field of /proc/self/status (bytes), or None where /proc lacks it."""
     try:
         for line in Path("/proc/self/status").read_text().splitlines():
-            if line.startswith("VmHWM:"):
+            if line.startswith(f"{field}:"):
                 return int(line.split()[1]) * 1024
     except OSError:
         pass
-    return resource.getrusage(resource.RUSAGE_SELF).ru_maxrss * 1024
+    return None
+
+
+def peak_rss_bytes() -> int:
+    """This process's peak resident set since its exec (VmHWM; ru_maxrss where /proc lacks it)."""
+    hwm = _status_bytes("VmHWM")
+    return resource.getrusage(resource.RUSAGE_SELF).ru_maxrss * 1024 if hwm is None else hwm
+
+
+def reset_peak_rss() -> int:
+    """Reset this process's peak resident set (VmHWM) to its current size (writing 5 to
+    /proc/self/clear_refs, Linux >= 4.0) and return that size; where /proc refuses, the
+    peak since the exec stands and the current size (VmRSS) is returned."""
+    try:
+        Path("/proc/self/clear_refs").write_text("5")
+    except OSError:
+        pass
+    rss = _status_bytes("VmRSS")
+    return peak_rss_bytes() if rss is None else rss
 
 
 def worker(impl: str, n: int, device: str | None, size: str) -> list[dict]:

@@ -2,9 +2,9 @@
 
 For simulated captures (Lambertian shapes through the CDT slab, photon noise), each method
 is run with its default "auto" SNRs (on these captures of their own slab: LCT and f-k by
-split-half reproducibility, :mod:`clnlos.inverse.reproducibility`; the iterative method by
-thinning, :mod:`clnlos.inverse.thinning`; the GCV rule, :mod:`clnlos.inverse.gcv`,
-elsewhere), with the photon rule the auto SNRs
+split-half reproducibility, :mod:`clnlos.inverse.reproducibility`; the GCV rule,
+:mod:`clnlos.inverse.gcv`, for the iterative method -- thinning,
+:mod:`clnlos.inverse.thinning`, by name -- and elsewhere), with the photon rule the auto SNRs
 replaced (SNR = photons / K_SNR and its square root, :mod:`clnlos.inverse.snr`: "today"), and
 with every setting of the grid SLAB_SNRS x INVERSION_SNRS (LCT and f-k: CLOSED_FORM_SLAB_SNRS,
 which reaches past their slab floor; f-k has no light-cone SNR: the slab SNRs alone). The

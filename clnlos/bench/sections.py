@@ -29,6 +29,7 @@ from clnlos.bench.baselines import (
 from clnlos.bench.harness import Bench, timed_once, timeit
 from clnlos.bench.harness import rel_error as _rel
 from clnlos.bench.isolated import IMPLS as PROCESS_IMPLS
+from clnlos.bench.isolated import peak_rss_bytes, reset_peak_rss
 from clnlos.bench.oracle import (
     BENCH_CASE,
     ORACLE_CASES,
@@ -52,6 +53,7 @@ from clnlos.forward.sampling import sample_scene
 from clnlos.forward.scene import FACE_ANGLES, FACE_RINGS, TEXTURE_THETA, Scene
 from clnlos.inverse.fk import FKMigration
 from clnlos.inverse.lct import LCT
+from clnlos.inverse.methods import method_class, split_rule
 from clnlos.inverse.pipeline import reconstruct
 from clnlos.io.capture import Capture
 from clnlos.io.files import write_capture
@@ -417,8 +419,8 @@ def bench_iterative(b: Bench):
         mask = cover >= 0.5
         # the iterative method at each iteration count with the default slab model, and at
         # the largest with Wiener first (slab_model "none": the knob's accuracy and cost);
-        # all at GCV's slab SNR, so that the rows differ by the knob alone (the default's
-        # thinning is its own row of auto_params, and would deepen far at 5 iterations)
+        # all at GCV's slab SNR, so that the rows differ by the knob alone (thinning is its
+        # own row of auto_params_cost, and would deepen far at 5 iterations)
         settings = ([("lct", None, None), ("fk", None, None)]
                     + [("iterative", k, None) for k in iters] + [("iterative", iters[-1], "none")])
         for method, k, slab_model in settings:
@@ -445,13 +447,20 @@ def bench_iterative(b: Bench):
                   grid=f"{points}x{points}x{rec.volume.shape[0]}")
 
 
+def oracle_sample(b: Bench) -> tuple[tuple, int | None]:
+    """(captures, the iterative method's iterations at most) of the sections that run the
+    oracle captures: all of them at ``full`` (the config's iterations), BENCH_CASE on a
+    16 x 16 x 128 grid otherwise (20 iterations at ``tiny``, 50 at ``quick``)."""
+    small = (replace(case_named(BENCH_CASE), points=16, bins=128, bin_width_s=64e-12),)
+    cases = {"tiny": small, "quick": small, "full": ORACLE_CASES}[b.size]
+    return cases, {"tiny": 20, "quick": 50, "full": None}[b.size]
+
+
 def bench_auto_params(b: Bench):
     """The "auto" SNRs against the oracle grid (:mod:`clnlos.bench.oracle`): per capture and
     method the time of the auto reconstruction, error = max(0, oracle IoU - auto IoU)
     (extra fields: the IoUs of auto, the oracle and the photon rule, the SNRs chosen)."""
-    small = (replace(case_named(BENCH_CASE), points=16, bins=128, bin_width_s=64e-12),)
-    cases = {"tiny": small, "quick": small, "full": ORACLE_CASES}[b.size]
-    iterations = {"tiny": 20, "quick": 50, "full": None}[b.size]
+    cases, iterations = oracle_sample(b)
     for case in cases:
         cap, mask = simulate_case(case, b.q)
         for method in ORACLE_METHODS:
@@ -468,11 +477,10 @@ def bench_auto_params(b: Bench):
 
 
 def _bench_gcv_rule(b: Bench, case, cap, mask, cfg, row: dict) -> None:
-    """A method with ``snr_rule = "gcv"`` (GCV's slab SNR: the iterative method's in the
-    study's budget, :class:`clnlos.study.dataset.StudyGrid`) on one capture where the
-    default searched a split of the counts (thinning, :mod:`clnlos.inverse.thinning`;
-    reproducibility, :mod:`clnlos.inverse.reproducibility`): its time and its gap to the
-    oracle of the default's ``row``."""
+    """A method with ``snr_rule = "gcv"`` (GCV's slab SNR: the study's rule,
+    :class:`clnlos.study.dataset.StudyGrid`) on one capture where the default searched a
+    split of the counts (reproducibility, :mod:`clnlos.inverse.reproducibility`): its time
+    and its gap to the oracle of the default's ``row``."""
     cfg = cfg.replace(snr_rule="gcv").validate()
     rec = reconstruct(cap, cfg, device=b.q)
     iou = mip_iou(rec.volume, mask)[0]
@@ -481,6 +489,76 @@ def _bench_gcv_rule(b: Bench, case, cap, mask, cfg, row: dict) -> None:
           error_kind="oracle IoU - auto IoU", auto_iou=iou, oracle_iou=row["oracle_iou"],
           auto_snr=rec.params.get("snr_used"), default_rule_iou=row["auto_iou"],
           thinning_factor=row.get("auto_thinning_factor"))
+
+
+# the fixed SNRs the rules are priced against: examples/reconstruct_noisy.toml's (slab 1e4,
+# light cone 1e3), numbers a user of the wide noisy example runs with
+FIXED_SNRS = (1e4, 1e3)
+
+
+def auto_params_rules(method: str) -> list[tuple[str, dict]]:
+    """(rule, the config fields it sets) of :func:`bench_auto_params_cost` for ``method``:
+    fixed SNRs; the slab SNR by GCV (the light cone's fixed); the light-cone SNR by UPRE
+    with the noise probe (the slab's fixed; methods with a light-cone filter: LCT, the
+    iterative method's warm start); both by the GCV rule (GCV, then UPRE); the method's
+    split search (thinning, reproducibility); and "auto" (the default: one of these)."""
+    slab, cone = FIXED_SNRS
+    lc = method_class(method).lightcone_filter
+    rules = [("fixed", {"snr": slab, "inversion_snr": cone}),
+             ("gcv", {"snr_rule": "gcv", "inversion_snr": cone})]
+    if lc:
+        rules += [("upre", {"snr": slab}), ("gcv+upre", {"snr_rule": "gcv"})]
+    rules += [(split_rule(method), {"snr_rule": split_rule(method)}), ("auto", {})]
+    return rules
+
+
+def extra_reconstructions(params: dict) -> int:
+    """Reconstructions a split search ran besides the one returned (its halves per
+    candidate: thinning's training half per factor, reproducibility's two halves per
+    setting), from what the volume records."""
+    if "thinning_tried" in params:
+        return len(json.loads(params["thinning_tried"]))
+    if "reproducibility_tried" in params:
+        return 2 * len(json.loads(params["reproducibility_tried"]))
+    return 0
+
+
+def bench_auto_params_cost(b: Bench):
+    """What each rule for the "auto" SNRs costs and earns (issue 38): per capture, method and
+    rule (:func:`auto_params_rules`) the reconstruction's time (one run, plans built by a
+    run before), the reconstructions it runs besides the one returned, the peak resident
+    memory of the process during it (VmHWM reset before the run; on PoCL it includes the
+    device buffers) and above its start, and the IoU gain over the fixed SNRs (FIXED_SNRS)
+    on the same capture; error = 1 - IoU. On the oracle captures (``full``), a reduced
+    one otherwise."""
+    cases, iterations = oracle_sample(b)
+    for case in cases:
+        cap, mask = simulate_case(case, b.q)
+        for method in ORACLE_METHODS:
+            base = ReconstructionConfig(slab=cap.recorded_slab()[0], method=method,
+                                        **({} if iterations is None else
+                                           {"iterations": iterations}))
+            fixed_iou = None
+            for rule, fields in auto_params_rules(method):
+                cfg = base.replace(**fields).validate()
+                reconstruct(cap, cfg, device=b.q)  # plans built: the row times the rule
+                start = reset_peak_rss()
+                rec, timing = timed_once(lambda cfg=cfg, cap=cap: reconstruct(cap, cfg, device=b.q),
+                                         b.q)
+                peak = peak_rss_bytes()
+                iou = mip_iou(rec.volume, mask)[0]
+                fixed_iou = iou if rule == "fixed" else fixed_iou
+                r = b.record("auto_params_cost", f"{method}@{case.name}", rule, np.float32,
+                             timing, 1.0 - iou, error_kind="1 - IoU", method=method,
+                             capture=case.name, rule=rule, iou=iou,
+                             iou_gain=iou - fixed_iou,
+                             extra_reconstructions=extra_reconstructions(rec.params),
+                             snr_rule_used=rec.params.get("snr_rule_used"),
+                             snr_used=rec.params.get("snr_used"),
+                             inversion_snr_used=rec.params.get("inversion_snr_used"),
+                             iterations=(rec.solver or {}).get("iterations"),
+                             peak_above_start_bytes=max(0, peak - start))
+                r["peak_mem_bytes"] = peak
 
 
 # ------------------------------------------------------------------ cost per grid and reach

@@ -26,7 +26,8 @@ import numpy as np
 from clnlos.brdf.data import BRDFSamples, read_gonio_csv
 from clnlos.brdf.fit import fit_analytic, metrics_for
 from clnlos.brdf.mlp import MLPConfig, train_mlp
-from clnlos.errors import InputFileError
+from clnlos.checks import did_you_mean
+from clnlos.errors import InputFileError, ParameterError
 from clnlos.io.files import atomic_path
 
 MODELS = ("mlp", "mlp-seed", "five-param", "torrance-sparrow")
@@ -115,6 +116,11 @@ def evaluate(directory, models=MODELS, modes=MODES, splits=(0,), materials=None,
              progress=None) -> list[EvalRow]:
     names = measured_sets(directory)
     if materials:
+        unmatched = [m for m in materials if not any(m in n for n in names)]
+        if unmatched:  # before any fit: an empty table is not an answer
+            raise ParameterError("--material", unmatched[0], "part of the name of a measured "
+                                 f"set in {directory}: " + ", ".join(names)
+                                 + did_you_mean(unmatched[0], names))
         names = [n for n in names if any(m in n for m in materials)]
     jobs = [(n, mode, model, s) for n in names for mode in modes for model in models
             for s in (splits if mode == "interp" else splits[:1])]

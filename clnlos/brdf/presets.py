@@ -8,58 +8,41 @@ close (the data itself is never copied into the package).
 
 from __future__ import annotations
 
-import importlib.resources
-import json
-from functools import lru_cache
+import warnings
 from pathlib import Path
 
 import numpy as np
 
+from clnlos.brdf.catalog import (
+    ANALYTIC_PRESETS,
+    CLASSES,
+    material_names,
+    preset_names,
+    preset_table,
+)
 from clnlos.brdf.models import BRDFModel, make_model, retro_slice
-from clnlos.brdf.texture import read_texture
+from clnlos.brdf.texture import checked_retro, read_texture
 from clnlos.checks import did_you_mean
 from clnlos.errors import ParameterError
-
-# Analytic presets beside the seed's ten measured-data presets (names are case-insensitive);
-# None is the Lambertian (no BRDF table).
-ANALYTIC_PRESETS: dict[str, BRDFModel | None] = {
-    "lambertian": None,
-    "matte-dark": BRDFModel("minnaert", {"kd": 0.3, "k": 1.5}),
-    "glossy-paint": BRDFModel("phong", {"kd": 0.3, "ks": 0.7, "shininess": 30.0}),
-    "brushed-metal": BRDFModel("microfacet", {"kd": 0.0, "ks": 1.0, "alpha": 0.15, "f0": 0.9}),
-    "mirror-like": BRDFModel("microfacet", {"kd": 0.0, "ks": 1.0, "alpha": 0.01, "f0": 0.95}),
-}
-
-CLASSES = ("strong specular", "strong specular + diffuse", "strong diffuse", "Lambertian")
-
-
-@lru_cache(maxsize=1)
-def preset_table() -> dict:
-    text = importlib.resources.files("clnlos.brdf").joinpath("presets.json").read_text()
-    return json.loads(text)
-
 
 def preset_model(name: str) -> BRDFModel:
     return make_model(preset_table()[name]["model"])
 
 
-def preset_names() -> list[str]:
-    return list(preset_table())
-
-
-def material_names() -> list[str]:
-    return ["lambertian", *preset_table(), *(k for k in ANALYTIC_PRESETS if k != "lambertian")]
-
-
 def material_retro(material, base_dir, n_theta: int) -> np.ndarray | None:
     """The confocal retro slice f(theta) (1/sr) on ``n_theta`` angles over [0, pi/2] of a
     scene material, or None for Lambertian. ``material``: a model table (dict), a BRDF
-    texture file (.h5/.hdf5, its retro slice), a seed preset or an analytic preset name."""
+    texture file (.h5/.hdf5, its retro slice checked against its model:
+    :func:`clnlos.brdf.texture.checked_retro`, one warning line where it was taken from the
+    model), a seed preset or an analytic preset name."""
     if isinstance(material, dict):
         return retro_slice(make_model(material), n_theta)
     if str(material).endswith((".h5", ".hdf5")):
-        r = read_texture(Path(base_dir) / material).retro.astype(float)
-        return np.interp(np.linspace(0, 1, n_theta), np.linspace(0, 1, len(r)), r)
+        path = Path(base_dir) / material
+        retro, note = checked_retro(read_texture(path), path, n_theta)
+        if note:
+            warnings.warn(note, UserWarning, stacklevel=2)
+        return retro
     key = str(material).lower()
     if key in preset_table():
         return retro_slice(preset_model(key), n_theta)
@@ -69,3 +52,7 @@ def material_retro(material, base_dir, n_theta: int) -> np.ndarray | None:
                              "texture .h5 or a model table" + did_you_mean(key, names))
     model = ANALYTIC_PRESETS[key]
     return None if model is None else retro_slice(model, n_theta)
+
+
+__all__ = ["ANALYTIC_PRESETS", "CLASSES", "material_names", "material_retro", "preset_model",
+           "preset_names", "preset_table"]

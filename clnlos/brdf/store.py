@@ -12,13 +12,14 @@ import json
 import h5py
 import numpy as np
 
+from clnlos.brdf.catalog import MODEL_FORMAT
 from clnlos.brdf.mlp import NeuralBRDF
 from clnlos.brdf.models import BRDFModel
 from clnlos.checks import input_file
 from clnlos.errors import InputFileError
 from clnlos.io.files import write_h5
 
-FORMAT = "clnlos-brdf-model"
+FORMAT = MODEL_FORMAT
 
 
 def save_model(path, model, metrics: dict, provenance: dict) -> None:

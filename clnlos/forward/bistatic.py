@@ -37,8 +37,11 @@ material (``brdf_retro_csv``) has no bistatic BRDF and is refused.
 
 from __future__ import annotations
 
+import json
 import math
+import warnings
 from dataclasses import dataclass
+from functools import lru_cache
 from pathlib import Path
 
 import numpy as np
@@ -47,7 +50,7 @@ import pyopencl.array as cla
 
 from clnlos.brdf.models import make_model
 from clnlos.brdf.presets import ANALYTIC_PRESETS, preset_model, preset_table
-from clnlos.brdf.texture import lookup_numpy, read_texture, tabulate
+from clnlos.brdf.texture import checked_texture, read_texture, tabulate
 from clnlos.checks import integer
 from clnlos.diffusion import SlabTransmittance, bin_time_nodes, support_of
 from clnlos.errors import ParameterError
@@ -63,11 +66,16 @@ from clnlos.forward.scene import (  # noqa: F401 (the [transport] table: default
     TransportSettings,
 )
 from clnlos.runtime.buffers import fill_zero, kernel_int, round_up, zeros
+from clnlos.runtime.caches import CACHES
 from clnlos.runtime.device import get_queue, group_size, has_fp64, require_dtype, require_memory
 from clnlos.runtime.programs import get_kernels, real_defines
 
 HIST_BYTES = 64 << 20  # class histograms per chunk of scan points
 MAX_SLICES = 16       # element slices per scan point on GPUs (more work-items)
+# elements one work-item of stage 1 takes at most: on Mesa's rusticl (llvmpipe) work-items
+# that loop over many elements lost light (a 1 m plate of 20,000 elements in one: 23x too
+# little, its peak 0.29 m late; 4,000: 3.7% too little; 1,000: as on PoCL)
+ELEMENTS_PER_ITEM = 2048
 # "auto": bistatic where the lobe (half width at half maximum in the outgoing direction)
 # is narrower than AUTO_FACTOR x the angular spread of the slab's footprint seen from the
 # target (rms angle between w1 and w2). See :func:`auto_choice`. Calibrated on the ten
@@ -168,25 +176,64 @@ def face_quadrature(slab, *, bins: int, bin_width_s: float, rings: int = FACE_RI
 # ------------------------------------------------------------------ materials
 def material_texture(obj, base_dir, n_theta: int, n_dphi: int) -> np.ndarray | None:
     """The object's BRDF texture [n_theta, n_theta, n_dphi] (1/sr, the grid of
-    :func:`clnlos.brdf.texture.tabulate`), or None for Lambertian."""
+    :func:`clnlos.brdf.texture.tabulate`), or None for Lambertian. A texture file is checked
+    against its model (:func:`clnlos.brdf.texture.checked_texture`: one warning line where
+    it was too coarse for its lobe and was tabulated again)."""
     if obj.brdf_retro_csv is not None:
         raise ParameterError("transport.model", "bistatic", "'confocal' for an object with "
                              f"brdf_retro_csv = {obj.brdf_retro_csv!r} (a confocal slice, no "
                              "bistatic BRDF)")
-    m = obj.material
+    tex, _, note = _material_texture(*_material_key(obj.material, base_dir), int(n_theta),
+                                     int(n_dphi))
+    if note:
+        warnings.warn(note, UserWarning, stacklevel=2)
+    return tex
+
+
+def _material_key(m, base_dir) -> tuple[str, str]:
+    """A hashable key of a material: its table as JSON, a texture file with its size and
+    time (a file rewritten is read again), or its name."""
     if isinstance(m, dict):
-        return tabulate(make_model(m), n_theta, n_dphi, 2).texture
+        return "table", json.dumps(m, sort_keys=True)
     if str(m).endswith((".h5", ".hdf5")):
-        tex = read_texture(Path(base_dir) / m).texture
-        if tex.shape == (n_theta, n_theta, n_dphi):
-            return tex
-        th = np.linspace(0, np.pi / 2, n_theta)
-        TI, TS, DP = np.meshgrid(th, th, np.linspace(0, np.pi, n_dphi), indexing="ij")
-        ang = np.column_stack([TI.ravel(), 0 * TI.ravel(), TS.ravel(), DP.ravel()])
-        return lookup_numpy(tex, ang).reshape(TI.shape)
-    key = str(m).lower()
+        path = Path(base_dir) / m
+        st = path.stat() if path.is_file() else None
+        return "file", json.dumps([str(path), st and st.st_size, st and st.st_mtime_ns])
+    return "name", str(m).lower()
+
+
+@lru_cache(maxsize=32)
+def _material_texture(kind: str, key: str, n_theta: int, n_dphi: int
+                      ) -> tuple[np.ndarray | None, str, str | None]:
+    """(texture or None, the resolution it has, a note or None) of a material key
+    (:func:`_material_key`); kept per process: tabulating a narrow lobe takes seconds."""
+    grid = f"{n_theta}x{n_theta}x{n_dphi}"
+    if kind == "table":
+        return tabulate(make_model(json.loads(key)), n_theta, n_dphi, 2).texture, grid, None
+    if kind == "file":
+        path = json.loads(key)[0]
+        return checked_texture(read_texture(path), path, n_theta, n_dphi)
     model = preset_model(key) if key in preset_table() else ANALYTIC_PRESETS.get(key)
-    return None if model is None else tabulate(model, n_theta, n_dphi, 2).texture
+    if model is None:
+        return None, "lambertian", None
+    return tabulate(model, n_theta, n_dphi, 2).texture, grid, None
+
+
+CACHES.register("material textures", _material_texture.cache_clear)
+
+
+def texture_label(scene, settings: TransportSettings) -> str:
+    """The resolution of the textures the transport reads, per object where they differ
+    ("16x16x16" for a texture file used as it is, the transport's grid for one tabulated
+    from a model; "lambertian" without one)."""
+    n, nd = settings.texture_theta, settings.texture_dphi
+    labels = []
+    for o in scene.objects:
+        if o.brdf_retro_csv is None:
+            labels.append(_material_texture(*_material_key(o.material, scene.base_dir), n,
+                                            nd)[1])
+    distinct = list(dict.fromkeys(labels))
+    return distinct[0] if len(distinct) == 1 else "+".join(labels)
 
 
 def scene_textures(scene, settings: TransportSettings) -> np.ndarray | None:
@@ -204,12 +251,15 @@ class BistaticTransport:
     """Plan: Eq. 8 on one scan/time grid, slab, quadrature, texture stack, dtype and device.
 
     ``__call__(samples)`` returns tau [bins, points, points] on the device (slab included:
-    no separate slab blur follows). ``textures`` None: Lambertian (f = 1/pi)."""
+    no separate slab blur follows). ``textures`` None: Lambertian (f = 1/pi);
+    ``texture_label``: the resolution the stage name gives them (:func:`texture_label`;
+    default their shape)."""
 
     def __init__(self, *, slab, points: int, width_m: float, bins: int, bin_width_s: float,
                  start_s: float = 0.0, textures: np.ndarray | None = None,
                  rings: int = FACE_RINGS, angles: int = FACE_ANGLES, n_dipoles=None,
-                 splat_order: int = 1, dtype=np.float32, queue=None):
+                 splat_order: int = 1, dtype=np.float32, queue=None,
+                 texture_label: str | None = None):
         self.queue = get_queue(queue)
         self.dtype = require_dtype(self.queue.device, dtype)
         integer("transport.face_rings", rings, 1, MAX_FACE_RINGS)
@@ -227,7 +277,8 @@ class BistaticTransport:
         if textures is None:
             defines["LAMBERTIAN"] = True
         self._k = get_kernels(self.queue, "bistatic", defines)
-        tex = "lambertian" if textures is None else "x".join(str(s) for s in textures.shape[1:])
+        tex = texture_label or ("lambertian" if textures is None
+                                else "x".join(str(s) for s in textures.shape[1:]))
         self.stage = f"lightcone:bistatic(rings={rings},angles={angles},texture={tex})"
 
     def _dev(self, a, dtype=None):
@@ -236,8 +287,9 @@ class BistaticTransport:
     def launch_plan(self, n_el: int) -> tuple[int, int, int]:
         """(local size of stage 1, element slices, scan points per chunk) from the device:
         on GPUs each scan point's elements are split into slices until there are about
-        4 x compute units x local size work-items; chunks keep the histograms under
-        HIST_BYTES (and half the device's largest allocation)."""
+        4 x compute units x local size work-items; on any device into at least enough
+        slices that a work-item takes at most ELEMENTS_PER_ITEM elements; chunks keep the
+        histograms under HIST_BYTES (and half the device's largest allocation)."""
         dev = self.queue.device
         lsz = group_size(self._k.bistatic_pairs, dev)
         n_cls, n_scan = len(self.quad.classes), self.points * self.points
@@ -246,6 +298,7 @@ class BistaticTransport:
             want = 4 * dev.max_compute_units * lsz
             slices = int(np.clip(math.ceil(want / (n_cls * n_scan)), 1,
                                  min(MAX_SLICES, max(1, n_el // 64))))
+        slices = max(slices, math.ceil(n_el / ELEMENTS_PER_ITEM))
         cap = min(HIST_BYTES, dev.max_mem_alloc_size // 2)
         per_point = slices * n_cls * self.bins * self.dtype.itemsize
         return lsz, slices, int(np.clip(cap // per_point, 1, n_scan))

@@ -21,10 +21,9 @@ from functools import lru_cache
 import numpy as np
 import pyopencl.array as cla
 import scipy.fft as sfft
-from scipy.special import erf
+from scipy.special import erfc
 
 from clnlos.diffusion import (
-    SUPPORT_TOL,
     SlabTransmittance,
     bin_time_nodes,
     diffusion_psf,
@@ -33,7 +32,7 @@ from clnlos.diffusion import (
 )
 from clnlos.errors import ParameterError
 from clnlos.operators.spectral import SpectralFilter, folded_shape
-from clnlos.physics.grid import grid_offsets
+from clnlos.physics.grid import grid_offsets, padded_length
 from clnlos.physics.slab import Slab
 from clnlos.runtime.buffers import fill_zero, host_view
 from clnlos.runtime.caches import CACHES, FORWARD_BLURS
@@ -42,8 +41,51 @@ from clnlos.runtime.fft import COMPLEX_OF, RealFFT3
 
 
 def _padded_grid(shape, periodic_xy: bool) -> tuple[int, int, int]:
+    """The slab filters' padded grid for transients of ``shape``: time to
+    :func:`clnlos.physics.grid.padded_length` (at least 2 nt), laterally 2 ny x 2 nx (or
+    ny x nx, ``periodic_xy``)."""
     nt, ny, nx = (int(s) for s in shape)
-    return (2 * nt, ny, nx) if periodic_xy else (2 * nt, 2 * ny, 2 * nx)
+    pt = padded_length(nt)
+    return (pt, ny, nx) if periodic_xy else (pt, 2 * ny, 2 * nx)
+
+
+def cell_gaussian(offsets_m: np.ndarray, a_m2: np.ndarray, pitch_m: float) -> np.ndarray:
+    """Fraction of the unit 1D Gaussian exp(-u^2 / a) / sqrt(pi a) in the cells of width
+    ``pitch_m`` centred at ``offsets_m``, for each ``a_m2`` (m^2; shape (...) -> (..., n)):
+
+        G(o) = [erfc((|o| - p / 2) / sqrt(a)) - erfc((|o| + p / 2) / sqrt(a))] / 2
+
+    (the erfc form keeps the far cells' small values exact). Sums to 1 over an infinite row
+    for any width: a Gaussian narrower than a cell keeps its mass in the cell at 0."""
+    s = np.sqrt(np.asarray(a_m2, np.float64))[..., None]
+    o = np.abs(np.asarray(offsets_m, np.float64))
+    h = 0.5 * float(pitch_m)
+    return 0.5 * (erfc((o - h) / s) - erfc((o + h) / s))
+
+
+def _lateral_dfts(a: np.ndarray, pitch_m: float, ny: int, nx: int
+                  ) -> tuple[np.ndarray, np.ndarray]:
+    """(Gy [..., ny], Gx [..., nx // 2 + 1]): the DFTs along y (whole) and x (half) of the
+    cell-integrated unit Gaussians exp(-u^2 / a) / sqrt(pi a) on the wrap-order grids --
+    real, because each row is circularly even."""
+    gy = sfft.fft(cell_gaussian(grid_offsets(ny, pitch_m), a, pitch_m), axis=-1).real
+    gx = sfft.rfft(cell_gaussian(grid_offsets(nx, pitch_m), a, pitch_m), axis=-1).real
+    return gy, gx
+
+
+def _node_masses(plan: SlabTransmittance, lags: int, bin_width_s: float, time_nodes: int
+                 ) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+    """(m [lag, node], u [node], a [lag, node]): the laterally integrated slab response
+    carried by each Gauss-Legendre node of each lag bin, m = dt w_j T(0, t) pi a with
+    a = 4 D v t (the plane integral of exp(-rho^2 / a) is pi a), so that sum_j m[k, j] is
+    the bin's transmitted fraction; u the nodes in bins (t = (k + u) dt)."""
+    t, w = bin_time_nodes(lags, bin_width_s, time_nodes)
+    u = t[0] / float(bin_width_s) if lags else np.zeros(len(w))
+    log_t0 = plan.log_series(t)
+    alive = np.isfinite(log_t0) & (t > 0)
+    a = 4.0 * plan.slab.D * plan.slab.v * np.where(alive, t, 1.0)  # 4 D v t (m^2)
+    m = np.where(alive, w[None, :] * np.exp(np.where(alive, log_t0, 0.0)) * np.pi * a, 0.0)
+    return m * float(bin_width_s), u, a
 
 
 def phi_lateral_factors(plan: SlabTransmittance, *, lags: int, bin_width_s: float,
@@ -52,34 +94,85 @@ def phi_lateral_factors(plan: SlabTransmittance, *, lags: int, bin_width_s: floa
     """(c [lag, node], Gy [lag, node, ny], Gx [lag, node, nx // 2 + 1]), float64: the 2D
     lateral DFT of Phi at lag k is sum_j c[k, j] Gy[k, j, :, None] Gx[k, j, None, :].
 
-    Phi[k, y, x] = dt p^2 sum_j w_j T(rho_yx, t_kj) (:func:`~clnlos.diffusion.diffusion_psf`,
-    physical units) and T(rho, t) = T(0, t) g_t(y) g_t(x) with g_t(u) = exp(-u^2 / (4 D v t)):
-    each time node is a separable Gaussian, whose 2D DFT is the product of two 1D DFTs --
-    real, because g_t is circularly even on the wrap-order grid. So the lateral transform of
-    the whole PSF table costs (lags x nodes) DFTs of length ny and nx.
-    """
-    t, w = bin_time_nodes(lags, bin_width_s, time_nodes)
-    log_t0 = plan.log_series(t)
-    alive = np.isfinite(log_t0) & (t > 0)
-    c = np.where(alive, w[None, :] * np.exp(np.where(alive, log_t0, 0.0)), 0.0)
-    c *= float(bin_width_s) * float(pitch_m) ** 2
-    a = 4.0 * plan.slab.D * plan.slab.v * np.where(alive, t, 1.0)  # 4 D v t (m^2)
-
-    def dft_of_gaussian(n: int, half: bool) -> np.ndarray:
-        g = np.exp(-grid_offsets(n, pitch_m)[None, None, :] ** 2 / a[:, :, None])
-        return (sfft.rfft(g, axis=-1) if half else sfft.fft(g, axis=-1)).real
-
-    return c, dft_of_gaussian(ny, False), dft_of_gaussian(nx, True)
+    Phi[k, y, x] = dt sum_j w_j int_cell(y, x) T(rho, t_kj) d^2 rho -- the fraction of the
+    light entering at the origin that leaves through the scan cell (y, x) in lag bin k --
+    and T(rho, t) = T(0, t) exp(-rho^2 / (4 D v t)): each time node is a separable
+    Gaussian of plane integral c = dt w_j T(0, t) 4 pi D v t, integrated over the cells
+    (:func:`cell_gaussian`), whose 2D DFT is the product of two 1D DFTs."""
+    c, _, a = _node_masses(plan, lags, bin_width_s, time_nodes)
+    gy, gx = _lateral_dfts(a, pitch_m, ny, nx)
+    return c, gy, gx
 
 
-def _write_phi_spectrum(out: np.ndarray, factors, *, square: bool, rows: int = 16) -> None:
-    """out[w, ky, kx] <- F[Phi] (or F[Phi]^2), the 3D half spectrum of Phi zero past its
-    lags, from :func:`phi_lateral_factors`: the lateral spectra are built ``rows`` ky-rows
-    at a time and transformed along t. Each (ky, kx) column is a real sequence, so the
-    frequencies past n0 / 2 are the conjugates of those below; ``out`` is either the whole
-    (n0, n1, n2h) spectrum or its folded (n0 / 2 + 1, n1 / 2 + 1, n2h) quarter
-    (:func:`clnlos.operators.spectral.folded_shape`: Phi is even in y too), told apart by its shape
-    given n1 = Gy's length."""
+def confocal_lateral_factors(plan: SlabTransmittance, *, lags: int, rows: int,
+                             bin_width_s: float, pitch_m: float, ny: int, nx: int,
+                             time_nodes: int = 4
+                             ) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+    """The factors of :func:`phi_lateral_factors` for Phi * Phi itself, lags 0..rows-1.
+
+    The two legs' lateral Gaussians convolve into one: exp(-u^2 / a1) * exp(-u^2 / a2) =
+    pi a1 a2 / (a1 + a2) exp(-u^2 / (a1 + a2)) with a1 + a2 = 4 D v (t1 + t2), so
+
+        (Phi * Phi)(u, t) = P2(t) exp(-u^2 / (4 D v t)) / (4 pi D v t),   P2 = P * P
+
+    with P the laterally integrated response. On the bins, a pair of nodes (u1, u2) of
+    lags (j, k - j) arrives at t = (k + u1 + u2) dt whatever j, so lag k is
+    sum over node pairs of Q[k] G_t(y) G_t(x), Q[k] = sum_j m[j, n1] m[k - j, n2] (the
+    discrete convolution of :func:`_node_masses`) and G_t the unit Gaussian of a = 4 D v t
+    integrated over the scan cell (:func:`cell_gaussian`). The energy per lag is therefore
+    that of the laterally integrated P * P at any pitch, and the lateral shape is the cell
+    integral of the continuous blur (variance 2 D v t + p^2 / 12 per axis)."""
+    q, t = _pair_masses(plan, lags, rows, bin_width_s, time_nodes)
+    a = 4.0 * plan.slab.D * plan.slab.v * np.where(q > 0, t, float(bin_width_s))
+    gy, gx = _lateral_dfts(a, pitch_m, ny, nx)
+    return q, gy, gx
+
+
+def _pair_masses(plan: SlabTransmittance, lags: int, rows: int, bin_width_s: float,
+                 time_nodes: int) -> tuple[np.ndarray, np.ndarray]:
+    """(Q [lag, s], t [lag, s] in s): the laterally integrated Phi * Phi of lags 0..rows-1
+    split by the sum s = u1 + u2 of the two legs' time nodes (:func:`_node_masses`), each
+    part arriving at t = (k + s) dt (:func:`confocal_lateral_factors`); zero where nothing
+    has arrived."""
+    m, u, _ = _node_masses(plan, lags, bin_width_s, time_nodes)
+    n = sfft.next_fast_len(2 * max(lags, 1), real=True)
+    spec = sfft.rfft(m, n=n, axis=0)
+    sums = np.round(u[:, None] + u[None, :], 12)
+    keys = np.unique(sums)
+    q = np.zeros((rows, keys.size))
+    for i, j in np.ndindex(sums.shape):
+        conv = sfft.irfft(spec[:, i] * spec[:, j], n=n)[:rows]
+        q[:len(conv), np.searchsorted(keys, sums[i, j])] += conv
+    t = (np.arange(rows)[:, None] + keys[None, :]) * float(bin_width_s)
+    q = np.where((t > 0) & (q > 0), q, 0.0)  # FFT round-off where nothing has arrived
+    return q, t
+
+
+def confocal_lag_energy(slab: Slab, *, nt: int, bin_width_s: float,
+                        n_dipoles: int | None = None, queue=None) -> np.ndarray:
+    """sum over the plane of Phi * Phi per lag, lags 0..nt-1 (float64): the laterally
+    integrated blur of :func:`confocal_psf` (the same bins and nodes), without its lateral
+    grid."""
+    q = get_queue(queue)
+    prof = lateral_integral_profile(slab, nt=nt, bin_width_s=bin_width_s, queue=q)
+    lags = support_of(prof)
+    plan = SlabTransmittance(slab, n_dipoles=n_dipoles, dtype=np.float64 if has_fp64(q.device)
+                             else np.float32, queue=q)
+    energy, _ = _pair_masses(plan, lags, min(int(nt), 2 * lags), bin_width_s, 4)
+    out = np.zeros(int(nt))
+    out[:energy.shape[0]] = energy.sum(axis=1)
+    return out
+
+
+def _write_phi_spectrum(out: np.ndarray, factors, *, rows: int = 16) -> None:
+    """out[w, ky, kx] <- the 3D half spectrum of the separable table the ``factors`` of
+    :func:`phi_lateral_factors` or :func:`confocal_lateral_factors` describe (zero past
+    their lags): the lateral spectra are built ``rows`` ky-rows at a time and transformed
+    along t. Each (ky, kx) column is a real sequence, so the frequencies past n0 / 2 are
+    the conjugates of those below; ``out`` is either the whole (n0, n1, n2h) spectrum or
+    its folded (n0 / 2 + 1, n1 / 2 + 1, n2h) quarter
+    (:func:`clnlos.operators.spectral.folded_shape`: the table is even in y too), told apart
+    by its shape given n1 = Gy's length."""
     c, gy, gx = factors
     n1 = gy.shape[-1]
     folded = out.shape[1] != n1
@@ -92,120 +185,95 @@ def _write_phi_spectrum(out: np.ndarray, factors, *, square: bool, rows: int = 1
         if folded:
             lat = lat[:, :out.shape[1] - y0]
         spec = sfft.rfft(lat.astype(real, copy=False), n=n0, axis=0, workers=host_threads())
-        if square:
-            spec *= spec
         out[:nh, y0:y0 + rows] = spec
         if not folded:
             out[nh:, y0:y0 + rows] = np.conj(spec[mirror])
 
 
 def phi_spectrum(slab: Slab, shape, *, bin_width_s: float, pitch_m: float, n_dipoles,
-                 periodic_xy: bool, square: bool, dtype, queue, folded: bool = False,
-                 profile: np.ndarray | None = None) -> tuple[RealFFT3, cla.Array, float]:
-    """(FFT plan of the padded grid, F[Phi] or F[Phi]^2 on it -- whole, or ``folded`` to
-    the quarter :func:`clnlos.operators.spectral.folded_shape` keeps --, the energy fraction of
-    Phi * Phi at lags >= nt). ``profile``: :func:`~clnlos.diffusion.lateral_integral_profile`
-    for these nt and bin width when the caller has it.
+                 periodic_xy: bool, square: bool, dtype, queue, folded: bool = False
+                 ) -> tuple[RealFFT3, cla.Array]:
+    """(FFT plan of the padded grid, F[Phi] -- or, ``square``, F[Phi * Phi] cut to lags
+    0..nt-1 -- on it, whole or ``folded`` to the quarter
+    :func:`clnlos.operators.spectral.folded_shape` keeps).
 
     Phi is taken over its temporal support only (:func:`~clnlos.diffusion.support_of`, all
     but SUPPORT_TOL of its energy; zero after) and transformed without a PSF table: its
-    lateral DFT is analytic per time node (:func:`phi_lateral_factors`), so only the 1D
-    transform along t remains (0.2 s instead of 0.8 s for a table and a 3D FFT at
-    1024 x 256 x 256). Equal to the DFT of :func:`~clnlos.diffusion.diffusion_psf` on the
-    padded grid up to rounding (tested)."""
+    lateral DFT is analytic per time node (:func:`phi_lateral_factors`,
+    :func:`confocal_lateral_factors`), so only the 1D transform along t remains (0.2 s
+    instead of 0.8 s for a table and a 3D FFT at 1024 x 256 x 256). Both are integrated
+    over the scan cells: a scan point collects the light of its whole cell, so the energy
+    per scan point does not depend on the pitch (tested against a finer grid binned)."""
     q = get_queue(queue)
     dt = require_dtype(q.device, dtype)
     nt = int(shape[0])
     pad = _padded_grid(shape, periodic_xy)
-    prof = (lateral_integral_profile(slab, nt=nt, bin_width_s=bin_width_s, queue=q)
-            if profile is None else profile)
-    lags = support_of(prof)
+    lags = support_of(lateral_integral_profile(slab, nt=nt, bin_width_s=bin_width_s, queue=q))
     plan = SlabTransmittance(slab, n_dipoles=n_dipoles, dtype=dt, queue=q)
-    factors = phi_lateral_factors(plan, lags=lags, bin_width_s=bin_width_s, pitch_m=pitch_m,
-                                  ny=pad[1], nx=pad[2])
+    kw = dict(lags=lags, bin_width_s=bin_width_s, pitch_m=pitch_m, ny=pad[1], nx=pad[2])
+    factors = (confocal_lateral_factors(plan, rows=min(nt, 2 * lags), **kw) if square
+               else phi_lateral_factors(plan, **kw))
     fft = RealFFT3(pad, dt, q)
     spec = (cla.empty(q, folded_shape(fft.spec_shape), fft.cdtype) if folded
             else fft.empty_spectrum())
     with host_view(spec, write=True, read=False) as out:
-        _write_phi_spectrum(out, factors, square=square)
-    return fft, spec, confocal_tail_fraction(prof[:lags], nt)
-
-
-def confocal_tail_fraction(prof: np.ndarray, nt: int) -> float:
-    """Energy fraction of Phi * Phi at lags >= nt, from the laterally integrated profile
-    (lateral integration commutes with the convolution: it is prof * prof in time)."""
-    p2 = np.convolve(prof, prof)
-    total = p2.sum()
-    return float(p2[nt:].sum() / total) if total > 0 else 0.0
-
-
-def _cut_at_window(fft: RealFFT3, spec: cla.Array, out_g: cla.Array, nt: int) -> cla.Array:
-    """Phi * Phi in the lag domain (into ``out_g``), zero at lags >= nt."""
-    phi2 = fft.inverse(spec, out_g)
-    fill_zero(phi2.queue, phi2,
-              offset_bytes=nt * phi2.shape[1] * phi2.shape[2] * phi2.dtype.itemsize)
-    return phi2
+        _write_phi_spectrum(out, factors)
+    return fft, spec
 
 
 def confocal_spectrum(slab: Slab, shape: tuple[int, int, int], *, bin_width_s: float,
                       pitch_m: float, n_dipoles: int | None = None, periodic_xy: bool = False,
                       dtype=np.float32, queue=None, cache=None) -> tuple[cla.Array, bool]:
-    """(F[Phi * Phi] on the padded grid, whether it is stored folded): the spectrum of
-    :func:`confocal_psf` without going to the lag domain when it need not.
-
-    When Phi * Phi holds less than SUPPORT_TOL of its energy at lags >= nt
-    (:func:`confocal_tail_fraction`), the cut at nt changes nothing that matters and the
-    spectrum is F[Phi]^2, stored folded (a quarter: :func:`clnlos.operators.spectral.folded_shape`);
-    otherwise it is F of :func:`confocal_psf` (an inverse and a forward FFT more), whole.
-    ``cache``: a :class:`clnlos.runtime.spectrum_cache.SpectrumCache` to read the spectrum from, or
-    store it in."""
+    """(F[Phi * Phi] on the padded grid, whether it is stored folded -- always): the
+    spectrum of :func:`confocal_psf`, built from its analytic lateral factors
+    (:func:`confocal_lateral_factors`, zero at lags >= nt) and stored folded (a quarter:
+    :func:`clnlos.operators.spectral.folded_shape`). ``cache``: a
+    :class:`clnlos.runtime.spectrum_cache.SpectrumCache` to read the spectrum from, or store
+    it in."""
     q = get_queue(queue)
     dt = require_dtype(q.device, dtype)
-    nt = int(shape[0])
-    prof = lateral_integral_profile(slab, nt=nt, bin_width_s=bin_width_s, queue=q)
-    folded = confocal_tail_fraction(prof[:support_of(prof)], nt) < SUPPORT_TOL
     key = None
     if cache is not None:
         key = cache.key("slab-confocal", slab=dataclasses.asdict(slab), n_dipoles=n_dipoles,
                         shape=[int(v) for v in shape], bin_width_s=float(bin_width_s),
                         pitch_m=float(pitch_m), periodic_xy=bool(periodic_xy),
-                        dtype=dt.name, folded=folded)
+                        dtype=dt.name, folded=True, cells="integrated")
         full = RealFFT3(_padded_grid(shape, periodic_xy), dt, q).spec_shape
-        spec = cla.empty(q, folded_shape(full) if folded else full, COMPLEX_OF[dt])
+        spec = cla.empty(q, folded_shape(full), COMPLEX_OF[dt])
         if cache.load(key, spec):
-            return spec, folded
-    fft, spec, _ = phi_spectrum(slab, shape, bin_width_s=bin_width_s, pitch_m=pitch_m,
-                                n_dipoles=n_dipoles, periodic_xy=periodic_xy, square=True,
-                                dtype=dt, queue=q, folded=folded, profile=prof)
-    if not folded:
-        lag_g = cla.empty(fft.queue, fft.shape, fft.dtype)
-        spec = fft.forward(_cut_at_window(fft, spec, lag_g, nt), spec)
+            return spec, True
+    _, spec = phi_spectrum(slab, shape, bin_width_s=bin_width_s, pitch_m=pitch_m,
+                           n_dipoles=n_dipoles, periodic_xy=periodic_xy, square=True,
+                           dtype=dt, queue=q, folded=True)
     if cache is not None:
         cache.store(key, spec)
-    return spec, folded
+    return spec, True
 
 
 def confocal_psf(slab: Slab, shape: tuple[int, int, int], *, bin_width_s: float,
                  pitch_m: float, n_dipoles: int | None = None, periodic_xy: bool = False,
                  dtype=np.float32, queue=None) -> cla.Array:
-    """Phi * Phi on the padded grid (2 nt, 2 ny, 2 nx) for transients of ``shape``.
+    """Phi * Phi on the padded grid (:func:`_padded_grid`: at least 2 nt, 2 ny, 2 nx) for
+    transients of ``shape``.
 
     ``periodic_xy``: the grid is (2 nt, ny, nx), a convolution that wraps laterally -- for
     a forward model whose input already extends past the kept area by the blur's reach
     (:func:`lateral_reach_m`), where the wrapped border is cropped away.
 
-    Phi is :func:`~clnlos.diffusion.diffusion_psf` with ``normalize="physical"`` (so the
-    sum of Phi * Phi approximates the squared total transmittance) over its temporal
-    support (all but SUPPORT_TOL of its energy; zero after), transformed by
-    :func:`phi_spectrum`; the self-convolution is exact on the 2 nt grid and is then cut to
-    lags 0..nt-1, the only ones that reach the time window from inside it -- longer lags
-    would wrap around the padded FFT.
+    Phi * Phi[k, y, x] is the fraction of the light entering the slab at the origin that,
+    after crossing it twice, leaves through the scan cell (y, x) in lag bin k (physical
+    units: its sum approximates the squared total transmittance), over lags 0..nt-1 only --
+    the only ones that reach the time window from inside it; built from
+    :func:`confocal_lateral_factors` by :func:`phi_spectrum` and transformed back.
     """
-    fft, spec, _ = phi_spectrum(slab, shape, bin_width_s=bin_width_s, pitch_m=pitch_m,
-                                n_dipoles=n_dipoles, periodic_xy=periodic_xy, square=True,
-                                dtype=dtype, queue=queue)
-    return _cut_at_window(fft, spec, cla.empty(fft.queue, fft.shape, fft.dtype),
-                          int(shape[0]))
+    fft, spec = phi_spectrum(slab, shape, bin_width_s=bin_width_s, pitch_m=pitch_m,
+                             n_dipoles=n_dipoles, periodic_xy=periodic_xy, square=True,
+                             dtype=dtype, queue=queue)
+    phi2 = fft.inverse(spec, cla.empty(fft.queue, fft.shape, fft.dtype))
+    nt = int(shape[0])  # exactly zero past the window (the inverse FFT leaves round-off)
+    fill_zero(phi2.queue, phi2,
+              offset_bytes=nt * phi2.shape[1] * phi2.shape[2] * phi2.dtype.itemsize)
+    return phi2
 
 
 KERNELS = ("cdt", "eq8")  # hidden-face kernels: CDT's Phi * Phi, the far-target Eq. 8 one
@@ -248,9 +316,7 @@ def eq8_psf(slab: Slab, shape: tuple[int, int, int], *, bin_width_s: float, pitc
     b = slab.D * slab.v * np.arange(phi2.shape[0]) * float(bin_width_s)  # D v t, m^2
 
     def cells(n: int) -> np.ndarray:
-        off = grid_offsets(n, pitch_m)[None, :]
-        sb = np.sqrt(np.maximum(b, 1e-300))[:, None]
-        g = erf((off + pitch_m / 2) / sb) - erf((off - pitch_m / 2) / sb)
+        g = cell_gaussian(grid_offsets(n, pitch_m), np.maximum(b, 1e-300), pitch_m)
         return g / g.sum(axis=1, keepdims=True)
 
     gy, gx = cells(phi2.shape[1]), cells(phi2.shape[2])
@@ -275,18 +341,19 @@ def autoconvolution_full(p: np.ndarray) -> np.ndarray:
     return out[tuple(slice(0, s) for s in full)]
 
 
-def lateral_reach_m(slab: Slab, *, window_s: float, pitch_m: float, tol: float = 1e-3,
+def lateral_reach_m(slab: Slab, *, window_s: float, tol: float = 1e-3,
                     n_dipoles: int | None = None, queue=None) -> float:
     """Radius R (m) outside which the confocal blur holds less than ``tol`` of its energy.
 
     With P(rho) = integral of Phi(t, rho) over lags 0..window_s (the light that can reach the
     time window), the confocal blur integrated over time is about P * P (2D convolution);
     R is the smallest offset with sum_{|rho| > R} (P * P) < tol * sum (P * P). The profile is
-    computed on a grid of at most 256 cells per side reaching 20 (d + 2 z_e), a bound well
-    past the lateral decay length (d + 2 z_e) / pi of the slab's diffuse spot.
+    computed on a grid of 256 cells per side reaching 20 (d + 2 z_e), a bound well past the
+    lateral decay length (d + 2 z_e) / pi of the slab's diffuse spot, whatever the scan
+    pitch (a coarse scan grid would sample the blur too sparsely to see its reach).
     """
     r_max = 20.0 * (slab.thickness_m + 2.0 * slab.ze)
-    pitch = max(float(pitch_m), 2.0 * r_max / 256)
+    pitch = 2.0 * r_max / 256
     n = 2 * int(math.ceil(r_max / pitch))
     nt = 64
     q = get_queue(queue)
@@ -374,7 +441,7 @@ def blur_margin(slab, window_s, pitch_m, points, tol, n_dipoles, queue) -> tuple
     """(cells per side to add so the scan grid covers the blur's reach, rounded to a
     2-3-5-smooth size; whether that covers all of it). The margin is capped at twice the
     scan; a capped margin needs a non-wrapping (zero-padded) lateral convolution."""
-    reach = lateral_reach_m(slab, window_s=window_s, pitch_m=pitch_m, tol=tol,
+    reach = lateral_reach_m(slab, window_s=window_s, tol=tol,
                             n_dipoles=n_dipoles, queue=queue)
     need = int(math.ceil(reach / pitch_m - 1e-9))
     m = min(need, 2 * points)

@@ -17,19 +17,20 @@ from clnlos.runtime.programs import get_kernels, real_defines
 class LightCone:
     """Plan: confocal light-cone accumulation on one scan/time grid, dtype and device.
 
-    Output [bins, points, points]; ``retro`` compiles the BRDF-table path, else Lambertian.
+    Output [bins, points, points]; ``retro`` compiles the BRDF-table path, else Lambertian;
+    ``describe`` names the grid in a memory error (default: its shape).
     """
 
     def __init__(self, *, points: int, width_m: float, bins: int, bin_width_s: float,
                  start_s: float, retro: bool, splat_order: int = 1, dtype=np.float32,
-                 queue=None, variant: str = "auto"):
+                 queue=None, variant: str = "auto", describe: str | None = None):
         self.queue = get_queue(queue)
         self.dtype = require_dtype(self.queue.device, dtype)
         self.points, self.width_m, self.bins = points, width_m, bins
         self.bin_width_s, self.start_s = bin_width_s, start_s
         self.shape = (bins, points, points)
         require_memory(self.queue.device, int(np.prod(self.shape)) * self.dtype.itemsize,
-                       f"transient {self.shape}")
+                       describe or f"transient {self.shape}")
         defines = {**real_defines(self.dtype), "SPLAT_ORDER": int(splat_order)}
         if retro:
             defines.update(RETRO_TABLE=True, N_THETA=N_THETA)

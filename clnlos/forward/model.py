@@ -37,7 +37,13 @@ import numpy as np
 
 from clnlos.config import slab_table
 from clnlos.errors import ParameterError
-from clnlos.forward.bistatic import BistaticTransport, auto_choice, face_quadrature, scene_textures
+from clnlos.forward.bistatic import (
+    BistaticTransport,
+    auto_choice,
+    face_quadrature,
+    scene_textures,
+    texture_label,
+)
 from clnlos.forward.blur import blur_margin, forward_blur
 from clnlos.forward.lightcone import LightCone
 from clnlos.forward.noise import PhotonNoise
@@ -140,7 +146,8 @@ def bistatic_stages(scene: Scene, samples: SurfaceSamples, dtype, queue) -> Tran
         slab=s.slab, points=s.points, width_m=s.width_m, bins=s.bins,
         bin_width_s=s.bin_width_s, start_s=s.start_s, textures=scene_textures(s, t),
         rings=t.face_rings, angles=t.face_angles, n_dipoles=s.n_dipoles,
-        splat_order=s.splat_order, dtype=dtype, queue=queue)
+        splat_order=s.splat_order, dtype=dtype, queue=queue,
+        texture_label=texture_label(s, t))
     return TransportStages([Stage(op.stage, op, op)], 0, True, op.shape)
 
 
@@ -158,10 +165,14 @@ def confocal_stages(scene: Scene, samples: SurfaceSamples, dtype, queue) -> Tran
         margin, covered = blur_margin(s.slab, s.bins * s.bin_width_s, s.pitch_m, s.points,
                                       s.blur_reach_tol, s.n_dipoles, queue)
     n_ext = s.points + 2 * margin
+    grid = f"the transient of time.bins = {s.bins} x scan.points = {s.points}^2"
+    if margin:
+        grid += (f" (computed on {n_ext} x {n_ext} points: the slab blur reaches "
+                 f"{margin} scan cells past each side)")
     cone = LightCone(points=n_ext, width_m=n_ext * s.pitch_m, bins=s.bins,
                      bin_width_s=s.bin_width_s, start_s=s.start_s,
                      retro=samples.retro_tables is not None, splat_order=s.splat_order,
-                     dtype=dtype, queue=queue)
+                     dtype=dtype, queue=queue, describe=grid)
     kind = "brdf-table" if samples.retro_tables is not None else "lambertian"
     stages = [Stage(f"lightcone:{kind}", cone, cone)]
     if s.slab is not None:

@@ -75,7 +75,8 @@ from pathlib import Path
 import numpy as np
 
 from clnlos.brdf.data import TEXT_ENCODING
-from clnlos.checks import choice, input_file, integer, positive
+from clnlos.brdf.presets import material_names
+from clnlos.checks import choice, did_you_mean, input_file, integer, positive
 from clnlos.config import check_keys, load_toml, slab_from_table
 from clnlos.errors import InputFileError, ParameterError
 from clnlos.physics.slab import Slab
@@ -292,6 +293,11 @@ def _object(i: int, o: dict) -> SceneObject:
         if isinstance(m, str) and len(m) > MAX_PATH_CHARS:
             raise ParameterError(f"{sec}.material", m, "a preset name or a texture file of "
                                  f"at most {MAX_PATH_CHARS} characters")
+        if isinstance(m, str) and not m.lower().endswith((".h5", ".hdf5")) \
+                and m.lower() not in material_names():
+            names = material_names()
+            raise ParameterError(f"{sec}.material", m, ", ".join(names) + ", a BRDF texture "
+                                 ".h5 or a model table" + did_you_mean(m.lower(), names))
         kw["material"] = m
     for k in ("height_m", "stroke_m", "radius_m"):
         if k in o:

@@ -24,8 +24,20 @@ volume); transient [t, y', x'] with bin k spanning [k, k+1) dt, on the scan grid
 ``margin`` cells per side (for a slab blur that reaches past the scan border). Voxels
 shallower than ``depth_min_m`` are outside the support (zero columns) and transient rows
 that only such voxels reach are exactly zero, which also keeps the r^-8 weight's range
-(and float32 round-off) bounded. Left out: occlusion, surface orientation other than facing
-the scan plane, BRDFs other than Lambertian, interreflections.
+(and float32 round-off) bounded.
+
+A reflectance lobe (``lobe``, a retro slice :class:`clnlos.physics.lobe.RetroLobe`): each
+voxel's weight is multiplied by G(d, z) of :mod:`clnlos.physics.lobe` (its BRDF's retro
+slice averaged over its cell and, behind a slab, over the slab's footprint), written as K
+separable terms sum_k a_k(z) b_k(d). Each term is a light cone with the volume weight a_k
+and the lateral kernel weight b_k, and the terms share the data side:
+
+    I = W_t R_{v->t} sum_k (h_k * R_{z->u} W_z a_k rho),   h_k(v, d) = b_k(d) h(v, d)
+
+so the operator costs K forward FFTs and one inverse (the adjoint: one forward and K
+inverse) against one of each for a Lambertian voxel (K = 1, a = b = 1: exactly the
+Lambertian operator). Left out: occlusion, surface orientation other than facing the scan
+plane, interreflections.
 """
 
 from __future__ import annotations
@@ -41,8 +53,9 @@ from clnlos import C0
 from clnlos.errors import ParameterError
 from clnlos.operators.base import LinearOperator
 from clnlos.operators.resample import AxisResample, overlap_matrix
-from clnlos.operators.spectral import multiply_spectrum
+from clnlos.operators.spectral import multiply_spectrum, multiply_spectrum_into
 from clnlos.physics.lightcone import lightcone_psf_grid
+from clnlos.physics.lobe import RetroLobe, SeparableLobe, lobe_weight_table, separable_terms
 from clnlos.runtime.buffers import Scratch, fill_zero
 from clnlos.runtime.device import get_queue, require_dtype
 from clnlos.runtime.fft import RealFFT3
@@ -57,14 +70,24 @@ def signed_offsets(n: int, shift: int = 0) -> np.ndarray:
 
 
 def lightcone_kernel(nv: int, pad_t: int, py: int, px: int, *, dv_m2: float, pitch_m: float,
-                     shift: int = 0) -> np.ndarray:
+                     shift: int = 0, lateral_weight: np.ndarray | None = None) -> np.ndarray:
     """Light cone on a (pad_t, py, px) grid (float64): for each lateral offset d (cells) the
     v-shift s = |d|^2 p^2 / dv in bins, split linearly between bins floor(s) and floor(s)+1,
-    unit weight per offset. Shifts that cannot reach v bins 0..nv-1 from inside, or that would
-    wrap around the padded time axis, are dropped."""
-    oy, ox = signed_offsets(py, shift) * pitch_m, signed_offsets(px, shift) * pitch_m
-    s = (oy[:, None] ** 2 + ox[None, :] ** 2) / dv_m2
-    return lightcone_psf_grid(s, pad_t, min(nv - 1, pad_t - nv))
+    weight ``lateral_weight[|dy|, |dx|]`` per offset (default 1). Shifts that cannot reach v
+    bins 0..nv-1 from inside, or that would wrap around the padded time axis, are dropped."""
+    iy, ix = signed_offsets(py, shift), signed_offsets(px, shift)
+    s = ((iy[:, None] * pitch_m) ** 2 + (ix[None, :] * pitch_m) ** 2) / dv_m2
+    w = None if lateral_weight is None else \
+        lateral_weight[np.abs(iy)[:, None], np.abs(ix)[None, :]]
+    return lightcone_psf_grid(s, pad_t, min(nv - 1, pad_t - nv), w)
+
+
+def lobe_offsets(pad_shape) -> tuple[int, int]:
+    """Lateral offsets (|dy|, |dx| = 0 .. n - 1 cells) a padded grid's light cone reaches."""
+    return pad_shape[1] // 2 + 1, pad_shape[2] // 2 + 1
+
+LOBE_SLOT = "lobe"  # scratch slot of the summed spectrum (forward) or the data's (adjoint)
+
 
 class LightConeTransport(LinearOperator):
     """Plan: rho [nz, ny, nx] -> I [nt, ny + 2 margin, nx + 2 margin] (see module docstring).
@@ -86,13 +109,22 @@ class LightConeTransport(LinearOperator):
         Extra factor per depth bin on the input (a column scaling for solvers).
     scratch : :class:`clnlos.runtime.buffers.Scratch`, optional
         Work buffers shared with a plan's other stages (a private one by default).
+    lobe : :class:`clnlos.physics.lobe.RetroLobe`, optional
+        The voxels' retro slice (default Lambertian, 1/pi).
+    footprint_rms_m : float
+        rms radius (m) of the slab's footprint that widens the lobe (0: no slab).
+    lobe_terms : int, optional
+        Separable terms K of the lobe (default: the fewest within
+        :data:`clnlos.physics.lobe.LOBE_TOLERANCE`); ``self.lobe`` records them and their
+        error.
     """
 
     name = "lightcone_transport"
 
     def __init__(self, shape, *, bin_width_s: float, scan_width_m: float, margin: int = 0,
                  depth_min_m: float = 0.0, depth_weight=None, dtype=np.float32, queue=None,
-                 scratch: Scratch | None = None):
+                 scratch: Scratch | None = None, lobe: RetroLobe | None = None,
+                 footprint_rms_m: float = 0.0, lobe_terms: int | None = None):
         self.queue = get_queue(queue)
         self.dtype = require_dtype(self.queue.device, dtype)
         nt, ny, nx = (int(v) for v in shape)
@@ -117,7 +149,7 @@ class LightConeTransport(LinearOperator):
         if depth_weight is not None:
             w_z = w_z * np.asarray(depth_weight, np.float64)
         w_z[:k_min] = 0.0
-        to_u = (overlap_matrix(z_edges**2, v_edges**2) @ sp.diags(w_z)).tocsr()
+        to_u = overlap_matrix(z_edges**2, v_edges**2)
         w_t = np.zeros(nt)
         w_t[k_min:] = self.depth_m[k_min:] ** -8.0
         to_t = (sp.diags(w_t) @ overlap_matrix(v_edges**2, z_edges**2)).tocsr()
@@ -129,38 +161,76 @@ class LightConeTransport(LinearOperator):
         pad_t = sfft.next_fast_len(nv + s_max, real=True)
         self.pad_shape = (pad_t, py, px)
         self.nv = nv
-        self._pre = AxisResample(to_u, (ny, nx), out_plane=(py, px), out_rows=pad_t,
-                                 dtype=self.dtype, queue=self.queue)
+        self.lobe = self._separable_lobe(lobe, footprint_rms_m, lobe_terms)
+        self._pre = [AxisResample((to_u @ sp.diags(w_z * a)).tocsr(), (ny, nx),
+                                  out_plane=(py, px), out_rows=pad_t, dtype=self.dtype,
+                                  queue=self.queue) for a in self.lobe.a]
         to_t_pad = sp.hstack([to_t, sp.csr_matrix((nt, pad_t - nv))]).tocsr()
         self._post = AxisResample(to_t_pad, self.out_shape[1:], in_plane=(py, px),
                                   dtype=self.dtype, queue=self.queue)
         self.fft = RealFFT3(self.pad_shape, self.dtype, self.queue)
-        h = lightcone_kernel(nv, pad_t, py, px, dv_m2=dv, pitch_m=pitch, shift=m)
-        self.H = self.fft.forward(cla.to_device(self.queue, h.astype(self.dtype)))
+        self.H = [self.fft.forward(cla.to_device(self.queue, lightcone_kernel(
+            nv, pad_t, py, px, dv_m2=dv, pitch_m=pitch, shift=m,
+            lateral_weight=b).astype(self.dtype))) for b in self.lobe.b]
         self.scratch = Scratch(self.queue) if scratch is None else scratch
         self.scratch.reserve("a", self.pad_shape, self.dtype)
         self.scratch.reserve("b", self.fft.spec_shape, self.fft.cdtype)
+        if self.lobe.terms > 1:
+            self.scratch.reserve(LOBE_SLOT, self.fft.spec_shape, self.fft.cdtype)
         self._k = get_kernels(self.queue, "wiener", real_defines(self.dtype))
         # blocks of the padded grid that hold data: what the model writes and reads
         self._in_block = (nv, ny, nx)
         self._out_block = (nv,) + self.out_shape[1:]
 
-    def _convolve(self, buf, conjugate: bool, nonzero, needed) -> None:
-        spec = self.fft.forward(buf, self.scratch.array("b", self.fft.spec_shape,
-                                                        self.fft.cdtype), nonzero=nonzero)
-        multiply_spectrum(self._k, self.H, spec, h_scale=1.0, adjoint=conjugate)
-        self.fft.inverse(spec, buf, needed=needed)
+    def _separable_lobe(self, lobe: RetroLobe | None, footprint_rms_m: float,
+                        terms: int | None) -> SeparableLobe:
+        """The lobe's separable terms on this grid: a [K, nz] over the depth bins (zero
+        above the support), b [K, |dy|, |dx|] over the padded grid's offsets."""
+        nt = self.in_shape[0]
+        n_off = lobe_offsets(self.pad_shape)
+        if lobe is None or lobe.lambertian:
+            return SeparableLobe(np.ones((1, nt)), np.ones((1,) + n_off), (0.0,),
+                                 "lambertian" if lobe is None else lobe.name)
+        z = self.depth_m[self.k_min:]
+        G = lobe_weight_table(lobe, z, self.pitch_m, n_off, footprint_rms_m)
+        sep = separable_terms(G, z, self.pitch_m, name=lobe.name, terms=terms)
+        a = np.zeros((sep.terms, nt))
+        a[:, self.k_min:] = sep.a
+        return SeparableLobe(a, sep.b, sep.errors, sep.name)
 
     def _apply(self, x_g):
         buf = self.scratch.array("a", self.pad_shape, self.dtype)
-        fill_zero(self.queue, buf)
-        self._pre.apply_into(x_g, buf)
-        self._convolve(buf, False, self._in_block, self._out_block)
+        spec = self.scratch.array("b", self.fft.spec_shape, self.fft.cdtype)
+        acc = spec if len(self.H) == 1 else \
+            self.scratch.array(LOBE_SLOT, self.fft.spec_shape, self.fft.cdtype)
+        for k, (pre, H) in enumerate(zip(self._pre, self.H, strict=True)):
+            fill_zero(self.queue, buf)
+            pre.apply_into(x_g, buf)
+            self.fft.forward(buf, spec, nonzero=self._in_block)
+            if acc is spec:
+                multiply_spectrum(self._k, H, spec, h_scale=1.0, adjoint=False)
+            else:
+                multiply_spectrum_into(self._k, H, spec, acc, adjoint=False,
+                                       accumulate=k > 0)
+        self.fft.inverse(acc, buf, needed=self._out_block)
         return self._post.apply_device(buf)
 
     def _adjoint(self, y_g):
         buf = self.scratch.array("a", self.pad_shape, self.dtype)
         fill_zero(self.queue, buf)
         self._post.adjoint_into(y_g, buf)
-        self._convolve(buf, True, self._out_block, self._in_block)
-        return self._pre.adjoint_device(buf)
+        spec = self.scratch.array("b", self.fft.spec_shape, self.fft.cdtype)
+        if len(self.H) == 1:
+            self.fft.forward(buf, spec, nonzero=self._out_block)
+            multiply_spectrum(self._k, self.H[0], spec, h_scale=1.0, adjoint=True)
+            self.fft.inverse(spec, buf, needed=self._in_block)
+            return self._pre[0].adjoint_device(buf)
+        data = self.scratch.array(LOBE_SLOT, self.fft.spec_shape, self.fft.cdtype)
+        self.fft.forward(buf, data, nonzero=self._out_block)
+        out = None
+        for pre, H in zip(self._pre, self.H, strict=True):
+            multiply_spectrum_into(self._k, H, data, spec, adjoint=True, accumulate=False)
+            self.fft.inverse(spec, buf, needed=self._in_block)
+            part = pre.adjoint_device(buf)
+            out = part if out is None else out.__iadd__(part)
+        return out

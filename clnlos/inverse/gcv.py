@@ -39,9 +39,12 @@ tried are a log grid of TRIALS_PER_DECADE per decade.
 
 from __future__ import annotations
 
+import math
 from dataclasses import dataclass
 
 import numpy as np
+
+from clnlos.physics.grid import row_blocks
 
 BINS_PER_DECADE = 32   # frequency bins per decade of |H|^2 (V's error: < 4% of a bin's lam)
 TRIALS_PER_DECADE = 16  # SNRs tried per decade
@@ -62,11 +65,14 @@ def half_spectrum_weights(n_last: int, n_half: int) -> np.ndarray:
 @dataclass(frozen=True)
 class GcvBins:
     """The frequencies of one filter grouped by |H|^2: ``index`` (bin of each frequency of
-    the half spectrum, flattened), ``count`` (frequencies per bin, with their half-spectrum
-    multiplicity) and ``gain`` (mean |H|^2 per bin)."""
+    the half spectrum (n0, n1, n2h), uint16 where the bins allow), ``n_last`` (the full
+    length of the last axis: the half spectrum's column multiplicities,
+    :func:`half_spectrum_weights`), ``count`` (frequencies per bin, with their
+    multiplicity) and ``gain`` (mean |H|^2 per bin). Built and used block by block of rows
+    (:func:`clnlos.physics.grid.row_blocks`): no temporary of the spectrum's size."""
 
     index: np.ndarray
-    weight: np.ndarray
+    n_last: int
     count: np.ndarray
     gain: np.ndarray
 
@@ -74,26 +80,67 @@ class GcvBins:
     def from_gain(cls, gain_squared: np.ndarray, n_last: int) -> GcvBins:
         """Bins of ``gain_squared`` (|H|^2 on a half spectrum whose last axis has full
         length ``n_last``, H at unit DC gain)."""
-        g = np.maximum(np.asarray(gain_squared, np.float64), GAIN_FLOOR)
-        w = np.broadcast_to(half_spectrum_weights(n_last, g.shape[-1]), g.shape).ravel()
-        idx = np.floor(-np.log10(g.ravel()) * BINS_PER_DECADE).astype(np.int64)
-        idx -= idx.min()
-        n = int(idx.max()) + 1
-        count = np.bincount(idx, weights=w, minlength=n)
-        mean_gain = np.bincount(idx, weights=w * g.ravel(), minlength=n)
-        keep = count > 0
-        mean_gain[keep] /= count[keep]
-        return cls(idx.astype(np.int32), w.astype(np.float32), count, mean_gain)
+        g = np.asarray(gain_squared)
+        return cls.from_blocks(lambda r0, r1: g[r0:r1], g.shape, n_last)
+
+    @classmethod
+    def from_blocks(cls, gain_rows, shape, n_last: int) -> GcvBins:
+        """Bins of |H|^2 given by ``gain_rows(r0, r1)`` (its rows r0:r1 of a half spectrum
+        of ``shape``, float64) without the whole of it in memory."""
+        shape = tuple(int(v) for v in shape)
+        blocks = row_blocks(shape)
+        top = max(float(np.max(gain_rows(r0, r1))) for r0, r1 in blocks)
+        origin = math.floor(-math.log10(max(top, GAIN_FLOOR)) * BINS_PER_DECADE)
+        n_bins = math.floor(-math.log10(GAIN_FLOOR) * BINS_PER_DECADE) - origin + 1
+        index = np.empty(shape, np.uint16 if n_bins <= 1 << 16 else np.int32)
+        w = half_spectrum_weights(n_last, shape[-1])
+        count = np.zeros(n_bins)
+        total = np.zeros(n_bins)
+        for r0, r1 in blocks:
+            g = np.maximum(np.asarray(gain_rows(r0, r1), np.float64), GAIN_FLOOR)
+            idx = np.floor(-np.log10(g) * BINS_PER_DECADE).astype(np.int64) - origin
+            np.clip(idx, 0, n_bins - 1, out=idx)
+            index[r0:r1] = idx
+            wb = np.broadcast_to(w, g.shape)
+            count += np.bincount(idx.ravel(), weights=wb.ravel(), minlength=n_bins)
+            total += np.bincount(idx.ravel(), weights=(wb * g).ravel(), minlength=n_bins)
+        used = count > 0
+        keep = np.flatnonzero(used)  # bins in use, renumbered from 0
+        renumber = np.cumsum(used) - 1
+        for r0, r1 in blocks:
+            index[r0:r1] = renumber[index[r0:r1]]
+        return cls(index, int(n_last), count[keep], total[keep] / count[keep])
 
     def power_per_bin(self, power: np.ndarray) -> np.ndarray:
         """Sum of the data's |Y|^2 (same half-spectrum grid) in each bin."""
-        p = np.asarray(power).ravel()
-        return np.bincount(self.index, weights=(self.weight * p).astype(np.float64),
-                           minlength=self.count.size)
+        p = np.asarray(power)
+        acc = BinnedPower(self)
+        for r0, r1 in row_blocks(p.shape):
+            acc.add(r0, p[r0:r1])
+        return acc.sums
+
+    def snr_of(self, sums: np.ndarray, snr_min: float, snr_max: float) -> float:
+        """:meth:`snr` from the data's power per bin (:class:`BinnedPower`)."""
+        snrs = _trial_snrs(snr_min, snr_max)
+        v = self._gcv_sums(sums, snrs)
+        if not np.isfinite(v).any() or not np.any(v > 0):
+            return float(snr_max)
+        return float(snrs[int(np.argmin(v))])
+
+    def upre_snr_of(self, sums: np.ndarray, noise_sums: np.ndarray, snr_min: float,
+                    snr_max: float) -> float:
+        """:meth:`upre_snr` from the power per bin of the data and of the noise."""
+        snrs = _trial_snrs(snr_min, snr_max)
+        u = self._upre_sums(sums, noise_sums, snrs)
+        if not np.isfinite(u).any():
+            return float(snr_max)
+        return float(snrs[int(np.argmin(u))])
 
     def gcv(self, power: np.ndarray, snrs: np.ndarray) -> np.ndarray:
         """V(1/SNR) of the module docstring for each SNR in ``snrs`` (n factors dropped)."""
-        s = self.power_per_bin(power)
+        return self._gcv_sums(self.power_per_bin(power), snrs)
+
+    def _gcv_sums(self, s: np.ndarray, snrs: np.ndarray) -> np.ndarray:
         lam = 1.0 / np.asarray(snrs, np.float64)[:, None]
         keep = 1.0 - self.gain[None, :] / (self.gain[None, :] + lam)  # 1 - phi per bin
         rss = (keep * keep * s[None, :]).sum(axis=1)
@@ -106,8 +153,10 @@ class GcvBins:
              ) -> np.ndarray:
         """U(1/SNR) of :func:`upre_snr`'s criterion for each SNR in ``snrs``: the data of
         power spectrum ``power`` hold noise of (expected) power spectrum ``noise_power``."""
-        s = self.power_per_bin(power)
-        nb = self.power_per_bin(noise_power)
+        return self._upre_sums(self.power_per_bin(power), self.power_per_bin(noise_power),
+                               snrs)
+
+    def _upre_sums(self, s: np.ndarray, nb: np.ndarray, snrs: np.ndarray) -> np.ndarray:
         lam = 1.0 / np.asarray(snrs, np.float64)[:, None]
         phi = self.gain[None, :] / (self.gain[None, :] + lam)
         return ((1.0 - phi) ** 2 * s[None, :]).sum(axis=1) + 2.0 * (phi * nb[None, :]).sum(1)
@@ -124,21 +173,47 @@ class GcvBins:
         noise spectrum, where GCV (:meth:`snr`) assumes N_k flat. ``noise_power``: |N_k|^2
         of one noise realisation (its sum over a bin of many frequencies is close to the
         expected one)."""
-        decades = np.log10(snr_max / snr_min)
-        n = max(2, int(np.ceil(decades * TRIALS_PER_DECADE)) + 1)
-        snrs = np.logspace(np.log10(snr_min), np.log10(snr_max), n)
-        u = self.upre(power, noise_power, snrs)
-        if not np.isfinite(u).any():
-            return float(snr_max)
-        return float(snrs[int(np.argmin(u))])
+        return self.upre_snr_of(self.power_per_bin(power), self.power_per_bin(noise_power),
+                                snr_min, snr_max)
 
     def snr(self, power: np.ndarray, snr_min: float, snr_max: float) -> float:
         """The SNR in [snr_min, snr_max] that minimises V for data of power spectrum
         ``power`` (the upper end when the data hold no power: nothing to regularise)."""
-        decades = np.log10(snr_max / snr_min)
-        n = max(2, int(np.ceil(decades * TRIALS_PER_DECADE)) + 1)
-        snrs = np.logspace(np.log10(snr_min), np.log10(snr_max), n)
-        v = self.gcv(power, snrs)
-        if not np.isfinite(v).any() or not np.any(v > 0):
-            return float(snr_max)
-        return float(snrs[int(np.argmin(v))])
+        return self.snr_of(self.power_per_bin(power), snr_min, snr_max)
+
+
+def _trial_snrs(snr_min: float, snr_max: float) -> np.ndarray:
+    """The log grid of SNRs tried, TRIALS_PER_DECADE per decade."""
+    decades = np.log10(snr_max / snr_min)
+    n = max(2, int(np.ceil(decades * TRIALS_PER_DECADE)) + 1)
+    return np.logspace(np.log10(snr_min), np.log10(snr_max), n)
+
+
+def binned_power(bins: GcvBins, blocks) -> np.ndarray:
+    """The power per bin of ``bins`` from ``blocks``, an iterable of (r0, |Y|^2 of rows
+    r0:r0 + len) (:meth:`clnlos.operators.spectral.SpectralFilter.power_blocks`)."""
+    acc = BinnedPower(bins)
+    for r0, p in blocks:
+        acc.add(r0, p)
+    return acc.sums
+
+
+class BinnedPower:
+    """The power per bin of :class:`GcvBins`, accumulated block by block of rows:
+    ``add(r0, power_rows)`` for the rows r0:r0 + len of |Y|^2, then ``sums``."""
+
+    def __init__(self, bins: GcvBins):
+        self.bins = bins
+        self.sums = np.zeros(bins.count.size)
+        n2h = bins.index.shape[-1]
+        # the columns standing for one frequency each (weight 1; the rest stand for two)
+        self.single = [0] + ([n2h - 1] if bins.n_last % 2 == 0 and n2h > 1 else [])
+
+    def add(self, r0: int, power_rows: np.ndarray) -> None:
+        p = np.asarray(power_rows)
+        idx = self.bins.index[r0:r0 + p.shape[0]]
+        n = self.sums.size
+        self.sums += 2.0 * np.bincount(idx.ravel(), weights=p.ravel(), minlength=n)
+        for c in self.single:
+            self.sums -= np.bincount(idx[..., c].ravel(), weights=p[..., c].ravel(),
+                                     minlength=n)

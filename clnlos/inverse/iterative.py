@@ -7,7 +7,8 @@ deconvolution, :mod:`clnlos.forward.blur`; the capture itself without a slab), s
 
 with L the light-cone transport of :mod:`clnlos.forward.transport` (the physics of
 ``clnlos simulate``: Lambertian voxels facing the scan plane, z^4 / (pi r^8) falloff), by
-FISTA with gradient restart (:mod:`clnlos.inverse.solvers`), warm-started from LCT. The solver's
+FISTA with gradient restart and working-set steps, stopped where the objective stops
+falling (:mod:`clnlos.inverse.solvers`), warm-started from LCT. The solver's
 variable is xi = rho / (z / R)^4 (R the deepest depth), which gives every depth a column of
 similar norm; the volume returned is rho >= 0 on the reconstruction grid [z, y, x].
 
@@ -54,14 +55,23 @@ captures at 1e7-6e8 photons (0.65 -> 0.60 at 1e7), where neither reads the lette
 ``"none"`` is Wiener first (L alone), the method before. For a tail-filled window
 (:mod:`clnlos.inverse.tail_fill`) Phi is the plain filter's.
 
-Left out: the surface orientation (voxels face the scan plane), BRDFs other than Lambertian,
-occlusion -- as in LCT.
+The voxels' reflectance (``brdf``, :mod:`clnlos.brdf.lobes`): Lambertian by default (the
+physics of LCT and f-k); a preset, a texture or a fitted model makes L the light-cone
+transport with that BRDF's retro lobe (:mod:`clnlos.physics.lobe`: the lobe averaged over
+each voxel's cell, as K separable light cones), and ``"auto"`` chooses the lobe from the
+capture (:mod:`clnlos.inverse.brdf_choice`). The slab's footprint is not folded into the
+lobe: against the bistatic transport it did not bring the model closer (docs/brdf.md).
+
+Left out: the surface orientation (voxels face the scan plane; a tilted specular voxel is
+reconstructed where its lobe meets the scan plane, displaced by about z tan(tilt)),
+occlusion.
 """
 
 from __future__ import annotations
 
 import math
-from dataclasses import dataclass
+from contextlib import contextmanager
+from dataclasses import dataclass, field
 
 import numpy as np
 import pyopencl.array as cla
@@ -69,7 +79,9 @@ import pyopencl.array as cla
 from clnlos import C0
 from clnlos.checks import integer, real
 from clnlos.config import DEPTH_GUARD_M, ITERATIONS_RANGE, WEIGHT_RANGE
+from clnlos.brdf.lobes import AUTO, retro_lobe
 from clnlos.forward.transport import LightConeTransport
+from clnlos.physics.lobe import RetroLobe
 from clnlos.inverse.lct import (
     DEFAULT_SNR,
     LCT,
@@ -78,7 +90,7 @@ from clnlos.inverse.lct import (
     lightcone_snr_params,
 )
 from clnlos.inverse.methods import Inversion, InversionGrid
-from clnlos.inverse.solvers import fista, lipschitz
+from clnlos.inverse.solvers import DEFAULT_TOL, fista, lipschitz
 from clnlos.operators.base import LinearOperator
 from clnlos.runtime.buffers import Scratch
 from clnlos.runtime.device import get_queue, require_dtype
@@ -99,6 +111,10 @@ class SolveReport:
     objective: list
     change: list
     lam_max: float = 0.0  # max(L^T I) on the support: the weights are relative to it
+    rounds: list = field(default_factory=list)  # working-set updates (solvers.FistaResult)
+    brdf: str = "lambertian"   # the retro lobe the model assumed
+    lobe_terms: int = 1        # its separable terms K
+    lobe_error: float = 0.0    # their weighted relative error (clnlos.physics.lobe)
 
     def as_dict(self) -> dict:
         return {k: getattr(self, k) for k in self.__dataclass_fields__}
@@ -111,15 +127,20 @@ class IterativeInversion:
     tv_weight (relative, see module docstring; their defaults are those of
     :class:`clnlos.config.ReconstructionConfig`); tv_depth_scale (weight of the depth
     difference in TV; 0 = lateral TV only); warm_snr (Wiener SNR of the LCT warm start);
-    tol (relative change that stops the solver, :mod:`clnlos.inverse.solvers`); scratch (work
+    tol (relative decrease of the objective that stops the solver,
+    :mod:`clnlos.inverse.solvers`); scratch (work
     buffers shared with a plan's other stages, :class:`clnlos.runtime.buffers.Scratch`); cache
-    (on-disk spectra of the warm start, :class:`clnlos.runtime.spectrum_cache.SpectrumCache`).
+    (on-disk spectra of the warm start, :class:`clnlos.runtime.spectrum_cache.SpectrumCache`);
+    lobe (the voxels' retro lobe, :class:`clnlos.physics.lobe.RetroLobe`, default Lambertian)
+    and lobe_terms (its separable terms K, default by tolerance):
+    :mod:`clnlos.forward.transport`.
     """
 
     def __init__(self, shape, *, bin_width_s: float, scan_width_m: float,
                  iterations: int, l1_weight: float, tv_weight: float,
-                 tv_depth_scale: float = 1.0, warm_snr: float = DEFAULT_SNR, tol: float = 1e-4,
-                 dtype=np.float32, queue=None, scratch=None, cache=None):
+                 tv_depth_scale: float = 1.0, warm_snr: float = DEFAULT_SNR,
+                 tol: float = DEFAULT_TOL, dtype=np.float32, queue=None, scratch=None,
+                 cache=None, lobe: RetroLobe | None = None, lobe_terms: int | None = None):
         self.queue = get_queue(queue)
         self.dtype = require_dtype(self.queue.device, dtype)
         self.shape = tuple(int(s) for s in shape)
@@ -132,6 +153,7 @@ class IterativeInversion:
                         ("tv_depth_scale", tv_depth_scale)):
             real(name, v, *WEIGHT_RANGE)
         self.iterations, self.tol = int(iterations), float(tol)
+        self.working_set = True  # the solver's working-set steps (tools/solver_check.py: off)
         self.l1_weight, self.tv_weight = float(l1_weight), float(tv_weight)
         self.tv_depth_scale = float(tv_depth_scale)
         nt = self.shape[0]
@@ -142,23 +164,32 @@ class IterativeInversion:
         self.warm = LCT(self.shape, bin_width_s=bin_width_s, scan_width_m=scan_width_m,
                         snr=warm_snr, dtype=self.dtype, queue=self.queue,
                         scratch=self.scratch, cache=cache)
-        self._ops: dict[int, tuple[LightConeTransport, float]] = {}
+        self._ops: dict[tuple, tuple[LightConeTransport, int, float]] = {}
         self.report: SolveReport | None = None
+        self.lobe = RetroLobe.lambert() if lobe is None else lobe
+        self.lobe_terms = lobe_terms
+
+    def set_lobe(self, lobe: RetroLobe) -> None:
+        """The retro lobe the next calls assume (operators kept per lobe and support)."""
+        self.lobe = lobe
 
     def operator(self, depth_min_m: float, setup=None) -> tuple[LinearOperator, int, float]:
         """(model in xi, first support row, Lipschitz constant) for a support from
         ``depth_min_m``, built once per DEPTH_QUANTUM_M step; ``setup(step)`` names each
         step of a build as it starts."""
-        key = int(math.floor(max(0.0, depth_min_m) / DEPTH_QUANTUM_M))
+        step = int(math.floor(max(0.0, depth_min_m) / DEPTH_QUANTUM_M))
+        key = (step, self.lobe.name, self.lobe_terms)
         hit = self._ops.get(key)
         if hit is None:
             if setup is not None:
-                setup("light-cone operator")
+                setup("light-cone operator" + ("" if self.lobe.lambertian
+                                               else f" ({self.lobe.name} lobe)"))
             lc = LightConeTransport(self.shape, bin_width_s=self.bin_width_s,
                                     scan_width_m=self.scan_width_m, margin=0,
-                                    depth_min_m=key * DEPTH_QUANTUM_M,
+                                    depth_min_m=step * DEPTH_QUANTUM_M,
                                     depth_weight=self.scale, dtype=self.dtype,
-                                    queue=self.queue, scratch=self.scratch)
+                                    queue=self.queue, scratch=self.scratch, lobe=self.lobe,
+                                    lobe_terms=self.lobe_terms)
             power = None if setup is None else (
                 lambda k, n: setup(f"step size (power iteration {k}/{n})"))
             hit = (lc, lc.k_min, lipschitz(lc, progress=power))
@@ -178,6 +209,7 @@ class IterativeInversion:
         q, dt = self.queue, self.dtype
         y = tau if on_device else cla.to_device(q, np.ascontiguousarray(tau, dt))
         op, row_min, L = self.operator(depth_min_m, setup)
+        lobe = op.lobe
         if slab_influence is not None:
             op = slab_influence @ op  # ||Phi|| < 1: L still bounds ||(Phi L)^T Phi L||
         if setup is not None:
@@ -200,14 +232,22 @@ class IterativeInversion:
         tv = self.tv_weight * max(lam_max, 0.0)
         res = fista(op, y, x0_g, l1=l1, tv=tv, wz=self.tv_depth_scale, row_min=row_min,
                     iterations=self.iterations, tol=self.tol, lipschitz_const=L,
+                    working_set=self.working_set,
                     callback=callback)
         self.report = SolveReport(res.iterations, res.restarts, L, l1, tv,
                                   row_min * C0 * self.bin_width_s / 2, res.objective,
-                                  res.change, max(lam_max, 0.0))
+                                  res.change, max(lam_max, 0.0), res.rounds, lobe.name,
+                                  lobe.terms, lobe.errors[lobe.terms - 1])
         vol = res.x
         vol *= cla.to_device(q, np.broadcast_to(self.scale[:, None, None],
                                                  self.shape).astype(dt))
         return vol if on_device else vol.get()
+
+
+def configured_lobe(config) -> RetroLobe | None:
+    """The retro lobe ``config.brdf`` names (None for "auto": chosen per capture,
+    :mod:`clnlos.inverse.brdf_choice`; Lambertian until then)."""
+    return None if config.brdf == AUTO else retro_lobe(config.brdf)
 
 
 def support_depth_m(noise, config) -> float:
@@ -235,7 +275,9 @@ class IterativeMethod(Inversion):
         self.solver = IterativeInversion(grid.shape, iterations=config.iterations,
                                          l1_weight=config.l1_weight, tv_weight=config.tv_weight,
                                          warm_snr=initial_inversion_snr(config), cache=cache,
-                                         **self.geometry())
+                                         lobe=configured_lobe(config),
+                                         lobe_terms=None if config.brdf_terms == "auto"
+                                         else int(config.brdf_terms), **self.geometry())
         self.depth_min_m = 0.0
         self.noise_g = None
         self.slab_influence = None
@@ -262,6 +304,20 @@ class IterativeMethod(Inversion):
     def report(self) -> dict | None:
         return self.solver.report.as_dict()
 
+    def set_lobe(self, lobe: RetroLobe) -> None:
+        """The retro lobe of the next reconstructions (``brdf = "auto"``'s choice)."""
+        self.solver.set_lobe(lobe)
+
+    @contextmanager
+    def iteration_budget(self, iterations: int):
+        """At most ``iterations`` iterations inside the block (a search's reconstructions)."""
+        keep = self.solver.iterations
+        self.solver.iterations = min(keep, int(iterations))
+        try:
+            yield
+        finally:
+            self.solver.iterations = keep
+
     def predict(self, volume: np.ndarray) -> cla.Array:
         """L rho: the light-cone transport of an albedo volume [z, y, x] on the support of
         the last call (the slab's influence not applied), on the device."""
@@ -272,4 +328,6 @@ class IterativeMethod(Inversion):
     def used(self) -> dict:
         r = self.solver.report
         return {"l1_rule": self.solver.l1_rule,
-                "l1_weight_used": r.l1 / r.lam_max if r.lam_max > 0 else None}
+                "l1_weight_used": r.l1 / r.lam_max if r.lam_max > 0 else None,
+                "brdf_used": r.brdf, "brdf_terms_used": r.lobe_terms,
+                "brdf_terms_error": r.lobe_error}

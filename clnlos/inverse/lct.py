@@ -34,7 +34,7 @@ from clnlos import C0
 from clnlos.checks import real
 from clnlos.config import FALLOFF_RANGE, METHOD_FALLOFF
 from clnlos.errors import ParameterError, ShapeError
-from clnlos.inverse.gcv import GcvBins
+from clnlos.inverse.gcv import GcvBins, binned_power
 from clnlos.inverse.methods import Inversion, InversionGrid
 from clnlos.inverse.snr import (
     CLOSED_FORM_SLAB_SNR_MIN,
@@ -45,7 +45,7 @@ from clnlos.inverse.snr import (
 from clnlos.operators.base import LinearOperator
 from clnlos.operators.resample import AxisResample, overlap_matrix
 from clnlos.operators.spectral import SpectralFilter
-from clnlos.physics.grid import grid_offsets
+from clnlos.physics.grid import grid_offsets, row_blocks
 from clnlos.physics.lightcone import lightcone_psf_grid
 from clnlos.runtime.buffers import Scratch, fill_zero, kernel_int, round_up
 from clnlos.runtime.device import get_queue, require_dtype
@@ -189,7 +189,7 @@ class LCT:
         """The light-cone Wiener SNR in [snr_min, snr_max] that generalised cross-validation
         (:mod:`clnlos.inverse.gcv`) picks for the transient ``tau`` [t, y, x] (device): V evaluated
         on the filter's own (v, y, x) grid, where the light cone is a convolution."""
-        return self._bins().snr(self._power(tau), snr_min, snr_max)
+        return self._bins().snr_of(self._power(tau), snr_min, snr_max)
 
     def upre_snr(self, tau: cla.Array, noise: cla.Array, snr_min: float,
                  snr_max: float) -> float:
@@ -198,18 +198,22 @@ class LCT:
         whose noise is like ``noise`` (a realisation of it, same shape, device): on the
         filter's (v, y, x) grid, where the slab deconvolution and the t -> v resampling
         have coloured it (GCV's white-noise assumption does not hold there)."""
-        return self._bins().upre_snr(self._power(tau), self._power(noise), snr_min, snr_max)
+        return self._bins().upre_snr_of(self._power(tau), self._power(noise), snr_min,
+                                        snr_max)
 
     def _bins(self):
         if self._gcv_bins is None:
-            self._gcv_bins = GcvBins.from_gain(self.inverse_filter.gain_squared(),
-                                               self.inverse_filter.pad_shape[2])
+            f = self.inverse_filter
+            self._gcv_bins = GcvBins.from_blocks(f.gain_rows, f.fft.spec_shape, f.pad_shape[2])
         return self._gcv_bins
 
     def _power(self, tau: cla.Array) -> np.ndarray:
-        """|F[t -> v of tau, padded]|^2 on the half spectrum of the light-cone filter."""
-        return self.inverse_filter.power_spectrum(
-            write_input=lambda buf: self._to_v_padded.apply_into(tau, buf))
+        """|F[t -> v of tau, padded]|^2 on the half spectrum of the light-cone filter,
+        summed per bin of :meth:`_bins` (block by block)."""
+        bins = self._bins()
+        return binned_power(bins, self.inverse_filter.power_blocks(
+            row_blocks(bins.index.shape),
+            write_input=lambda buf: self._to_v_padded.apply_into(tau, buf)))
 
     @property
     def forward_operator(self) -> LinearOperator:

@@ -67,14 +67,19 @@ deconvolves to 1e7), f-k 1 (8; 0.20, a 12 cm 'U' whose oracle image is a blob be
 filled box's IoU). The raised SNR also sets the tail fill's cut level (:func:`cut_level`)
 for these methods. It has no config key: a configured slab SNR (a number) is used as given.
 The iterative method models Phi (``slab_model = "influence"``, :mod:`clnlos.inverse.iterative`)
-and by default (``snr_rule = "auto"``, on counts its slab model fits exactly; "thinning"
-on any counts, "gcv" never) may take a deeper pick than GCV's: the counts are split
-binomially into two independent Poisson halves, and GCV's pick is raised by half-decade
-steps while a reconstruction of the first half predicts the second half's deconvolved
-transient significantly better (:meth:`ReconstructionPipeline.thinning_factor`,
-:mod:`clnlos.inverse.thinning`; 3-4x the time). On a measured capture the model's accuracy
-(MEASURED_MODEL_SNR) is combined with the raised value and dominates it (and "auto" does not
-thin there): LCT and f-k take about MEASURED_MODEL_SNR there whatever GCV's pick.
+and takes GCV's pick by default; with ``snr_rule = "thinning"`` (on counts) it may take a
+deeper one: the counts are split binomially into two independent Poisson halves, and GCV's
+pick is raised by half-decade steps while a reconstruction of the first half predicts the
+second half's deconvolved transient significantly better
+(:meth:`ReconstructionPipeline.thinning_factor`, :mod:`clnlos.inverse.thinning`; 2-3
+reconstructions of half the data more). On a measured capture the model's accuracy
+(MEASURED_MODEL_SNR) is combined with the raised value and dominates it: LCT and f-k take
+about MEASURED_MODEL_SNR there whatever GCV's pick.
+
+A split search's candidates share what does not depend on them
+(:class:`PreparedCapture`): each half is preprocessed, normalised and its GCV pick taken
+once, deconvolved once per slab SNR (a tail fill once per fill SNR) and its noise
+realisation preprocessed once; the last hold the volumes a search compares.
 
 Measured for the light-cone stage at GCV's slab SNR and rejected
 (tools/results/lct_low_exposure_criteria.csv): UPRE of the composed estimate on the raw data
@@ -94,7 +99,8 @@ SNR is passed).
 
 Output volume [z, y, x]: depth bin k spans [k, k+1) * c * dt / 2 behind the scan plane
 (the slab's hidden face), x and y the scan-cell centres, x increasing with the column
-index and y with the row index (images are drawn with +x to the right and +y up).
+index and y with the row index (images are drawn with +x to the right and +y up), the
+extents centred where the capture's scan grid is (``Capture.scan_center_m``).
 """
 
 from __future__ import annotations
@@ -108,10 +114,18 @@ import numpy as np
 import pyopencl.array as cla
 
 from clnlos import C0
+from clnlos.brdf.lobes import AUTO, auto_ladder
 from clnlos.config import ReconstructionConfig, check_window
 from clnlos.errors import InputFileError, ParameterError
-from clnlos.forward.blur import blur_time_scales, slab_blur
-from clnlos.inverse.gcv import GcvBins
+from clnlos.forward.blur import blur_time_scales, confocal_lag_energy, confocal_psf, slab_blur
+from clnlos.inverse.brdf_choice import (
+    LOBE_NOT_SEARCHED,
+    LOBE_NOT_SEARCHED_REASON,
+    LOBE_SEARCH_ITERATIONS,
+    choose_lobe,
+    score_margin,
+)
+from clnlos.inverse.gcv import GcvBins, binned_power
 from clnlos.inverse.methods import InversionGrid, method_class
 from clnlos.inverse.reproducibility import (
     LIGHTCONE_SNRS,
@@ -124,14 +138,19 @@ from clnlos.inverse.reproducibility import (
 )
 from clnlos.inverse.snr import (
     ARRIVAL_SIGMAS,
+    LEAD_FRACTION,
     MEASURED_MODEL_SNR,
     SNR_MAX,
     SNR_MIN,
     NoiseEstimate,
+    column_shift_error,
+    combined_accuracy,
     combined_snr,
     estimate_noise,
     is_counts,
     lightcone_snr,
+    rebinning_error,
+    represented_snr,
 )
 from clnlos.inverse.tail_fill import TailFilledDeconvolution
 from clnlos.inverse.thinning import (
@@ -147,9 +166,11 @@ from clnlos.inverse.thinning import (
 )
 from clnlos.io.capture import Capture
 from clnlos.operators.resample import AxisResample, overlap_matrix
+from clnlos.physics.grid import row_blocks
+from clnlos.physics.lobe import RetroLobe
 from clnlos.runtime.buffers import Scratch, host_view, round_up
 from clnlos.runtime.caches import PIPELINES
-from clnlos.runtime.device import get_queue, require_dtype
+from clnlos.runtime.device import get_queue, has_fp64, require_dtype
 from clnlos.runtime.programs import get_kernels, real_defines
 from clnlos.runtime.spectrum_cache import SpectrumCache
 
@@ -188,6 +209,7 @@ def preprocess_matrix(nt_in: int, bin_width_s: float, start_s: float, max_path_m
     return overlap_matrix(src_edges, dst_edges), dt_out, n_out
 
 
+INFLUENCE_ENERGY_TOL = 1e-5  # the slab influence's kernel keeps all but this of its energy
 NOISE_PROBE_SEED = 0     # the noise realisation of ReconstructionPipeline._noise_like
 
 
@@ -203,6 +225,41 @@ class NoiseProbe:
             self.value = self.make()
         return self.value
 
+DECONVOLVED_KEPT = 4  # slab SNRs whose deconvolution a prepared capture keeps (a search's)
+
+
+@dataclass
+class PreparedCapture:
+    """A capture preprocessed once for every reconstruction made of it (the candidates of a
+    split search: :meth:`ReconstructionPipeline.reproducibility_snrs`,
+    :meth:`ReconstructionPipeline.thinning_factor`): the raw counts and their noise
+    estimate, the preprocessed and normalised transient ``tau`` (device, guard bins kept;
+    never changed), its scan-summed profile and the normalisation ``scale``; filled in as
+    the candidates need them: the slab GCV pick, the deconvolutions by slab SNR (the last
+    DECONVOLVED_KEPT, with what each added to a volume's params and notes), the tail fills
+    of the data and of the noise realisation (:class:`TailFilledDeconvolution` memos), and
+    the noise realisation preprocessed (:meth:`ReconstructionPipeline._probe`)."""
+
+    transient: np.ndarray
+    noise: NoiseEstimate
+    tau: cla.Array
+    profile: np.ndarray
+    scale: float
+    gcv_snr: float | None = None
+    deconvolved: dict = field(default_factory=dict)
+    fills: dict = field(default_factory=dict)
+    noise_fills: dict = field(default_factory=dict)
+    noise_tau: cla.Array | None = None
+
+    def keep(self, snr: float, entry: tuple) -> tuple:
+        """Keep the deconvolution at ``snr`` (the oldest dropped past DECONVOLVED_KEPT)."""
+        self.deconvolved[snr] = entry
+        while len(self.deconvolved) > DECONVOLVED_KEPT:
+            self.deconvolved.pop(next(iter(self.deconvolved)))
+        return entry
+
+
+MIN_DEPTH_BINS = 2  # a volume with fewer depth bins has no depth to resolve (a note says so)
 GUARD_PEAKS = 2.0  # a cut is harmless behind this many blur peak lags of guard bins (the
 #                   deconvolved bins past the volume): the inverse filter's ringing stays there
 
@@ -343,6 +400,8 @@ class ReconstructionPipeline:
         setup("preprocess")
         self.pre = AxisResample(A, (ny, nx), dtype=self.dtype, queue=self.queue)
         self.pre.name = "preprocess"
+        self._pre_matrix = A
+        self._rebin_snr: float | None = None  # what the rebinned model represents, on first use
         self._rk = get_kernels(self.queue, "resample", real_defines(self.dtype))
         pitch = scan_width_m / nx
         snr0 = 1.0 if config.snr == "auto" else float(config.snr)  # set per capture if auto
@@ -371,14 +430,60 @@ class ReconstructionPipeline:
             queue=self.queue, scratch=self.scratch, cache=cache)
         self.stages.append(f"invert:{config.method}")
 
+    def resampling_snr(self, time_shifts: np.ndarray | None = None) -> float:
+        """The deepest slab SNR the model represents after the time axis was resampled
+        (:func:`clnlos.inverse.snr.represented_snr`; inf when it was not, or without a
+        slab): by the preprocessing (rebinned, or moved by a fraction of a bin), and by a
+        reader that moved each column by its own ``time_shifts`` [y, x] (raw bins; their
+        fractional parts interpolate)."""
+        if self.deconv is None:
+            return math.inf
+        if self._rebin_snr is None:
+            self._rebin_snr = self._rebinned_model_snr()
+        shifted = math.inf
+        if time_shifts is not None:
+            frac = np.asarray(time_shifts, np.float64) % 1.0
+            if np.ptp(frac) > 0:
+                shifted = self._shifted_model_snr(frac)
+        return combined_accuracy(self._rebin_snr, shifted)
+
+    def _rebinned_model_snr(self) -> float:
+        """:func:`resampling_snr` of the preprocessing alone: inf where it only selects
+        whole bins, else the rebinning error of the slab blur's energy per lag
+        (:func:`clnlos.inverse.snr.rebinning_error`)."""
+        a = self._pre_matrix.tocsr()
+        if np.all(np.diff(a.indptr) <= 1) and np.all(a.data == 1.0):
+            return math.inf
+        slab, nd = self.config.slab, self.config.n_dipoles
+        h_in = confocal_lag_energy(slab, nt=a.shape[1], bin_width_s=self.raw_bin_width_s,
+                                   n_dipoles=nd, queue=self.queue)
+        h_out = confocal_lag_energy(slab, nt=a.shape[0], bin_width_s=self.bin_width_s,
+                                    n_dipoles=nd, queue=self.queue)
+        return represented_snr(rebinning_error(a, h_in, h_out))
+
+    def _shifted_model_snr(self, fractions: np.ndarray) -> float:
+        """:func:`resampling_snr` of columns moved by their own ``fractions`` of a raw bin
+        (:func:`clnlos.inverse.snr.column_shift_error`), on the deconvolution's grid."""
+        rows, ny, nx = self._pre_matrix.shape[0], self.shape[1], self.shape[2]
+        dt = np.float64 if has_fp64(self.queue.device) else np.float32
+        psf = confocal_psf(self.config.slab, (rows, ny, nx), bin_width_s=self.bin_width_s,
+                           pitch_m=self.scan_width_m / nx, n_dipoles=self.config.n_dipoles,
+                           dtype=dt, queue=self.queue).get()
+        psf_t = np.fft.rfft(psf / psf.sum(dtype=np.float64), axis=0)
+        return represented_snr(column_shift_error(psf_t, fractions,
+                                                  self.raw_bin_width_s / self.bin_width_s))
+
     def slab_gcv_snr(self, tau: cla.Array) -> float:
         """The slab Wiener SNR in [SNR_MIN, SNR_MAX] that generalised cross-validation
         (:mod:`clnlos.inverse.gcv`) picks for the preprocessed transient ``tau`` (device, guard
         bins included): V on the deconvolution's padded grid, padded as it pads."""
         if self._gcv_slab is None:
-            self._gcv_slab = GcvBins.from_gain(self.deconv.gain_squared(),
-                                               self.deconv.pad_shape[2])
-        return self._gcv_slab.snr(self.deconv.power_spectrum(tau), SNR_MIN, SNR_MAX)
+            self._gcv_slab = GcvBins.from_blocks(self.deconv.gain_rows,
+                                                 self.deconv.fft.spec_shape,
+                                                 self.deconv.pad_shape[2])
+        bins = self._gcv_slab
+        sums = binned_power(bins, self.deconv.power_blocks(row_blocks(bins.index.shape), tau))
+        return bins.snr_of(sums, SNR_MIN, SNR_MAX)
 
     def _timed(self, timings, name, fn, *a, **kw):
         self.queue.finish()
@@ -391,7 +496,9 @@ class ReconstructionPipeline:
     def run(self, transient: np.ndarray, *, keep_transient: bool = False,
             progress=None, model_snr: float = math.inf, setup=None,
             slab_snr_factor: float | None = None,
-            snrs: tuple[float, float | None] | None = None) -> Reconstruction:
+            snrs: tuple[float, float | None] | None = None,
+            time_shifts: np.ndarray | None = None,
+            lobe: RetroLobe | None = None) -> Reconstruction:
         """Reconstruct one capture. ``progress(k, n)`` is called during the iterative
         method's iterations, ``setup(step)`` as each of its set-up steps before them starts;
         ``model_snr`` is the slab model's accuracy (:func:`model_snr_for`);
@@ -399,21 +506,47 @@ class ReconstructionPipeline:
         thinning search's candidates, :meth:`thinning_factor`); ``snrs`` = (slab SNR,
         light-cone SNR or None: the config's) replaces an "auto" slab SNR (as given, the
         model's accuracy not combined) and the light-cone rule (the reproducibility
-        search's candidates, :meth:`reproducibility_snrs`)."""
+        search's candidates, :meth:`reproducibility_snrs`); ``time_shifts``: the shifts a
+        reader moved the columns by (:attr:`clnlos.io.capture.Capture.time_shift_bins`).
+        An "auto" slab SNR is bounded by what the resampled model represents
+        (:meth:`resampling_snr`); ``lobe`` replaces the retro lobe ``brdf = "auto"``
+        would choose (the lobe search's candidates, :meth:`brdf_lobe`)."""
         timings: dict[str, float] = {}
         noise = self.raw_noise(transient)
+        resampled = self.resampling_snr(time_shifts)
         cv: dict | None = None
+        lobe_params: dict = {}
+        if self.config.brdf == AUTO:
+            if lobe is None:
+                t0 = time.perf_counter()
+                lobe, lobe_params = self.brdf_lobe(transient, noise, model_snr, setup)
+                timings["choose_brdf"] = time.perf_counter() - t0
+            self.invert.set_lobe(lobe)
         if slab_snr_factor is None and self._thinning_applies(transient, noise, model_snr):
             t0 = time.perf_counter()
-            slab_snr_factor, cv = self.thinning_factor(transient, model_snr, setup)
+            slab_snr_factor, cv = self.thinning_factor(transient, model_snr, setup,
+                                                       resampled=resampled)
             timings["choose_snr_thinning"] = time.perf_counter() - t0
         if (snrs is None and slab_snr_factor is None
                 and self._reproducibility_applies(transient, noise, model_snr)):
             t0 = time.perf_counter()
-            snrs, cv = self.reproducibility_snrs(transient, model_snr, setup)
+            snrs, cv = self.reproducibility_snrs(transient, model_snr, setup,
+                                                 resampled=resampled)
             timings["choose_snr_reproducibility"] = time.perf_counter() - t0
+        prep = self.prepare(transient, noise, timings)
+        return self._reconstruct(prep, timings, keep_transient=keep_transient,
+                                 progress=progress, model_snr=model_snr, setup=setup,
+                                 slab_snr_factor=slab_snr_factor, snrs=snrs, cv=cv,
+                                 resampled=resampled, time_shifts=time_shifts,
+                                 lobe_params=lobe_params)
+
+    def prepare(self, transient: np.ndarray, noise: NoiseEstimate | None = None,
+                timings: dict | None = None) -> PreparedCapture:
+        """The capture preprocessed and normalised once (:class:`PreparedCapture`), for
+        :meth:`_reconstruct` (every candidate of a split search reuses it)."""
+        noise = self.raw_noise(transient) if noise is None else noise
         x = cla.to_device(self.queue, np.ascontiguousarray(transient, self.dtype))
-        tau = self._timed(timings, "preprocess", self.pre, x)
+        tau = self._timed({} if timings is None else timings, "preprocess", self.pre, x)
         profile, peak = self._profile_peak(tau)
         total = float(profile.sum())
         if not peak > 0:
@@ -426,12 +559,32 @@ class ReconstructionPipeline:
             if s > 0:
                 scale = 1.0 / s
                 self._scale_inplace(tau, scale)
+        return PreparedCapture(np.asarray(transient), noise, tau, profile, scale)
+
+    def _reconstruct(self, prep: PreparedCapture, timings: dict, *,
+                     keep_transient: bool = False, progress=None,
+                     model_snr: float = math.inf, setup=None,
+                     slab_snr_factor: float | None = None,
+                     snrs: tuple[float, float | None] | None = None,
+                     cv: dict | None = None, resampled: float = math.inf,
+                     time_shifts: np.ndarray | None = None,
+                     lobe_params: dict | None = None) -> Reconstruction:
+        """:meth:`run` on a prepared capture, its SNR rule's search (``cv``) done: the
+        deconvolutions at each slab SNR and the noise realisation through the
+        preprocessing are kept in ``prep`` for the next candidate; ``resampled`` the slab
+        SNR the resampled model represents (:meth:`resampling_snr`, for ``time_shifts``);
+        ``lobe_params`` what the lobe search of ``brdf = "auto"`` recorded."""
+        noise, tau = prep.noise, prep.tau
         data_snr = gcv_snr = None
-        if snrs is not None:  # a candidate of the search, as given (no model share)
-            model_snr = math.inf
+        unbounded = model_snr
+        model_snr = combined_accuracy(model_snr, resampled)
+        if snrs is not None:  # a candidate of the search, as given (no model share but
+            model_snr = unbounded = resampled  # what the resampling leaves representable)
             data_snr = snrs[0]
         elif self.deconv is not None and self.config.snr == "auto" and not noise.noise_free:
-            gcv_snr = self._timed(timings, "choose_snr", self.slab_gcv_snr, tau)
+            if prep.gcv_snr is None:
+                prep.gcv_snr = self._timed(timings, "choose_snr", self.slab_gcv_snr, tau)
+            gcv_snr = prep.gcv_snr
             data_snr = method_slab_snr(gcv_snr, self.invert.slab_snr_min, noise.snr if
                                        self.invert.slab_snr_toward_photons else None)
             if slab_snr_factor is not None:
@@ -440,7 +593,15 @@ class ReconstructionPipeline:
                                  data_inversion_snr=None if snrs is None else snrs[1])
         inv_rule = None if snrs is None or snrs[1] is None else "reproducibility"
         params = self.config.as_attrs()
+        params.update(lobe_params or {})
         notes: list[str] = []
+        if (lobe_params or {}).get("brdf_rule_used") == LOBE_NOT_SEARCHED:
+            notes.append(f"brdf auto: {LOBE_NOT_SEARCHED_REASON}; the Lambertian lobe")
+        if math.isfinite(resampled) and self.deconv is not None:
+            params["resampling_snr"] = resampled
+            free = auto_snrs(noise, self.config, unbounded, data_snr=data_snr)[0]
+            if snrs is None and snr < free / 2:
+                notes.append(self._resampling_note(snr, free, time_shifts))
         named = self.config.snr_rule
         if named in ("thinning", "reproducibility") and cv is None and (
                 slab_snr_factor is None and snrs is None):
@@ -454,8 +615,6 @@ class ReconstructionPipeline:
                          f"reproducible (kappa {cv['reproducibility_kappa']:.2f}) was taken")
         deconv = None
         if self.deconv is not None:
-            deconv = self._deconvolution_for(profile, noise, snr, params, notes)
-            deconv.set_snr(snr)
             params["snr_used"] = snr
             if gcv_snr is not None:
                 params["snr_data"] = gcv_snr  # cross-validation's, before the model's share
@@ -469,13 +628,11 @@ class ReconstructionPipeline:
             elif gcv_snr is not None and slab_snr_factor is None and snrs is None:
                 params["snr_rule_used"] = "gcv"  # what "auto" came to (the method's floor
                 #                                  on top where it has one: slab_snr_raised)
-            tau = self._timed(timings, "deconvolve", deconv, tau)
-            if isinstance(deconv, TailFilledDeconvolution):
-                params["tail_fill_snr"] = deconv.fill_snr  # the fill's SNR (tail_fill)
-        if self.n_guard:
+            deconv, tau = self._deconvolved(prep, snr, params, notes, timings)
+        elif self.n_guard:
             tau = tau[:self.shape[0]]  # the guard bins dropped: a view of the leading rows
         method = self.config.method
-        probe = (NoiseProbe(lambda: self._noise_like(transient, scale, deconv, snr))
+        probe = (NoiseProbe(lambda: self._probe(prep, deconv, snr))
                  if noise.photon_counts and not noise.noise_free else None)
         influence = (None if self.deconv is None else
                      lambda: self._slab_influence(snr))
@@ -487,6 +644,8 @@ class ReconstructionPipeline:
         solve = self.invert.report()
         params.update(self.invert.used())
         volume = vol.get()
+        if snrs is None and slab_snr_factor is None:  # the searches' own runs say nothing
+            notes.extend(self.result_notes(volume, noise, params, prep.transient))
         nt, ny, nx = self.shape
         dz = C0 * self.bin_width_s / 2
         w = self.scan_width_m
@@ -498,12 +657,86 @@ class ReconstructionPipeline:
                               transient=tau.get() if keep_transient else None, extents=extents,
                               noise=noise.as_dict(), solver=solve, notes=notes)
 
+    def _deconvolved(self, prep: PreparedCapture, snr: float, params: dict, notes: list,
+                     timings: dict) -> tuple:
+        """(the slab deconvolution at ``snr``, the prepared transient deconvolved by it on
+        the inverted grid): computed once per SNR and kept in ``prep`` with what it adds
+        to the params and notes; a tail fill (:mod:`clnlos.inverse.tail_fill`) once per
+        fill SNR."""
+        hit = prep.deconvolved.get(snr)
+        if hit is None:
+            added, extra = {}, []
+            deconv = self._deconvolution_for(prep.profile, prep.noise, snr, added, extra)
+            deconv.set_snr(snr)
+            if isinstance(deconv, TailFilledDeconvolution):
+                out = self._timed(timings, "deconvolve", deconv, prep.tau, prep.fills)
+                added["tail_fill_snr"] = deconv.fill_snr  # the fill's SNR (tail_fill)
+            else:
+                out = self._timed(timings, "deconvolve", deconv, prep.tau)
+            if self.n_guard:
+                out = out[:self.shape[0]]  # the guard bins dropped: the leading rows
+            hit = prep.keep(snr, (deconv, out, added, extra))
+        deconv, out, added, extra = hit
+        deconv.set_snr(snr)
+        params.update(added)
+        notes.extend(extra)
+        return deconv, out
+
     def raw_noise(self, transient: np.ndarray) -> NoiseEstimate:
         """The noise of the raw capture's bins inside the kept window
         (:func:`clnlos.inverse.snr.estimate_noise`)."""
         k0, k1 = self.raw_window
         return estimate_noise(np.asarray(transient)[k0:k1], self.raw_bin_width_s,
                               self.raw_start_s + k0 * self.raw_bin_width_s)
+
+    def brdf_lobe(self, transient: np.ndarray, noise: NoiseEstimate, model_snr: float,
+                  setup=None) -> tuple[RetroLobe, dict]:
+        """(the retro lobe ``brdf = "auto"`` takes for this capture, the params recording the
+        search): the lobe of :func:`clnlos.brdf.lobes.auto_ladder` whose reconstruction from
+        one half of a binomial split of the counts best predicts the other half
+        (:mod:`clnlos.inverse.brdf_choice`); the Lambertian lobe where the capture is not
+        counts or a half is empty (:data:`LOBE_NOT_SEARCHED`)."""
+        halves = self._split(transient) if (noise.photon_counts and not noise.noise_free
+                                            and is_counts(np.asarray(transient))) else None
+        if halves is None:
+            return RetroLobe.lambert(), {"brdf_rule_used": LOBE_NOT_SEARCHED}
+        train, test = halves
+        held, phi, noise_runs = self._held_out_prediction_target(test)
+        fits: dict[str, np.ndarray] = {}
+
+        def score(cand: RetroLobe) -> float:
+            if setup is not None:
+                setup(f"BRDF lobe by thinning: {cand.name}")
+            with self.invert.iteration_budget(LOBE_SEARCH_ITERATIONS):
+                rec = self.run(train, model_snr=model_snr, slab_snr_factor=1.0, lobe=cand)
+            pred = self.invert.predict(rec.volume)
+            pred = (pred if phi is None else phi.apply_device(pred)).get()
+            fits[cand.name] = scaled_fit(pred, held)
+            return fitted_residual(fits[cand.name], held, scaled=True)
+
+        def margin(new: RetroLobe, best: RetroLobe) -> float:
+            return score_margin(fits[new.name], fits[best.name], held, noise_runs)
+
+        chosen, tried = choose_lobe(auto_ladder(), score, margin)
+        return chosen, {"brdf_rule_used": "thinning", "brdf_chosen": chosen.name,
+                        "brdf_tried": json.dumps([[c, v] for c, v in tried])}
+
+    def _held_out_prediction_target(self, y2: np.ndarray):
+        """(the held-out half as the inversion sees it, host; the slab's influence Phi2 that a
+        prediction goes through, or None without a slab; realisations of its noise): with a
+        slab, :meth:`_held_out` (deconvolved at its own GCV SNR); without, preprocessed and
+        divided by its peak."""
+        if self.deconv is not None:
+            held, snr, noise_runs = self._held_out(y2)
+            return held, self._slab_influence(snr), noise_runs
+        tau = self.pre(cla.to_device(self.queue, np.ascontiguousarray(y2, self.dtype)))
+        _, peak = self._profile_peak(tau)
+        scale = 1.0 / peak if peak > 0 else 1.0
+        if peak > 0:
+            self._scale_inplace(tau, scale)
+        noise_runs = [self._noise_like(y2, scale, None, 0.0, NOISE_PROBE_SEED + 1 + j).get()
+                      for j in range(CV_NOISE_RUNS)]
+        return tau.get(), None, noise_runs
 
     def _thinning_applies(self, transient: np.ndarray, noise: NoiseEstimate,
                           model_snr: float) -> bool:
@@ -558,7 +791,8 @@ class ReconstructionPipeline:
         return candidate_order(slab_snrs(self.invert.lightcone_filter), lc)
 
     def reproducibility_snrs(self, transient: np.ndarray, model_snr: float = math.inf,
-                             setup=None) -> tuple[tuple[float, float | None] | None, dict]:
+                             setup=None, *, resampled: float = math.inf
+                             ) -> tuple[tuple[float, float | None] | None, dict]:
         """((slab SNR, light-cone SNR or None), the params recording the search): the first
         of :meth:`reproducibility_candidates` at which the two halves of a binomial split of
         the counts (:func:`clnlos.inverse.thinning.thin_counts`) give Otsu masks of their
@@ -571,13 +805,15 @@ class ReconstructionPipeline:
         halves = self._split(transient)
         if halves is None:
             return None, {"snr_rule_used": SPLIT_EMPTY}
+        prepared = [self.prepare(h) for h in halves]
 
         def agreement(cand: tuple[float, float | None]) -> float:
             if setup is not None:
                 lc = "" if cand[1] is None else f", light cone {cand[1]:.3g}"
                 setup(f"SNRs by reproducibility: slab {cand[0]:.3g}{lc}")
-            masks = [otsu_mask(self.run(h, model_snr=model_snr, snrs=cand).volume)
-                     for h in halves]
+            masks = [otsu_mask(self._reconstruct(h, {}, model_snr=model_snr, snrs=cand,
+                                                 resampled=resampled).volume)
+                     for h in prepared]
             return mask_agreement(*masks)
 
         bar = kappa_min(self.invert.lightcone_filter)
@@ -591,7 +827,7 @@ class ReconstructionPipeline:
                                                              for c, k in tried])}
 
     def thinning_factor(self, transient: np.ndarray, model_snr: float = math.inf,
-                        setup=None) -> tuple[float, dict]:
+                        setup=None, *, resampled: float = math.inf) -> tuple[float, dict]:
         """(factor on GCV's slab SNR, the params recording the search) by cross-validation
         on a binomial split of the counts (:mod:`clnlos.inverse.thinning`): for each
         candidate the first half is reconstructed at that factor on its own GCV pick and its
@@ -604,7 +840,7 @@ class ReconstructionPipeline:
         folds = []
         for train, test in list(zip(halves, halves[::-1], strict=True))[:CV_FOLDS]:
             held, snr, noise = self._held_out(test)
-            folds.append((train, held, self._slab_influence(snr), noise,
+            folds.append((self.prepare(train), held, self._slab_influence(snr), noise,
                           float(np.sum(np.square(held, dtype=np.float64)))))
         gcv_train: list[float] = []
         fits: dict[float, list[np.ndarray]] = {}
@@ -614,7 +850,8 @@ class ReconstructionPipeline:
                 setup(f"slab SNR by thinning: {f:.3g} x GCV's pick")
             scores, fits[f] = [], []
             for train, held, phi, _, _ in folds:
-                rec = self.run(train, model_snr=model_snr, slab_snr_factor=f)
+                rec = self._reconstruct(train, {}, model_snr=model_snr, slab_snr_factor=f,
+                                        resampled=resampled)
                 gcv_train.append(rec.params.get("snr_data", math.nan))
                 pred = phi.apply_device(self.invert.predict(rec.volume)).get()
                 fits[f].append(scaled_fit(pred, held))
@@ -679,30 +916,129 @@ class ReconstructionPipeline:
     def _slab_influence(self, snr: float):
         """The influence Phi of the slab's Wiener filter at ``snr`` on the inverted
         transient's grid (guard bins dropped: the rows past the volume are zero;
-        :meth:`clnlos.operators.spectral.SpectralFilter.influence`). For a tail-filled window
-        it is the plain filter's: the fill restores the unseen tail the filter then sees."""
+        :meth:`clnlos.operators.spectral.SpectralFilter.influence`), its kernel cut where it
+        holds all but INFLUENCE_ENERGY_TOL of its energy and convolved on the grid that
+        needs (+-25-45 lags and +-1-4 cells at 16 ps and 1.9 cm: 0.56 M points where the
+        slab grid has 4.2 M). For a tail-filled window it is the plain filter's: the fill
+        restores the unseen tail the filter then sees."""
         self.deconv.set_snr(snr)
-        return self.deconv.influence(in_shape=self.shape)
+        return self.deconv.influence(in_shape=self.shape, energy_tol=INFLUENCE_ENERGY_TOL)
 
     def _noise_like(self, transient: np.ndarray, scale: float, deconv, snr: float,
                     seed: int = NOISE_PROBE_SEED) -> cla.Array:
         """A realisation of the noise of the transient the inversion receives: Gaussian of
         the capture's Poisson variance (each bin's count; ``transient`` holds counts), seed
         ``seed`` (default NOISE_PROBE_SEED), through the same linear steps as the data
-        (preprocessing, the normalisation ``scale``, the slab deconvolution ``deconv`` at
-        ``snr`` when not None, the guard bins dropped): the noise spectrum of
-        :meth:`clnlos.inverse.lct.LCT.upre_snr`.
+        (preprocessing, the normalisation ``scale``: :meth:`_noise_preprocessed`; the slab
+        deconvolution ``deconv`` at ``snr`` when not None, the guard bins dropped): the
+        noise spectrum of :meth:`clnlos.inverse.lct.LCT.upre_snr`.
         """
-        y = np.asarray(transient)
-        rng = np.random.default_rng(seed)
-        n = np.sqrt(np.maximum(y, 0), dtype=np.float64) * rng.standard_normal(y.shape)
-        t = self.pre(cla.to_device(self.queue, np.ascontiguousarray(n, self.dtype)))
-        if scale != 1.0:
-            self._scale_inplace(t, scale)
+        t = self._noise_preprocessed(transient, scale, seed)
         if deconv is not None:
             deconv.set_snr(snr)
             t = deconv(t)
         return t[:self.shape[0]] if self.n_guard else t
+
+    def _noise_preprocessed(self, transient: np.ndarray, scale: float,
+                            seed: int = NOISE_PROBE_SEED) -> cla.Array:
+        """The noise realisation of :meth:`_noise_like` preprocessed and normalised (guard
+        bins kept), drawn block by block of rows (the same stream as one draw; no
+        float64 temporary of the capture's size)."""
+        y = np.asarray(transient)
+        rng = np.random.default_rng(seed)
+        n = np.empty(y.shape, self.dtype)
+        rows = max(1, (1 << 20) // max(1, int(np.prod(y.shape[1:]))))
+        for r0 in range(0, y.shape[0], rows):
+            blk = y[r0:r0 + rows]
+            n[r0:r0 + rows] = np.sqrt(np.maximum(blk, 0), dtype=np.float64) * \
+                rng.standard_normal(blk.shape)
+        t = self.pre(cla.to_device(self.queue, n))
+        if scale != 1.0:
+            self._scale_inplace(t, scale)
+        return t
+
+    def _probe(self, prep: PreparedCapture, deconv, snr: float) -> cla.Array:
+        """:meth:`_noise_like` of a prepared capture (its preprocessed part kept in
+        ``prep``: the same for every candidate of a search), deconvolved by ``deconv`` at
+        ``snr`` (a tail fill's memo kept too)."""
+        if prep.noise_tau is None:
+            prep.noise_tau = self._noise_preprocessed(prep.transient, prep.scale)
+        t = prep.noise_tau
+        if deconv is not None:
+            deconv.set_snr(snr)
+            t = (deconv(t, prep.noise_fills) if isinstance(deconv, TailFilledDeconvolution)
+                 else deconv(t))
+        return t[:self.shape[0]] if self.n_guard else t
+
+    def result_notes(self, volume: np.ndarray, noise: NoiseEstimate, params: dict,
+                     transient: np.ndarray) -> list[str]:
+        """One line each for a result that holds little or nothing, naming the cause: a
+        volume of fewer than MIN_DEPTH_BINS depth bins, a kept window that ends before the
+        capture's first arrival, a capture with no light above its background, a
+        configured depth_min_m behind the first arrival, an all-zero volume."""
+        out = []
+        n, dz = self.shape[0], C0 * self.bin_width_s / 2
+        c = self.config
+        if n < MIN_DEPTH_BINS:
+            k0, k1 = self.raw_window
+            cause = (f"bins = {c.bins}" if c.bins is not None and c.bins < MIN_DEPTH_BINS
+                     else f"max_path_m = {c.max_path_m:g} m keeps {n * dz * 2:.3g} m of path"
+                     if c.max_path_m is not None
+                     else f"the capture has {k1 - k0} bin(s) after t = 0")
+            out.append(f"the volume has {n} depth bin(s) of {dz:.3g} m: {cause}; there is "
+                       "no depth to resolve")
+        behind = self._support_behind_arrival(noise)
+        if behind:
+            out.append(behind)
+        raw = np.asarray(transient)
+        whole = (noise if self.raw_window == (0, raw.shape[0]) else
+                 estimate_noise(raw, self.raw_bin_width_s, self.raw_start_s))
+        end_path = 2 * n * dz
+        if whole.first_arrival_s is not None and C0 * whole.first_arrival_s >= end_path:
+            out.append(f"the kept window ends at {end_path:.3g} m of path, before the "
+                       f"capture's first arrival at {C0 * whole.first_arrival_s:.3g} m: the "
+                       "volume holds none of the scene's light (a longer max_path_m)")
+        elif whole.first_arrival_s is None:
+            out.append("no bin of the capture rises above its background (the level of its "
+                       f"first {100 * LEAD_FRACTION:g}% of bins) by {ARRIVAL_SIGMAS:g} noise "
+                       "standard deviations: the volume shows noise, not a hidden scene")
+        if not np.any(volume):
+            out.append("the volume is all zero: " + self._empty_cause(noise, params))
+        return out
+
+    def _support_behind_arrival(self, noise: NoiseEstimate) -> str | None:
+        """A configured depth_min_m behind the capture's first arrival (the method puts
+        the nearest light deeper than it is), or None."""
+        c, near = self.config, noise.nearest_depth_m
+        if isinstance(c.depth_min_m, int | float) and near is not None \
+                and c.depth_min_m > near:
+            return (f"depth_min_m = {c.depth_min_m:g} m starts the volume behind the "
+                    f"capture's first arrival ({near:.3g} m): what lies in front of it is "
+                    "placed deeper or lost")
+        return None
+
+    def _empty_cause(self, noise: NoiseEstimate, params: dict) -> str:
+        """Why an inversion returned nothing, from what the user set."""
+        c = self.config
+        if self._support_behind_arrival(noise):
+            return "depth_min_m (above)"
+        used = params.get("l1_weight_used")
+        if isinstance(c.l1_weight, int | float) and used is not None and used >= 1:
+            return (f"l1_weight = {c.l1_weight:g} (relative to max L^T I) sets every voxel "
+                    "to zero (any weight of 1 or more does)")
+        return f"method {c.method} returned no signal from this capture"
+
+    def _resampling_note(self, snr: float, free: float, time_shifts) -> str:
+        """One line: the slab SNR a resampling bounded, and why."""
+        how = []
+        if self._rebin_snr is not None and math.isfinite(self._rebin_snr):
+            how.append(f"rebinned from {self.raw_bin_width_s * 1e12:.3g} ps to "
+                       f"{self.bin_width_s * 1e12:.3g} ps bins")
+        if time_shifts is not None and np.ptp(np.asarray(time_shifts) % 1.0) > 0:
+            how.append("its columns moved by different fractions of a bin when read")
+        return (f"the time axis was resampled ({' and '.join(how) or 'preprocessing'}): the "
+                f"slab deconvolution stops at SNR {snr:.3g}, the deepest the resampled model "
+                f"represents (it would be {free:.3g} without the resampling)")
 
     def _deconvolution_for(self, profile, noise: NoiseEstimate, snr: float, params: dict,
                            notes: list[str]):
@@ -766,14 +1102,22 @@ def resolve_geometry(capture: Capture, config: ReconstructionConfig, *,
     """(bin_width_s, start_s, scan_width_m): the config overrides the file; the time window
     is checked (:func:`clnlos.config.check_window`, errors naming ``names`` or the TOML
     fields)."""
+    src = capture.source or "the capture"
     bw = config.bin_width_s if config.bin_width_s is not None else capture.bin_width_s
     if bw is None:
-        raise ParameterError("--bin-width", None, "> 0: the capture does not store its bin "
+        raise ParameterError("--bin-width", None, f"> 0: {src} does not store its bin "
                              "width; give --bin-width or [capture] bin_width_s")
     sw = config.scan_width_m if config.scan_width_m is not None else capture.scan_width_m
     if sw is None:
-        raise ParameterError("--scan-width", None, "> 0: the capture does not store the scan "
-                             "width; give --scan-width or [capture] scan_width_m")
+        why = capture.attrs.get("scan_width_unknown", f"{src} does not store the scan width")
+        raise ParameterError("--scan-width", None, f"> 0: {why}; give --scan-width (the "
+                             "side along x, m) or [capture] scan_width_m")
+    ny, nx = capture.transient.shape[1:]
+    if config.scan_width_m is None and capture.scan_height_m is not None and not math.isclose(
+            capture.scan_height_m / ny, sw / nx, rel_tol=1e-6):
+        raise InputFileError(f"{capture.source or 'the capture'}: a scan pitch of "
+                             f"{sw / nx:.4g} m along x and {capture.scan_height_m / ny:.4g} m "
+                             "along y: clnlos reconstructs scans of square cells only")
     start = config.start_s if config.start_s is not None else capture.start_s
     check_window(capture.transient.shape[0], float(bw), float(start), config, names=names,
                  source=capture.source or "the capture")
@@ -797,8 +1141,37 @@ def reconstruct(capture: Capture, config: ReconstructionConfig, *, dtype=np.floa
     pipe = PIPELINES.get(key, lambda: ReconstructionPipeline(
         capture.transient.shape, bin_width_s=bw, start_s=start, scan_width_m=sw,
         config=config, dtype=dtype, queue=queue, setup=setup), queue)
-    return pipe.run(capture.transient, keep_transient=keep_transient, progress=progress,
-                    model_snr=model_snr_for(capture, config), setup=setup)
+    rec = pipe.run(capture.transient, keep_transient=keep_transient, progress=progress,
+                   model_snr=model_snr_for(capture, config), setup=setup,
+                   time_shifts=capture.time_shift_bins)
+    note = aligned_window_note(capture)
+    if note:
+        rec.notes.insert(0, note)
+    rec.extents = centred_extents(rec.extents, capture.scan_center_m)
+    return rec
+
+
+def centred_extents(extents: dict, center) -> dict:
+    """The volume's lateral extents moved to a scan grid centred at ``center`` (x, y) m."""
+    cx, cy = (float(v) for v in center)
+    out = dict(extents)
+    for key, shift in (("x_min_m", cx), ("x_max_m", cx), ("y_min_m", cy), ("y_max_m", cy)):
+        out[key] = extents[key] + shift
+    return out
+
+
+def aligned_window_note(capture: Capture) -> str | None:
+    """One line where a reader cut the window to the bins every scan point recorded after
+    moving the columns to align them (:func:`clnlos.io.formats.common.align_columns`)."""
+    recorded = capture.attrs.get("aligned_from_bins")
+    shifts = capture.time_shift_bins
+    kept = capture.transient.shape[0]
+    if shifts is None or recorded is None or kept >= recorded:
+        return None
+    bw = capture.bin_width_s or 0.0
+    return (f"the columns were moved {np.min(shifts):.4g}-{np.max(shifts):.4g} bins earlier "
+            f"to align the scan points: the window is cut to the {kept} bins "
+            f"({kept * bw * 1e9:.3g} ns) every scan point recorded, of {recorded}")
 
 
 

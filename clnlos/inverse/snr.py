@@ -32,6 +32,20 @@ SNR_model = MEASURED_MODEL_SNR = 1e4 -- the value of the published CDT reconstru
 the level our sweeps on the shared CDT captures confirm (1e4 and 3e4 legible, 1e5 noisy,
 the photon count's 1.5e6 unreadable).
 
+Resampling error. A capture whose time axis was resampled -- rebinned to other bins
+(``bins``, ``max_path_m``: :func:`clnlos.inverse.pipeline.preprocess_matrix`) or its columns
+moved by fractions of a bin (a reader aligning y-tal's first and last bounces or an f-k
+tofgrid) -- is no longer exactly the slab blur of anything on its grid: rebinning does not
+commute with the blur (a sub-bin arrival time is lost in the bin), and a fractional shift
+that differs between scan points does not commute with the blur's lateral spread. That
+error e = R H - H R of a unit arrival has a spectrum |E|^2 (relative to the DC power of the
+blurred arrival, |H(0)|^2 = 1), and the deconvolution cannot tell it from noise: like the
+photon rule, which turns a noise level into the SNR of white noise of that power,
+:func:`represented_snr` takes the white noise of the error's mean power, SNR = 1 / mean
+|E|^2. It is combined with the model's accuracy like a second model error
+(:func:`combined_accuracy`), so that the depth does not depend on the bins a capture was
+resampled to.
+
 The light-cone Wiener filter of LCT (and of the iterative method's LCT warm start) acts on the
 deconvolved transient, whose noise the first filter has shaped: it takes
 sqrt(SNR), at most LIGHTCONE_SNR_MAX (:func:`lightcone_snr`).
@@ -159,3 +173,77 @@ def estimate_noise(y: np.ndarray, bin_width_s: float, start_s: float = 0.0) -> N
     hits = np.nonzero(excess > thresh)[0]
     first = float(start_s + hits[0] * bin_width_s) if hits.size and excess.max() > 0 else None
     return NoiseEstimate(counts, total, background, signal, sigma, n_eq, snr, first)
+
+
+def combined_accuracy(*snrs: float) -> float:
+    """Independent model errors given as SNRs combined: 1 / sum(1 / snr) (inf: no error)."""
+    inv = sum(0.0 if math.isinf(s) else 1.0 / s for s in snrs)
+    return math.inf if inv == 0 else 1.0 / inv
+
+
+def represented_snr(error_sq: np.ndarray) -> float:
+    """The slab SNR a resampled model supports: 1 / the mean of ``error_sq``, the spectrum
+    |E|^2 of the resampling error of a unit arrival relative to the blur's DC power (the
+    SNR of white noise of the error's power; module docstring); inf without an error."""
+    m = float(np.mean(np.asarray(error_sq, np.float64))) if np.size(error_sq) else 0.0
+    return math.inf if not m > 0 else 1.0 / m
+
+
+def rebinning_error(matrix, kernel_in: np.ndarray, kernel_out: np.ndarray,
+                    probes: int = 512) -> np.ndarray:
+    """|E|^2 of a time-axis resampling ``matrix`` (rows: output bins, columns: input bins;
+    scipy sparse) against the slab blur's energy per lag on the input grid (``kernel_in``)
+    and on the output grid (``kernel_out``), on the output grid padded to twice its length
+    (the deconvolution's): the mean over ``probes`` consecutive input bins m (every phase
+    of m against the output bins) of |F[A (h_in * delta_m) - h_out * (A delta_m)]|^2 over
+    the mean |F[A delta_m]|^2, h_out normalised to unit DC."""
+    a = matrix.tocsc()
+    rows, cols = a.shape
+    h_in = np.asarray(kernel_in, np.float64)
+    h_out = np.asarray(kernel_out, np.float64)
+    used = np.nonzero(np.diff(a.indptr))[0]
+    n_fft = 2 * rows
+    gain = np.fft.rfft(h_out, n_fft)
+    dc = gain[0].real if gain.size else 0.0
+    if not used.size or not dc > 0:
+        return np.zeros(n_fft // 2 + 1)
+    m = np.arange(used[0], min(cols, used[0] + probes))
+    lag = np.arange(cols)[:, None] - m[None, :]
+    shifted = np.where((lag >= 0) & (lag < h_in.size), h_in[np.clip(lag, 0, h_in.size - 1)],
+                       0.0)
+    truth = a @ shifted                                   # A (h_in * delta_m)
+    moved = a[:, m].toarray()                             # A delta_m
+    model = np.fft.irfft(np.fft.rfft(moved, n_fft, axis=0) * gain[:, None], n_fft,
+                         axis=0)[:rows]                   # h_out * (A delta_m)
+    err = np.abs(np.fft.rfft(truth - model, n_fft, axis=0)) ** 2
+    sig = np.abs(np.fft.rfft(moved, n_fft, axis=0)) ** 2
+    return err.mean(axis=1) / max(float(sig.mean()), 1e-300) / (dc * dc)
+
+
+def column_shift_error(psf_t_spectrum: np.ndarray, fractions: np.ndarray,
+                       bin_fraction: float, probes: int = 4) -> np.ndarray:
+    """|E|^2 on the padded grid [w, ky, kx] of shifting each column of a [t, y, x] capture
+    by its own fraction of a bin (``fractions`` [y, x], in bins of ``bin_fraction`` times
+    the blur grid's bin), a 2-tap interpolation K_p(w) = 1 + f_p (exp(-i w dt) - 1).
+
+    ``psf_t_spectrum`` [w, Y, X]: the blur at unit DC gain, transformed along t only (the
+    padded lateral grid in wrap order). For an arrival at scan point p0 the error
+    K H delta - H K delta is, at lateral offset D, (f_{p0+D} - f_p0)(exp(-i w dt) - 1)
+    H(w, D); it is transformed laterally and |.|^2 averaged over a probes x probes lattice
+    of scan points p0."""
+    h = np.asarray(psf_t_spectrum)
+    nw, py, px = h.shape
+    f = np.asarray(fractions, np.float64)
+    ny, nx = f.shape
+    w = np.pi * np.arange(nw) / max(nw - 1, 1) * float(bin_fraction)  # w dt, rad
+    step = np.abs(np.exp(-1j * w) - 1.0) ** 2
+    out = np.zeros(h.shape)
+    lattice = [(int((i + 0.5) * ny / probes), int((j + 0.5) * nx / probes))
+               for i in range(min(probes, ny)) for j in range(min(probes, nx))]
+    for y0, x0 in lattice:
+        d = np.zeros((py, px))
+        dy = (np.arange(ny) - y0) % py
+        dx = (np.arange(nx) - x0) % px
+        d[np.ix_(dy, dx)] = f - f[y0, x0]
+        out += np.abs(np.fft.fft2(h * d[None], axes=(1, 2))) ** 2
+    return out * step[:, None, None] / len(lattice)

@@ -76,13 +76,20 @@ class TailFilledDeconvolution:
     def set_snr(self, snr: float) -> None:
         self.snr = float(snr)
 
-    def __call__(self, tau_g: cla.Array) -> cla.Array:
+    def __call__(self, tau_g: cla.Array, memo: dict | None = None) -> cla.Array:
+        """The deconvolution of ``tau_g`` at the set SNR; ``memo`` (a dict kept by the
+        caller for this one input): the fills by fill SNR, computed once (the fill depends
+        on the SNR only through min(snr, TAIL_FILL_SNR): the slab SNRs a search tries share
+        it)."""
         n = self.in_shape[0]
         plane = self.in_shape[1] * self.in_shape[2]
         item = tau_g.dtype.itemsize
         fill_snr = min(self.snr, TAIL_FILL_SNR)
+        memo = {} if memo is None else memo
         while True:
-            y, diverged = self._fill(tau_g, fill_snr)
+            if fill_snr not in memo:
+                memo[fill_snr] = self._fill(tau_g, fill_snr)
+            y, diverged = memo[fill_snr]
             if not diverged:
                 break
             if fill_snr <= TAIL_FILL_SNR_MIN:  # no fill to trust: the window as it is

@@ -40,12 +40,15 @@ above 15 times (16 rows): IoU up by more than 0.01 on 7 (up to +0.060, the 'C' o
 set, so captures it had not seen are its check (tools/results/snr_rule_thinning.csv: 22
 captures, IoU up by more than 0.01 on 11, down on 2, mean +0.011).
 
-The default for the iterative method (``snr_rule = "auto"``) on photon counts its slab
-model fits exactly (a capture simulated with this slab: on a measured one the model's own
-error, MEASURED_MODEL_SNR, exceeds the photon noise the score judges by); ``"thinning"``
-asks for it on any counts, ``"gcv"`` keeps GCV's pick. It costs 2-5 reconstructions of
-half the data on top of the one (3-4x the time; the study keeps GCV for its budget,
-:class:`clnlos.study.dataset.StudyGrid`). On the oracle table at three seeds it is
+By name (``snr_rule = "thinning"``), for the iterative method on photon counts (on a
+measured capture the model's own error, MEASURED_MODEL_SNR, exceeds the photon noise the
+score judges by, so its pick is capped there). It was the default for counts its slab model
+fits exactly until issue 38 priced it: 2-3 reconstructions of half the data on top of the
+one (the candidates share the halves' preprocessing, GCV picks and deconvolutions,
+:class:`clnlos.inverse.pipeline.PreparedCapture`; 2.5x the time of the GCV rule on the
+wide example, +0.000 IoU there), for the IoU below; ``snr_rule = "auto"`` is GCV's pick
+for the iterative method now (the bench's ``auto_params_cost`` rows price both). On the
+oracle table at three seeds it is
 neutral (tools/results/snr_rule_thinning_table.csv, 30 captures: mean change +0.001, up by
 more than 0.01 on 5, down on 4, at most 0.048); on the exposure sweep (3 seeds) it keeps
 GCV's pick at 17 of 18 points (tools/results/snr_rule_thinning_sweep.csv, beside the

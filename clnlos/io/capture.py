@@ -13,6 +13,8 @@ import numpy as np
 from clnlos.config import check_geometry, parse_toml, slab_from_table
 from clnlos.errors import ClnlosError, InputFileError, ParameterError
 
+CAPTURE_FORMAT = "clnlos-capture-1"  # the format attribute of the clnlos capture files
+
 # how a capture format names the geometry it stores, when not by the Capture field's name
 # (error messages name what the file holds)
 GEOMETRY_SOURCES = {
@@ -37,6 +39,17 @@ class Capture:
     scan_width_m: float | None
     source: str = ""
     attrs: dict = field(default_factory=dict)
+    # [y, x]: how far (in bins) a reader moved each column earlier to align the scan points
+    # (y-tal's first and last bounces, an f-k tofgrid); None when it did not. Fractional
+    # parts interpolate, which the reconstruction counts as a model error
+    # (clnlos.inverse.pipeline.ReconstructionPipeline.resampling_snr).
+    time_shift_bins: np.ndarray | None = None
+    # (x, y) of the scan grid's centre on the relay plane (m): the volume's lateral extents
+    # are centred there (a y-tal grid need not be centred on the origin)
+    scan_center_m: tuple[float, float] = (0.0, 0.0)
+    # the scan's side along y (m) when the file says it (a non-square scan); else the pitch
+    # scan_width_m / columns times the rows
+    scan_height_m: float | None = None
 
     def __post_init__(self):
         fmt = self.attrs.get("format") if isinstance(self.attrs, dict) else None

@@ -56,9 +56,12 @@ def volume_figure(volume: np.ndarray, extents: dict, title: str = "", *,
     mip, label = display_scale(raw_mip, gamma, log)
     depth = (np.argmax(volume, axis=0) + 0.5) * e["voxel_depth_m"]
     depth = np.where(raw_mip < DEPTH_MAP_FLOOR * max(raw_mip.max(), 1e-300), np.nan, depth)
-    panels = [Panel(mip, xy, "max over depth (x-y)", "x (m)", "y (m)", "gray", label),
-              Panel(depth, xy, "depth of the brightest voxel", "x (m)", "y (m)", "viridis",
-                    "depth z (m)")]
+    empty = not raw_mip.max() > 0  # nothing to show a depth of: said, not drawn as a map
+    panels = [Panel(mip, xy, "max over depth (x-y)" + (": all zero" if empty else ""),
+                    "x (m)", "y (m)", "gray", label),
+              Panel(depth, xy, "depth of the brightest voxel" + (": none (the volume is all "
+                                                                  "zero)" if empty else ""),
+                    "x (m)", "y (m)", "viridis", "depth z (m)")]
     for axis, lo, hi, lab in ((1, "x_min_m", "x_max_m", "x (m)"),
                               (2, "y_min_m", "y_max_m", "y (m)")):
         proj, plab = display_scale(volume.max(axis=axis), gamma, log)

@@ -15,7 +15,7 @@ import h5py
 import numpy as np
 
 from clnlos.errors import InputFileError
-from clnlos.io.capture import Capture, plain_attr
+from clnlos.io.capture import CAPTURE_FORMAT, Capture, plain_attr
 from clnlos.io.deflate import write_dataset
 from clnlos.io.figures import close_figure
 from clnlos.io.formats import read_capture as read
@@ -65,20 +65,30 @@ def write_h5(path, datasets: dict[str, np.ndarray], attrs: dict) -> Path:
 
 
 def capture_attrs(*, bin_width_s: float, start_s: float, scan_width_m: float,
-                  attrs: dict | None = None) -> dict:
-    """Attributes of the clnlos capture format (see clnlos.io.formats.clnlos_h5)."""
+                  attrs: dict | None = None, shape=None,
+                  scan_center_m=(0.0, 0.0)) -> dict:
+    """Attributes of the clnlos capture format (see clnlos.io.formats.clnlos_h5):
+    ``scan_width_m`` is the side along x (columns); with the transient's ``shape`` of a
+    non-square scan the side along y is recorded too (``scan_height_m``)."""
     a = {"bin_width_s": float(bin_width_s), "start_s": float(start_s),
-         "scan_width_m": float(scan_width_m), "format": "clnlos-capture-1"}
+         "scan_width_m": float(scan_width_m), "format": CAPTURE_FORMAT}
+    if shape is not None and int(shape[1]) != int(shape[2]):  # a square scan: implied
+        a["scan_height_m"] = float(scan_width_m) * int(shape[1]) / int(shape[2])
+    if any(scan_center_m):
+        a["scan_center_m"] = [float(v) for v in scan_center_m]
     a.update(attrs or {})
     return a
 
 
 def write_capture(path, transient: np.ndarray, *, bin_width_s: float, start_s: float,
-                  scan_width_m: float, attrs: dict | None = None) -> Path:
-    """Write the clnlos capture format atomically."""
-    return write_h5(path, {"transient": np.asarray(transient, np.float32)},
+                  scan_width_m: float, attrs: dict | None = None,
+                  scan_center_m=(0.0, 0.0)) -> Path:
+    """Write the clnlos capture format atomically (``scan_width_m``: the side along x)."""
+    arr = np.asarray(transient, np.float32)
+    return write_h5(path, {"transient": arr},
                     capture_attrs(bin_width_s=bin_width_s, start_s=start_s,
-                                  scan_width_m=scan_width_m, attrs=attrs))
+                                  scan_width_m=scan_width_m, attrs=attrs, shape=arr.shape,
+                                  scan_center_m=scan_center_m))
 
 
 def save_figure_file(fig, path) -> Path:

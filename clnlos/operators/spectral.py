@@ -24,7 +24,15 @@ import scipy.sparse as sp
 from clnlos.errors import ParameterError, ShapeError
 from clnlos.operators.base import LinearOperator
 from clnlos.operators.resample import AxisResample
-from clnlos.runtime.buffers import Scratch, fill_zero, kernel_int, round_up
+from clnlos.physics.grid import fast_length, row_blocks
+from clnlos.runtime.buffers import (
+    Scratch,
+    fill_zero,
+    host_view,
+    kernel_int,
+    round_up,
+    upload_rows,
+)
 from clnlos.runtime.device import get_queue, require_dtype
 from clnlos.runtime.fft import RealFFT3
 from clnlos.runtime.programs import get_kernels, real_defines
@@ -52,6 +60,41 @@ def multiply_spectrum(kernels, H: cla.Array, X: cla.Array, *, h_scale: float,
         kernels.wiener_apply(X.queue, gsize, None, H.data, X.data, real(h_scale),
                              real(inv_snr), np.int32(adjoint), *tail)
     return X
+
+
+def kernel_support(kernel: np.ndarray, energy_tol: float) -> tuple[int, ...]:
+    """Per axis, the smallest lag s such that the kernel's energy at |lag| > s (lags in wrap
+    order on its grid) is at most ``energy_tol`` of the total (read row block by row
+    block: a mapped device buffer is not copied whole)."""
+    sums = [np.zeros(n) for n in kernel.shape]
+    for r0, r1 in row_blocks(kernel.shape):
+        e = np.square(kernel[r0:r1], dtype=np.float64)
+        sums[0][r0:r1] = e.sum(axis=(1, 2))
+        sums[1] += e.sum(axis=(0, 2))
+        sums[2] += e.sum(axis=(0, 1))
+    total = float(sums[0].sum())
+    lags = []
+    for e in sums:
+        n = e.size
+        lag = np.minimum(np.arange(n), n - np.arange(n))
+        by_lag = np.bincount(lag, weights=e)
+        beyond = total - np.cumsum(by_lag)  # energy at |lag| > s
+        ok = np.flatnonzero(beyond <= energy_tol * total)
+        lags.append(int(ok[0]) if ok.size else int(lag.max()))
+    return tuple(lags)
+
+
+def multiply_spectrum_into(kernels, H: cla.Array, X: cla.Array, Y: cla.Array, *,
+                           adjoint: bool, accumulate: bool, h_scale: float = 1.0):
+    """Y <- (h_scale H) X or its conjugate (``adjoint``), added to Y when ``accumulate``
+    (``kernels/wiener.cl``), on X's (n0, n1, n2h) half-spectrum grid (H stored whole)."""
+    n0, n1, n2h = X.shape
+    real = np.float32 if X.dtype == np.complex64 else np.float64
+    kernels.spectral_multiply_into(X.queue, (round_up(n2h, 8), n1, n0), None, H.data, X.data,
+                                   Y.data, real(h_scale), np.int32(adjoint),
+                                   np.int32(accumulate), np.int32(0), kernel_int(n0),
+                                   kernel_int(n1), kernel_int(n2h))
+    return Y
 
 
 class SpectralFilter(LinearOperator):
@@ -190,41 +233,81 @@ class SpectralFilter(LinearOperator):
 
     def gain_squared(self) -> np.ndarray:
         """|h_scale H|^2 on the (n0, n1, n2h) half-spectrum grid, unfolded (host, float64):
-        the squared gain of the filter's PSF at every frequency of :meth:`power_spectrum`."""
-        h = self.H.get()
-        g = (h.real.astype(np.float64) ** 2 + h.imag.astype(np.float64) ** 2) * self.h_scale**2
-        if not self.folded:
-            return g
+        the squared gain of the filter's PSF at every frequency of :meth:`power_blocks`."""
+        return self.gain_rows(0, self.fft.spec_shape[0])
+
+    def gain_rows(self, r0: int, r1: int) -> np.ndarray:
+        """Rows r0:r1 of :meth:`gain_squared` (host, float64), read from the device block by
+        block (:meth:`clnlos.inverse.gcv.GcvBins.from_blocks`: no host copy of the whole
+        spectrum)."""
         n0, n1 = self.fft.spec_shape[:2]
-        w, ky = np.arange(n0), np.arange(n1)
-        return g[np.minimum(w, n0 - w)][:, np.minimum(ky, n1 - ky)]
+        if not self.folded:
+            h = self.H[r0:r1].get()
+            return (h.real.astype(np.float64) ** 2 + h.imag.astype(np.float64) ** 2) \
+                * self.h_scale**2
+        w = np.arange(r0, r1)
+        fw = np.minimum(w, n0 - w)
+        lo, hi = int(fw.min()), int(fw.max()) + 1
+        h = self.H[lo:hi].get()
+        g = (h.real.astype(np.float64) ** 2 + h.imag.astype(np.float64) ** 2) * self.h_scale**2
+        ky = np.arange(n1)
+        return g[fw - lo][:, np.minimum(ky, n1 - ky)]
 
-    def influence(self, in_shape=None) -> SpectralFilter:
-        """The Wiener filter's influence ("hat") operator: this filter applied after the blur
-        it inverts, phi_k = |h H_k|^2 / (|h H_k|^2 + 1/SNR) (real, in [0, 1)), as a
-        zero-padded convolution on this filter's grid for volumes of ``in_shape`` (default
-        its own; fewer rows: the data end there, the rows past them zero). Self-adjoint,
-        norm below 1; the SNR is the one set now (``mode="wiener"`` only)."""
-        if self.mode != "wiener":
-            raise ParameterError("mode", self.mode, "'wiener' (a filter with an influence)")
-        g = self.gain_squared()
-        phi = np.ascontiguousarray((g / (g + self.inv_snr)).astype(self.fft.cdtype))
-        return SpectralFilter(self.pad_shape, self.in_shape if in_shape is None else in_shape,
-                              mode="convolve", normalize=False, lateral_pad="zero",
-                              dtype=self.dtype, queue=self.queue,
-                              spectrum=cla.to_device(self.queue, phi), scratch=self.scratch)
-
-    def power_spectrum(self, x_g: cla.Array | None = None, *, write_input=None,
-                       nonzero=None) -> np.ndarray:
-        """|F[pad(x)]|^2 on the half-spectrum grid (host, float32): the power spectrum of
-        the input as this filter pads it (``x_g``), or as ``write_input(buf)`` writes it
-        into the zeroed padded grid (data in its low-corner ``nonzero`` block)."""
+    def power_blocks(self, blocks, x_g: cla.Array | None = None, *, write_input=None,
+                     nonzero=None):
+        """The power spectrum |F[pad(x)]|^2 of the input as this filter pads it (``x_g``), or
+        as ``write_input(buf)`` writes it into the zeroed padded grid (data in its
+        low-corner ``nonzero`` block), block by block: yields (r0, rows r0:r1 of it, float32)
+        for each (r0, r1) of ``blocks`` (rows of the half spectrum), after one forward FFT;
+        no host array of the spectrum's size (a GCV bin sum,
+        :class:`clnlos.inverse.gcv.BinnedPower`, needs no more)."""
         zeroed = True
         if write_input is None:
             write_input, nonzero, zeroed = self._padder(x_g)
         _, spec = self._forward_padded(write_input, nonzero, zeroed)
-        s = spec.get()
-        return (s.real * s.real + s.imag * s.imag).astype(np.float32, copy=False)
+        for r0, r1 in blocks:
+            s = spec[r0:r1].get()
+            yield r0, s.real * s.real + s.imag * s.imag
+
+    def influence(self, in_shape=None, energy_tol: float | None = None) -> SpectralFilter:
+        """The Wiener filter's influence ("hat") operator: this filter applied after the blur
+        it inverts, phi_k = |h H_k|^2 / (|h H_k|^2 + 1/SNR) (real, in [0, 1)), as a
+        zero-padded convolution for volumes of ``in_shape`` (default its own; fewer rows:
+        the data end there, the rows past them zero). Self-adjoint, norm below 1; the SNR
+        is the one set now (``mode="wiener"`` only).
+
+        On this filter's grid; with ``energy_tol``, its kernel (real and even: phi is real)
+        cut to the lags s = (s_t, s_y, s_x) that hold all but that fraction of its energy
+        and convolved on the smallest FFT-friendly grid of at least n + s per axis (n the
+        volume's size), where that cut kernel does not wrap: the same operator up to
+        ``energy_tol`` of the kernel's energy, at a fraction of the grid (phi is compact:
+        a ratio of the blur's gain that is flat wherever the blur is well above 1/SNR)."""
+        if self.mode != "wiener":
+            raise ParameterError("mode", self.mode, "'wiener' (a filter with an influence)")
+        in_shape = self.in_shape if in_shape is None else tuple(int(v) for v in in_shape)
+        phi = cla.empty(self.queue, self.fft.spec_shape, self.fft.cdtype)
+        for r0, r1 in row_blocks(phi.shape):
+            g = self.gain_rows(r0, r1)
+            upload_rows(phi, r0, (g / (g + self.inv_snr)).astype(self.fft.cdtype))
+        whole = SpectralFilter(self.pad_shape, in_shape, mode="convolve", normalize=False,
+                               lateral_pad="zero", dtype=self.dtype, queue=self.queue,
+                               spectrum=phi, scratch=self.scratch)
+        if energy_tol is None:
+            return whole
+        kernel = self.fft.inverse(phi.copy(), cla.empty(self.queue, self.pad_shape, self.dtype))
+        with host_view(kernel) as k:
+            lags = kernel_support(k, energy_tol)
+        grid = tuple(fast_length(n + s) for n, s in zip(in_shape, lags, strict=True))
+        if np.prod(grid) >= np.prod(self.pad_shape):
+            return whole
+        idx = [np.arange(-s, s + 1) for s in lags]
+        with host_view(kernel) as k:
+            cut = k[np.ix_(*[i % n for i, n in zip(idx, self.pad_shape, strict=True)])]
+        small = np.zeros(grid, self.dtype)
+        small[np.ix_(*[i % n for i, n in zip(idx, grid, strict=True)])] = cut
+        return SpectralFilter(small, in_shape, mode="convolve", normalize=False,
+                              lateral_pad="zero", dtype=self.dtype, queue=self.queue,
+                              scratch=self.scratch)
 
     def _forward_padded(self, write_input, nonzero, zeroed: bool):
         """(the padded grid, its half spectrum): ``write_input(buf)`` into the padded grid

@@ -37,6 +37,14 @@ def upload_into(a_g, host: np.ndarray) -> None:
                     wait_for=a_g.events, is_blocking=True)
 
 
+def upload_rows(a_g, r0: int, rows: np.ndarray) -> None:
+    """Blocking copy of ``rows`` into rows r0:r0 + len(rows) of the device array ``a_g``."""
+    rows = np.ascontiguousarray(rows, a_g.dtype)
+    row_bytes = int(np.prod(a_g.shape[1:])) * a_g.dtype.itemsize
+    cl.enqueue_copy(a_g.queue, a_g.base_data, rows, dst_offset=a_g.offset + r0 * row_bytes,
+                    wait_for=a_g.events, is_blocking=True)
+
+
 @contextlib.contextmanager
 def host_view(a_g, write: bool = False, read: bool = True):
     """The device array ``a_g`` as a numpy array for the duration of a ``with`` block.

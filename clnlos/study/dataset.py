@@ -1,16 +1,17 @@
 """Study samples: simulate a hidden object through the slab, reconstruct it, score it.
 
-A sample is a JSON-able dict (material, object and its size, pose, depth, exposure, seed, and
-optional overrides of the scan width and slab thickness for the sweeps, and a ``transport``
-table, :class:`clnlos.forward.scene.TransportSettings`, for the bistatic comparison); with the
-grid it defines one scene (:func:`scene_dict`). Its result is cached on disk as
-``<cache>/<sha1 of sample, grid and code version>.npz`` (written atomically, with the mode
-the umask gives), so reruns and interrupted runs resume and a changed clnlos never reuses an
-old result. Each entry also holds its key and a SHA-256 of its arrays, and is checked when
-read (readable, exactly the result's keys, shapes and dtypes, its key, its checksum): a bad
-entry is deleted, recomputed and reported in one warning naming the file. Samples run serially
-or through Dask (local processes with pinned threads, or an existing cluster): each worker
-process builds its own OpenCL context.
+A sample is a JSON-able dict (material, object and its size, pose, depth, exposure, seed,
+and optional overrides of the scan width and slab thickness for the sweeps, a ``transport``
+table, :class:`clnlos.forward.scene.TransportSettings`, for the bistatic comparison, and a
+``brdf`` the iterative inversion assumes, :mod:`clnlos.brdf.lobes`; absent: Lambertian);
+with the grid it defines one scene (:func:`scene_dict`) and its reconstruction. Its result
+is cached on disk as ``<cache>/<sha1 of sample, grid and code version>.npz`` (written
+atomically, with the mode the umask gives), so reruns and interrupted runs resume and a
+changed clnlos never reuses an old result. Each entry also holds its key and a SHA-256 of
+its arrays, and is checked when read (readable, exactly the result's keys, shapes and
+dtypes, its key, its checksum): a bad entry is deleted, recomputed and reported in one
+warning naming the file. Samples run serially or through Dask (local processes with pinned
+threads, or an existing cluster): each worker process builds its own OpenCL context.
 
 Ground truth per sample: the scan cells at least half covered by surfaces facing the scan
 plane (:func:`clnlos.study.metrics.truth_mask`), the mean depth of the surface elements, and
@@ -24,6 +25,7 @@ import hashlib
 import json
 import math
 import os
+import time
 import warnings
 import zipfile
 import zlib
@@ -35,6 +37,7 @@ import numpy as np
 from tqdm import tqdm
 
 from clnlos import C0, __version__
+from clnlos.brdf.lobes import LAMBERTIAN, lobe_by_name
 from clnlos.config import ReconstructionConfig, snr_rule_applies
 from clnlos.errors import ParameterError
 from clnlos.forward.model import ForwardModel
@@ -61,13 +64,14 @@ class StudyGrid:
     max_path_m: float = 1.6  # reconstruction window (round-trip path), m
     density_per_m2: float = 4e4
     method: str = "iterative"
-    iterations: int = 50  # the study's budget (a quarter of the config's default): most of
-    #                       the iterative gain is in by 50 iterations at this grid
+    iterations: int = 30  # the study's budget (the config's default runs to its stopping
+    #                       rule, 100-200): the working-set solver reaches at 30 what plain
+    #                       FISTA did at the 50 of before (oracle table, mean IoU 0.687
+    #                       against 0.681; clnlos.inverse.solvers)
     snr_rule: str = "gcv"  # the SNR rule of every method, the study's budget too: GCV's
-    #                        pick, not the config's "auto" (which for the iterative method
-    #                        thins the counts, 3-4x the time of a sample: 18-22 s against
-    #                        5-8 s measured, clnlos.inverse.thinning; for LCT and f-k
-    #                        searches the halves' agreement, clnlos.inverse.reproducibility)
+    #                        pick (the config's "auto" for the iterative method; for LCT
+    #                        and f-k "auto" searches the halves' agreement,
+    #                        clnlos.inverse.reproducibility, up to 18 half reconstructions)
     # the detector: the scene's defaults (seed Table 1), but for the etendue and dark counts
     # of the study's SPAD behind the slab
     power_w: float = Detector.power_w
@@ -186,14 +190,18 @@ def scene_dict(sample: dict, grid: StudyGrid) -> dict:
 def render_sample(sample: dict, grid: StudyGrid, device: str | None = None) -> dict:
     """Simulate, reconstruct and score one sample; returns arrays and numbers."""
     queue = get_queue(device)
+    t0 = time.perf_counter()
     scene = Scene.from_dict(scene_dict(sample, grid))
     fm = ForwardModel(scene, queue=queue)
     cap = fm.capture()
+    t1 = time.perf_counter()
     rule = {"snr_rule": grid.snr_rule} if snr_rule_applies(grid.snr_rule, grid.method) else {}
+    brdf = {"brdf": sample["brdf"]} if "brdf" in sample else {}
     cfg = ReconstructionConfig(max_path_m=window_m(sample, grid), slab=scene.slab,
                                method=grid.method, iterations=grid.iterations,
-                               **rule).validate()
+                               **rule, **brdf).validate()
     rec = reconstruct(cap, cfg, device=queue)
+    t2 = time.perf_counter()
     vol = rec.volume
     mip = vol.max(axis=0)
     mip = mip / mip.max() if mip.max() > 0 else mip
@@ -213,7 +221,18 @@ def render_sample(sample: dict, grid: StudyGrid, device: str | None = None) -> d
             "true_depth_m": true_depth, "depth_error_m": abs(float(depth) - true_depth),
             "psnr_db": float(10 * np.log10(1.0 / max(mse, 1e-12))),
             "counts": float(cap.transient.sum()),
+            "simulate_s": t1 - t0, "reconstruct_s": t2 - t1,
+            "lobe_halfwidth_deg": lobe_halfwidth_deg(rec.params),
             **{f"q_{k}": v for k, v in quality_metrics(vol, dz).items()}}
+
+
+def lobe_halfwidth_deg(params: dict) -> float:
+    """Half width (deg) of the retro lobe a reconstruction assumed (90: Lambertian), from what
+    it recorded (``brdf_used``)."""
+    name = params.get("brdf_used")
+    if name is None or name == LAMBERTIAN:
+        return 90.0
+    return math.degrees(lobe_by_name(name).halfwidth_rad())
 
 
 def figure8_slices(transient: np.ndarray, volume: np.ndarray) -> dict[str, np.ndarray]:
@@ -231,8 +250,10 @@ def figure8_slices(transient: np.ndarray, volume: np.ndarray) -> dict[str, np.nd
 # what render_sample returns: float32 [points, points] images and float64 numbers
 RESULT_IMAGES = ("mip", "truth", "depth_map", "meas_image")
 RESULT_SLICES = ("meas_xt", "meas_yt", "vol_xz", "vol_yz")  # float32 [t or z, points]
+RESULT_TIMES = ("simulate_s", "reconstruct_s")  # seconds: all a re-render may change
 RESULT_NUMBERS = ("iou", "iou_box_baseline", "depth_m", "true_depth_m", "depth_error_m",
-                  "psnr_db", "counts", "bin_width_s", "voxel_depth_m",
+                  "psnr_db", "counts", "bin_width_s", "voxel_depth_m", "lobe_halfwidth_deg",
+                  *RESULT_TIMES,
                   *(f"q_{m}" for m in METRICS))
 # the entry's own fields beside the result
 ENTRY_KEY, ENTRY_CHECKSUM = "_key", "_checksum"

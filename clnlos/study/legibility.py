@@ -29,6 +29,7 @@ import math
 
 import numpy as np
 from scipy.ndimage import gaussian_filter
+from scipy.signal import correlate
 from scipy.special import ndtri  # the normal quantile (scipy.stats.norm.ppf computes it so)
 
 from clnlos.forward.geometry import letters_mask
@@ -66,32 +67,46 @@ def glyph_templates(height_m: float, stroke_m: float, centre_xy, scan_centres: n
             for g in glyphs}
 
 
-def _pearson(a: np.ndarray, b: np.ndarray) -> float:
-    a = a - a.mean()
-    b = b - b.mean()
-    d = math.sqrt(float((a * a).sum()) * float((b * b).sum()))
-    return float((a * b).sum() / d) if d > 0 else 0.0
+def ncc_map(mip: np.ndarray, template: np.ndarray, max_shift: int) -> np.ndarray:
+    """Pearson r of the template with the MIP shifted by (dy, dx) (zero fill), for every
+    shift in [-max_shift, max_shift]^2 (array [2 S + 1, 2 S + 1], index S the unshifted),
+    from three cross-correlations: sum(m_s t), sum(m_s) and sum(m_s^2) over the frame."""
+    m = np.asarray(mip, np.float64)
+    t = np.asarray(template, np.float64)
+    n = m.size
+    tc = t - t.mean()
+    tt = float((tc * tc).sum())
+    ones = np.ones_like(t)
+    S = int(max_shift)
+    ny, nx = m.shape
+    win = (slice(ny - 1 - S, ny + S), slice(nx - 1 - S, nx + S))  # lags -S..S of 'full'
 
+    def corr(a, b):  # sum_u a[u] b[u + d] at lag d
+        return correlate(b, a, mode="full", method="direct")[win]
 
-def _shifted(img: np.ndarray, dy: int, dx: int) -> np.ndarray:
-    out = np.zeros_like(img)
-    ny, nx = img.shape
-    ys, yd = (slice(0, ny - dy), slice(dy, ny)) if dy >= 0 else (slice(-dy, ny),
-                                                                   slice(0, ny + dy))
-    xs, xd = (slice(0, nx - dx), slice(dx, nx)) if dx >= 0 else (slice(-dx, nx),
-                                                                   slice(0, nx + dx))
-    out[yd, xd] = img[ys, xs]
-    return out
+    c = corr(m, t)
+    s1 = corr(m, ones)
+    s2 = corr(m * m, ones)
+    var = np.maximum(s2 - s1 * s1 / n, 0.0) * tt
+    num = c - s1 * t.mean()
+    with np.errstate(invalid="ignore", divide="ignore"):
+        r = np.where(var > 0, num / np.sqrt(np.where(var > 0, var, 1.0)), 0.0)
+    return r
 
 
 def match_scores(mip: np.ndarray, templates: dict[str, np.ndarray],
                  max_shift: int = MAX_SHIFT_CELLS) -> dict[str, float]:
     """Normalised cross-correlation of the MIP with each template, best over shifts of up to
     ``max_shift`` cells in x and y."""
-    m = np.asarray(mip, np.float64)
-    shifts = range(-max_shift, max_shift + 1)
-    return {g: max(_pearson(_shifted(m, dy, dx), t) for dy in shifts for dx in shifts)
-            for g, t in templates.items()}
+    return {g: float(ncc_map(mip, t, max_shift).max()) for g, t in templates.items()}
+
+
+def best_shift(mip: np.ndarray, template: np.ndarray, max_shift: int) -> tuple[int, int]:
+    """(dy, dx) cells by which the MIP's glyph sits off the template's place: the shift of the
+    best match (the MIP shifted by -(dy, dx) fits the template best)."""
+    r = ncc_map(mip, template, max_shift)
+    iy, ix = np.unravel_index(int(np.argmax(r)), r.shape)
+    return -(int(iy) - max_shift), -(int(ix) - max_shift)
 
 
 def identify(mip: np.ndarray, templates: dict[str, np.ndarray],

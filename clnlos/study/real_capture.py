@@ -257,7 +257,7 @@ def compare_real_capture(path, method: str = "lct", *, iterations: int | None = 
     grid = StudyGrid() if grid is None else grid
     queue = get_queue(queue)
     # the study grid's slab SNR rule for both: the simulation's slab model is exact, so
-    # under "auto" the iterative method would choose it by thinning there and not on the real
+    # under "auto" LCT and f-k would search the halves' agreement there and not on the real
     cfg = capture_config(name, method, iterations=iterations, snr_rule=grid.snr_rule)
     real_cap = read_capture(path)
     rec_real = reconstruct(real_cap, cfg, device=queue)

@@ -48,13 +48,19 @@ def _outline(ax, truth, w):
     ax.contour(cc, cc, truth, [0.5], colors="tab:red", linewidths=0.8)
 
 
-def _first_sample(plan, res, geometry: str, material: str, glyph: str | None = None):
+def _first_sample(plan, res, geometry: str, material: str, glyph: str | None = None,
+                  inversion: str = "lambertian"):
     for (meta, s), r in zip(plan, res, strict=True):
         if (meta["set"] == "main" and meta["geometry"] == geometry
                 and meta["material"] == material and meta["k"] == 0
+                and meta.get("inversion", "lambertian") == inversion
                 and (glyph is None or meta["glyph"] == glyph)):
             return s, r
     return None, None
+
+
+INVERSION_LABELS = {"lambertian": "Lambertian", "known": "known BRDF", "auto": "BRDF auto",
+                    "measurement": "measurement alone"}
 
 
 def fig_materials(results, plan, res, geometry: str):
@@ -98,12 +104,18 @@ def fig_figure8(results, plan, res, geometry: str):
     mats = geo["materials"]
     w = geo["scan_width_m"]
     glyph = results["options"]["glyphs"][0]
-    fig, axes = plt.subplots(len(mats), 6, figsize=(11.5, 1.75 * len(mats) + 0.8),
+    aware = next((inv for inv in ("known", "auto") if inv in results.get("inversions", ())),
+                 None)
+    ncol = 7 if aware else 6
+    fig, axes = plt.subplots(len(mats), ncol, figsize=(11.5, 1.75 * len(mats) + 0.8),
                              squeeze=False, constrained_layout=True)
     titles = ("measurement, sum over t", "x-t (y = 0)", "y-t (x = 0)",
-              "reconstruction MIP", "x-z (max over y)", "y-z (max over x)")
+              "Lambertian MIP", "x-z (max over y)", "y-z (max over x)",
+              f"{INVERSION_LABELS.get(aware, '')} MIP")
     for i, m in enumerate(mats):
         _, r = _first_sample(plan, res, geometry, m["name"], glyph)
+        _, ra = (None, None) if aware is None else _first_sample(plan, res, geometry,
+                                                                 m["name"], glyph, aware)
         nt = r["meas_xt"].shape[0]
         t_ns = nt * r["bin_width_s"] * 1e9
         nz = r["vol_xz"].shape[0]
@@ -115,6 +127,8 @@ def fig_figure8(results, plan, res, geometry: str):
                   (r["mip"], ext_xy, "gray"),
                   (r["vol_xz"], (-w / 2, w / 2, 0, z_max), "gray"),
                   (r["vol_yz"], (-w / 2, w / 2, 0, z_max), "gray"))
+        if ra is not None:
+            panels += ((ra["mip"], ext_xy, "gray"),)
         for j, (img, ext, cmap) in enumerate(panels):
             ax = axes[i, j]
             a = np.asarray(img, float)
@@ -123,7 +137,7 @@ def fig_figure8(results, plan, res, geometry: str):
                            vmin=0, vmax=1)
             if j == 0:
                 first = im
-            if j == 3:
+            if j in (3, 6):
                 _outline(ax, r["truth"], w)
             if j in (4, 5):
                 ax.axhline(geo["depth_m"], color="tab:red", lw=0.6, ls=":")
@@ -131,13 +145,13 @@ def fig_figure8(results, plan, res, geometry: str):
             if i == 0:
                 ax.set_title(titles[j], fontsize=8)
             if i == len(mats) - 1:
-                ax.set_xlabel("x (m)" if j in (0, 1, 3, 4) else "y (m)", fontsize=7)
+                ax.set_xlabel("x (m)" if j in (0, 1, 3, 4, 6) else "y (m)", fontsize=7)
             ax.set_ylabel({0: f"{_short(m['name'], 16)}\ny (m)", 1: "t (ns)", 2: "t (ns)",
-                           3: "y (m)", 4: "z (m)", 5: "z (m)"}[j], fontsize=7)
+                           3: "y (m)", 4: "z (m)", 5: "z (m)", 6: "y (m)"}[j], fontsize=7)
         if i == 0:
             fig.colorbar(first, ax=axes[:, 0], shrink=0.3, location="left",
                          label="counts / max")
-            fig.colorbar(im, ax=axes[:, 5], shrink=0.3, label="/ max (a.u.)")
+            fig.colorbar(im, ax=axes[:, ncol - 1], shrink=0.3, label="/ max (a.u.)")
     fig.suptitle(f"glyph {glyph}, geometry {geometry}: {geo['description']} "
                  f"(c t / 2 at the window end: {C0 * t_ns * 1e-9 / 2:.2f} m)", fontsize=8)
     return fig
@@ -183,8 +197,9 @@ def fig_legibility_sweeps(results):
     fig, ax = plt.subplots(1, 2, figsize=(11.5, 3.8), constrained_layout=True)
     for a, var, xlabel in ((ax[0], "letter_height_m", "letter height (m; strokes scaled)"),
                            (ax[1], "exposure_s", "exposure per scan point (s)")):
-        for m, x, y, err, _ in _sweep_series(rows, var):
-            a.errorbar(x, y, yerr=err, fmt="o-", capsize=3, label=_short(m, 22))
+        for m, x, y, err, rs in _sweep_series(rows, var):
+            fmt = "o-" if rs[0].get("inversion", "lambertian") == "lambertian" else "s--"
+            a.errorbar(x, y, yerr=err, fmt=fmt, capsize=3, label=_short(m, 36))
         a.axhline(0.9, color="gray", ls="--", lw=0.8, label="legible (0.9)")
         if rows:
             a.axhline(rows[0]["identification"]["chance"], color="gray", ls=":", lw=0.8,
@@ -335,13 +350,17 @@ def _ci_err(values, rows, key="identification"):
 
 
 def _sweep_series(rows, var):
-    """(material, values, identification accuracies, their interval bars, rows) of each
-    material of sweep variable ``var``, in value order."""
-    for m in dict.fromkeys(r["material"] for r in rows if r["variable"] == var):
-        rs = sorted((r for r in rows if r["variable"] == var and r["material"] == m),
-                    key=lambda r: r["value"])
+    """(label, values, identification accuracies, their interval bars, rows) of each material
+    (and inversion, where a sweep ran several) of sweep variable ``var``, in value order."""
+    keys = dict.fromkeys((r["material"], r.get("inversion", "lambertian")) for r in rows
+                         if r["variable"] == var)
+    several = len({inv for _, inv in keys}) > 1
+    for m, inv in keys:
+        rs = sorted((r for r in rows if r["variable"] == var and r["material"] == m
+                     and r.get("inversion", "lambertian") == inv), key=lambda r: r["value"])
         y = np.array([r["identification"]["accuracy"] for r in rs])
-        yield m, [r["value"] for r in rs], y, _ci_err(y, rs), rs
+        label = f"{_short(m, 22)} ({INVERSION_LABELS.get(inv, inv)})" if several else m
+        yield label, [r["value"] for r in rs], y, _ci_err(y, rs), rs
 
 
 def _pct(v) -> str:
@@ -408,10 +427,31 @@ def findings_html(results) -> str:
     return "<ul class='findings'>" + "".join(f"<li>{i}</li>" for i in items) + "</ul>"
 
 
+def _acc(summary: dict | None) -> str:
+    if summary is None:
+        return "-"
+    i = summary["identification"]
+    return f"{i['accuracy']:.2f} [{i['ci'][0]:.2f}, {i['ci'][1]:.2f}]"
+
+
+def _auto_lobes(m: dict) -> str:
+    """The half widths (deg) of the lobes "auto" chose for a material's glyphs: their median
+    and range."""
+    a = m.get("inversions", {}).get("auto")
+    if not a:
+        return "-"
+    w = np.asarray(a["lobe_halfwidth_deg"], float)
+    return f"{np.median(w):.2g} ({w.min():.2g}-{w.max():.2g})"
+
+
 def _geometry_table(g) -> str:
+    invs = [inv for inv in ("known", "auto") if any(inv in m.get("inversions", {})
+                                                    for m in g["materials"])]
     rows = [[html.escape(m["name"]), html.escape(m["brdf_class"]),
-             f"{m['specular_fraction']:.2f}", _ident(m),
-             f"{m['measurement_identification']['accuracy']:.2f}",
+             f"{m['specular_fraction']:.2f}",
+             f"{m['measurement_identification']['accuracy']:.2f}", _ident(m),
+             *[_acc(m.get("inversions", {}).get(inv)) for inv in invs],
+             *([_auto_lobes(m)] if "auto" in invs else []),
              f"{m['identification']['chance']:.3f}", f"{m['iou']:.3f}",
              f"{m['iou_box_baseline']:.3f}", f"{m['iou_excess']:+.3f}",
              f"{m['depth_error_m'] * 100:.1f}", f"{m['photon_counts']:.2g}", m["label"],
@@ -421,12 +461,69 @@ def _geometry_table(g) -> str:
             f" scan {g['scan_width_m']} m, letters {g['letter_height_m']} m tall with "
             f"{g['stroke_m'] * 100:g} cm strokes at {g['depth_m']} m; measured lateral "
             f"resolution {g['lateral_resolution_m'] * 100:.1f} cm, stroke / resolution "
-            f"{g['stroke_over_resolution']:.2f}.</p>")
-    return head + _table(["material", "BRDF class", "specular fraction",
-                          "identification [95%]", "measurement alone", "chance", "IoU",
+            f"{g['stroke_over_resolution']:.2f}. Identification [Wilson 95%] of the "
+            "measurement alone (time-integrated, no reconstruction) and of the iterative "
+            "inversion with each reflectance; IoU and the labels are the Lambertian "
+            "inversion's.</p>")
+    return head + _table(["material", "BRDF class", "specular fraction", "measurement alone",
+                          "Lambertian [95%]",
+                          *[f"{INVERSION_LABELS[inv]} [95%]" for inv in invs],
+                          *(["auto lobe half width (deg)"] if "auto" in invs else []),
+                          "chance", "IoU",
                           "box baseline IoU",
                           "IoU - baseline", "depth error (cm)", "photons", "label",
                           "CNN label", "seed Fig. 9", "FFT label"], rows)
+
+
+def _tilt_html(results) -> str:
+    rows = results.get("tilt_sweep") or []
+    if not rows:
+        return "<p>No tilt sweep in this run.</p>"
+    cols = [c for c in (*results.get("inversions", ("lambertian",)), "measurement")
+            if c in rows[0]]
+    body = [[html.escape(r["material"]), f"{r['tilt_deg']:g}",
+             f"{r['mirror_shift_m'] * 100:.1f}",
+             *[f"{r[c]['identification']['accuracy']:.2f} ({r[c]['shift_m'] * 100:.1f} cm)"
+               for c in cols]] for r in rows]
+    gap = results["findings"].get("tilt", {}).get("worst_gap_below_measurement")
+    text = ("<p>Glyphs tilted about the y axis at the legible geometry, matched to the K "
+            "templates up to a translation of "
+            f"{results['tilt_max_shift_m'] * 100:g} cm; beside each "
+            "identification, the mean displacement of the true glyph's best match. A mirror "
+            "returns light about z tan(tilt) away from the glyph: a confocal scan cannot tell "
+            "a tilted glyph with a sharp lobe from a displaced one.")
+    if gap:
+        text += (f" Largest gap of the best inversion below the measurement alone: "
+                 f"{gap['gap']:+.2f} ({html.escape(gap['material'])}, {gap['tilt_deg']:g} "
+                 "deg).")
+    return text + "</p>" + _table(["material", "tilt (deg)", "z tan(tilt) (cm)",
+                                   *[INVERSION_LABELS.get(c, c) for c in cols]], body)
+
+
+def fig_tilt(results):
+    """Identification up to translation against tilt, per material: each inversion and the
+    measurement alone (Wilson 95% intervals)."""
+    import matplotlib.pyplot as plt
+
+    rows = results["tilt_sweep"]
+    mats = list(dict.fromkeys(r["material"] for r in rows))
+    cols = [c for c in (*results.get("inversions", ("lambertian",)), "measurement")
+            if c in rows[0]]
+    fig, axes = plt.subplots(1, len(mats), figsize=(11.5, 3.0), squeeze=False,
+                             constrained_layout=True, sharey=True)
+    styles = {"lambertian": "o-", "known": "s-", "auto": "^-", "measurement": "k:"}
+    for ax, m in zip(axes[0], mats, strict=True):
+        rs = sorted((r for r in rows if r["material"] == m), key=lambda r: r["tilt_deg"])
+        x = [r["tilt_deg"] for r in rs]
+        for c in cols:
+            y = np.array([r[c]["identification"]["accuracy"] for r in rs])
+            ax.errorbar(x, y, yerr=_ci_err(y, [r[c] for r in rs]), fmt=styles.get(c, "o-"),
+                        capsize=2, label=INVERSION_LABELS.get(c, c))
+        ax.set(title=_short(m, 24), xlabel="tilt (deg)", ylim=(0, 1.05))
+        ax.title.set_fontsize(8)
+    axes[0, 0].set_ylabel("identification (up to translation)")
+    axes[0, 0].legend(fontsize=6)
+    return fig
 
 
 def _real_html(results) -> str:
@@ -489,9 +586,32 @@ def _reconstruction_detail(grid: dict) -> str:
     as the samples are reconstructed)."""
     method, rule = grid["method"], grid.get("snr_rule", "gcv")
     if not snr_rule_applies(rule, method):
-        rule = f"auto ({auto_snr_rule(method)} on counts of the slab simulated)"
+        auto = auto_snr_rule(method)
+        rule = "auto (gcv)" if auto == "gcv" else f"auto ({auto} on counts of the slab simulated)"
     text = f"SNRs by {rule}"
     return f"{grid['iterations']} iterations, {text}" if method == "iterative" else text
+
+
+def _cost_html(results) -> list[str]:
+    """The cost table: each stage's wall time, then per part of the plan its distinct
+    samples and the seconds they took to simulate and reconstruct (summed over workers)."""
+    cost = results.get("cost")
+    t = results["timings_s"]
+    out = ["<h2>Where the time goes</h2>",
+           _table(["stage", "wall time (s)"],
+                  [[k.removesuffix("_s"), f"{v:.1f}"] for k, v in t.items()])]
+    if cost is None:
+        return out
+    rows = [[p["part"], p["entries"], p["samples"], f"{p['simulate_s']:.1f}",
+             f"{p['reconstruct_s']:.1f}",
+             f"{(p['simulate_s'] + p['reconstruct_s']) / max(p['samples'], 1):.2f}"]
+            for p in cost["parts"]]
+    out.append("<p>Samples per part of the study (a sample two parts ask for is rendered "
+               "once, counted where first asked for); seconds summed over the workers, as "
+               "recorded when each sample was rendered (0 for none: all from the cache).</p>")
+    out.append(_table(["part", "entries", "samples rendered", "simulate (s)",
+                       "reconstruct (s)", "per sample (s)"], rows))
+    return out
 
 
 def write_report(out_dir, results, plan, res, real=None) -> None:
@@ -503,8 +623,9 @@ def write_report(out_dir, results, plan, res, real=None) -> None:
     figs = [
         ("The seed's Figure 8, side by side (legible geometry)",
          "Per material: the measurement (photon counts) integrated over time with its x-t and "
-         "y-t slices, and the reconstruction's MIP with the true outline (red) and its x-z "
-         "and y-z projections (dotted: the true depth).",
+         "y-t slices, the Lambertian reconstruction's MIP with the true outline (red) and its "
+         "x-z and y-z projections (dotted: the true depth), and the MIP of the inversion "
+         "with the material's BRDF.",
          fig_figure8(results, plan, res, results['legible_geometry'])),
         ("Identification and IoU against the blob baseline", "", fig_identification(results)),
         ("Every glyph at the legible geometry", "Title: true glyph -> the matched one.",
@@ -515,6 +636,9 @@ def write_report(out_dir, results, plan, res, real=None) -> None:
          "Legible geometry; mean over glyphs and noise realisations, Wilson 95% intervals.",
          fig_legibility_sweeps(results)),
         ("Geometry sweeps (the seed's letters)", "", fig_sweeps(results)),
+        *([("Tilted glyphs (legible geometry)", "Identification up to a translation; dotted: "
+            "the measurement alone.", fig_tilt(results))] if results.get("tilt_sweep")
+          else []),
         ("No-reference metrics against ground truth", "", fig_metrics(results, plan, res)),
         ("BRDF of each material (seed Fig. 7)", "", fig_brdf(results)),
     ]
@@ -523,9 +647,17 @@ def write_report(out_dir, results, plan, res, real=None) -> None:
     if real is not None and real.get("figure") is not None:
         figs.insert(2, ("A real capture beside its simulation", "", real["figure"]))
     small = results["smallest_legible"]
+
+    def _need(n, var):
+        if n[var] is None:
+            return "-"
+        via = n.get(f"{var}_inversion")
+        return f"{n[var]:g}" + (f" ({INVERSION_LABELS.get(via, via)})" if via else "")
+
     need_rows = [[html.escape(n["material"]),
-                  "-" if n["letter_height_m"] is None else f"{n['letter_height_m']:g}",
-                  "-" if n["exposure_s"] is None else f"{n['exposure_s']:g}"] for n in small]
+                  html.escape(INVERSION_LABELS.get(n.get("inversion", "lambertian"),
+                                                   n.get("inversion", ""))),
+                  _need(n, "letter_height_m"), _need(n, "exposure_s")] for n in small]
     res_rows = [[m, f"{v['lateral_fwhm_m'] * 100:.2f}", f"{v['axial_fwhm_m'] * 100:.2f}"]
                 for m, v in results["resolution"].items()
                 if isinstance(v, dict) and "lateral_fwhm_m" in v]
@@ -551,7 +683,9 @@ def write_report(out_dir, results, plan, res, real=None) -> None:
         "<h2>What the material costs: smallest legible letter and exposure</h2>",
         "<p>Legible geometry; identification >= 0.9 at 0.1 s per point (height) and with "
         "0.3 m letters (exposure); '-': not reached within the swept values.</p>",
-        _table(["material", "smallest legible letter (m)", "exposure needed (s)"], need_rows),
+        _table(["material", "inversion", "smallest legible letter (m)",
+                "exposure needed (s)"], need_rows),
+        "<h2>Tilted glyphs: identification up to a translation</h2>", _tilt_html(results),
         "<h2>Measured resolution (seed geometry, noise-free point target)</h2>",
         _table(["method", "lateral FWHM (cm)", "axial FWHM (cm)"], res_rows),
         f"<p>O'Toole's bound with the measured effective temporal FWHM "
@@ -572,8 +706,7 @@ def write_report(out_dir, results, plan, res, real=None) -> None:
             body.append(f"<p>{html.escape(caption)}</p>")
         body.append(f"<img alt='{html.escape(title)}' src='data:image/png;base64,"
                     f"{_png(fig)}'/>")
-    t = results["timings_s"]
-    body.append("<p>Timings: " + ", ".join(f"{k} {v:.1f} s" for k, v in t.items()) + "</p>")
+    body += _cost_html(results)
     doc = (f"<!doctype html><html><head><meta charset='utf-8'>{HTML_GENERATOR}"
            "<meta name='viewport' content='width=device-width, initial-scale=1'>"
            f"<title>clnlos material study</title><style>{STYLE}</style>{OVERFLOW_PROBE}"

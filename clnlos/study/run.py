@@ -53,6 +53,7 @@ import numpy as np
 from scipy.special import stdtrit  # Student's t quantile (what scipy.stats.t.ppf calls)
 
 from clnlos.app.progress import counter, progress_bar
+from clnlos.brdf.lobes import AUTO, retro_lobe
 from clnlos.brdf.models import BRDFModel
 from clnlos.brdf.presets import preset_model, preset_table
 from clnlos.config import SNR_RULES
@@ -81,6 +82,7 @@ from clnlos.study.heldout import (
 from clnlos.study.legibility import (
     GLYPHS,
     LEGIBLE_ACCURACY,
+    best_shift,
     glyph_templates,
     identification_summary,
     identify,
@@ -123,6 +125,18 @@ SWEEPS = {"scan_width_m": (0.3, 0.45, 0.6, 0.8), "depth_m": (0.3, 0.5, 0.7, 0.9)
 LEGIBILITY_SWEEPS = {"letter_height_m": (0.1, 0.2, 0.3, 0.5),
                      "exposure_s": (0.001, 0.01, 0.1, 1.0)}
 TRANSPORT_CHOICES = ("confocal", "both")  # the study's transports: confocal; + bistatic
+# the reflectance the iterative inversion assumes, per reconstruction: Lambertian (the physics
+# of every method before), the material's own BRDF ("known"), or chosen from the capture
+# ("auto", clnlos.inverse.brdf_choice)
+INVERSIONS = ("lambertian", "known", "auto")
+# the tilt sweep: glyphs rotated about the y axis at the legible geometry, matched up to a
+# translation of at most TILT_MAX_SHIFT_M (a tilted mirror's light lands about z tan(tilt)
+# away from the glyph)
+TILTS_DEG = (0.0, 5.0, 10.0, 20.0)
+TILT_MATERIALS = ("quartz glass", "aluminium alloy sample", "gold-plated polyester film",
+                  "fuchsia lacquer board", "standard white plate")
+TILT_MAX_SHIFT_M = 0.2
+GAP_CLOSED = 1 / 8  # strong-specular identification within one glyph in eight of diffuse
 STROKE_PER_HEIGHT = 0.04 / 0.15   # the seed's letters: 4 cm strokes on 15 cm
 DEFAULT_EXPOSURE_S = 0.1          # per scan point (the seed's budget)
 HELD_OUT_GLYPHS = ("U", "X")      # the CNN's validation: glyphs ...
@@ -175,18 +189,28 @@ class StudyOptions:
     label: str = "full"
     real_data: Path | None = None       # folder holding cdt/*.mat (the real CDT captures)
     transport: str = "both"             # "both": also the bistatic comparison stage (--full);
-    #                                     "confocal": the quick default (about 9 minutes)
+    #                                     "confocal": the quick default (about 3 minutes)
     transport_glyphs: tuple[str, ...] | None = None  # the comparison's (default: glyphs)
     face_rings: int = COMPARE_RINGS     # the comparison's bistatic face samples
     face_angles: int = COMPARE_ANGLES
+    inversions: tuple[str, ...] = INVERSIONS          # per material row (INVERSIONS)
+    sweep_inversions: tuple[str, ...] = ("lambertian", "known")  # the legibility sweeps'
+    aware_glyphs: tuple[str, ...] | None = None  # what the BRDF-aware inversions
+    #                                               reconstruct (default: glyphs)
+    tilts_deg: tuple[float, ...] = TILTS_DEG
+    tilt_materials: tuple[str, ...] = TILT_MATERIALS
+    tilt_glyphs: tuple[str, ...] | None = None  # default: glyphs
+    tilt_inversions: tuple[str, ...] = INVERSIONS
 
     @classmethod
     def quick(cls) -> StudyOptions:
-        """The built-in default (the README main job, about 9 minutes on 2 CPU cores): one
+        """The built-in default (the README main job, about 3 minutes on 2 CPU cores): one
         noise realisation per glyph; the geometry sweeps with three values each, three
         glyphs per point and the strong-specular and the Lambertian sweep material; no extra
         random samples; exposures over the two decades below the default."""
         return cls(n_dataset=0, seeds=1, sweep_glyphs=("E", "H", "T"),
+                   aware_glyphs=("E", "H", "P", "U"), tilts_deg=(0.0, 10.0, 20.0),
+                   tilt_glyphs=("E", "H", "P"), tilt_inversions=("lambertian", "known"),
                    legibility_sweeps={**LEGIBILITY_SWEEPS, "exposure_s": (0.001, 0.01, 0.1)},
                    geometry_sweep_materials=(SWEEP_MATERIALS[0], SWEEP_MATERIALS[-1]),
                    sweeps={"scan_width_m": (0.3, 0.6, 0.8), "depth_m": (0.3, 0.5, 0.7),
@@ -215,6 +239,21 @@ class StudyOptions:
                 not self.transport_glyphs or any(g not in self.glyphs
                                                  for g in self.transport_glyphs)):
             raise ParameterError("transport_glyphs", self.transport_glyphs,
+                                 f"one or more of {''.join(self.glyphs)}")
+        if self.aware_glyphs is not None and (not self.aware_glyphs or any(
+                g not in self.glyphs for g in self.aware_glyphs)):
+            raise ParameterError("aware_glyphs", self.aware_glyphs,
+                                 f"one or more of {''.join(self.glyphs)}")
+        for name in ("inversions", "sweep_inversions", "tilt_inversions"):
+            inv = getattr(self, name)
+            if not inv or inv[0] != "lambertian" or any(v not in INVERSIONS for v in inv):
+                raise ParameterError(name, inv, "\"lambertian\" first, then any of "
+                                     + ", ".join(INVERSIONS[1:]))
+        if any(not 0 <= t < 80 for t in self.tilts_deg):
+            raise ParameterError("tilts_deg", self.tilts_deg, "tilts from 0 to below 80 deg")
+        if self.tilt_glyphs is not None and (
+                not self.tilt_glyphs or any(g not in self.glyphs for g in self.tilt_glyphs)):
+            raise ParameterError("tilt_glyphs", self.tilt_glyphs,
                                  f"one or more of {''.join(self.glyphs)}")
         if LEGIBLE_GEOMETRY not in {g.name for g in self.geometries}:
             raise ParameterError("geometries", [g.name for g in self.geometries],
@@ -260,31 +299,53 @@ def noise_seed(base: int, *parts) -> int:
 
 def glyph_sample(glyph: str, material: str, *, scan_width_m: float, height_m: float,
                  stroke_m: float, depth_m: float, exposure_s: float, seed: int,
-                 slab_thickness_m: float | None = None) -> dict:
-    """The sample (:mod:`clnlos.study.dataset`) of one glyph, centred on the scan, facing it."""
+                 slab_thickness_m: float | None = None, tilt_deg: float = 0.0,
+                 inversion: str = "lambertian") -> dict:
+    """The sample (:mod:`clnlos.study.dataset`) of one glyph, centred on the scan, facing it
+    (or tilted by ``tilt_deg`` about the y axis), reconstructed with ``inversion``
+    (:func:`inversion_brdf`)."""
     s = {"object": "letters", "text": glyph, "height_m": round(height_m, 6),
          "stroke_m": round(stroke_m, 6), "depth_m": depth_m, "scan_width_m": scan_width_m,
-         "rotate_deg": [0.0, 0.0, 0.0], "exposure_s": exposure_s, "material": material,
-         "seed": int(seed)}
+         "rotate_deg": [0.0, float(tilt_deg), 0.0], "exposure_s": exposure_s,
+         "material": material, "seed": int(seed)}
     if slab_thickness_m is not None:
         s["slab_thickness_m"] = slab_thickness_m
+    s.update(inversion_brdf(inversion, material))
     return s
+
+
+def inversion_brdf(inversion: str, material: str) -> dict:
+    """A sample's ``brdf`` (:mod:`clnlos.study.dataset`) for one of INVERSIONS: none for the
+    Lambertian inversion and for a material whose lobe is flat (the same reconstruction up
+    to the albedo, which the normalised MIP drops: one sample serves both); the material
+    itself for "known"; "auto"."""
+    if inversion == "lambertian" or (inversion == "known" and retro_lobe(material).flat):
+        return {}
+    return {"brdf": material if inversion == "known" else AUTO}
 
 
 def _glyph_entries(opts: StudyOptions, geo: Geometry, material: str, glyphs, seeds: int,
                    meta: dict, *, height_m=None, exposure_s=DEFAULT_EXPOSURE_S,
-                   scan_width_m=None, depth_m=None, slab_thickness_m=None) -> list:
+                   scan_width_m=None, depth_m=None, slab_thickness_m=None, tilt_deg=0.0,
+                   inversions=("lambertian",), aware_glyphs=None) -> list:
+    """The plan entries of one material at one geometry: each glyph, noise realisation and
+    inversion; the inversions other than the Lambertian for ``aware_glyphs`` only (None:
+    every glyph)."""
     h = geo.letter_height_m if height_m is None else height_m
     stroke = geo.stroke_m if height_m is None else STROKE_PER_HEIGHT * h
     out = []
+    aware = set(glyphs if aware_glyphs is None else aware_glyphs)
     for g in glyphs:
         for k in range(seeds):
-            s = glyph_sample(g, material, scan_width_m=scan_width_m or geo.scan_width_m,
-                             height_m=h, stroke_m=stroke, depth_m=depth_m or geo.depth_m,
-                             exposure_s=exposure_s, seed=noise_seed(opts.seed, material, g, k),
-                             slab_thickness_m=slab_thickness_m)
-            out.append(({**meta, "glyph": g, "material": material, "k": k,
-                         "geometry": geo.name}, s))
+            for inv in (v for v in inversions if v == "lambertian" or g in aware):
+                s = glyph_sample(g, material, scan_width_m=scan_width_m or geo.scan_width_m,
+                                 height_m=h, stroke_m=stroke, depth_m=depth_m or geo.depth_m,
+                                 exposure_s=exposure_s,
+                                 seed=noise_seed(opts.seed, material, g, k),
+                                 slab_thickness_m=slab_thickness_m, tilt_deg=tilt_deg,
+                                 inversion=inv)
+                out.append(({**meta, "glyph": g, "material": material, "k": k,
+                             "geometry": geo.name, "inversion": inv}, s))
     return out
 
 
@@ -294,7 +355,8 @@ def study_plan(materials, opts: StudyOptions) -> list[tuple[dict, dict]]:
     plan = []
     for geo in opts.geometries:
         for m in materials:
-            plan += _glyph_entries(opts, geo, m, opts.glyphs, opts.seeds, {"set": "main"})
+            plan += _glyph_entries(opts, geo, m, opts.glyphs, opts.seeds, {"set": "main"},
+                                   inversions=opts.inversions, aware_glyphs=opts.aware_glyphs)
     legible = opts.geometry(LEGIBLE_GEOMETRY)
     for var, values in opts.legibility_sweeps.items():
         for v in values:
@@ -302,7 +364,16 @@ def study_plan(materials, opts: StudyOptions) -> list[tuple[dict, dict]]:
                 kw = {"height_m": v} if var == "letter_height_m" else {"exposure_s": v}
                 plan += _glyph_entries(opts, legible, m, opts.glyphs, opts.sweep_seeds,
                                        {"set": "legibility_sweep", "variable": var,
-                                        "value": float(v)}, **kw)
+                                        "value": float(v)},
+                                       inversions=opts.sweep_inversions,
+                                       aware_glyphs=opts.aware_glyphs, **kw)
+    for t in opts.tilts_deg:
+        for m in opts.tilt_materials:
+            plan += _glyph_entries(opts, legible, m, opts.tilt_glyphs or opts.glyphs,
+                                   opts.sweep_seeds,
+                                   {"set": "tilt_sweep", "variable": "tilt_deg",
+                                    "value": float(t)}, tilt_deg=t,
+                                   inversions=opts.tilt_inversions)
     seed_geo = next((g for g in opts.geometries if g.name == SEED_GEOMETRY),
                     opts.geometries[0])
     for var, values in opts.sweeps.items():
@@ -408,6 +479,46 @@ def identification_of(plan, results, opts: StudyOptions, gamma_s: float,
         r["measurement_identified"] = bool(identify(r["meas_image"], templates[key])[0]
                                            == s["text"])
         r["legibility"] = legibility_label(r["identified"], r["iou"], r["iou_box_baseline"])
+        if meta["set"] == "tilt_sweep":
+            translation_identification(r, s, templates[key], opts.grid)
+
+
+def translation_identification(r: dict, sample: dict, templates: dict, grid: StudyGrid) -> None:
+    """The tilt sweep's identification (keys ``tilt_*``, beside the plain ones a tilt of 0
+    shares with the main set): the MIP and the measurement matched up to a translation of
+    TILT_MAX_SHIFT_M, with the displacement (m) of the true glyph's best match."""
+    pitch = sample["scan_width_m"] / grid.points
+    shift = int(math.ceil(TILT_MAX_SHIFT_M / pitch))
+    truth = templates[sample["text"]]
+    for prefix, img in (("tilt", r["mip"]), ("tilt_measurement", r["meas_image"])):
+        r[f"{prefix}_identified"] = bool(identify(img, templates, shift)[0] == sample["text"])
+        dy, dx = best_shift(img, truth, shift)
+        r[f"{prefix}_shift_m"] = float(math.hypot(dy, dx) * pitch)
+
+
+def tilt_rows(plan, results, chance: float) -> list[dict]:
+    """One row per (tilt, material): identification up to translation per inversion and of
+    the measurement alone, each with the mean displacement of the glyph (m), beside a
+    mirror's z tan(tilt)."""
+    groups: dict = {}
+    for (meta, s), r in zip(plan, results, strict=True):
+        if meta["set"] == "tilt_sweep":
+            groups.setdefault((meta["value"], meta["material"]), []).append((meta, s, r))
+    rows = []
+    for (tilt, m), entries in sorted(groups.items()):
+        row = {"tilt_deg": tilt, "material": m,
+               "mirror_shift_m": entries[0][1]["depth_m"] * math.tan(math.radians(tilt))}
+        for inv in dict.fromkeys(meta["inversion"] for meta, _, _ in entries):
+            rs = [r for meta, _, r in entries if meta["inversion"] == inv]
+            row[inv] = {"identification": identification_summary(
+                [r["tilt_identified"] for r in rs], chance),
+                "shift_m": float(np.mean([r["tilt_shift_m"] for r in rs]))}
+        rs = [r for meta, _, r in entries if meta["inversion"] == "lambertian"]
+        row["measurement"] = {"identification": identification_summary(
+            [r["tilt_measurement_identified"] for r in rs], chance),
+            "shift_m": float(np.mean([r["tilt_measurement_shift_m"] for r in rs]))}
+        rows.append(row)
+    return rows
 
 
 def _summary(rows: list[dict], chance: float) -> dict:
@@ -425,11 +536,18 @@ def material_entries(materials, plan, results, geo: Geometry, opts: StudyOptions
     chance = 1.0 / len(opts.glyphs)
     out = []
     for m in materials:
-        rs = [r for (meta, _), r in zip(plan, results, strict=True)
-              if meta["set"] == "main" and meta["geometry"] == geo.name
-              and meta["material"] == m]
+        by_inv: dict[str, list[dict]] = {}
+        for (meta, _), r in zip(plan, results, strict=True):
+            if (meta["set"] == "main" and meta["geometry"] == geo.name
+                    and meta["material"] == m):
+                by_inv.setdefault(meta["inversion"], []).append(r)
+        rs = by_inv["lambertian"]
         e = {"name": m, "geometry": geo.name, "brdf_class": table[m]["class"],
-             **_summary(rs, chance), "iou_seeds": [float(r["iou"]) for r in rs]}
+             **_summary(rs, chance), "iou_seeds": [float(r["iou"]) for r in rs],
+             "inversions": {inv: {**_summary(v, chance),
+                                  "lobe_halfwidth_deg": [float(r["lobe_halfwidth_deg"])
+                                                         for r in v]}
+                            for inv, v in by_inv.items()}}
         if label_metric == "identification":
             value = e["identification"]["accuracy"]
             label = material_class(e["identification"])
@@ -471,30 +589,44 @@ def cnn_material_label(predict, mips: np.ndarray, label_metric: str,
 
 
 def sweep_rows(plan, results, which: str, chance: float) -> list[dict]:
-    """One row per (variable, value, material) of a sweep set."""
+    """One row per (variable, value, material, inversion) of a sweep set."""
     groups: dict = {}
     for (meta, _), r in zip(plan, results, strict=True):
         if meta["set"] == which:
-            groups.setdefault((meta["variable"], meta["value"], meta["material"]), []).append(r)
+            groups.setdefault((meta["variable"], meta["value"], meta["material"],
+                               meta["inversion"]), []).append(r)
     rows = []
-    for (var, v, m), rs in groups.items():
-        rows.append({"variable": var, "value": v, "material": m, "n": len(rs),
+    for (var, v, m, inv), rs in groups.items():
+        rows.append({"variable": var, "value": v, "material": m, "inversion": inv,
+                     "n": len(rs),
                      **_summary(rs, chance),
                      "photon_counts": float(np.mean([r["counts"] for r in rs])),
                      "depth_error_m": float(np.mean([r["depth_error_m"] for r in rs]))})
     return rows
 
 
-def smallest_legible(rows: list[dict], materials) -> list[dict]:
-    """Per material: the smallest letter height and the smallest exposure whose
-    identification reaches LEGIBLE_ACCURACY (None where no swept value does)."""
-    def first(var, m):
+def smallest_legible(rows: list[dict], materials, inversions=("lambertian",)) -> list[dict]:
+    """Per material and inversion: the smallest letter height and the smallest exposure whose
+    identification reaches LEGIBLE_ACCURACY (None where no swept value does); per material
+    also the best over the inversions (``inversion = "best"``, naming which one gave each
+    number)."""
+    def first(var, m, inv):
         ok = sorted(r["value"] for r in rows if r["variable"] == var and r["material"] == m
+                    and r["inversion"] == inv
                     and r["identification"]["accuracy"] >= LEGIBLE_ACCURACY)
         return ok[0] if ok else None
 
-    return [{"material": m, "letter_height_m": first("letter_height_m", m),
-             "exposure_s": first("exposure_s", m)} for m in materials]
+    out = []
+    for m in materials:
+        per = [{"material": m, "inversion": inv, "letter_height_m": first("letter_height_m",
+                                                                          m, inv),
+                "exposure_s": first("exposure_s", m, inv)} for inv in inversions]
+        best = {"material": m, "inversion": "best"}
+        for var in ("letter_height_m", "exposure_s"):  # a tie goes to the earlier inversion
+            have = [(p[var], k, p["inversion"]) for k, p in enumerate(per) if p[var] is not None]
+            best[var], _, best[f"{var}_inversion"] = min(have) if have else (None, None, None)
+        out += per + [best]
+    return out
 
 
 def _samples_labels(results, idx, label_metric, thresholds) -> np.ndarray:
@@ -694,6 +826,8 @@ def run_study(out_dir: Path, opts: StudyOptions, *, workers: int | None = None,
     # -- sweeps
     legibility_rows = sweep_rows(plan, results, "legibility_sweep", chance)
     geometry_rows = sweep_rows(plan, results, "geometry_sweep", chance)
+    tilts = tilt_rows(plan, results, chance)
+    need = smallest_legible(legibility_rows, opts.sweep_materials, opts.sweep_inversions)
 
     # -- real captures (shared data): the simulated twin, the CNN's verdict
     t0 = time.perf_counter()
@@ -707,8 +841,8 @@ def run_study(out_dir: Path, opts: StudyOptions, *, workers: int | None = None,
     if real is not None:
         timings["real_thinning_s"] = real["thinning_s"]
 
-    findings = make_findings(geometries, legibility_rows, geometry_rows, validation,
-                             label_metric, classifier_splits, agreement, opts)
+    findings = make_findings(geometries, need, geometry_rows, validation, label_metric,
+                             classifier_splits, agreement, opts, tilts)
     ious = np.array([r["iou"] for r in results])
     hist, edges = np.histogram(ious, bins=10, range=(0, 1))
     results_json = {
@@ -720,14 +854,15 @@ def run_study(out_dir: Path, opts: StudyOptions, *, workers: int | None = None,
         "seed_geometry": next((g["name"] for g in geometries if g["name"] == SEED_GEOMETRY),
                               geometries[0]["name"]),
         "resolution": resolution,
+        "inversions": list(opts.inversions),
         "legibility_sweeps": [{"variable": r["variable"], "value": r["value"],
-                               "material": r["material"],
+                               "material": r["material"], "inversion": r["inversion"],
                                "identification": r["identification"], "iou": r["iou"],
                                "iou_box_baseline": r["iou_box_baseline"],
                                "iou_excess": r["iou_excess"],
                                "photon_counts": r["photon_counts"], "n": r["n"]}
                               for r in legibility_rows],
-        "smallest_legible": smallest_legible(legibility_rows, opts.sweep_materials),
+        "smallest_legible": need, "tilt_sweep": tilts, "tilt_max_shift_m": TILT_MAX_SHIFT_M,
         "real_capture": None if real is None else real["summary"],
         "real_captures_cnn": None if real is None else [
             {k: v for k, v in c.items() if k != "mip"} for c in real["cnn"]],
@@ -760,11 +895,40 @@ def run_study(out_dir: Path, opts: StudyOptions, *, workers: int | None = None,
             "glyphs": list(opts.transport_glyphs or opts.glyphs),
             "geometry": LEGIBLE_GEOMETRY}
     t0 = time.perf_counter()
+    results_json["cost"] = study_cost(plan, results, timings, comparison)
     write_report(out_dir, results_json, plan, results, real)
     timings["report_s"] = time.perf_counter() - t0
+    results_json["cost"] = study_cost(plan, results, timings, comparison)
     with atomic_path(out_dir / "results.json") as tmp:
         tmp.write_text(json.dumps(stamp(results_json), indent=1))
     return results_json
+
+
+def study_cost(plan, results, timings: dict, comparison: dict | None = None) -> dict:
+    """Where the study's time goes: per part of the plan (the main table, each sweep, the
+    random extras, the transport comparison) its entries, the distinct samples they need
+    and the seconds those samples took to simulate and to reconstruct (summed over the
+    workers, as each sample recorded when it was rendered: a sample read from the cache
+    costs nothing now); and each stage's wall time (``timings``)."""
+    parts: dict[str, dict] = {}
+    seen: set[str] = set()
+    entries = list(zip(plan, results, strict=True))
+    if comparison is not None:
+        entries += [(({"set": "transport_comparison"}, s), r) for (_, s), r in
+                    zip(comparison["plan"], comparison["results"], strict=True)]
+    for (meta, sample), r in entries:
+        row = parts.setdefault(meta["set"], {"part": meta["set"], "entries": 0, "samples": 0,
+                                             "simulate_s": 0.0, "reconstruct_s": 0.0})
+        row["entries"] += 1
+        key = json.dumps(sample, sort_keys=True)
+        if key in seen:
+            continue  # rendered once, counted where first asked for
+        seen.add(key)
+        row["samples"] += 1
+        row["simulate_s"] += float(r.get("simulate_s", 0.0))
+        row["reconstruct_s"] += float(r.get("reconstruct_s", 0.0))
+    return {"parts": list(parts.values()), "stages_s": dict(timings),
+            "total_s": float(sum(timings.values()))}
 
 
 def transport_comparison(materials, opts: StudyOptions, cache: Path, resolution: dict,
@@ -778,21 +942,29 @@ def transport_comparison(materials, opts: StudyOptions, cache: Path, resolution:
     return {**out, "plan": plan, "results": results}
 
 
-def _gains(a: float | None, b: float | None, margin: float = 0.25) -> bool:
-    """a exceeds b by at least ``margin`` (both known)."""
-    return a is not None and b is not None and a >= b + margin
-
-
 def _class_mean(entries, classes, key) -> float | None:
     vals = [key(m) for m in entries if m["brdf_class"] in classes]
     return float(np.mean(vals)) if vals else None
 
 
-def make_findings(geometries, legibility_rows, geometry_rows, validation, label_metric,
-                  classifier_splits, agreement, opts: StudyOptions) -> dict:
+def inversion_accuracy(m: dict, inversion: str) -> float | None:
+    """A material entry's identification accuracy with one inversion (None if not run)."""
+    if inversion == "lambertian":
+        return m["identification"]["accuracy"]
+    v = m.get("inversions", {}).get(inversion)
+    return None if v is None else v["identification"]["accuracy"]
+
+
+def make_findings(geometries, need, geometry_rows, validation, label_metric,
+                  classifier_splits, agreement, opts: StudyOptions, tilts=()) -> dict:
     """The study's answer in numbers."""
     def acc(m):
         return m["identification"]["accuracy"]
+
+    def by_class(ms, classes, inv):
+        vals = [inversion_accuracy(m, inv) for m in ms if m["brdf_class"] in classes]
+        vals = [v for v in vals if v is not None]
+        return float(np.mean(vals)) if vals else None
 
     f: dict = {"by_geometry": {}}
     for g in geometries:
@@ -816,7 +988,12 @@ def make_findings(geometries, legibility_rows, geometry_rows, validation, label_
                                                       lambda m: m["iou_excess"]),
             "corr_specular_fraction_vs_identification": pearson(
                 spec, np.array([acc(m) for m in ms])),
-            "stroke_over_resolution": g["stroke_over_resolution"]}
+            "stroke_over_resolution": g["stroke_over_resolution"],
+            "by_inversion": {inv: {
+                "strong_specular": by_class(ms, ("strong specular",), inv),
+                "specular_plus_diffuse": by_class(ms, ("strong specular + diffuse",), inv),
+                "lambertian_and_diffuse": by_class(ms, ("Lambertian", "strong diffuse"), inv)}
+                for inv in opts.inversions}}
     main = f["by_geometry"][LEGIBLE_GEOMETRY]
     seed = f["by_geometry"].get(SEED_GEOMETRY)
     # keep today's keys, now about the legible geometry
@@ -844,10 +1021,31 @@ def make_findings(geometries, legibility_rows, geometry_rows, validation, label_
                                   for k, v in classifier_splits.items()},
         "cnn_one_feature_baseline": {k: v["baseline"] for k, v in classifier_splits.items()},
         "seed_figure9_agreement": agreement[LEGIBLE_GEOMETRY]})
-    # material cost in photons and size
-    need = smallest_legible(legibility_rows, opts.sweep_materials)
+    # material cost in photons and size, per inversion and with the best for each
     f["smallest_legible"] = need
-    # geometry sweeps: identification range per variable and material
+    f["sweeps"] = geometry_sweep_effects(geometry_rows)
+    spread = [(float(np.ptp([s["identification"]["accuracy"] for s in geometry_rows
+                             if (s["variable"], s["value"]) == key])), key)
+              for key in {(s["variable"], s["value"]) for s in geometry_rows}]
+    if spread:
+        best, (var, val) = max(spread)
+        f["largest_material_spread"] = {"variable": var, "value": val,
+                                        "identification_spread": best}
+    ld, sp = main["identification_lambertian_and_diffuse"], main["identification_strong_specular"]
+    f["seed_conclusion_holds"] = bool(ld is not None and sp is not None and ld > sp)
+    aware = [inv for inv in opts.inversions if inv != "lambertian"]
+    best_sp = max([v for v in (main["by_inversion"][inv]["strong_specular"] for inv in aware)
+                   if v is not None], default=None)
+    f["brdf_aware_closes_gap"] = bool(best_sp is not None and ld is not None
+                                      and best_sp >= ld - GAP_CLOSED)
+    f["tilt"] = tilt_findings(tilts, opts.inversions)
+    f["statement"] = study_statement(main, seed, need, f, opts)
+    return f
+
+
+def geometry_sweep_effects(geometry_rows) -> dict:
+    """Per geometry variable: the identification range per material (geometry's effect)
+    beside the spread across materials at each value (the material's effect)."""
     effect = {}
     for var in sorted({s["variable"] for s in geometry_rows}):
         rows = [s for s in geometry_rows if s["variable"] == var]
@@ -863,52 +1061,94 @@ def make_findings(geometries, legibility_rows, geometry_rows, validation, label_
         effect[var] = {"per_material": per_m, "geometry_effect": geometry,
                        "material_effect": material,
                        "dominant": "geometry" if geometry > material else "material"}
-    f["sweeps"] = effect
-    spread = [(float(np.ptp([s["identification"]["accuracy"] for s in geometry_rows
-                             if (s["variable"], s["value"]) == key])), key)
-              for key in {(s["variable"], s["value"]) for s in geometry_rows}]
-    if spread:
-        best, (var, val) = max(spread)
-        f["largest_material_spread"] = {"variable": var, "value": val,
-                                        "identification_spread": best}
-    ld, sp = main["identification_lambertian_and_diffuse"], main["identification_strong_specular"]
-    f["seed_conclusion_holds"] = bool(ld is not None and sp is not None and ld > sp)
+    return effect
+
+
+def tilt_findings(tilts, inversions) -> dict:
+    """Per tilt: the mean identification (up to translation) of the strong-specular tilt
+    materials per inversion and of the measurement, and the worst gap of any (material, tilt)
+    cell's best inversion below the measurement."""
+    table = preset_table()
+    out: dict = {"per_tilt": {}, "worst_gap_below_measurement": None}
+    gaps = []
+    for t in sorted({r["tilt_deg"] for r in tilts}):
+        rows = [r for r in tilts if r["tilt_deg"] == t]
+        spec = [r for r in rows if table.get(r["material"], {}).get("class") == "strong specular"]
+        entry = {}
+        for inv in (*inversions, "measurement"):
+            vals = [r[inv]["identification"]["accuracy"] for r in spec if inv in r]
+            entry[inv] = float(np.mean(vals)) if vals else None
+        out["per_tilt"][f"{t:g}"] = entry
+        for r in rows:
+            best = max(r[inv]["identification"]["accuracy"] for inv in inversions if inv in r)
+            gaps.append((r["measurement"]["identification"]["accuracy"] - best,
+                         r["material"], t))
+    if gaps:
+        g, m, t = max(gaps)
+        out["worst_gap_below_measurement"] = {"gap": float(g), "material": m, "tilt_deg": t}
+    return out
+
+
+def study_statement(main: dict, seed: dict | None, need: list[dict], f: dict,
+                    opts: StudyOptions) -> str:
+    """The study's answer in words, every number naming the inversion it comes from."""
     chance = 1.0 / len(opts.glyphs)
 
     def pct(v):
         return "n/a" if v is None else f"{100 * v:.0f}%"
 
-    costs = "; ".join(
-        f"{n['material']}: letters from {n['letter_height_m']:g} m"
-        if n["letter_height_m"] is not None else f"{n['material']}: no swept letter size"
-        for n in need)
-    expo = "; ".join(
-        f"{n['material']}: {n['exposure_s']:g} s" if n["exposure_s"] is not None
-        else f"{n['material']}: not within the swept exposures" for n in need)
-    f["statement"] = (
+    inv = main["by_inversion"]
+    aware = [i for i in opts.inversions if i != "lambertian"]
+    names = {"known": "with the material's own BRDF", "auto": "with the lobe chosen from the "
+             "capture (brdf auto)"}
+    aware_txt = "; ".join(
+        f"{names[i]}: strong-specular {pct(inv[i]['strong_specular'])}, mixed "
+        f"{pct(inv[i]['specular_plus_diffuse'])}, Lambertian and strong-diffuse "
+        f"{pct(inv[i]['lambertian_and_diffuse'])}" for i in aware)
+    best = [n for n in need if n["inversion"] == "best"]
+
+    def cost(n, var, unit):
+        if n[var] is None:
+            return f"{n['material']}: not within the swept values"
+        return f"{n['material']}: {n[var]:g} {unit} ({n[f'{var}_inversion']} inversion)"
+
+    tilt = f["tilt"]["per_tilt"]
+    tilt_txt = "; ".join(
+        f"{t} deg: " + ", ".join(f"{k} {pct(v)}" for k, v in e.items()) for t, e in tilt.items())
+    text = (
         f"At the legible geometry (stroke / resolution {main['stroke_over_resolution']:.1f}) "
-        f"Lambertian and strong-diffuse targets are identified in "
-        f"{pct(ld)} of reconstructions, strong-specular ones in {pct(sp)} and mixed ones in "
-        f"{pct(main['identification_specular_plus_diffuse'])} (chance {pct(chance)}). "
-        + (f"At the seed's Table 1 geometry (stroke / resolution "
-           f"{seed['stroke_over_resolution']:.1f}) diffuse targets are identified in "
-           f"{pct(seed['identification_lambertian_and_diffuse'])}, strong-specular ones in "
-           f"{pct(seed['identification_strong_specular'])}. " if seed else "")
-        + f"Without any reconstruction, the time-integrated measurement is identified in "
+        f"the Lambertian inversion identifies Lambertian and strong-diffuse targets in "
+        f"{pct(main['identification_lambertian_and_diffuse'])} of reconstructions, "
+        f"strong-specular ones in {pct(main['identification_strong_specular'])} and mixed "
+        f"ones in {pct(main['identification_specular_plus_diffuse'])} (chance "
+        f"{pct(chance)}). The time-integrated measurement alone is identified in "
         f"{pct(main['measurement_identification_strong_specular'])} for strong-specular "
-        f"targets and {pct(main['measurement_identification_lambertian_and_diffuse'])} for "
-        "diffuse ones at the legible geometry"
-        + (": a mirror-like surface returns light only to the scan points it faces, so its "
-           "data hold a direct image that the reconstruction, which assumes diffuse "
-           "scattering, smears (simulated with the confocal transport, the seed's Eq. 9). "
-           if _gains(main["measurement_identification_strong_specular"],
-                                            sp) else ". ")
-        + f"Smallest legible letters (identification >= {LEGIBLE_ACCURACY:g}): {costs}. "
-        f"Exposure per scan point needed: {expo}. "
-        + ("Less specular targets are read more often, as the seed concluded."
-           if f["seed_conclusion_holds"] else
-           "The seed's conclusion (less specular -> clearer) is not supported here."))
-    return f
+        f"targets: their data hold the glyph. A BRDF-aware inversion reads what the data "
+        f"hold ({aware_txt}). "
+        + (f"At the seed's Table 1 geometry (stroke / resolution "
+           f"{seed['stroke_over_resolution']:.1f}) the Lambertian inversion identifies diffuse "
+           f"targets in {pct(seed['identification_lambertian_and_diffuse'])} and "
+           f"strong-specular ones in {pct(seed['identification_strong_specular'])}; "
+           + "; ".join(f"{names[i]} strong-specular "
+                       f"{pct(seed['by_inversion'][i]['strong_specular'])}" for i in aware)
+           + ". " if seed else "")
+        + f"Smallest legible letters (identification >= {LEGIBLE_ACCURACY:g}, the best "
+        f"inversion for each material): "
+        + "; ".join(cost(n, "letter_height_m", "m") for n in best)
+        + ". Exposure per scan point needed: "
+        + "; ".join(cost(n, "exposure_s", "s") for n in best) + ". "
+        + (f"Tilted strong-specular glyphs, matched up to a translation (identification): "
+           f"{tilt_txt}. " if tilt else "")
+        + ("With the Lambertian inversion less specular targets are read more often, as the "
+           "seed concluded; " if f["seed_conclusion_holds"] else
+           "With the Lambertian inversion the seed's conclusion (less specular -> clearer) is "
+           "not supported; ")
+        + ("with an inversion that knows the lobe, strong-specular targets are read about as "
+           "often as diffuse ones: the seed's ranking is the Lambertian assumption's, not the "
+           "material's." if f["brdf_aware_closes_gap"] else
+           "a BRDF-aware inversion does not close the gap: the material itself costs "
+           "legibility here."))
+    return text
 
 
 def comparison_plan(materials, opts) -> list[tuple[dict, dict]]:

@@ -6,8 +6,9 @@ edges (the package builds explicit overlap matrices instead).
 """
 
 import numpy as np
+from scipy.special import erf
 
-from .diffusion_ref import slab_transmittance_ref
+from .diffusion_ref import params, slab_transmittance_ref
 
 C0 = 299_792_458.0
 
@@ -30,22 +31,96 @@ def wrap_offsets(n, pitch):
     return np.where(j < (n + 1) // 2, j, j - n) * pitch
 
 
-def confocal_psf_ref(slab_kw, ze, shape, dt, pitch):
-    nt, ny, nx = shape
-    P = (2 * nt, 2 * ny, 2 * nx)
-    yo, xo = wrap_offsets(P[1], pitch), wrap_offsets(P[2], pitch)
-    rho = np.hypot(yo[:, None], xo[None, :])
-    # bin-averaged lags: 4-node Gauss-Legendre over [(k - 1/2) dt, (k + 1/2) dt]
+def _bin_nodes():
+    """4-node Gauss-Legendre nodes (in bins) and weights over [(k - 1/2) dt, (k + 1/2) dt]."""
     u, w = np.polynomial.legendre.leggauss(4)
+    return u / 2, w / 2
+
+
+def _cells(offsets, a, pitch):
+    """The unit Gaussian exp(-u^2 / a) / sqrt(pi a) integrated over cells at ``offsets``."""
+    s = np.sqrt(a)
+    return 0.5 * (erf((offsets + pitch / 2) / s) - erf((offsets - pitch / 2) / s))
+
+
+def _closed_form(slab_kw, ze, shape, dt, pitch, pad, square):
+    nt = shape[0]
+    P = (2 * nt, 2 * shape[1], 2 * shape[2]) if pad is None else tuple(pad)
+    D, v, _, _ = params(**slab_kw, ze_m=ze)
+    u, w = _bin_nodes()
+    t = (np.arange(P[0])[:, None] + u[None, :]) * dt
+    t0 = slab_transmittance_ref(0.0, t, **slab_kw, ze_m=ze)
+    mass = t0 * 4 * np.pi * D * v * np.where(t > 0, t, 0) * w[None, :] * dt  # [lag, node]
+    yo, xo = wrap_offsets(P[1], pitch), wrap_offsets(P[2], pitch)
+    out = np.zeros(P)
+    if square:
+        terms = [(np.convolve(mass[:, i], mass[:, j])[:nt], u[i] + u[j])
+                 for i in range(4) for j in range(4)]
+    else:
+        terms = [(mass[:nt, i], u[i]) for i in range(4)]
+    for q, shift in terms:
+        tt = (np.arange(nt) + shift) * dt
+        for k in np.nonzero(q > 0)[0]:
+            a = 4 * D * v * tt[k]
+            out[k] += q[k] * _cells(yo, a, pitch)[:, None] * _cells(xo, a, pitch)[None, :]
+    return out
+
+
+def confocal_psf_ref(slab_kw, ze, shape, dt, pitch, pad=None):
+    """Phi * Phi on the padded grid ``pad`` (default (2 nt, 2 ny, 2 nx)), lags < nt, written
+    from the closed form: the laterally integrated P * P per pair of time nodes
+    (np.convolve) times the unit Gaussian of variance 2 D v t per axis integrated over each
+    scan cell (erf differences), at the nearest-image offsets of the wrap-order grid."""
+    return _closed_form(slab_kw, ze, shape, dt, pitch, pad, square=True)
+
+
+def phi_ref(slab_kw, ze, shape, dt, pitch, pad=None):
+    """Phi alone on the grid of :func:`confocal_psf_ref`, lags < nt: per time node the
+    laterally integrated response times the cell-integrated Gaussian of variance 2 D v t."""
+    return _closed_form(slab_kw, ze, shape, dt, pitch, pad, square=False)
+
+
+def _phi_fine(slab_kw, ze, shape, dt, pitch, sub):
+    """Phi point-sampled (times the fine cell's area) on the (2 nt, 2 ny, 2 nx) grid made
+    ``sub`` times finer laterally, lags < nt."""
+    nt, ny, nx = shape
+    P = (2 * nt, 2 * ny * sub, 2 * nx * sub)
+    f = pitch / sub
+    yo, xo = wrap_offsets(P[1], f), wrap_offsets(P[2], f)
+    rho, where = np.unique(np.hypot(yo[:, None], xo[None, :]), return_inverse=True)
+    u, w = _bin_nodes()
     phi = 0
-    for uj, wj in zip(u / 2, w / 2, strict=True):
-        t = (np.arange(P[0]) + uj) * dt
-        phi = phi + wj * slab_transmittance_ref(rho[None], t[:, None, None], **slab_kw, ze_m=ze)
-    phi = phi * dt * pitch**2
-    phi[nt:] = 0
-    phi2 = np.real(np.fft.ifftn(np.fft.fftn(phi) ** 2))
-    phi2[nt:] = 0
-    return phi2
+    for uj, wj in zip(u, w, strict=True):
+        tj = (np.arange(nt) + uj) * dt  # lags past nt are cut
+        phi = phi + wj * slab_transmittance_ref(rho[None], tj[:, None], **slab_kw, ze_m=ze,
+                                                M=20)
+    phi = np.concatenate([phi[:, where.reshape(P[1:])] * dt * f**2,
+                          np.zeros((P[0] - nt,) + P[1:])])
+    return phi
+
+
+def phi_binned_ref(slab_kw, ze, shape, dt, pitch, sub):
+    """Phi by another route: point-sampled on a grid ``sub`` (odd) times finer and summed
+    over the fine cells of each scan cell (converges to the cell integral as sub grows)."""
+    return bin_fine_cells(_phi_fine(slab_kw, ze, shape, dt, pitch, sub), sub)
+
+
+def confocal_psf_binned_ref(slab_kw, ze, shape, dt, pitch, sub):
+    """Phi * Phi by another route: the fine point-sampled Phi of :func:`phi_binned_ref`
+    self-convolved by FFT in 3D, cut to lags < nt and summed per scan cell."""
+    phi = _phi_fine(slab_kw, ze, shape, dt, pitch, sub)
+    phi2 = np.fft.irfftn(np.fft.rfftn(phi) ** 2, s=phi.shape, axes=(0, 1, 2))
+    phi2[shape[0]:] = 0
+    return bin_fine_cells(phi2, sub)
+
+
+def bin_fine_cells(fine, sub):
+    """Sum a wrap-order table [t, Y, X] over the ``sub`` x ``sub`` (odd) fine cells of each
+    coarse cell (coarse index j holds fine offsets j sub - sub // 2 .. j sub + sub // 2)."""
+    n0, n1, n2 = fine.shape
+    h = sub // 2  # fine cells -h..h around each coarse centre, in wrap order
+    rolled = np.roll(fine, (h, h), axis=(1, 2))
+    return rolled.reshape(n0, n1 // sub, sub, n2 // sub, sub).sum(axis=(2, 4))
 
 
 def pad_filter(x, psf, mode, snr=None):

@@ -62,3 +62,19 @@ def shift_earlier(arr: np.ndarray, shift_bins: np.ndarray) -> np.ndarray:
         vals = np.take_along_axis(arr, np.minimum(src, nt - 1), axis=0)
         out += np.where(ok, vals, 0.0) * w[None]
     return out.astype(np.float32)
+
+
+def align_columns(arr: np.ndarray, shift_bins: np.ndarray, path, what: str
+                  ) -> tuple[np.ndarray, np.ndarray]:
+    """(the columns moved earlier by ``shift_bins`` [y, x] (:func:`shift_earlier`) and cut
+    to the bins every scan point recorded, the shifts): a column moved by s bins holds no
+    data past nt - s, and zeros there would read as "no light", so the window ends at
+    nt - max(s). ``what`` names the offsets in the error when no bin is left."""
+    s = np.asarray(shift_bins, np.float64)
+    out = shift_earlier(arr, s)
+    keep = int(np.floor(arr.shape[0] - s.max() + 1e-9)) if s.size else arr.shape[0]
+    if keep < 1:
+        raise InputFileError(f"{path}: {what} moves a scan point's data {s.max():.4g} bins "
+                             f"earlier, past the {arr.shape[0]}-bin window: no bin is left "
+                             "that every scan point recorded")
+    return out[:keep], s

@@ -26,7 +26,7 @@ import scipy.io
 
 from clnlos.errors import InputFileError
 from clnlos.io.capture import Capture
-from clnlos.io.formats.common import declared_dataset, shift_earlier, validate_transient
+from clnlos.io.formats.common import align_columns, declared_dataset, validate_transient
 from clnlos.runtime.limits import declared_capture
 
 CDT_MAT_BIN_WIDTH_S = 16e-12  # the CDT capture format's histogram bin
@@ -60,6 +60,7 @@ def from_lct(rect_data, width, bin_resolution, path) -> Capture:
 def from_fk(meas, tofgrid, path) -> Capture:
     arr = validate_transient(np.transpose(meas, (2, 0, 1)), path)
     attrs = {"format": "fk-mat"}
+    shifts = None
     if tofgrid is not None:
         try:
             tof = np.asarray(tofgrid, np.float64)
@@ -75,9 +76,12 @@ def from_fk(meas, tofgrid, path) -> Capture:
             raise InputFileError(f"{path}: 'tofgrid' holds {v:g} ps: allowed 0 to below "
                                  f"{window_ps:g} ps (the capture's time window, "
                                  f"{arr.shape[0]} bins of {FK_MAT_BIN_WIDTH_S * 1e12:g} ps)")
-        arr = shift_earlier(arr, tof * 1e-12 / FK_MAT_BIN_WIDTH_S)
+        attrs["aligned_from_bins"] = arr.shape[0]
+        arr, shifts = align_columns(arr, tof * 1e-12 / FK_MAT_BIN_WIDTH_S, path,
+                                    "'tofgrid'")
         attrs["tofgrid_removed"] = True
-    return Capture(arr, FK_MAT_BIN_WIDTH_S, 0.0, None, str(path), attrs)
+    return Capture(arr, FK_MAT_BIN_WIDTH_S, 0.0, None, str(path), attrs,
+                   time_shift_bins=shifts)
 
 
 def from_cdt(meas_t_y_x, path) -> Capture:

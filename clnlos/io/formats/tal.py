@@ -15,9 +15,11 @@ Layout, as y-tal's ``write_hdf5`` lays it out (one dataset per field of NLOSCapt
 clnlos reads confocal captures on a planar regular grid: laser and sensor grids equal, a grid
 of constant pitch along two perpendicular axes in the z = 0 plane. Which grid index runs
 along x and which along y, and in which direction, comes from the coordinates; the result
-is [t, y, x] with x and y increasing with index. With
+is [t, y, x] with x and y increasing with index; the grid's centre is kept
+(``Capture.scan_center_m``: the volume is placed there). With
 ``t_accounts_first_and_last_bounces`` the per-point flight |laser - p| + |p - sensor| is
-removed (each column moved earlier, fractionally, counts conserved). Anything else
+removed (each column moved earlier, fractionally, counts conserved; the window cut to the
+bins every scan point recorded; the shifts kept in ``Capture.time_shift_bins``). Anything else
 (non-confocal, irregular grids, another plane) is a one-line error.
 """
 
@@ -31,7 +33,7 @@ import numpy as np
 from clnlos import C0
 from clnlos.errors import InputFileError
 from clnlos.io.capture import Capture
-from clnlos.io.formats.common import declared_dataset, shift_earlier, validate_transient
+from clnlos.io.formats.common import align_columns, declared_dataset, validate_transient
 
 H_FORMAT = {"UNKNOWN": 0, "T_Sx_Sy": 1, "T_Lx_Ly_Sx_Sy": 2, "T_Si": 3, "T_Li_Si": 4}
 GRID_FORMAT = {"UNKNOWN": 0, "N_3": 1, "X_Y_3": 2}
@@ -128,6 +130,7 @@ def read_tal(f, path) -> Capture:
         arr, pos = arr[:, ::-1, :], pos[::-1]
     arr = validate_transient(arr, path)
     bounces = bool(_value(f, "t_accounts_first_and_last_bounces"))
+    shifts = None
     attrs = {"format": "y-tal", "tal_t_accounts_first_and_last_bounces": bounces}
     if bounces:
         lx = _value(f, "laser_xyz")
@@ -137,7 +140,10 @@ def read_tal(f, path) -> Capture:
                                  "laser_xyz / sensor_xyz")
         flight = (np.linalg.norm(pos - np.asarray(lx, np.float64), axis=-1)
                   + np.linalg.norm(pos - np.asarray(sx, np.float64), axis=-1))
-        arr = shift_earlier(arr, flight / delta_t)
+        attrs["aligned_from_bins"] = arr.shape[0]
+        arr, shifts = align_columns(arr, flight / delta_t, path,
+                                    "t_accounts_first_and_last_bounces (the flight from "
+                                    "laser_xyz and to sensor_xyz)")
     info = _value(f, "scene_info")
     if isinstance(info, str):
         attrs["tal_scene_info"] = info
@@ -148,19 +154,23 @@ def read_tal(f, path) -> Capture:
         if isinstance(recorded, dict):
             attrs.update({k: v for k, v in recorded.items() if k in ("scene", "slab")})
     ny, nx = arr.shape[1:]
-    return Capture(arr, float(delta_t) / C0, t_start / C0, pitch * nx, str(path), attrs)
+    center = (float(pos[..., 0].mean()), float(pos[..., 1].mean()))
+    return Capture(arr, float(delta_t) / C0, t_start / C0, pitch * nx, str(path), attrs,
+                   time_shift_bins=shifts, scan_center_m=center, scan_height_m=pitch * ny)
 
 
 def write_tal(path, transient: np.ndarray, *, bin_width_s: float, start_s: float,
-              scan_width_m: float, scene_info: dict | None = None) -> None:
+              scan_width_m: float, scene_info: dict | None = None,
+              scan_center_m=(0.0, 0.0)) -> None:
     """Write a confocal capture [t, y, x] as y-tal's ``write_capture`` lays it out (H as
     (T, Sx, Sy) with Sx along +x and Sy along +y, the relay wall at z = 0 with normals +z
-    towards the hidden scene, times in metres of path, no first/last bounce) to ``path``
+    towards the hidden scene, times in metres of path, no first/last bounce; the grid centred
+    at ``scan_center_m``) to ``path``
     (callers make it atomic: :func:`clnlos.io.outputs.write_group`)."""
     nt, ny, nx = transient.shape
     pitch = scan_width_m / nx
-    xs = (np.arange(nx) + 0.5) * pitch - scan_width_m / 2
-    ys = (np.arange(ny) + 0.5) * pitch - pitch * ny / 2
+    xs = (np.arange(nx) + 0.5) * pitch - scan_width_m / 2 + scan_center_m[0]
+    ys = (np.arange(ny) + 0.5) * pitch - pitch * ny / 2 + scan_center_m[1]
     X, Y = np.meshgrid(xs, ys, indexing="ij")  # (Sx, Sy)
     # float64 coordinates and times: y-tal reads any float; float32 would move the bin width
     # by 1e-8 and the scan width by 1e-7, which a deep deconvolution amplifies

@@ -1,0 +1,85 @@
+"""The reflectance a reconstruction assumes (``--brdf``, ``[inversion] brdf``): the retro
+lobe (:class:`clnlos.physics.lobe.RetroLobe`) of a preset, a BRDF texture or a fitted model,
+and the ladder of lobes that ``"auto"`` chooses from.
+
+A spec is one of: ``"lambertian"`` (the default: every method's physics), ``"auto"`` (the
+lobe chosen from the capture, :mod:`clnlos.inverse.brdf_choice`), a material name
+(:func:`clnlos.brdf.presets.material_names`: the seed's ten presets and the analytic ones),
+or a file: a BRDF texture (``clnlos brdf texture``, its retro slice) or a fitted model
+(``clnlos brdf fit``, its retro slice sampled at :data:`clnlos.physics.lobe.THETA_NODES`
+angles), told apart by their ``format`` attribute.
+
+The ``auto`` ladder: GGX microfacet lobes (ks = 1, f0 = 1) of roughness AUTO_ALPHAS, each
+over a Lambertian floor of AUTO_FLOOR of its peak, and the Lambertian lobe: half widths from
+0.4 to 16 degrees, the span of the measured presets' lobes (quartz glass 0.4 deg to the black
+anode plate's 11.6 deg), a factor of about three apart.
+"""
+
+from __future__ import annotations
+
+from pathlib import Path
+
+from clnlos.brdf.catalog import (
+    AUTO,
+    LAMBERTIAN,
+    TEXTURE_FORMAT,
+    check_brdf_spec,
+    file_format,
+    is_file_spec,
+)
+from clnlos.brdf.models import BRDFModel, retro_slice
+from clnlos.brdf.presets import ANALYTIC_PRESETS, preset_model, preset_table
+from clnlos.brdf.store import load_model
+from clnlos.brdf.texture import read_texture
+from clnlos.physics.lobe import THETA_NODES, RetroLobe
+
+AUTO_ALPHAS = (0.01, 0.03, 0.1, 0.3)  # GGX roughness of the "auto" ladder's lobes
+AUTO_FLOOR = 0.01                     # their Lambertian floor, a fraction of the peak
+
+
+def model_lobe(model, name: str) -> RetroLobe:
+    return RetroLobe.from_samples(retro_slice(model, THETA_NODES), name)
+
+
+def retro_lobe(spec: str, base_dir=".") -> RetroLobe:
+    """The retro lobe of a spec (not ``"auto"``; :func:`check_brdf_spec` first)."""
+    if is_file_spec(spec):
+        path = Path(base_dir) / spec
+        if file_format(path) == TEXTURE_FORMAT:
+            return RetroLobe.from_samples(read_texture(path).retro, str(spec))
+        model, _ = load_model(path)
+        return model_lobe(model, str(spec))
+    key = spec.lower()
+    if key == LAMBERTIAN:
+        return RetroLobe.lambert()
+    if key in preset_table():
+        return model_lobe(preset_model(key), key)
+    model = ANALYTIC_PRESETS.get(key)
+    if model is None:
+        return RetroLobe.lambert()
+    return model_lobe(model, key)
+
+
+def ladder_lobe(alpha: float) -> RetroLobe:
+    """A GGX lobe of roughness ``alpha`` (ks = 1, f0 = 1) over a Lambertian floor of
+    AUTO_FLOOR of its peak."""
+    spec = BRDFModel("microfacet", {"kd": 0.0, "ks": 1.0, "alpha": alpha, "f0": 1.0})
+    f = retro_slice(spec, THETA_NODES)
+    return RetroLobe.from_samples(f + AUTO_FLOOR * float(f.max()), f"ggx alpha {alpha:g}")
+
+
+def lobe_by_name(name: str) -> RetroLobe:
+    """The lobe a reconstruction recorded by name (``brdf_used``): a spec, or a lobe of the
+    ``"auto"`` ladder."""
+    for lobe in auto_ladder():
+        if lobe.name == name:
+            return lobe
+    return retro_lobe(name)
+
+
+def auto_ladder() -> list[RetroLobe]:
+    """The lobes ``"auto"`` chooses among: the Lambertian, then ever sharper lobes."""
+    return [RetroLobe.lambert(), *(ladder_lobe(a) for a in sorted(AUTO_ALPHAS, reverse=True))]
+
+
+__all__ = ["AUTO", "LAMBERTIAN", "auto_ladder", "check_brdf_spec", "lobe_by_name", "retro_lobe"]
