@@ -225,10 +225,18 @@ def test_tiny_study_serial_and_dask_agree(tmp_path):
     assert "SNRs by gcv)" in html  # the rule the study pins, named for every method
     res = json.loads((tmp_path / "serial" / "results.json").read_text())
     _check_contract(res, TINY)
-    assert 0 <= res["cnn"]["val_accuracy"] <= 1 and 0 < res["cnn"]["majority_baseline"] <= 1
-    assert res["cnn"]["n_val"] > 0  # the held-out glyphs and letter size
+    # the legibility classifier: three held-out splits, the contract's keys, every glyph
+    # reconstruction tested once per split; no real captures given: no thinning rows
+    assert set(res["classifier"]) == {"splits", "real_thinning"}
+    assert res["classifier"]["real_thinning"] == []
+    assert set(res["classifier"]["splits"]) == {"glyph", "geometry", "material"}
+    for name, s in res["classifier"]["splits"].items():
+        assert set(s) == {"balanced_accuracy", "auc", "ece", "majority", "baseline"}
+        assert 0 <= s["balanced_accuracy"] <= 1 and 0 <= s["ece"] <= 1
+        folds = res["cnn"]["splits"][name]["folds"]
+        assert sum(f["n_test"] for f in folds) == res["cnn"]["n"] > 0
+    assert res["cnn"]["epochs"] == 3 and "cnn_seed_recipe" not in res
     assert res["labels"]["metric"] == "identification" and "fft_clarity" in res["metrics"]
-    assert len(res["cnn"]["train_loss"]) == 3 and len(res["cnn"]["val_loss"]) == 3
     # resume: a rerun reads every sample from the cache; one file per distinct scene
     n_cached = len(sorted((tmp_path / "serial" / "cache").glob("*.npz")))
     again = run_study(tmp_path / "serial", TINY, workers=1)
@@ -236,6 +244,11 @@ def test_tiny_study_serial_and_dask_agree(tmp_path):
     assert again["materials"] == serial["materials"]
     fft = run_study(tmp_path / "serial", replace(TINY, labels="fft"), workers=1)
     assert fft["labels"]["metric"] == "fft_clarity"
+    seed_cnn = fft["cnn_seed_recipe"]  # the seed's recipe beside the legibility classifier
+    assert 0 <= seed_cnn["val_accuracy"] <= 1 and 0 < seed_cnn["majority_baseline"] <= 1
+    assert seed_cnn["n_val"] > 0  # the held-out glyphs and letter size
+    assert len(seed_cnn["train_loss"]) == 3 and len(seed_cnn["val_loss"]) == 3
+    assert fft["classifier"]["splits"] == serial["classifier"]["splits"]  # seeded
     pytest.importorskip("dask.distributed")
     local = run_study(tmp_path / "local", SMALL, workers=1)
     dask = run_study(tmp_path / "dask", SMALL, workers=2)

@@ -589,8 +589,10 @@ def cmd_study(args) -> int:
                   f"{i['chance']:.3f}, n {i['n']}) IoU {m['iou']:.3f} (box "
                   f"{m['iou_box_baseline']:.3f}) label {m['label']} CNN {m['cnn_label']} "
                   f"seed {m['seed_label']}")
-    print(f"labels {res['labels']['source']}; CNN validation accuracy "
-          f"{res['cnn']['val_accuracy']:.3f} (majority {res['cnn']['majority_baseline']:.3f})")
+    print(f"labels {res['labels']['source']}; legibility CNN on held-out splits: " + "; ".join(
+        f"{k} balanced accuracy {v['balanced_accuracy']:.3f} (one-feature baseline "
+        f"{v['baseline']:.3f}), AUC {v['auc']:.3f}, ECE {v['ece']:.3f}"
+        for k, v in res["classifier"]["splits"].items()))
     print(res["findings"]["statement"])
     print(f"wrote {out / 'report.html'} and results.json")
     return 0

@@ -21,6 +21,7 @@ from clnlos.config import snr_rule_applies
 from clnlos.inverse.methods import auto_snr_rule
 from clnlos.io.files import atomic_path
 from clnlos.io.outputs import HTML_GENERATOR
+from clnlos.study.classifier_report import classifier_section
 from clnlos.study.quality import METRICS
 from clnlos.study.transport_compare import TRANSPORTS, fmt_r
 
@@ -256,9 +257,10 @@ def fig_metrics(results, plan, res):
 
 
 def fig_cnn(results):
+    """The seed recipe's CNN (``--labels fft`` / ``nr``): confusion, loss, accuracy."""
     import matplotlib.pyplot as plt
 
-    cnn = results["cnn"]
+    cnn = results["cnn_seed_recipe"]
     fig, ax = plt.subplots(1, 3, figsize=(11.5, 3.5), constrained_layout=True)
     conf = np.asarray(cnn["confusion"])
     k = conf.shape[0]
@@ -398,12 +400,18 @@ def findings_html(results) -> str:
         f"{f['corr_nr_clarity_vs_identified']:+.2f}, the seed's FFT clarity "
         f"{f['corr_clarity_vs_identified']:+.2f}; against IoU: FFT clarity "
         f"{f['corr_clarity_vs_iou_dataset']:+.2f}.")
-    cnn = results["cnn"]
-    items.append(
-        f"The CNN ({html.escape(results['labels']['source'])} labels) on held-out glyphs "
-        f"{', '.join(cnn['held_out']['glyphs'])} and letters of "
-        f"{cnn['held_out']['letter_height_m']:g} m: accuracy {cnn['val_accuracy']:.2f} "
-        f"(majority class {cnn['majority_baseline']:.2f}, n {cnn['n_val']}).")
+    items.append("The legibility classifier held out by " + "; ".join(
+        f"{k}: balanced accuracy {v['balanced_accuracy']:.2f} (one feature "
+        f"{v['baseline']:.2f}), AUC {v['auc']:.2f}, ECE {v['ece']:.3f}"
+        for k, v in results["classifier"]["splits"].items()) + ".")
+    seed_cnn = results.get("cnn_seed_recipe")
+    if seed_cnn:
+        items.append(
+            f"The seed's CNN recipe ({html.escape(results['labels']['source'])} labels) on "
+            f"held-out glyphs {', '.join(seed_cnn['held_out']['glyphs'])} and letters of "
+            f"{seed_cnn['held_out']['letter_height_m']:g} m: accuracy "
+            f"{seed_cnn['val_accuracy']:.2f} (majority class "
+            f"{seed_cnn['majority_baseline']:.2f}, n {seed_cnn['n_val']}).")
     items.append(
         "Our labels agree with the seed's Figure 9 for "
         + ", ".join(f"{v} of 10 at {k}" for k, v in
@@ -545,10 +553,10 @@ def _real_html(results) -> str:
                         "yes" if f["resolved"] else "no"] for k, f in feats.items()])
     cnn = results.get("real_captures_cnn") or []
     if cnn:
-        out += "<p>The CNN's legibility on the real captures (reconstructed with the study's " \
-               "method and defaults):</p>" + _table(
-                   ["capture", "CNN label", "probabilities"],
-                   [[html.escape(c["name"]), c["cnn_label"],
+        out += "<p>The CNN's verdict on the real captures (all their photons, reconstructed " \
+               "with the study's method and defaults):</p>" + _table(
+                   ["capture", "P(legible)", "CNN label", "probabilities"],
+                   [[html.escape(c["name"]), f"{c['p_legible']:.3f}", c["cnn_label"],
                      ", ".join(f"{p:.2f}" for p in c["cnn_probabilities"])] for c in cnn])
     return out
 
@@ -632,9 +640,10 @@ def write_report(out_dir, results, plan, res, real=None) -> None:
             "the measurement alone.", fig_tilt(results))] if results.get("tilt_sweep")
           else []),
         ("No-reference metrics against ground truth", "", fig_metrics(results, plan, res)),
-        ("CNN legibility classifier (seed Fig. 9)", "", fig_cnn(results)),
         ("BRDF of each material (seed Fig. 7)", "", fig_brdf(results)),
     ]
+    if results.get("cnn_seed_recipe"):
+        figs.insert(-1, ("The seed's CNN recipe (seed Fig. 9)", "", fig_cnn(results)))
     if real is not None and real.get("figure") is not None:
         figs.insert(2, ("A real capture beside its simulation", "", real["figure"]))
     small = results["smallest_legible"]
@@ -683,6 +692,8 @@ def write_report(out_dir, results, plan, res, real=None) -> None:
         f"{results['resolution']['effective_temporal_fwhm_s'] * 1e12:.0f} ps: "
         f"{results['resolution']['bound_lateral_m'] * 100:.2f} cm.</p>",
         "<h2>A real capture and its simulation</h2>", _real_html(results),
+        *classifier_section(results, None if real is None else real.get("thinning"),
+                            _table, _png),
         *_transport_section(results.get("transport_comparison")),
         "<h2>No-reference metrics against ground truth</h2>",
         "<p>Pearson r over the glyph reconstructions (point-biserial for identified).</p>",

@@ -21,11 +21,13 @@ The question is answered with legibility, not with how well a blob covers the ta
 5. Measured resolution (:mod:`clnlos.study.resolution`) and a real capture beside its
    simulation (:mod:`clnlos.study.real_capture`), when a folder of the real CDT captures
    is given (``real_data``, ``--real-data DIR``: its ``cdt/*.mat``).
-6. CNN (torch, CPU, seeded) trained on reconstructions with ground truth to predict
-   legibility (``--labels legibility``: 1 identified with IoU above its box baseline,
-   2 one of the two, 3 neither), validated on held-out glyphs and a held-out letter size,
-   applied to the real captures; ``--labels fft`` is the seed's recipe (FFT clarity
-   terciles), ``nr`` the no-reference metric's.
+6. The legibility classifier (torch CNN, CPU, seeded; :mod:`clnlos.study.classify`,
+   :mod:`clnlos.study.heldout`) trained on every reconstruction with ground truth to give
+   P(legible) (identified and IoU above the box baseline), validated on held-out glyphs,
+   geometries and materials against the majority and a one-feature baseline, and applied to
+   the real captures thinned to fewer photons (:mod:`clnlos.study.thinning_real`);
+   ``--labels fft`` / ``nr`` add the seed's recipe (FFT clarity / no-reference terciles),
+   whose three classes label the materials.
 7. With ``transport = "both"`` (``--transport both``): the materials at the legible geometry
    under the bistatic transport too (Eq. 8 in full, :mod:`clnlos.study.transport_compare`),
    their table and ranks under both and the rank correlation. Everything else is simulated
@@ -48,7 +50,6 @@ from dataclasses import asdict, dataclass, field
 from pathlib import Path
 
 import numpy as np
-from scipy.ndimage import zoom
 from scipy.special import stdtrit  # Student's t quantile (what scipy.stats.t.ppf calls)
 
 from clnlos.app.progress import counter, progress_bar
@@ -59,11 +60,10 @@ from clnlos.config import SNR_RULES
 from clnlos.errors import ParameterError
 from clnlos.forward.scene import Scene
 from clnlos.inverse.methods import method_names
-from clnlos.inverse.pipeline import reconstruct
-from clnlos.io.files import atomic_path, read_capture
+from clnlos.io.files import atomic_path
 from clnlos.io.outputs import stamp
 from clnlos.study.clarity import label_thresholds
-from clnlos.study.classify import train_classifier
+from clnlos.study.classify import LEGIBILITY_EPOCHS, SEED_EPOCHS, train_classifier
 from clnlos.study.dataset import (
     StudyGrid,
     cpu_workers,
@@ -72,6 +72,13 @@ from clnlos.study.dataset import (
     scene_dict,
     window_m,
 )
+from clnlos.study.heldout import (
+    BASELINE_FEATURES,
+    SPLIT_FOLDS,
+    fold_plan,
+    legibility_set,
+    validate_legibility,
+)
 from clnlos.study.legibility import (
     GLYPHS,
     LEGIBLE_ACCURACY,
@@ -79,11 +86,11 @@ from clnlos.study.legibility import (
     glyph_templates,
     identification_summary,
     identify,
+    wilson_interval,
 )
 from clnlos.study.quality import DEFAULT_LABEL_METRIC, METRICS, pearson, validate_metrics
 from clnlos.study.real_capture import (
     PUBLISHED_SCAN_WIDTH_M,
-    capture_config,
     compare_real_capture,
     real_capture_figure,
     reconstruct_chart,
@@ -95,6 +102,7 @@ from clnlos.study.resolution import (
     measure_resolution,
     otoole_lateral_bound_m,
 )
+from clnlos.study.thinning_real import real_thinning
 from clnlos.study.transport_compare import (
     COMPARE_ANGLES,
     COMPARE_RINGS,
@@ -167,7 +175,8 @@ QUICK_GRID = StudyGrid(points=24, bin_width_s=64e-12)
 @dataclass
 class StudyOptions:
     n_dataset: int = 200                # extra random reconstructions (metric validation)
-    epochs: int = 10
+    epochs: int | None = None           # the CNNs' (None: SEED_EPOCHS for the seed's recipe,
+    #                                     LEGIBILITY_EPOCHS for the legibility classifier)
     grid: StudyGrid = field(default_factory=StudyGrid)
     materials: list[str] | None = None  # default: the ten presets
     seeds: int = 2                      # noise realisations per material, glyph, geometry
@@ -551,11 +560,11 @@ def material_entries(materials, plan, results, geo: Geometry, opts: StudyOptions
             value = float(np.mean([r[f"q_{label_metric}"] for r in rs]))
             label = label_of(value, thresholds)
         fft_mean = float(np.mean([r["q_fft_clarity"] for r in rs]))
-        _, probs = predict(np.stack([r["mip"] for r in rs]))
-        p = probs.mean(axis=0)
+        cnn_label, p = cnn_material_label(predict, np.stack([r["mip"] for r in rs]),
+                                          label_metric, chance)
         e.update({
             "label": label, "label_metric_value": value,
-            "cnn_label": int(np.argmax(p) + 1), "cnn_probabilities": [float(v) for v in p],
+            "cnn_label": cnn_label, "cnn_probabilities": [float(v) for v in p],
             "seed_label": SEED_FIGURE9.get(m),
             "clarity_score": fft_mean, "clarity_label": label_of(fft_mean, fft_thresholds),
             "depth_error_m": float(np.mean([r["depth_error_m"] for r in rs])),
@@ -565,6 +574,23 @@ def material_entries(materials, plan, results, geo: Geometry, opts: StudyOptions
             "provenance": table[m].get("provenance", "")})
         out.append(e)
     return out
+
+
+def cnn_material_label(predict, mips: np.ndarray, label_metric: str,
+                       chance: float) -> tuple[int, np.ndarray]:
+    """(the CNN's class of a material, its mean probabilities) from the material's MIPs.
+    The legibility classifier (``predict``: images -> P(legible)) gives [P, 1 - P], the mean
+    P being its expected share of legible reconstructions, classed like identification
+    (:func:`material_class`, the interval of that share of the n MIPs); the seed's recipe
+    (``predict``: images -> (labels, probabilities)) the class of its mean probabilities."""
+    if label_metric == "identification":
+        p = float(np.mean(predict(mips)))
+        n = len(mips)
+        ident = {"accuracy": p, "ci": wilson_interval(int(round(p * n)), n), "chance": chance}
+        return material_class(ident), np.array([p, 1.0 - p])
+    _, probs = predict(mips)
+    p = probs.mean(axis=0)
+    return int(np.argmax(p) + 1), p
 
 
 def sweep_rows(plan, results, which: str, chance: float) -> list[dict]:
@@ -614,28 +640,53 @@ def _samples_labels(results, idx, label_metric, thresholds) -> np.ndarray:
     return np.array([label_of(results[i][f"q_{label_metric}"], thresholds) for i in idx])
 
 
-def train_cnn(plan, results, opts: StudyOptions, label_metric: str, thresholds):
-    """The CNN on every glyph reconstruction (and the random extras for the metric labels):
-    validation on the held-out glyphs and letter size."""
+def cnn_samples(plan, label_metric: str) -> list[int]:
+    """Plan indices of the seed recipe's images: every glyph reconstruction (and the random
+    extras for the metric labels), one per distinct scene."""
     use = [i for i, (meta, _) in enumerate(plan)
            if meta["set"] != "dataset" or label_metric != "identification"]
-    # one image per distinct scene
     seen, idx = set(), []
     for i in use:
         key = json.dumps(plan[i][1], sort_keys=True)
         if key not in seen:
             seen.add(key)
             idx.append(i)
+    return idx
+
+
+def train_cnn(plan, results, opts: StudyOptions, label_metric: str, thresholds):
+    """The seed's recipe (``--labels fft`` / ``nr``) on :func:`cnn_samples`: validation on
+    the held-out glyphs and letter size."""
+    idx = cnn_samples(plan, label_metric)
     held = np.array([plan[i][0].get("glyph") in HELD_OUT_GLYPHS
                      or (plan[i][0].get("variable") == "letter_height_m"
                          and plan[i][0].get("value") == HELD_OUT_HEIGHT_M) for i in idx])
     labels = _samples_labels(results, idx, label_metric, thresholds)
     images = np.stack([results[i]["mip"] for i in idx])
     with progress_bar(None, "study CNN", "batch") as bar:
-        predict, report = train_classifier(images, labels, epochs=opts.epochs, seed=opts.seed,
-                                           progress=counter(bar), val_mask=held)
+        predict, report = train_classifier(images, labels, epochs=opts.epochs or SEED_EPOCHS,
+                                           seed=opts.seed, progress=counter(bar),
+                                           val_mask=held)
     report["held_out"] = {"glyphs": list(HELD_OUT_GLYPHS), "letter_height_m": HELD_OUT_HEIGHT_M}
     return predict, report, labels
+
+
+def train_legibility(pairs, opts: StudyOptions, workers: int = 1):
+    """The legibility classifier on every (sample, result) pair with ground truth (any plan:
+    pass every reconstruction the study made) and its held-out validation
+    (:func:`clnlos.study.heldout.validate_legibility`). Returns (the ensemble of the folds'
+    networks, results.json ``classifier.splits``, results.json ``cnn``: the details)."""
+    data = legibility_set(pairs)
+    epochs = opts.epochs or LEGIBILITY_EPOCHS
+    with progress_bar(len(fold_plan(data, opts.seed)), "study CNN", "network") as bar:
+        ensemble, splits, details = validate_legibility(
+            data, epochs=epochs, seed=opts.seed, workers=workers, progress=counter(bar))
+    report = {"label": "legible: identified by the template rule and IoU above the box "
+                       "baseline", "second_head": "IoU - box baseline IoU",
+              "epochs": epochs, "n": len(data), "legible": int(data.legible.sum()),
+              "split_folds": dict(SPLIT_FOLDS), "baseline_features": list(BASELINE_FEATURES),
+              "networks": len(ensemble.members), "splits": details}
+    return ensemble, splits, report
 
 
 def real_capture_dir(root: Path | None) -> Path | None:
@@ -652,32 +703,31 @@ def real_capture_dir(root: Path | None) -> Path | None:
     return None
 
 
-def real_captures_cnn(cdt: Path, predict, grid: StudyGrid, device=None) -> list[dict]:
-    """The CNN's legibility class of each real capture in ``cdt``, reconstructed with the
-    study's method and the default (auto) parameters (:func:`clnlos.study.real_capture.
-    capture_config`). MIPs are resampled to the CNN's input size."""
+def real_captures_cnn(rows: list[dict], predict, label_metric: str) -> list[dict]:
+    """The CNN's verdict on each real capture at all its photons (the fraction-1 rows of
+    :func:`clnlos.study.thinning_real.real_thinning`): the legibility classifier's
+    ``p_legible`` (label 1 legible at P >= 1/2, else 3), or the seed recipe's class."""
     out = []
-    for name in PUBLISHED_SCAN_WIDTH_M:
-        path = cdt / f"{name}.mat"
-        if not path.is_file():
+    for r in rows:
+        if r["fraction"] != 1.0:
             continue
-        cfg = capture_config(name, grid.method, iterations=grid.iterations,
-                             snr_rule=grid.snr_rule)
-        mip = reconstruct(read_capture(path), cfg, device=device).volume.max(axis=0)
-        if mip.shape != (grid.points, grid.points):
-            mip = zoom(mip, (grid.points / mip.shape[0], grid.points / mip.shape[1]), order=1)
-        mip = mip / mip.max() if mip.max() > 0 else mip
-        label, probs = predict(mip[None].astype(np.float32))
-        out.append({"name": name, "cnn_label": int(label[0]),
-                    "cnn_probabilities": [float(v) for v in probs[0]],
-                    "mip": mip.astype(np.float32)})
+        if label_metric == "identification":
+            label, probs = (1 if r["p_legible"] >= 0.5 else 3), [r["p_legible"]]
+        else:
+            lab, pr = predict(r["mip"][None])
+            label, probs = int(lab[0]), [float(v) for v in pr[0]]
+        out.append({"name": r["capture"], "cnn_label": int(label), "p_legible": r["p_legible"],
+                    "cnn_probabilities": probs, "mip": r["mip"]})
     return out
 
 
-def real_data_study(cdt: Path, predict, grid: StudyGrid, device=None) -> dict:
+def real_data_study(cdt: Path, predict, grid: StudyGrid, device=None, *, legibility,
+                    label_metric: str = "identification", cache: Path | None = None) -> dict:
     """The real captures in ``cdt``: letters_ut beside a simulation of a comparable scene
     (:func:`clnlos.study.real_capture.compare_real_capture`, its figure), the resolution
-    chart's resolved features, and the CNN's verdict on each."""
+    chart's resolved features, every capture thinned to THINNING_FRACTIONS of its photons
+    with the ``legibility`` classifier's P(legible) (``thinning``) and the CNN's verdict at
+    all its photons (``cnn``)."""
     out: dict = {"summary": None, "figure": None, "chart": None}
     if (cdt / "letters_ut.mat").is_file():
         cmp = compare_real_capture(cdt / "letters_ut.mat", grid.method,
@@ -689,7 +739,12 @@ def real_data_study(cdt: Path, predict, grid: StudyGrid, device=None) -> dict:
         chart = reconstruct_chart(cdt / "resolution_70.mat", "lct", queue=device)
         chart.pop("arrays", None)
         out["chart"] = chart
-    out["cnn"] = real_captures_cnn(cdt, predict, grid, device)
+    t0 = time.perf_counter()
+    with progress_bar(None, "real captures thinned", "reconstruction") as bar:
+        out["thinning"] = real_thinning(cdt, grid, legibility.predict_proba, cache=cache,
+                                        device=device, progress=counter(bar))
+    out["thinning_s"] = time.perf_counter() - t0
+    out["cnn"] = real_captures_cnn(out["thinning"], predict, label_metric)
     return out
 
 
@@ -734,9 +789,28 @@ def run_study(out_dir: Path, opts: StudyOptions, *, workers: int | None = None,
                   else label_thresholds(all_values[label_metric]))
     fft_thresholds = label_thresholds(all_values["fft_clarity"])
 
-    # -- CNN
+    # -- the materials under both transports (legible geometry)
+    comparison = None
+    if opts.transport == "both":
+        t0 = time.perf_counter()
+        comparison = transport_comparison(materials, opts, cache, resolution, lateral,
+                                          table, workers=nw, scheduler=scheduler,
+                                          device=device)
+        timings["transport_s"] = time.perf_counter() - t0
+
+    # -- CNN: the legibility classifier on every reconstruction with ground truth (each
+    #    rendered plan's) and, for --labels fft / nr, the seed's recipe, whose classes then
+    #    label the materials
     t0 = time.perf_counter()
-    predict, cnn, labels = train_cnn(plan, results, opts, label_metric, thresholds)
+    rendered = [(plan, results)] + ([] if comparison is None else
+                                    [(comparison["plan"], comparison["results"])])
+    legibility, classifier_splits, cnn = train_legibility(
+        [(s, r) for p, rs in rendered for (_, s), r in zip(p, rs, strict=True)], opts, nw)
+    predict, seed_cnn = legibility.predict_proba, None
+    labels = _samples_labels(results, cnn_samples(plan, label_metric), label_metric,
+                             thresholds)
+    if label_metric != "identification":
+        predict, seed_cnn, labels = train_cnn(plan, results, opts, label_metric, thresholds)
     timings["cnn_s"] = time.perf_counter() - t0
 
     # -- materials per geometry
@@ -763,22 +837,17 @@ def run_study(out_dir: Path, opts: StudyOptions, *, workers: int | None = None,
     # -- real captures (shared data): the simulated twin, the CNN's verdict
     t0 = time.perf_counter()
     cdt = real_capture_dir(opts.real_data)
-    real = None if cdt is None else real_data_study(cdt, predict, opts.grid, device)
+    real = None if cdt is None else real_data_study(
+        cdt, predict, opts.grid, device, legibility=legibility, label_metric=label_metric,
+        cache=cache)
     if real is not None and real["chart"] is not None:
         resolution["real_chart"] = real["chart"]
     timings["real_capture_s"] = time.perf_counter() - t0
+    if real is not None:
+        timings["real_thinning_s"] = real["thinning_s"]
 
-    # -- the materials under both transports (legible geometry)
-    comparison = None
-    if opts.transport == "both":
-        t0 = time.perf_counter()
-        comparison = transport_comparison(materials, opts, cache, resolution, lateral,
-                                          table, workers=nw, scheduler=scheduler,
-                                          device=device)
-        timings["transport_s"] = time.perf_counter() - t0
-
-    findings = make_findings(geometries, need, geometry_rows, validation, label_metric, cnn,
-                             agreement, opts, tilts)
+    findings = make_findings(geometries, need, geometry_rows, validation, label_metric,
+                             classifier_splits, agreement, opts, tilts)
     ious = np.array([r["iou"] for r in results])
     hist, edges = np.histogram(ious, bins=10, range=(0, 1))
     results_json = {
@@ -802,7 +871,10 @@ def run_study(out_dir: Path, opts: StudyOptions, *, workers: int | None = None,
         "real_capture": None if real is None else real["summary"],
         "real_captures_cnn": None if real is None else [
             {k: v for k, v in c.items() if k != "mip"} for c in real["cnn"]],
-        "cnn_validation_accuracy": cnn["val_accuracy"], "cnn": cnn,
+        "classifier": {"splits": classifier_splits, "real_thinning": [] if real is None else [
+            {k: r[k] for k in ("capture", "fraction", "photons", "p_legible")}
+            for r in real["thinning"]]},
+        "cnn": cnn, **({} if seed_cnn is None else {"cnn_seed_recipe": seed_cnn}),
         "labels": {"source": opts.labels, "metric": label_metric,
                    "corr_with_iou": validation[label_metric]["iou"]
                    if label_metric in validation else pearson(truth["identified"],
@@ -888,8 +960,8 @@ def inversion_accuracy(m: dict, inversion: str) -> float | None:
     return None if v is None else v["identification"]["accuracy"]
 
 
-def make_findings(geometries, need, geometry_rows, validation, label_metric, cnn,
-                  agreement, opts: StudyOptions, tilts=()) -> dict:
+def make_findings(geometries, need, geometry_rows, validation, label_metric,
+                  classifier_splits, agreement, opts: StudyOptions, tilts=()) -> dict:
     """The study's answer in numbers."""
     def acc(m):
         return m["identification"]["accuracy"]
@@ -950,8 +1022,10 @@ def make_findings(geometries, need, geometry_rows, validation, label_metric, cnn
         "corr_nr_clarity_vs_identified": validation["nr_clarity"]["identified"],
         "corr_clarity_vs_depth_error_dataset": validation["fft_clarity"]["depth_error_m"],
         "corr_clarity_vs_psnr_dataset": validation["fft_clarity"]["psnr_db"],
-        "cnn_val_accuracy": cnn["val_accuracy"], "cnn_majority_baseline":
-            cnn["majority_baseline"], "seed_figure9_agreement": agreement[LEGIBLE_GEOMETRY]})
+        "cnn_balanced_accuracy": {k: v["balanced_accuracy"]
+                                  for k, v in classifier_splits.items()},
+        "cnn_one_feature_baseline": {k: v["baseline"] for k, v in classifier_splits.items()},
+        "seed_figure9_agreement": agreement[LEGIBLE_GEOMETRY]})
     # material cost in photons and size, per inversion and with the best for each
     f["smallest_legible"] = need
     f["sweeps"] = geometry_sweep_effects(geometry_rows)
