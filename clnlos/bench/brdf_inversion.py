@@ -26,13 +26,17 @@ import time
 import numpy as np
 
 from clnlos import C0
-from clnlos.brdf.lobes import LAMBERTIAN, retro_lobe
+from clnlos.bench.harness import timed_once
+from clnlos.brdf.lobes import AUTO, LAMBERTIAN, retro_lobe
+from clnlos.config import ReconstructionConfig
 from clnlos.forward.bistatic import face_quadrature
 from clnlos.forward.blur import blur_margin, slab_blur
 from clnlos.forward.model import ForwardModel
 from clnlos.forward.scene import Scene
 from clnlos.forward.transport import LightConeTransport
+from clnlos.inverse.pipeline import reconstruct
 from clnlos.physics.slab import CDT_SLAB
+from clnlos.study.metrics import mip_iou, truth_mask
 
 CHECK_MATERIALS = ("quartz glass", "aluminium alloy sample", "gold-plated polyester film",
                    "standard white plate", LAMBERTIAN)
@@ -40,12 +44,18 @@ CHECK_TILTS_DEG = (0.0, 10.0)
 FOOT_LOBE_DEG = 20.0  # a tilted target of a lobe narrower than this is voxelised at its foot
 
 
-def glyph_scene(material: str, *, tilt_deg: float = 0.0, slab: bool = False,
-                transport: str = "confocal", points: int = 32, scan_width_m: float = 0.6,
-                bin_width_s: float = 48e-12, bins: int = 256, glyph: str = "E",
-                height_m: float = 0.3, stroke_m: float = 0.08, depth_m: float = 0.5,
-                density_per_m2: float = 4e4) -> Scene:
-    """A glyph of one material facing the scan (or tilted about y), no pulse, no noise."""
+def glyph_scene(material: str, **kw) -> Scene:
+    """A glyph of one material facing the scan (or tilted about y), no pulse, no noise
+    (:func:`glyph_scene_dict`)."""
+    return Scene.from_dict(glyph_scene_dict(material, **kw))
+
+
+def glyph_scene_dict(material: str, *, tilt_deg: float = 0.0, slab: bool = False,
+                     transport: str = "confocal", points: int = 32,
+                     scan_width_m: float = 0.6, bin_width_s: float = 48e-12, bins: int = 256,
+                     glyph: str = "E", height_m: float = 0.3, stroke_m: float = 0.08,
+                     depth_m: float = 0.5, density_per_m2: float = 4e4) -> dict:
+    """The scene table of :func:`glyph_scene`."""
     d = {"seed": 0, "scan": {"width_m": scan_width_m, "points": points},
          "time": {"bin_width_s": bin_width_s, "bins": bins, "start_s": 0.0},
          "objects": [{"shape": "letters", "text": glyph, "height_m": height_m,
@@ -57,7 +67,7 @@ def glyph_scene(material: str, *, tilt_deg: float = 0.0, slab: bool = False,
     if slab:
         d["slab"] = {"thickness_m": CDT_SLAB.thickness_m, "mu_a": CDT_SLAB.mu_a,
                      "mu_s_prime": CDT_SLAB.mu_s_prime, "n": CDT_SLAB.n}
-    return Scene.from_dict(d)
+    return d
 
 
 def voxelised(samples, scene: Scene, *, lobe_foot: bool) -> np.ndarray:
@@ -158,3 +168,73 @@ def operator_check_rows(queue, *, materials=CHECK_MATERIALS, tilts=CHECK_TILTS_D
     return rows
 
 
+
+
+
+INVERSION_MATERIALS = ("quartz glass", "gold-plated polyester film", "standard white plate")
+INVERSION_TERMS = (1, 2, 4, "auto")  # K of the known lobe's separable sum
+INVERSION_EXPOSURE_S = 0.1           # the study's default exposure
+INVERSION_MAX_PATH_M = 1.6           # the study's reconstruction window (round trip), m
+INVERSION_BINS = 150                 # 2.16 m of path at 48 ps: the window and guard bins
+
+
+def noisy_glyph_capture(material: str, points: int, queue, *, glyph: str = "E"):
+    """(capture, true mask [y, x]) of a glyph at the study's legible geometry (0.6 m scan,
+    30 cm tall, 8 cm strokes, 0.5 m deep) behind the CDT slab, with the study's 35 ps pulse,
+    detector (etendue 1e-9 m^2 sr, 1 kHz dark counts) and photon noise."""
+    d = glyph_scene_dict(material, slab=True, points=points, glyph=glyph,
+                         bins=INVERSION_BINS)
+    d["laser"] = {"pulse_width_s": 35e-12}
+    d["detector"] = {"exposure_s": INVERSION_EXPOSURE_S, "etendue_m2_sr": 1e-9,
+                     "dark_count_rate_hz": 1000.0}
+    scene = Scene.from_dict(d)
+    fm = ForwardModel(scene, queue=queue)
+    return fm.capture(), truth_mask(fm.samples.elements, scene.scan_centres())
+
+
+def inversion_rows(b) -> None:
+    """Section ``brdf_inversion``: on the same noisy capture per material, the iterative
+    method with the Lambertian lobe, the known lobe at K = INVERSION_TERMS separable terms
+    and ``brdf = "auto"``: time (one run after a run that built the plans), 1 - IoU of the
+    MIP against the truth, K and its relative error, the ratio to the Lambertian time."""
+    points = {"tiny": 12, "quick": 24, "full": 32}[b.size]
+    iterations = {"tiny": 10, "quick": 30, "full": None}[b.size]
+    for material in INVERSION_MATERIALS[:1] if b.size == "tiny" else INVERSION_MATERIALS:
+        cap, mask = noisy_glyph_capture(material, points, b.q)
+        budget = {} if iterations is None else {"iterations": iterations}
+        base = ReconstructionConfig(slab=cap.recorded_slab()[0], method="iterative",
+                                    snr_rule="gcv", max_path_m=INVERSION_MAX_PATH_M, **budget)
+        terms = ("auto",) if b.size == "tiny" else INVERSION_TERMS
+        runs = [("lambertian", {})] + [(f"known K={k}", {"brdf": material, "brdf_terms": k})
+                                       for k in terms] + [("auto", {"brdf": AUTO})]
+        lam_s = None
+        for name, fields in runs:
+            cfg = base.replace(**fields).validate()
+            if b.size != "tiny":  # plans built first: the row times the reconstruction
+                reconstruct(cap, cfg, device=b.q)
+            rec, timing = timed_once(lambda cfg=cfg, cap=cap: reconstruct(cap, cfg, device=b.q),
+                                     b.q)
+            lam_s = timing["median_s"] if lam_s is None else lam_s
+            iou = mip_iou(rec.volume, mask)[0]
+            b.record("brdf_inversion", f"iterative@{material}", name, np.float32, timing,
+                     1.0 - iou, error_kind="1 - IoU", material=material, iou=iou,
+                     brdf_used=rec.params.get("brdf_used"),
+                     terms=rec.params.get("brdf_terms_used"),
+                     terms_error=rec.params.get("brdf_terms_error"),
+                     time_over_lambertian=timing["median_s"] / lam_s)
+
+
+def operator_rows(b) -> None:
+    """Section ``brdf_operator``: :func:`operator_check_rows` (the transport against
+    ``clnlos simulate``), its error as the row's error, the transport's build as its time."""
+    if b.size == "tiny":  # one case: quartz glass facing the scan behind the slab
+        rows = operator_check("quartz glass", tilt_deg=0.0, slab=True, transport="confocal",
+                              queue=b.q, points=12)
+    else:
+        rows = operator_check_rows(b.q, points={"quick": 24, "full": 32}[b.size])
+    for r in rows:
+        t = r.pop("build_s")
+        b.record("brdf_operator", f"{r['material']}@{r['tilt_deg']:g}deg/{r['transport']}"
+                 f"{'+slab' if r['slab'] != 'none' else ''}", r["model_lobe"], np.float64,
+                 {"median_s": t, "min_s": t, "max_s": t, "repeats": 1}, r["rel_l2_image"],
+                 error_kind="rel L2 (time-integrated image)", **r)
