@@ -28,8 +28,8 @@ from __future__ import annotations
 import math
 
 import numpy as np
+from numpy.lib.stride_tricks import sliding_window_view
 from scipy.ndimage import gaussian_filter
-from scipy.signal import correlate
 from scipy.special import ndtri  # the normal quantile (scipy.stats.norm.ppf computes it so)
 
 from clnlos.forward.geometry import letters_mask
@@ -74,19 +74,16 @@ def ncc_map(mip: np.ndarray, template: np.ndarray, max_shift: int) -> np.ndarray
     m = np.asarray(mip, np.float64)
     t = np.asarray(template, np.float64)
     n = m.size
-    tc = t - t.mean()
-    tt = float((tc * tc).sum())
-    ones = np.ones_like(t)
     S = int(max_shift)
     ny, nx = m.shape
-    win = (slice(ny - 1 - S, ny + S), slice(nx - 1 - S, nx + S))  # lags -S..S of 'full'
-
-    def corr(a, b):  # sum_u a[u] b[u + d] at lag d
-        return correlate(b, a, mode="full", method="direct")[win]
-
-    c = corr(m, t)
-    s1 = corr(m, ones)
-    s2 = corr(m * m, ones)
+    # shifted[i, j] = m[v + (i - S, j - S)] (zero fill): the MIP moved by -(i - S, j - S);
+    # flipped so that index S + d holds the shift d of the docstring
+    shifted = sliding_window_view(np.pad(m, S), (ny, nx))[::-1, ::-1]
+    c = np.einsum("ijyx,yx->ij", shifted, t)
+    s1 = shifted.sum(axis=(2, 3))
+    s2 = np.einsum("ijyx,ijyx->ij", shifted, shifted)
+    tc = t - t.mean()
+    tt = float((tc * tc).sum())
     var = np.maximum(s2 - s1 * s1 / n, 0.0) * tt
     num = c - s1 * t.mean()
     with np.errstate(invalid="ignore", divide="ignore"):
