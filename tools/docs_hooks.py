@@ -27,8 +27,6 @@ import re
 import textwrap
 from pathlib import Path
 
-from mkdocs.structure.files import File
-
 ROOT = Path(__file__).resolve().parents[1]
 PLACEHOLDER = re.compile(r"\{\{\s*(const|list|falloff|generated|source):([\w./\-]+)\s*\}\}")
 RESULT_FIGURES = ("slab_calibration.png", "real_cdt_defaults.png")
@@ -156,6 +154,8 @@ def on_page_markdown(markdown: str, **kwargs) -> str:
 
 
 def on_files(files, config, **kwargs):
+    from mkdocs.structure.files import File  # mkdocs runs this hook; the tests import the rest
+
     for name in RESULT_FIGURES:
         files.append(File.generated(config, f"figures/{name}",
                                     abs_src_path=str(ROOT / "tools" / "results" / name)))
