@@ -24,8 +24,9 @@ __version__ = "0.2.0"
 C0 = 299_792_458.0
 """Speed of light in vacuum, m/s."""
 
+import importlib  # noqa: E402
+
 # the API after the constants its modules import from here
-from clnlos import study  # noqa: E402  (clnlos.study.run)
 from clnlos.api import (  # noqa: E402
     plot_volume,
     read_capture,
@@ -36,3 +37,11 @@ from clnlos.api import (  # noqa: E402
 
 __all__ = ["C0", "__version__", "plot_volume", "read_capture", "reconstruct",
            "reconstruction_config", "simulate", "study"]
+
+
+def __getattr__(name: str):
+    """``clnlos.study`` on first use (PEP 562): the study's imports (scipy.signal, the
+    dataset's workers) stay out of ``import clnlos`` until a study runs."""
+    if name == "study":
+        return importlib.import_module("clnlos.study")
+    raise AttributeError(f"module 'clnlos' has no attribute {name!r}")

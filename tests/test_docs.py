@@ -59,10 +59,8 @@ def test_reference_table_lists_every_field_and_flag():
 def copy_site_sources(dst: Path) -> None:
     shutil.copytree(ROOT / "docs", dst / "docs")
     shutil.copy(ROOT / "mkdocs.yml", dst / "mkdocs.yml")
-    (dst / "tools" / "results").mkdir(parents=True)
+    shutil.copytree(ROOT / "tools" / "results", dst / "tools" / "results")  # figures, tables
     shutil.copy(ROOT / "tools" / "docs_hooks.py", dst / "tools")
-    for name in hooks().RESULT_FIGURES:
-        shutil.copy(ROOT / "tools" / "results" / name, dst / "tools" / "results")
 
 
 def run_examples(figures: Path) -> set[str]:
@@ -109,6 +107,8 @@ def test_site_builds_strict_with_the_examples_figures(tmp_path):
         shipped = site / "examples" / "figures" / f"{name}.png"
         assert shipped.read_bytes() == (figures / f"{name}.png").read_bytes(), name
         assert "import clnlos" in page  # the script itself is on the page
+    oracle = (site / "validation" / "oracle-tables" / "index.html").read_text(encoding="utf-8")
+    assert oracle.count("<tr>") > 3 * 10 and "oracle IoU" in oracle
     params = (site / "parameters" / "index.html").read_text(encoding="utf-8")
     assert "{{" not in params and "MEASURED_MODEL_SNR" in params and "1e4" in params
     api = (site / "reference" / "api" / "index.html").read_text(encoding="utf-8")

@@ -13,7 +13,9 @@ Placeholders a page may hold:
 - ``{{ generated:scene-example }}`` and ``{{ generated:scene-materials }}``: the commented
   example scene and the materials paragraph of :mod:`clnlos.forward.scene`;
 - ``{{ source:PATH }}``: the text of a file of the repository (an example script) as a code
-  block.
+  block;
+- ``{{ oracle:PATH }}``: a summary CSV of tools/oracle_params.py as a table (ORACLE_COLUMNS,
+  three decimals).
 
 The figures of tools/results named in RESULT_FIGURES are served as ``figures/NAME`` (not
 copied into docs/: the result file is the one source).
@@ -21,6 +23,7 @@ copied into docs/: the result file is the one source).
 
 from __future__ import annotations
 
+import csv
 import dataclasses
 import importlib
 import re
@@ -28,8 +31,13 @@ import textwrap
 from pathlib import Path
 
 ROOT = Path(__file__).resolve().parents[1]
-PLACEHOLDER = re.compile(r"\{\{\s*(const|list|falloff|generated|source):([\w./\-]+)\s*\}\}")
+PLACEHOLDER = re.compile(r"\{\{\s*(const|list|falloff|generated|source|oracle):([\w./\-]+)\s*\}\}")
 RESULT_FIGURES = ("slab_calibration.png", "real_cdt_defaults.png")
+# the columns of an oracle summary a page shows: (CSV column, heading)
+ORACLE_COLUMNS = (("capture", "capture"), ("method", "method"), ("seeds", "seeds"),
+                  ("auto_iou_mean", "default IoU"), ("gcv_rule_iou_mean", "GCV rule IoU"),
+                  ("today_iou_mean", "photon rule IoU"), ("oracle_iou_mean", "oracle IoU"),
+                  ("gap_mean", "gap to oracle"))
 
 
 def number(v) -> str:
@@ -134,12 +142,32 @@ def generated(name: str) -> str:
     raise KeyError(name)
 
 
+def oracle_table(path: str) -> str:
+    """A summary CSV (mean over noise seeds per capture and method) as a Markdown table."""
+    with open(ROOT / path, newline="", encoding="utf-8") as f:
+        rows = list(csv.DictReader(f))
+
+    def cell(v: str) -> str:
+        try:
+            return f"{float(v):.3f}" if "." in v else v
+        except ValueError:
+            return v or "-"
+
+    out = ["| " + " | ".join(h for _, h in ORACLE_COLUMNS) + " |",
+           "|" + "---|" * len(ORACLE_COLUMNS)]
+    out += ["| " + " | ".join(cell(r.get(c, "")) for c, _ in ORACLE_COLUMNS) + " |"
+            for r in rows]
+    return "\n".join(out)
+
+
 def replace(match: re.Match) -> str:
     kind, arg = match.groups()
     if kind == "const":
         return number(attribute(arg))
     if kind == "list":
         return ", ".join(number(v) for v in attribute(arg))
+    if kind == "oracle":
+        return oracle_table(arg)
     if kind == "source":
         text = (ROOT / arg).read_text(encoding="utf-8").rstrip()
         return f"```python\n{text}\n```" if arg.endswith(".py") else f"```\n{text}\n```"
