@@ -11,9 +11,11 @@ from __future__ import annotations
 import os
 import time
 from collections.abc import Callable, Mapping
-from typing import Any
+from typing import TYPE_CHECKING, Any
 
 import numpy as np
+import pyopencl as cl
+from numpy.typing import DTypeLike
 
 from clnlos.config import (
     ReconstructionConfig,
@@ -34,7 +36,11 @@ from clnlos.io.files import read_volume
 from clnlos.io.outputs import provenance
 from clnlos.runtime.device import get_queue
 
+if TYPE_CHECKING:  # annotations only: matplotlib is imported when a figure is drawn
+    from matplotlib.axes import Axes
+
 PathLike = str | os.PathLike
+Device = str | cl.CommandQueue | None  # a device spec ("cpu", "0:0", "pocl") or a queue
 CONFIG_FIELDS = tuple(ReconstructionConfig.__dataclass_fields__)
 
 
@@ -58,7 +64,8 @@ def load_scene(scene: PathLike | Scene | Mapping[str, Any]) -> Scene:
     return Scene.from_toml(scene)
 
 
-def simulate(scene: PathLike | Scene | Mapping[str, Any], *, dtype=np.float32, device=None,
+def simulate(scene: PathLike | Scene | Mapping[str, Any], *, dtype: DTypeLike = np.float32,
+             device: Device = None,
              progress: Callable[[str, int, int], None] | None = None) -> Capture:
     """Simulate the confocal capture of a scene (``clnlos simulate`` without the files).
 
@@ -153,7 +160,7 @@ def with_slab(config: ReconstructionConfig, capture: Capture, *, no_slab: bool =
 
 def reconstruct(capture: Capture | PathLike, method: str | None = None, *,
                 config: PathLike | Mapping[str, Any] | ReconstructionConfig | None = None,
-                no_slab: bool = False, dtype=np.float32, device=None,
+                no_slab: bool = False, dtype: DTypeLike = np.float32, device: Device = None,
                 names: Mapping[str, str] | None = None,
                 log: Callable[[str], None] | None = None,
                 progress: Callable[[int, int], None] | None = None,
@@ -187,9 +194,10 @@ def reconstruct(capture: Capture | PathLike, method: str | None = None, *,
     return rec
 
 
-def plot_volume(volume: Reconstruction | np.ndarray | PathLike, ax=None, *,
+def plot_volume(volume: Reconstruction | np.ndarray | PathLike, ax: Axes | None = None, *,
                 extents: Mapping[str, float] | None = None, view: str = "xy",
-                gamma: float | None = None, log: bool = False, colorbar: bool = True):
+                gamma: float | None = None, log: bool = False,
+                colorbar: bool = True) -> Axes:
     """Draw a volume on matplotlib axes and return them (a new figure's when ``ax`` is None).
 
     ``volume``: a :class:`~clnlos.inverse.pipeline.Reconstruction`, an array ``[z, y, x]``
