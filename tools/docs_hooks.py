@@ -42,7 +42,7 @@ ORACLE_COLUMNS = (("capture", "capture"), ("method", "method"), ("seeds", "seeds
 
 def number(v) -> str:
     """1e4, 0.7, 3e5, 0.15 (a compact %g without the exponent's sign and zero padding)."""
-    s = f"{float(v):g}"
+    s = f"{float(v):.3g}"
     return re.sub(r"e\+?(-?)0*(\d)", r"e\1\2", s)
 
 
