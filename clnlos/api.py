@@ -48,7 +48,7 @@ def read_capture(path: PathLike) -> Capture:
     """Read a confocal capture: clnlos or y-tal HDF5, MATLAB ``.mat`` (CDT, LCT and f-k
     layouts) or NumPy ``.npy`` ``[t, y, x]``, chosen by content.
 
-    Returns a :class:`clnlos.io.capture.Capture`: ``transient`` ``[t, y, x]``,
+    Returns a ``clnlos.io.capture.Capture``: ``transient`` ``[t, y, x]``,
     ``bin_width_s`` (s), ``start_s`` (s, round trip of bin 0 from the scan plane),
     ``scan_width_m`` (m, side along x) and the file's attributes (a clnlos simulation records
     its scene and slab there)."""
@@ -56,7 +56,7 @@ def read_capture(path: PathLike) -> Capture:
 
 
 def load_scene(scene: PathLike | Scene | Mapping[str, Any]) -> Scene:
-    """A :class:`clnlos.forward.scene.Scene` from a TOML path, a parsed table or a Scene."""
+    """A ``clnlos.forward.scene.Scene`` from a TOML path, a parsed table or a Scene."""
     if isinstance(scene, Scene):
         return scene
     if isinstance(scene, Mapping):
@@ -69,13 +69,13 @@ def simulate(scene: PathLike | Scene | Mapping[str, Any], *, dtype: DTypeLike = 
              progress: Callable[[str, int, int], None] | None = None) -> Capture:
     """Simulate the confocal capture of a scene (``clnlos simulate`` without the files).
 
-    ``scene``: a scene TOML path, its parsed table or a :class:`~clnlos.forward.scene.Scene`.
+    ``scene``: a scene TOML path, its parsed table or a ``clnlos.forward.scene.Scene``.
     ``device``: an OpenCL device spec (``"cpu"``, ``"0:0"``, ...) or queue (default: as the
     CLI). ``progress(stage, done, total)`` is called as each recorded stage finishes.
 
     Returns the capture ``[t, y, x]`` (float32; photon counts with a ``[detector]``, else
     1/(m^2 sr) per bin), with its geometry and the attributes a capture file records (scene,
-    slab, stages, ``seconds`` of simulation, provenance), so :func:`reconstruct` applies the
+    slab, stages, ``seconds`` of simulation, provenance), so ``reconstruct`` applies the
     recorded slab as it does for a file."""
     sc = load_scene(scene)
     t0 = time.perf_counter()
@@ -98,8 +98,8 @@ def reconstruction_config(config: PathLike | Mapping[str, Any] | ReconstructionC
                           names: Mapping[str, str] | None = None,
                           **options: Any) -> ReconstructionConfig:
     """The validated reconstruction parameters: ``config`` (a TOML path, its parsed table or a
-    :class:`~clnlos.config.ReconstructionConfig`; default the built-in defaults), then
-    ``method`` and ``options`` (:class:`~clnlos.config.ReconstructionConfig` field names,
+    ``clnlos.config.ReconstructionConfig``; default the built-in defaults), then
+    ``method`` and ``options`` (``clnlos.config.ReconstructionConfig`` field names,
     e.g. ``snr=1e5``, ``iterations=50``, ``slab={"thickness_m": 0.0254, ...}``) over it.
 
     A field the method does not read is refused, naming it as ``names`` says (the CLI passes
@@ -135,8 +135,8 @@ def reconstruction_config(config: PathLike | Mapping[str, Any] | ReconstructionC
 def check_capture(capture: Capture, config: ReconstructionConfig, *,
                   names: Mapping[str, str] | None = None) -> None:
     """The checks a reconstruction runs on a capture before any work: its geometry and time
-    window (:func:`clnlos.inverse.pipeline.resolve_geometry`), some signal, light inside the
-    kept window (:func:`clnlos.config.check_light_in_window`)."""
+    window (``clnlos.inverse.pipeline.resolve_geometry``), some signal, light inside the
+    kept window (``clnlos.config.check_light_in_window``)."""
     names = dict(names or {})
     bw, start, _ = resolve_geometry(capture, config, names=names)
     if not np.any(capture.transient):
@@ -149,7 +149,7 @@ def check_capture(capture: Capture, config: ReconstructionConfig, *,
 def with_slab(config: ReconstructionConfig, capture: Capture, *, no_slab: bool = False
               ) -> tuple[ReconstructionConfig, str | None]:
     """(config, note): a config without a slab takes the one the capture recorded (a clnlos
-    simulation; :func:`clnlos.inverse.pipeline.setup_slab`) unless ``no_slab``; the note says
+    simulation; ``clnlos.inverse.pipeline.setup_slab``) unless ``no_slab``; the note says
     which (None where the config names its slab)."""
     if no_slab:
         return config.replace(slab=None), None
@@ -168,15 +168,15 @@ def reconstruct(capture: Capture | PathLike, method: str | None = None, *,
                 **options: Any) -> Reconstruction:
     """Reconstruct the hidden albedo volume of a capture, as ``clnlos reconstruct`` does.
 
-    ``capture``: a :class:`~clnlos.io.capture.Capture` or a file path (:func:`read_capture`).
+    ``capture``: a ``clnlos.io.capture.Capture`` or a file path (``read_capture``).
     ``method``: ``"lct"`` (light-cone transform), ``"fk"`` (f-k migration) or
     ``"iterative"`` (regularised inversion of the light-cone operator; default the config's,
-    else ``"lct"``). ``config`` and ``options``: :func:`reconstruction_config`. Without a slab
+    else ``"lct"``). ``config`` and ``options``: ``reconstruction_config``. Without a slab
     in them the slab the capture recorded is deconvolved first (``no_slab=True`` skips it);
     the note saying so goes to ``log`` (default: the first of ``Reconstruction.notes``).
     ``progress(k, n)`` follows the iterative method's iterations, ``setup(step)`` its set-up.
 
-    Returns a :class:`clnlos.inverse.pipeline.Reconstruction`: ``volume`` ``[z, y, x]``
+    Returns a ``clnlos.inverse.pipeline.Reconstruction``: ``volume`` ``[z, y, x]``
     (albedo, a.u.; depth bin k spans [k, k + 1) c dt / 2 behind the scan plane), ``extents``
     (m), ``params`` (the SNRs and rules that ran), ``notes``, ``timings_s``."""
     if not isinstance(capture, Capture):
@@ -200,7 +200,7 @@ def plot_volume(volume: Reconstruction | np.ndarray | PathLike, ax: Axes | None 
                 colorbar: bool = True) -> Axes:
     """Draw a volume on matplotlib axes and return them (a new figure's when ``ax`` is None).
 
-    ``volume``: a :class:`~clnlos.inverse.pipeline.Reconstruction`, an array ``[z, y, x]``
+    ``volume``: a ``clnlos.inverse.pipeline.Reconstruction``, an array ``[z, y, x]``
     (with ``extents`` in m, else voxel indices) or a volume file of ``clnlos reconstruct``.
     ``view``: ``"xy"`` (maximum over depth), ``"xz"`` / ``"yz"`` (maximum over y / x, depth
     down the vertical axis), ``"depth"`` (depth of the brightest voxel, m). ``gamma`` or

@@ -105,6 +105,15 @@ from clnlos.runtime.spectrum_cache import SpectrumCache
 
 @dataclass
 class Reconstruction:
+    """What a reconstruction returns: ``volume`` [z, y, x] float (albedo, a.u.), the time and
+    scan geometry it used (``bin_width_s`` s, ``scan_width_m`` m), the ``stages`` that ran
+    and their ``timings_s`` (s), ``params`` (every parameter, with the SNRs used and the rules
+    that chose them: ``snr_used``, ``snr_rule_used``, ``inversion_snr_used``, ...), the
+    preprocessed ``transient`` when kept, ``extents`` (``depth_min_m``, ``depth_max_m``,
+    ``voxel_depth_m``, ``x_min_m`` ... ``y_max_m``, ``voxel_lateral_m``: m), ``noise`` (the
+    capture's noise estimate), ``solver`` (the iterative solver's report) and ``notes`` (one
+    line each, for the user)."""
+
     volume: np.ndarray
     bin_width_s: float
     scan_width_m: float

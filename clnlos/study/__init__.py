@@ -1,7 +1,7 @@
 """The material study: how a hidden target's BRDF changes what NLOS reconstruction recovers.
 
-:func:`run` is the study of ``clnlos study`` (``clnlos.study.run(...)`` from Python); the
-stages live in :mod:`clnlos.study.run` (the module, imported by name:
+``run`` is the study of ``clnlos study`` (``clnlos.study.run(...)`` from Python); the
+stages live in ``clnlos.study.run`` (the module, imported by name:
 ``from clnlos.study.run import StudyOptions``)."""
 
 from __future__ import annotations
@@ -21,7 +21,7 @@ def run(out_dir: str | os.PathLike = "out/study", *, full: bool = False,
         device: str | None = None) -> dict:
     """Run the material study and write ``out_dir/report.html`` and ``results.json``.
 
-    ``options``: a :class:`clnlos.study.run.StudyOptions`; default the quick study
+    ``options``: a ``clnlos.study.run.StudyOptions``; default the quick study
     (``StudyOptions.quick()``, about 3 minutes on 2 CPU cores) or with ``full`` the full one.
     ``method`` (reconstruction method), ``labels`` (what the CNN learns: "legibility", "nr",
     "fft"), ``real_data`` (a folder whose ``cdt/`` holds the real CDT captures),
