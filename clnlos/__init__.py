@@ -1,5 +1,13 @@
 """clnlos: OpenCL kernels for non-line-of-sight imaging through scattering slabs.
 
+The Python API (:mod:`clnlos.api`, the functions the CLI calls)::
+
+    import clnlos
+    capture = clnlos.simulate("scene.toml")          # or clnlos.read_capture("x.mat")
+    rec = clnlos.reconstruct(capture, method="lct")  # the recorded slab is deconvolved
+    clnlos.plot_volume(rec)                          # matplotlib axes
+    clnlos.study.run("out/study")                    # the material study
+
 The packages follow the physics (docs/architecture.md): :mod:`clnlos.physics` (pure slab,
 grid and light-cone physics), :mod:`clnlos.diffusion` (the slab transmittance, stage 1),
 :mod:`clnlos.forward` (scene -> capture), :mod:`clnlos.operators` (operators with adjoints),
@@ -11,7 +19,29 @@ grid and light-cone physics), :mod:`clnlos.diffusion` (the slab transmittance, s
 Array axis order everywhere: transients ``[t, y, x]``, volumes ``[z, y, x]``; SI units.
 """
 
-__version__ = "0.1.0"
+__version__ = "0.2.0"
 
 C0 = 299_792_458.0
 """Speed of light in vacuum, m/s."""
+
+import importlib  # noqa: E402
+
+# the API after the constants its modules import from here
+from clnlos.api import (  # noqa: E402
+    plot_volume,
+    read_capture,
+    reconstruct,
+    reconstruction_config,
+    simulate,
+)
+
+__all__ = ["C0", "__version__", "plot_volume", "read_capture", "reconstruct",
+           "reconstruction_config", "simulate", "study"]
+
+
+def __getattr__(name: str):
+    """``clnlos.study`` on first use (PEP 562): the study's imports (scipy.signal, the
+    dataset's workers) stay out of ``import clnlos`` until a study runs."""
+    if name == "study":
+        return importlib.import_module("clnlos.study")
+    raise AttributeError(f"module 'clnlos' has no attribute {name!r}")

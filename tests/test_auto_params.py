@@ -147,7 +147,7 @@ def test_lightcone_snr_of_counts_from_their_noise(tiny_capture, queue):
 def test_upre_lightcone_snr_falls_as_the_slab_snr_rises(tiny_capture, queue):
     """The light-cone UPRE adapts to the slab deconvolution before it: a deeper slab
     deconvolution (higher slab SNR) leaves more amplified noise, and the light-cone SNR
-    chosen for it falls (the low-exposure diagnosis, tools/results/lct_low_exposure_*:
+    chosen for it falls (the low-exposure diagnosis, tools/results/experiments/lct_low_exposure/lct_low_exposure_*:
     at the slab SNR the LCT needs, UPRE's light-cone SNR gives the oracle's IoU; at GCV's
     lower slab SNR it rises towards its cap)."""
     cap, _ = tiny_capture
@@ -177,7 +177,7 @@ def test_auto_within_the_oracle_gap(tiny_capture, queue, method):
     best, 0.004 above auto's: LCT 0.736 against 0.522, f-k 0.699 against 0.703); the GCV
     rule it replaced takes a slab SNR well below the photon rule's (the data hold less than
     the photons say). The comparison of the rules is over many captures
-    (tools/results/oracle_*.csv)."""
+    (tools/results/experiments/oracle/oracle_*.csv)."""
     cap, mask = tiny_capture
     row = compare_method(cap, mask, method, queue=queue)
     assert row["auto_snr_rule"] == "reproducibility", row

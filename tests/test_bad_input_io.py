@@ -367,7 +367,7 @@ def test_bench_report_is_written_atomically_and_a_full_disk_names_it(tmp_path, m
 
 
 def test_bench_rows_are_written_together_with_the_umask_mode(tmp_path):
-    from clnlos.bench.harness import write_rows
+    from clnlos.bench.harness import read_rows, write_rows
 
     old = os.umask(0o022)
     try:
@@ -376,6 +376,7 @@ def test_bench_rows_are_written_together_with_the_umask_mode(tmp_path):
         os.umask(old)
     for p in paths:
         assert stat.S_IMODE(p.stat().st_mode) == 0o644, p
-    assert json.loads(paths[1].read_text()) == [{"kernel": "k", "median_s": 1.0}]
+    assert read_rows(paths[1]) == [{"kernel": "k", "median_s": 1.0}]
+    assert json.loads(paths[1].read_text())["provenance"]["clnlos_version"]
     assert paths[0].read_text().splitlines() == ["kernel,median_s", "k,1.0"]
     _no_temporaries(tmp_path)

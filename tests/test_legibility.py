@@ -71,6 +71,19 @@ def test_identification_tolerates_a_one_cell_shift():
     assert identify(img, tpl)[0] == "P"
 
 
+@pytest.mark.parametrize("level", [0.9, 0.95, 0.99])
+def test_wilson_interval_is_scipys(level):
+    """The hand-written interval (no scipy.stats import on the CLI's start) equals
+    scipy.stats.binomtest(k, n).proportion_ci(method="wilson") on every k of small and large
+    n (scipy's is the reference; the ends are clipped to [0, 1] as there)."""
+    for n in (1, 2, 7, 8, 16, 20, 80, 1000):
+        for k in sorted({0, 1, n // 3, n // 2, n - 1, n}):
+            ref = binomtest(k, n).proportion_ci(level, method="wilson")
+            lo, hi = wilson_interval(k, n, level)
+            assert lo == pytest.approx(ref.low, abs=1e-12), (k, n)
+            assert hi == pytest.approx(ref.high, abs=1e-12), (k, n)
+
+
 def test_wilson_interval_covers_like_the_exact_one():
     lo, hi = wilson_interval(8, 8)
     assert hi == 1.0 and 0.6 < lo < 0.7  # 0.676 for 8/8

@@ -169,6 +169,10 @@ def test_wheel_ships_kernels_and_runs_them(tmp_path):
               for p in (ROOT / "clnlos").rglob("*.py") if "__pycache__" not in p.parts}
     source |= {f"clnlos/kernels/{p.name}" for p in (ROOT / "kernels").glob("*.py")}
     assert shipped == source, (sorted(shipped - source), sorted(source - shipped))
+    assert "clnlos/py.typed" in names  # PEP 561: the API's annotations reach type checkers
+    import clnlos
+
+    assert whl.name.startswith(f"clnlos-{clnlos.__version__}-")  # the one stated version
     for k in (ROOT / "kernels").glob("*.[ch]*"):
         if k.suffix in (".cl", ".h"):
             assert f"clnlos/kernels/{k.name}" in names, k.name

@@ -172,7 +172,7 @@ def real(shared: Path) -> dict:
 
 
 def main(argv=None) -> int:
-    from clnlos.io.outputs import write_group
+    from clnlos.io.outputs import provenance, stamp, write_group
     from clnlos.runtime.device import get_queue
 
     ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
@@ -188,7 +188,8 @@ def main(argv=None) -> int:
         print(f"hidden_face_kernel: {shared / 'cdt'} not present, real captures skipped",
               file=sys.stderr)
     with write_group([OUT]) as (tmp,):
-        tmp.write_text(json.dumps(res, indent=1) + "\n")
+        tmp.write_text(json.dumps(stamp({"provenance": provenance(device=q.device.name.strip()),
+                                         **res}), indent=1) + "\n")
     print(f"wrote {OUT}")
     return 0
 

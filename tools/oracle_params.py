@@ -1,31 +1,31 @@
 """The auto reconstruction parameters against the oracle grid and across exposures
-(:mod:`clnlos.bench.oracle`): writes tools/results/oracle_params.{csv,json} and
-tools/results/exposure_sweep.{csv,json} and prints the worst gaps.
+(:mod:`clnlos.bench.oracle`): writes tools/results/experiments/oracle/oracle_params.{csv,json}
+and exposure_sweep.{csv,json} and prints the worst gaps (every file below is in that folder).
 
     .venv/bin/python tools/oracle_params.py [--device P:D] [--iterations N] [--no-sweep]
         [--no-table] [--case NAME_PART ... --update] [--methods M ...]
         [--seeds S ...]   (the table over these noise seeds, with mean and spread:
-                           tools/results/oracle_seeds{,_summary}.{csv,json}; with --update
+                           oracle_seeds{,_summary}.{csv,json}; with --update
                            the rows of other cases and methods are kept)
         [--holdout]       (HOLDOUT_CASES instead of ORACLE_CASES, with --seeds:
-                           tools/results/oracle_holdout{,_summary}.{csv,json})
+                           oracle_holdout{,_summary}.{csv,json})
         [--random SEED [--count N]]
                           (N captures drawn by clnlos.bench.oracle.random_cases(SEED), with
-                           --seeds: tools/results/oracle_random_SEED{,_summary}.{csv,json})
+                           --seeds: oracle_random_SEED{,_summary}.{csv,json})
         [--grids]         (with --seeds: every grid setting's IoU and the transfer test of
                            the oracle, clnlos.bench.oracle.transfer_rows:
-                           tools/results/oracle_grids{,_holdout}{,_transfer}.{csv,json};
+                           oracle_grids{,_holdout}{,_transfer}.{csv,json};
                            --methods default lct fk here)
 """
 
 from __future__ import annotations
 
 import argparse
-import json
 from pathlib import Path
 
 import numpy as np
 
+from clnlos.bench.harness import read_rows
 from clnlos.bench.oracle import (
     HOLDOUT_CASES,
     METHODS,
@@ -42,7 +42,7 @@ from clnlos.bench.oracle import (
     write_rows,
 )
 
-RESULTS = Path(__file__).resolve().parent / "results"
+RESULTS = Path(__file__).resolve().parent / "results" / "experiments" / "oracle"
 
 
 def _ordered(rows: list[dict]) -> list[dict]:
@@ -123,7 +123,7 @@ def main(argv=None) -> None:
                           if args.random is None else f"oracle_random_{args.random}")
         if args.update and stem.with_suffix(".json").is_file():
             new = {(r["capture"], r["method"], r["seed"]) for r in rows}  # other seeds kept
-            kept = [r for r in json.loads(stem.with_suffix(".json").read_text())
+            kept = [r for r in read_rows(stem.with_suffix(".json"))
                     if (r["capture"], r["method"], r.get("seed", 0)) not in new]
             rows = _ordered(kept + rows)
         print("wrote", *write_rows(rows, stem))
@@ -145,7 +145,7 @@ def main(argv=None) -> None:
         table = RESULTS / "oracle_params.json"
         if args.update and table.is_file():
             new = {(r["capture"], r["method"]) for r in rows}
-            kept = [r for r in json.loads(table.read_text())
+            kept = [r for r in read_rows(table)
                     if (r["capture"], r["method"]) not in new]
             rows = _ordered(kept + rows)
         print("wrote", *write_rows(rows, RESULTS / "oracle_params"))
@@ -160,7 +160,7 @@ def main(argv=None) -> None:
                               iterations=args.iterations, queue=args.device)
         sweep = RESULTS / "exposure_sweep.json"
         if args.update and sweep.is_file():  # the other methods' rows kept
-            kept = [r for r in json.loads(sweep.read_text()) if r["method"] not in args.methods]
+            kept = [r for r in read_rows(sweep) if r["method"] not in args.methods]
             rows = sorted(kept + rows, key=lambda r: (r["exposure_s"], r["seed"],
                                                       METHODS.index(r["method"])))
         print("wrote", *write_rows(rows, RESULTS / "exposure_sweep"))

@@ -122,7 +122,7 @@ def figure(cal, res, path: Path) -> None:
 
 def main(argv=None) -> int:
     from clnlos.forward import calibration as cal
-    from clnlos.io.outputs import write_group
+    from clnlos.io.outputs import provenance, stamp, write_group
 
     ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     ap.add_argument("--shared", default=str(SHARED), help="the shared data folder")
@@ -137,7 +137,8 @@ def main(argv=None) -> int:
         lines += [",".join(f"{r[c]:.6g}" if isinstance(r[c], float) else str(r[c])
                            for c in COLUMNS) for r in res["rows"]]
         csv_p.write_text("\n".join(lines) + "\n")
-        json_p.write_text(json.dumps({k: v for k, v in res.items() if not k.startswith("_")},
+        json_p.write_text(json.dumps(stamp({"provenance": provenance(), **{
+            k: v for k, v in res.items() if not k.startswith("_")}}),
                                      indent=1, default=float) + "\n")
         figure(cal, res, png_p)
     for p in paths:

@@ -1,6 +1,7 @@
 """The slab SNR's thinning rule (``snr_rule = "thinning"``, :mod:`clnlos.inverse.thinning`)
 against GCV's pick (``snr_rule = "gcv"``) and the stored oracle tables (:func:`clnlos.bench.oracle.
-snr_rule_rows`): writes tools/results/snr_rule_thinning[_both_ways].{csv,json} and prints
+snr_rule_rows`): writes
+tools/results/experiments/snr_rule_thinning/snr_rule_thinning[_both_ways].{csv,json} and prints
 the mean change, the worst gap and the worst change against today.
 
     .venv/bin/python tools/snr_rule_check.py [--device P:D] [--holdout-seeds 2]
@@ -16,12 +17,12 @@ run here and no oracle.
 from __future__ import annotations
 
 import argparse
-import json
 from dataclasses import replace
 from pathlib import Path
 
 import numpy as np
 
+from clnlos.bench.harness import read_rows
 from clnlos.bench.oracle import (
     HOLDOUT_CASES,
     ORACLE_CASES,
@@ -34,7 +35,9 @@ from clnlos.bench.oracle import (
 )
 from clnlos.inverse.pipeline import ReconstructionPipeline
 
-RESULTS = Path(__file__).resolve().parent / "results"
+RESULTS = Path(__file__).resolve().parent / "results" / "experiments"
+ORACLE = RESULTS / "oracle"  # the stored oracle rows (tools/oracle_params.py)
+OUT = RESULTS / "snr_rule_thinning"
 BOTH_WAYS = (1e-2, 1e2)
 # letters and bins neither the table nor the held-out captures have (48 and 64 ps bins too)
 FRESH_CASES = (
@@ -51,8 +54,8 @@ FRESH_CASES = (
 
 
 def _stored(name: str) -> list[dict]:
-    path = RESULTS / f"{name}.json"
-    return json.loads(path.read_text()) if path.exists() else []
+    path = ORACLE / f"{name}.json"
+    return read_rows(path) if path.exists() else []
 
 
 def main(argv=None) -> None:
@@ -65,7 +68,8 @@ def main(argv=None) -> None:
     ap.add_argument("--both-ways", action="store_true",
                     help="let the search lower GCV's pick too (factors 1e-2 to 1e2)")
     ap.add_argument("--out", default=None,
-                    help="results stem under tools/results (default snr_rule_thinning"
+                    help="results stem under tools/results/experiments/snr_rule_thinning "
+                         "(default snr_rule_thinning"
                          "[_both_ways]): another selection of captures keeps the stored one")
     a = ap.parse_args(argv)
     if a.both_ways:
@@ -81,7 +85,7 @@ def main(argv=None) -> None:
         rows += snr_rule_rows([replace(case, name=f"sweep {e:g} s", exposure_s=e)],
                               a.sweep_seeds, stored, queue=a.device)
     stem = a.out or "snr_rule_thinning" + ("_both_ways" if a.both_ways else "")
-    print("wrote", *write_rows(rows, RESULTS / stem))
+    print("wrote", *write_rows(rows, OUT / stem))
     change = np.array([r["rule_iou"] - r["gcv_iou"] for r in rows])
     print(f"{len(rows)} captures: mean change {change.mean():+.3f}, up by > 0.01 on "
           f"{int(np.sum(change > 0.01))}, down by > 0.01 on {int(np.sum(change < -0.01))} "

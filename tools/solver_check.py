@@ -2,8 +2,8 @@
 capture the IoU, iterations and time of the default solver (working-set steps, stopped by
 the objective's relative decrease, :mod:`clnlos.inverse.solvers`) beside plain FISTA run
 for 200 iterations (the solver and iteration count of before), both at GCV's slab pick on
-one pipeline (the same plans): writes tools/results/solver_iterations.{csv,json} and prints
-the means.
+one pipeline (the same plans): writes
+tools/results/experiments/solver/solver_iterations.{csv,json} and prints the means.
 
     .venv/bin/python tools/solver_check.py [--device P:D] [--seeds 0 ...] [--holdout]
         [--tol T ...]   (more stopping tolerances beside the default)
@@ -24,7 +24,7 @@ from clnlos.inverse.pipeline import ReconstructionPipeline, model_snr_for, resol
 from clnlos.inverse.solvers import DEFAULT_TOL
 from clnlos.study.metrics import mip_iou
 
-RESULTS = Path(__file__).resolve().parent / "results"
+RESULTS = Path(__file__).resolve().parent / "results" / "experiments" / "solver"
 PLAIN_ITERATIONS = 200  # the iterations of before (the config's default, all of them run)
 
 

@@ -22,6 +22,7 @@ from pathlib import Path
 from clnlos.bench.harness import print_table, write_rows
 from clnlos.brdf.presets import preset_table
 from clnlos.study.run import StudyOptions, study_resolution, transport_comparison
+from clnlos.io.outputs import provenance, stamp
 from clnlos.study.transport_compare import csv_rows
 
 OUT = Path(__file__).resolve().parent / "results"
@@ -66,7 +67,8 @@ def main(argv=None) -> dict:
             "samples": len(out["plan"])}
     csv_path, json_path = write_rows(rows, OUT, args.stem)
     # the JSON holds the rows and the summary (correlations, moves, statement)
-    json_path.write_text(json.dumps({"rows": out["rows"], **summary, **meta}, indent=1))
+    json_path.write_text(json.dumps(stamp({"provenance": provenance(), "rows": out["rows"],
+                                         **summary, **meta}), indent=1))
     print_table(rows, ["material", "confocal_identification", "bistatic_identification",
                        "confocal_margin", "bistatic_margin", "confocal_rank", "bistatic_rank",
                        "counts_ratio"])

@@ -8,7 +8,6 @@ import argparse
 import importlib.util
 import math
 import sys
-from dataclasses import replace
 from pathlib import Path
 
 import numpy as np
@@ -43,7 +42,6 @@ from clnlos.config import (
     SNR_RULES,
     ReconstructionConfig,
     check_geometry,
-    check_light_in_window,
     check_window,
     load_toml,
     slab_from_table,
@@ -54,7 +52,7 @@ from clnlos.errors import InputFileError, MissingDependencyError, OutputFileErro
 from clnlos.forward.scene import Scene
 from clnlos.inverse.methods import METHODS as METHOD_ENTRIES
 from clnlos.inverse.methods import default_falloffs, method_names
-from clnlos.inverse.pipeline import device_bytes_needed, resolve_geometry, setup_slab
+from clnlos.inverse.pipeline import device_bytes_needed
 from clnlos.inverse.reproducibility import kappa_min
 from clnlos.inverse.reproducibility import LIGHTCONE_SNRS as RP_LC
 from clnlos.inverse.reproducibility import SLAB_SNRS as RP_SLAB
@@ -65,13 +63,12 @@ from clnlos.io.outputs import HDF5_SUFFIXES, check_outputs
 from clnlos.physics.lobe import LOBE_TOLERANCE
 from clnlos.runtime.device import get_queue
 from clnlos.runtime.limits import capture_use, check_memory
+from clnlos import study
 from clnlos.study.dataset import MAX_WORKERS, StudyGrid, check_scheduler_address
 from clnlos.study.run import (
     LABEL_METRICS,
     TRANSPORT_CHOICES,
     StudyOptions,
-    real_capture_dir,
-    run_study,
 )
 
 DTYPES = {"float32": np.float32, "float64": np.float64}
@@ -154,11 +151,11 @@ def flag_names(args) -> dict[str, str]:
             if getattr(args, dest, None) is not None}
 
 
-def config_from_args(args, capture=None):
+def config_from_args(args) -> ReconstructionConfig:
     """The reconstruction config: TOML file (if any), overridden by flags; validated with
-    the flags' names in error messages. Without slab flags, --no-slab or a [slab] in the
-    config, the slab a clnlos capture recorded is used (:func:`clnlos.inverse.pipeline.setup_slab`).
-    """
+    the flags' names in error messages (:func:`clnlos.api.reconstruction_config`). Without
+    slab flags, --no-slab or a [slab] in the config, :func:`clnlos.api.reconstruct` takes the
+    slab a clnlos capture recorded."""
     table = load_toml(args.config) if args.config else {}
     cfg = ReconstructionConfig.from_dict(table)
     # what the user set (TOML keys, then flags): a field the method does not read is refused
@@ -174,11 +171,7 @@ def config_from_args(args, capture=None):
         base.update(slab_given)
         changes["slab"], _ = slab_from_table(
             base, names={k: flag for k, flag in SLAB_FLAGS.values()})
-    cfg = cfg.replace(**changes).validate(names)
-    if capture is not None and not args.no_slab and cfg.slab is None:
-        cfg, note = setup_slab(cfg, capture)
-        print(f"clnlos: note: {note}", file=sys.stderr)
-    return cfg
+    return cfg.replace(**changes).validate(names)
 
 
 def _pipeline_fits(capture, cfg, queue, dtype, names=None):
@@ -218,14 +211,10 @@ def cmd_reconstruct(args) -> int:
     names = flag_names(args)
     with capture_use(_pipeline_fits(args.capture, cfg, queue, DTYPES[args.dtype], names)):
         capture = read_capture(args.capture)  # the pipeline's size checked before the data
-    bw, start, _ = resolve_geometry(capture, cfg, names=names)  # before the slab note
-    if not np.any(capture.transient):
-        raise InputFileError(f"{args.capture}: the capture holds no signal (all zero): "
-                             "nothing to reconstruct")
-    check_light_in_window(capture.transient, bw, start, cfg, names=names,
-                          source=str(args.capture))
-    cfg = config_from_args(args, capture)
-    rec = reconstruct_to_files(capture, out, cfg, dtype=DTYPES[args.dtype], queue=queue)
+    rec = reconstruct_to_files(capture, out, cfg, dtype=DTYPES[args.dtype], queue=queue,
+                               no_slab=args.no_slab, names=names,
+                               log=lambda note: print(f"clnlos: note: {note}",
+                                                      file=sys.stderr))
     for note in rec.notes:
         print(f"clnlos: note: {note}", file=sys.stderr)
     total = sum(rec.timings_s.values())
@@ -563,21 +552,13 @@ def cmd_study(args) -> int:
     out = Path(args.output)
     outs = {"-o report.html": out / "report.html", "-o results.json": out / "results.json"}
     check_outputs(outs, implied=dict.fromkeys(outs), force=args.force)
-    opts = StudyOptions() if args.full else StudyOptions.quick()
-    if args.n_dataset is not None:
-        opts.n_dataset = args.n_dataset
-    if args.method is not None:
-        opts.grid = replace(opts.grid, method=args.method)
-    opts.labels = args.labels
-    if args.real_data is not None:  # checked now, not after the simulated study's minutes
-        if not args.real_data.is_dir():
-            raise InputFileError(f"--real-data {args.real_data}: "
-                                 + ("not a folder" if args.real_data.exists()
-                                    else "no such folder"))
-        opts.real_data = args.real_data if real_capture_dir(args.real_data) else None
-    if args.transport is not None:
-        opts.transport = args.transport
-    res = run_study(out, opts.validate(), workers=args.workers, scheduler=args.scheduler,
+    if args.real_data is not None and not args.real_data.is_dir():  # not after the minutes
+        raise InputFileError(f"--real-data {args.real_data}: "
+                             + ("not a folder" if args.real_data.exists()
+                                else "no such folder"))
+    res = study.run(out, full=args.full, method=args.method, labels=args.labels,
+                    real_data=args.real_data, transport=args.transport,
+                    n_dataset=args.n_dataset, workers=args.workers, scheduler=args.scheduler,
                     device=args.device)
     for geo in res["geometries"]:
         print(f"geometry {geo['name']}: {geo['description']}; stroke / resolution "

@@ -8,9 +8,10 @@ from pathlib import Path
 
 import numpy as np
 
+from clnlos.api import reconstruct
 from clnlos.app.progress import progress_bar, stage
 from clnlos.config import ReconstructionConfig
-from clnlos.inverse.pipeline import Reconstruction, reconstruct
+from clnlos.inverse.pipeline import Reconstruction
 from clnlos.io.capture import Capture
 from clnlos.io.deflate import DeflatedArray
 from clnlos.io.figures import volume_figure as figure
@@ -44,17 +45,21 @@ def _iteration(bar) -> None:
 
 def reconstruct_to_files(capture: Capture, out, config: ReconstructionConfig, *,
                          dtype=np.float32, queue=None, title_extra: str = "",
-                         show_progress: bool = True) -> Reconstruction:
-    """Reconstruct and write the volume (HDF5) and its figure (PNG beside it) together,
-    atomically, with the provenance of the result; the iterative method shows a progress
-    bar (:mod:`clnlos.app.progress`), its set-up steps beside it, then its iterations."""
+                         show_progress: bool = True, no_slab: bool = False,
+                         names: dict[str, str] | None = None, log=None) -> Reconstruction:
+    """Reconstruct (:func:`clnlos.api.reconstruct`: the slab the capture recorded unless the
+    config names one or ``no_slab``; its note to ``log``) and write the volume (HDF5) and its
+    figure (PNG beside it) together, atomically, with the provenance of the result; the
+    iterative method shows a progress bar (:mod:`clnlos.app.progress`), its set-up steps
+    beside it, then its iterations."""
     out = Path(out)
     queue = get_queue(queue)
     bar = None
     if show_progress and config.method == "iterative":
         bar = progress_bar(config.iterations, "iterative", "it")
     try:
-        rec = reconstruct(capture, config, dtype=dtype, device=queue,
+        rec = reconstruct(capture, config=config, no_slab=no_slab, dtype=dtype, device=queue,
+                          names=names, log=log,
                           progress=None if bar is None else (lambda k, n: _iteration(bar)),
                           setup=None if bar is None else (
                               lambda step: stage(bar, f"setup: {step}")))

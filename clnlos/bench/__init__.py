@@ -10,8 +10,8 @@ Writes DIR/bench.json (one row per measurement) and DIR/bench.html (Pareto plots
 against time per kernel, and a table of recommended settings). Runs from an installed
 package (``clnlos bench``, or ``python -m clnlos.bench``): the one benchmark system (the former
 ``tools/bench_*.py`` scripts are its sections ``lightcone_grid``, ``blur_reach``,
-``brdf_measured`` and ``reconstruction_process``; their committed results stay in
-``tools/results/bench_*.csv``).
+``brdf_measured`` and ``reconstruction_process``; the committed run is
+``tools/results/bench.json``).
 """
 
 from __future__ import annotations

@@ -18,7 +18,7 @@ from pathlib import Path
 
 import numpy as np
 
-from clnlos.io.outputs import write_group
+from clnlos.io.outputs import provenance, stamp, write_group
 from clnlos.runtime.device import has_fp64, pocl_version
 
 
@@ -68,9 +68,22 @@ def timed_once(fn, queue=None):
     return out, {"median_s": dt, "min_s": dt, "max_s": dt, "repeats": 1}
 
 
+def rows_document(rows: list[dict]) -> dict:
+    """The JSON of a result table: the clnlos version first, then its provenance (version,
+    git commit, UTC time: :func:`clnlos.io.outputs.provenance`) and the rows."""
+    return stamp({"provenance": provenance(), "rows": rows})
+
+
+def read_rows(path) -> list[dict]:
+    """The rows of a result JSON: :func:`rows_document`'s, or a bare list of rows (the files
+    written before the results recorded their provenance)."""
+    doc = json.loads(Path(path).read_text(encoding="utf-8"))
+    return doc["rows"] if isinstance(doc, dict) else doc
+
+
 def write_rows(rows: list[dict], out_dir: Path, stem: str) -> tuple[Path, Path]:
-    """Write rows as CSV and JSON, atomically together (:func:`clnlos.io.outputs.write_group`);
-    returns both paths."""
+    """Write rows as CSV and JSON (:func:`rows_document`), atomically together
+    (:func:`clnlos.io.outputs.write_group`); returns both paths."""
     keys: list[str] = []
     for r in rows:
         keys.extend(k for k in r if k not in keys)
@@ -81,7 +94,7 @@ def write_rows(rows: list[dict], out_dir: Path, stem: str) -> tuple[Path, Path]:
             w.writeheader()
             w.writerows(rows)
         with open(tmp_json, "w", encoding="utf-8") as f:
-            json.dump(rows, f, indent=1)
+            json.dump(rows_document(rows), f, indent=1)
     return paths
 
 

@@ -36,6 +36,7 @@ from pathlib import Path
 
 import numpy as np
 
+from clnlos.bench.harness import rows_document
 from clnlos.config import ReconstructionConfig, slab_table
 from clnlos.forward.model import ForwardModel
 from clnlos.forward.scene import Scene
@@ -105,7 +106,8 @@ class OracleCase:
 # three shapes; 256 bins of 32 ps (8.2 ns) end well after the deepest return has decayed
 ORACLE_CASES = (
     # the seed geometry below the others' photon range (1e7 and 1e8 photons): where LCT's
-    # auto SNRs fell below the photon rule (tools/results/lct_low_exposure*.csv)
+    # auto SNRs fell below the photon rule
+    # (tools/results/experiments/lct_low_exposure/lct_low_exposure*.csv)
     OracleCase("UT 0.15 m, scan 0.3 m, 0.5 m deep, 0.01 s", "UT", 0.15, 0.5, 0.3, 0.01),
     OracleCase("UT 0.15 m, scan 0.3 m, 0.5 m deep, 0.1 s", "UT", 0.15, 0.5, 0.3, 0.1),
     OracleCase("UT 0.15 m, scan 0.3 m, 0.5 m deep, 0.05 s", "UT", 0.15, 0.5, 0.3, 0.05),
@@ -413,7 +415,9 @@ def sweep_summary(rows: list[dict]) -> list[dict]:
 
 
 def write_rows(rows: list[dict], stem) -> tuple[Path, Path]:
-    """``stem``.csv and ``stem``.json, written atomically (:func:`clnlos.io.files.atomic_path`)."""
+    """``stem``.csv and ``stem``.json (:func:`clnlos.bench.harness.rows_document`: the rows
+    with the version and commit that made them), written atomically
+    (:func:`clnlos.io.files.atomic_path`)."""
     stem = Path(stem)
     stem.parent.mkdir(parents=True, exist_ok=True)
     keys = list(dict.fromkeys(k for r in rows for k in r))
@@ -422,7 +426,8 @@ def write_rows(rows: list[dict], stem) -> tuple[Path, Path]:
     w.writeheader()
     w.writerows(rows)
     paths = stem.with_suffix(".csv"), stem.with_suffix(".json")
-    for path, text in zip(paths, (buf.getvalue(), json.dumps(rows, indent=1)), strict=True):
+    texts = (buf.getvalue(), json.dumps(rows_document(rows), indent=1))
+    for path, text in zip(paths, texts, strict=True):
         with atomic_path(path) as tmp:
             Path(tmp).write_text(text, encoding="utf-8")
     return paths

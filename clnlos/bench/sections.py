@@ -564,7 +564,7 @@ def bench_auto_params_cost(b: Bench):
 # ------------------------------------------------------------------ cost per grid and reach
 def bench_lightcone_grid(b: Bench):
     """Light-cone throughput and the cost of a density with its sampling (the rows of the
-    former per-kernel forward script, ``tools/results/bench_forward.csv``). UT letters, no
+    former per-kernel forward script). UT letters, no
     slab (:func:`ut_scene`): per grid, OpenCL (float32, float64) and numpy float64 (one cold
     run) with element-scan-point ``pairs_per_s``, errors against the float64 OpenCL run of the
     same grid; then knob ``density_per_m2@sampled``: sample_scene + light cone timed together,
@@ -608,7 +608,7 @@ def bench_blur_reach(b: Bench):
     demo scene (Table 1: UT 0.5 m behind the CDT slab, 0.3 m scan; at ``tiny`` an 8 x 8 x 128
     scan of it), each ``blur_reach_tol`` (1 = no margin) against tol 1e-5, timed as
     ForwardModel.run (light cone on the widened grid + blur + pulse). Formerly in the
-    per-kernel forward script (``tools/results/bench_forward.csv``)."""
+    per-kernel forward script."""
     base = tomllib.loads(importlib.resources.files("clnlos").joinpath(
         "data/demo_scene.toml").read_text())
     if b.size == "tiny":
@@ -635,7 +635,7 @@ MEASURED = ("nist_ptfe_white_532nm", "pbrt_cayman_550nm", "pbrt_krylon_blue_550n
 
 def bench_brdf_measured(b: Bench):
     """Neural BRDFs against the texture lookup and the analytic fit (the rows of the former
-    BRDF script, ``tools/results/bench_brdf.csv``; its texture table is :func:`bench_brdf`).
+    BRDF script; its texture table is :func:`bench_brdf`).
     Needs torch for the MLP rows and the measured data (``--brdf-data DIR``, a folder
     of ``*_gonio.csv``) for the fits; each part absent is skipped with a note.
 
@@ -702,7 +702,7 @@ WORKER = "import sys; from clnlos.bench.isolated import main; main(sys.argv[1:])
 
 def bench_reconstruction_process(b: Bench):
     """Reconstruction speed and memory, one implementation per process (the rows of the former
-    reconstruction script, ``tools/results/bench_reconstruct.csv``): per grid (4N x N x N)
+    reconstruction script): per grid (4N x N x N)
     OpenCL (FFT backend auto), OpenCL with the host FFT (CLNLOS_FFT=host), torch
     CPU float32 (skipped with a note where torch is absent) and numpy float64, each run by
     :mod:`clnlos.bench.isolated` in a fresh process, so its ``peak_mem_bytes`` is its own:

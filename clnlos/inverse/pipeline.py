@@ -6,96 +6,24 @@ Stages (each a plan built once for the capture's shape, dtype and device):
    t = 0 (using ``start_s``), crops to ``max_path_m`` of round-trip path and rebins to
    ``bins`` bins (sums of overlapping bins, never point samples); then normalisation.
 2. ``deconvolve`` (only with a slab): Wiener deconvolution of Phi * Phi
-   (:mod:`clnlos.forward.blur`).
+   (:mod:`clnlos.forward.blur`), W = conj(H) / (|H|^2 + 1/SNR), H at unit DC gain.
 3. ``invert``: a registered method (:mod:`clnlos.inverse.methods`): LCT
    (:mod:`clnlos.inverse.lct`), f-k migration (:mod:`clnlos.inverse.fk`) or the regularised
    iterative inversion (:mod:`clnlos.inverse.iterative`).
 
-SNRs given as "auto" are chosen from the data (:mod:`clnlos.inverse.gcv`), each on its own
-filter's grid. The slab's: generalised cross-validation on the preprocessed transient
-(whose Poisson noise is white; GCV's pick equals that of the unbiased predictive risk
-estimate with the known Poisson floor), then combined with the model's accuracy
-(:func:`model_snr_for`). The light cone's, on the deconvolved transient resampled to v =
-t^2, where the slab deconvolution and the resampling have coloured the noise: for photon
-counts the unbiased predictive risk estimate with that noise spectrum,
-
-    U(lam) = sum_k (1 - phi_k)^2 |Y_k|^2 + 2 sum_k phi_k N_k,  phi_k = |H_k|^2 / (|H_k|^2 + lam)
-
-with N_k = |F[n]_k|^2 of one noise realisation n carried through the same linear steps
-(Gaussian of the counts' variance, :meth:`ReconstructionPipeline._noise_like`;
-:meth:`clnlos.inverse.lct.LCT.upre_snr`), and GCV for data that are not counts (no noise model).
-On the oracle table (:mod:`clnlos.bench.oracle`, 3 noise seeds) GCV's white-noise
-assumption put the light-cone SNR up to 7x too low (a 0.7 m deep '+' : 1.3e3 against
-UPRE's 1e4, LCT IoU 0.59 against 0.66). The same noise realisation sets the iterative
-method's "auto" L1 weight (twice max(L^T n), :mod:`clnlos.inverse.iterative`).
-
-The SNRs of LCT and f-k by default (``snr_rule = "auto"``, on photon counts the slab model
-fits exactly): the least regularised (slab, light-cone) setting of a decade grid whose
-reconstructions from the two halves of a binomial split of the counts give agreeing
-thresholded images (:mod:`clnlos.inverse.reproducibility`,
-:meth:`ReconstructionPipeline.reproducibility_snrs`). The rule below (GCV with a floor,
-UPRE for the light cone) is the one measured captures get (their model error is the same
-in both halves) and ``snr_rule = "gcv"`` names.
-
-The slab SNR of LCT and f-k under the GCV rule. GCV's slab SNR is the
-predictive-risk optimum of the slab stage alone (within two steps of 16 per decade of the
-true optimum on 5 captures). That deconvolution leaves the smoothed transient Phi I
-(Phi = W B, the filter's influence,
-:meth:`clnlos.operators.spectral.SpectralFilter.influence`), and a closed-form inverse
-takes the smoothing for light from the hidden side. At the seed geometry at 1e7 photons LCT drew
-bright arcs at the scan border in front of the target (IoU 0.38 against an oracle of 0.57,
-3 seeds), even from the noise-free capture deconvolved at the same SNR (0.40). The two
-closed forms therefore take a deeper deconvolution, at least CLOSED_FORM_SLAB_SNR_MIN
-(:attr:`clnlos.inverse.methods.Inversion.slab_snr_min`, :func:`method_slab_snr`), and leave
-the noise it passes to what follows: LCT's light-cone filter, whose UPRE sees that noise
-through the probe, and f-k's thresholded image. This is the balance of a two-stage
-regularised deconvolution (ForWaRD, Neelamani, Choi & Baraniuk, IEEE Trans. Signal Process.
-52, 2004): the first stage regularised less than it would be alone. f-k, which regularises
-nothing after the slab stage, moves further, to the geometric mean of GCV's pick and the
-photon rule's where that is higher
-(:attr:`clnlos.inverse.methods.Inversion.slab_snr_toward_photons`): at 1e9-3e10 photons its
-oracle deconvolves to 1e6-1e7 where GCV picks 2e5-2e6 (a 'C' at 1.4e9 photons: 0.54 at the
-floor, 0.70 at the mean, oracle 0.73). The floor was chosen on the oracle table and the
-first eight held-out captures (LCT's worst gap with floors 3e4, 1e5 and 3e5: 0.16, 0.08,
-0.06; with factors 3 and 5 on GCV's pick: 0.13, 0.09), the mean after all sixteen
-(:data:`clnlos.bench.oracle.HOLDOUT_CASES`); the grid of LCT and f-k reached slab SNRs of
-1e7 then (it reaches 1e8 now; tools/results/oracle_seeds*, oracle_holdout* hold the
-default's rows, the GCV rule's IoU beside them). On the table (3 seeds) the worst gap is
-0.05 for LCT (0.20 at GCV's pick) and for f-k (0.05). On the 16 held-out captures (2 seeds)
-gaps above 0.08: LCT 3 of 16 (7 at GCV's pick; worst 0.14, the 'C', whose oracle
-deconvolves to 1e7), f-k 1 (8; 0.20, a 12 cm 'U' whose oracle image is a blob below the
-filled box's IoU). The raised SNR also sets the tail fill's cut level (:func:`cut_level`)
-for these methods. It has no config key: a configured slab SNR (a number) is used as given.
-The iterative method models Phi (``slab_model = "influence"``, :mod:`clnlos.inverse.iterative`)
-and takes GCV's pick by default; with ``snr_rule = "thinning"`` (on counts) it may take a
-deeper one: the counts are split binomially into two independent Poisson halves, and GCV's
-pick is raised by half-decade steps while a reconstruction of the first half predicts the
-second half's deconvolved transient significantly better
-(:meth:`ReconstructionPipeline.thinning_factor`, :mod:`clnlos.inverse.thinning`; 2-3
-reconstructions of half the data more). On a measured capture the model's accuracy
-(MEASURED_MODEL_SNR) is combined with the raised value and dominates it: LCT and f-k take
-about MEASURED_MODEL_SNR there whatever GCV's pick.
-
-A split search's candidates share what does not depend on them
-(:class:`PreparedCapture`): each half is preprocessed, normalised and its GCV pick taken
-once, deconvolved once per slab SNR (a tail fill once per fill SNR) and its noise
-realisation preprocessed once; the last hold the volumes a search compares.
-
-Measured for the light-cone stage at GCV's slab SNR and rejected
-(tools/results/lct_low_exposure_criteria.csv): UPRE of the composed estimate on the raw data
-(flat in the slab SNR), a light-cone risk against a deep-deconvolution reference, the
-solution-domain risks of either filter (the dead frequencies' noise dominates them), the
-discrepancy principle (the residual never reaches the noise level at the seed geometry),
-LCT's light cone with Phi folded in (a locally linear t -> v map: no better), the oracle
-per-frequency Wiener filter knowing the true signal spectrum (LCT IoU 0.12 against 0.52), the
-L-curve corner (none on the 'S'), the one-standard-error rule (the risk curves are sharper
-than a grid step) and wider time bins (2x: LCT +0.05, iterative -0.05 at 1e7 photons; 4x:
-both lower).
-
-On noise-free data (:attr:`clnlos.inverse.snr.NoiseEstimate.noise_free`: nothing to
-cross-validate against) the rule of :mod:`clnlos.inverse.snr` stands in, which there gives the
-caps SNR_MAX and LIGHTCONE_SNR_MAX (it is also what :func:`auto_snrs` gives when no data
-SNR is passed).
+SNRs given as "auto" are chosen from the data, each on its own filter's grid
+(:mod:`clnlos.inverse.gcv`): the slab's by generalised cross-validation on the preprocessed
+transient (for LCT and f-k at least ``Inversion.slab_snr_min``, f-k toward the photon
+rule's, :func:`method_slab_snr`), combined with the slab model's accuracy
+(:func:`model_snr_for`: exact for a capture simulated with this slab, else
+MEASURED_MODEL_SNR) as 1/SNR = 1/SNR_data + 1/SNR_model; the light cone's on the
+deconvolved transient by the unbiased predictive risk estimate with the capture's own noise
+carried through the same steps (photon counts), else by GCV. On photon counts the slab model
+fits exactly a split search may choose them instead (:mod:`clnlos.inverse.reproducibility`
+for LCT and f-k, :mod:`clnlos.inverse.thinning` for the iterative method by name); a
+:class:`PreparedCapture` shares what the candidates of a search do not change. Which rule
+runs on which capture, and how each was chosen: docs/parameters.md and
+docs/validation/parameter-rules.md.
 
 Output volume [z, y, x]: depth bin k spans [k, k+1) * c * dt / 2 behind the scan plane
 (the slab's hidden face), x and y the scan-cell centres, x increasing with the column
@@ -177,6 +105,15 @@ from clnlos.runtime.spectrum_cache import SpectrumCache
 
 @dataclass
 class Reconstruction:
+    """What a reconstruction returns: ``volume`` [z, y, x] float (albedo, a.u.), the time and
+    scan geometry it used (``bin_width_s`` s, ``scan_width_m`` m), the ``stages`` that ran
+    and their ``timings_s`` (s), ``params`` (every parameter, with the SNRs used and the rules
+    that chose them: ``snr_used``, ``snr_rule_used``, ``inversion_snr_used``, ...), the
+    preprocessed ``transient`` when kept, ``extents`` (``depth_min_m``, ``depth_max_m``,
+    ``voxel_depth_m``, ``x_min_m`` ... ``y_max_m``, ``voxel_lateral_m``: m), ``noise`` (the
+    capture's noise estimate), ``solver`` (the iterative solver's report) and ``notes`` (one
+    line each, for the user)."""
+
     volume: np.ndarray
     bin_width_s: float
     scan_width_m: float

@@ -23,48 +23,11 @@ CV falls by more than CV_SIGNIFICANCE standard errors of that cross term), the f
 on half the photons then used on the whole capture (GCV's pick scales with the photons, the
 factor with the method).
 
-Why (issue 24). GCV picks the slab stage's own optimum; the iterative method behind it
-models the smoothing that leaves (``slab_model = "influence"``) and on some captures wants a
-deeper deconvolution (a 'Y' on 48 ps bins: IoU 0.75 at GCV's pick, 0.84 at 10x), with
-nothing in the slab stage alone to show it. The held-out photons show it.
-
-Only deeper. CV_FACTOR_RANGE starts at 1: the search may raise GCV's pick, never lower it.
-On 30 captures searched both ways (seed 1 of the 16 held-out captures, the 10 table
-captures and the exposure sweep at seed 0, whose 0.01 and 0.1 s points repeat two table
-captures: 32 rows, tools/results/snr_rule_thinning_both_ways.csv) the search went below
-GCV's pick 6 times: it lowered the IoU on 5 (by 0.008-0.105; a '+' 0.75 m deep, 0.658 ->
-0.553, its blob wider) and raised it on the sweep's 1e11 photons (0.712 -> 0.785). It went
-above 15 times (16 rows): IoU up by more than 0.01 on 7 (up to +0.060, the 'C' on a
-24-point scan; the 48 ps 'Y' +0.052), down by more than 0.01 on 4 (at most 0.042, an 'F' at
-20 s that both rules draw above the oracle). That asymmetry was seen before the range was
-set, so captures it had not seen are its check (tools/results/snr_rule_thinning.csv: 22
-captures, IoU up by more than 0.01 on 11, down on 2, mean +0.011).
-
-By name (``snr_rule = "thinning"``), for the iterative method on photon counts (on a
-measured capture the model's own error, MEASURED_MODEL_SNR, exceeds the photon noise the
-score judges by, so its pick is capped there). It was the default for counts its slab model
-fits exactly until issue 38 priced it: 2-3 reconstructions of half the data on top of the
-one (the candidates share the halves' preprocessing, GCV picks and deconvolutions,
-:class:`clnlos.inverse.pipeline.PreparedCapture`; 2.5x the time of the GCV rule on the
-wide example, +0.000 IoU there), for the IoU below; ``snr_rule = "auto"`` is GCV's pick
-for the iterative method now (the bench's ``auto_params_cost`` rows price both). On the
-oracle table at three seeds it is
-neutral (tools/results/snr_rule_thinning_table.csv, 30 captures: mean change +0.001, up by
-more than 0.01 on 5, down on 4, at most 0.048); on the exposure sweep (3 seeds) it keeps
-GCV's pick at 17 of 18 points (tools/results/snr_rule_thinning_sweep.csv, beside the
-held-out captures at seed 1); on held-out captures it removes the one iterative gap to the
-oracle over 0.05 (the 48 ps 'Y', worse than today's rule on all of 5 seeds at GCV's pick,
-better on 5 of 5 thinned). With few iterations the inner runs' smoother solutions push the
-search deeper (5 iterations: 100x on a capture where 200 keep 1x).
-
-A check on captures nothing here was chosen on: draw 20261206 of
-:func:`clnlos.bench.oracle.random_cases` (16 captures, seed 1,
-tools/results/oracle_random_20261206.csv) against the oracle grid {1e2..1e5} x {1e2..1e4}:
-mean gap 0.015, within 0.05 on 13 of 16 (above it on a '+' 0.23 m at 7.5e7 photons, 0.075;
-a '+' 0.26 m, 0.064; a 'G' 0.16 m, 0.069), above the oracle on 4. Against the photon rule
-it is better on 12, and worse by more than 0.03 on one, a 'V' 0.16 m 0.75 m deep at 2.6e7
-photons (0.595 against 0.699, whose slab SNR 2.6e5 lies above the grid, where the grid's
-best is 0.611).
+By name (``snr_rule = "thinning"``), for the iterative method on photon counts: 2-3
+reconstructions of half the data on top of the one (the candidates share the halves'
+preprocessing, GCV picks and deconvolutions,
+:class:`clnlos.inverse.pipeline.PreparedCapture`). Why only deeper, what it measured and why
+it is not the default: docs/validation/parameter-rules.md.
 """
 
 from __future__ import annotations

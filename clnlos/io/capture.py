@@ -30,7 +30,7 @@ class Capture:
     """A confocal transient [t, y, x] with its time and scan geometry (SI units).
 
     The geometry is checked on construction against the one range table the flags use
-    (:data:`clnlos.config.GEOMETRY_LIMITS`): a value out of range is an InputFileError that
+    (``clnlos.config.GEOMETRY_LIMITS``): a value out of range is an InputFileError that
     names the source, what in it gave the value, and the allowed range."""
 
     transient: np.ndarray

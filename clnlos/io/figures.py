@@ -94,3 +94,61 @@ def transient_figure(tau: np.ndarray, *, width_m: float, start_s: float, bin_wid
     return fig
 
 
+
+
+VIEWS = ("xy", "xz", "yz", "depth")  # the projections volume_axes draws
+
+
+def volume_view(volume: np.ndarray, extents: dict | None, view: str, *,
+                gamma: float | None = None, log: bool = False
+                ) -> tuple[np.ndarray, tuple[float, float, float, float], str, str, str]:
+    """(image, extent (left, right, bottom, top), x label, y label, colour-bar label) of one
+    view of a volume [z, y, x]: "xy" the maximum over depth, "xz" / "yz" the maximum over y /
+    x (depth increasing downwards), "depth" the depth (m) of the brightest voxel where the
+    maximum is at least DEPTH_MAP_FLOOR of its largest value. Without ``extents`` the axes
+    count voxels."""
+    if view not in VIEWS:
+        raise ValueError(f"view {view!r}: one of {', '.join(VIEWS)}")
+    nz, ny, nx = volume.shape
+    e = extents or {"x_min_m": 0.0, "x_max_m": float(nx), "y_min_m": 0.0,
+                    "y_max_m": float(ny), "depth_min_m": 0.0, "depth_max_m": float(nz),
+                    "voxel_depth_m": 1.0}
+    unit = "m" if extents else "voxels"
+    xy = (e["x_min_m"], e["x_max_m"], e["y_min_m"], e["y_max_m"])
+    if view == "depth":
+        raw = volume.max(axis=0)
+        depth = e["depth_min_m"] + (np.argmax(volume, axis=0) + 0.5) * e["voxel_depth_m"]
+        depth = np.where(raw < DEPTH_MAP_FLOOR * max(raw.max(), 1e-300), np.nan, depth)
+        return depth, xy, f"x ({unit})", f"y ({unit})", f"depth z ({unit})"
+    if view == "xy":
+        img, label = display_scale(volume.max(axis=0), gamma, log)
+        return img, xy, f"x ({unit})", f"y ({unit})", label
+    axis = 1 if view == "xz" else 2
+    img, label = display_scale(volume.max(axis=axis), gamma, log)
+    lo, hi = ("x_min_m", "x_max_m") if view == "xz" else ("y_min_m", "y_max_m")
+    return (img, (e[lo], e[hi], e["depth_max_m"], e["depth_min_m"]), f"{view[0]} ({unit})",
+            f"depth z ({unit})", label)
+
+
+def volume_axes(volume: np.ndarray, extents: dict | None = None, *, ax=None,
+                view: str = "xy", gamma: float | None = None, log: bool = False,
+                colorbar: bool = True):
+    """Draw one view of a volume [z, y, x] (:func:`volume_view`) on matplotlib axes ``ax``
+    (a new pyplot figure's when None, so a notebook shows it), with axis labels in metres
+    and a colour bar; returns the axes."""
+    img, extent, xlabel, ylabel, label = volume_view(np.asarray(volume), extents, view,
+                                                     gamma=gamma, log=log)
+    if ax is None:
+        import matplotlib.pyplot as plt  # lazy: only a notebook figure needs pyplot
+
+        _, ax = plt.subplots(figsize=(5, 4), layout="constrained")
+    depth_view = view in ("xz", "yz")
+    im = ax.imshow(img, origin="upper" if depth_view else "lower", extent=extent,
+                   cmap="viridis" if view == "depth" else "gray",
+                   aspect="auto" if depth_view else "equal", interpolation="nearest")
+    ax.set(xlabel=xlabel, ylabel=ylabel,
+           title={"xy": "max over depth", "xz": "max over y", "yz": "max over x",
+                  "depth": "depth of the brightest voxel"}[view])
+    if colorbar:
+        ax.figure.colorbar(im, ax=ax, label=label, shrink=0.85)
+    return ax

@@ -282,8 +282,9 @@ def write_group(paths: list[Path]):
 
 
 def git_commit() -> str | None:
-    """The git commit of a source checkout clnlos runs from, else None."""
-    root = Path(__file__).resolve().parents[1]
+    """The git commit of a source checkout clnlos runs from (the folder above the package;
+    ``.git`` a folder, or a file in a worktree), else None."""
+    root = Path(__file__).resolve().parents[2]
     if not (root / ".git").exists():
         return None
     try:

@@ -261,9 +261,9 @@ def fft_backend(queue: cl.CommandQueue, settings: Settings | None = None) -> FFT
     ``CLNLOS_FFT`` (``auto`` by default) overrides: ``host`` (alias ``numpy``) or ``vkfft``
     (an error when pyvkfft's OpenCL backend cannot be imported). ``auto``: the host FFT on CPU
     devices (there the FFT runs on the same cores either way, and scipy's pocketfft measured
-    1.3-1.6x faster than VkFFT on PoCL, tools/results/bench_reconstruct.csv), and on PoCL >= 7,
-    which miscompiles VkFFT (pocl issue 2069); VkFFT elsewhere (GPUs), falling back to the host
-    with a warning when pyvkfft is missing.
+    1.3-1.6x faster than VkFFT on PoCL: ``clnlos bench --only reconstruction_process``), and
+    on PoCL >= 7, which miscompiles VkFFT (pocl issue 2069); VkFFT elsewhere (GPUs), falling
+    back to the host with a warning when pyvkfft is missing.
     """
     s = resolve(settings)
     choice = s.fft

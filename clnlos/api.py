@@ -1,0 +1,215 @@
+"""The public Python API, re-exported at the package top (``clnlos.read_capture`` ...): the
+functions the CLI commands call, so a notebook and ``clnlos reconstruct`` give the same volume.
+
+Units are SI throughout: transients ``[t, y, x]`` in photon counts (or radiance per bin for a
+noise-free simulation), volumes ``[z, y, x]`` in albedo (arbitrary units), lengths in m, times
+in s.
+"""
+
+from __future__ import annotations
+
+import os
+import time
+from collections.abc import Callable, Mapping
+from typing import TYPE_CHECKING, Any
+
+import numpy as np
+import pyopencl as cl
+from numpy.typing import DTypeLike
+
+from clnlos.config import (
+    ReconstructionConfig,
+    Slab,
+    check_light_in_window,
+    load_toml,
+    slab_from_table,
+)
+from clnlos.errors import InputFileError, ParameterError
+from clnlos.forward.model import ForwardModel
+from clnlos.forward.scene import Scene
+from clnlos.inverse.pipeline import Reconstruction, resolve_geometry, setup_slab
+from clnlos.inverse.pipeline import reconstruct as run_pipeline
+from clnlos.io.capture import Capture
+from clnlos.io.figures import volume_axes
+from clnlos.io.files import read_capture as read_any
+from clnlos.io.files import read_volume
+from clnlos.io.outputs import provenance
+from clnlos.runtime.device import get_queue
+
+if TYPE_CHECKING:  # annotations only: matplotlib is imported when a figure is drawn
+    from matplotlib.axes import Axes
+
+PathLike = str | os.PathLike
+Device = str | cl.CommandQueue | None  # a device spec ("cpu", "0:0", "pocl") or a queue
+CONFIG_FIELDS = tuple(ReconstructionConfig.__dataclass_fields__)
+
+
+def read_capture(path: PathLike) -> Capture:
+    """Read a confocal capture: clnlos or y-tal HDF5, MATLAB ``.mat`` (CDT, LCT and f-k
+    layouts) or NumPy ``.npy`` ``[t, y, x]``, chosen by content.
+
+    Returns a ``clnlos.io.capture.Capture``: ``transient`` ``[t, y, x]``,
+    ``bin_width_s`` (s), ``start_s`` (s, round trip of bin 0 from the scan plane),
+    ``scan_width_m`` (m, side along x) and the file's attributes (a clnlos simulation records
+    its scene and slab there)."""
+    return read_any(path)
+
+
+def load_scene(scene: PathLike | Scene | Mapping[str, Any]) -> Scene:
+    """A ``clnlos.forward.scene.Scene`` from a TOML path, a parsed table or a Scene."""
+    if isinstance(scene, Scene):
+        return scene
+    if isinstance(scene, Mapping):
+        return Scene.from_dict(dict(scene))
+    return Scene.from_toml(scene)
+
+
+def simulate(scene: PathLike | Scene | Mapping[str, Any], *, dtype: DTypeLike = np.float32,
+             device: Device = None,
+             progress: Callable[[str, int, int], None] | None = None) -> Capture:
+    """Simulate the confocal capture of a scene (``clnlos simulate`` without the files).
+
+    ``scene``: a scene TOML path, its parsed table or a ``clnlos.forward.scene.Scene``.
+    ``device``: an OpenCL device spec (``"cpu"``, ``"0:0"``, ...) or queue (default: as the
+    CLI). ``progress(stage, done, total)`` is called as each recorded stage finishes.
+
+    Returns the capture ``[t, y, x]`` (float32; photon counts with a ``[detector]``, else
+    1/(m^2 sr) per bin), with its geometry and the attributes a capture file records (scene,
+    slab, stages, ``seconds`` of simulation, provenance), so ``reconstruct`` applies the
+    recorded slab as it does for a file."""
+    sc = load_scene(scene)
+    t0 = time.perf_counter()
+    fm = ForwardModel(sc, dtype=dtype, queue=get_queue(device))
+    done = iter(range(1, len(fm.stages) + 1))
+    tau = fm.run(progress=None if progress is None
+                 else (lambda name: progress(name, next(done), len(fm.stages))))
+    seconds = time.perf_counter() - t0
+    attrs = {**fm.setup_attrs(), **provenance(device=fm.queue.device.name.strip()),
+             "seconds": seconds,
+             "units": "photon counts" if sc.detector else "1/(m^2 sr) per bin"}
+    ny, nx = tau.shape[1:]
+    return Capture(np.asarray(tau, np.float32), sc.bin_width_s, sc.start_s, sc.width_m,
+                   "simulated", attrs,
+                   scan_height_m=None if ny == nx else sc.width_m * ny / nx)
+
+
+def reconstruction_config(config: PathLike | Mapping[str, Any] | ReconstructionConfig | None
+                          = None, *, method: str | None = None,
+                          names: Mapping[str, str] | None = None,
+                          **options: Any) -> ReconstructionConfig:
+    """The validated reconstruction parameters: ``config`` (a TOML path, its parsed table or a
+    ``clnlos.config.ReconstructionConfig``; default the built-in defaults), then
+    ``method`` and ``options`` (``clnlos.config.ReconstructionConfig`` field names,
+    e.g. ``snr=1e5``, ``iterations=50``, ``slab={"thickness_m": 0.0254, ...}``) over it.
+
+    A field the method does not read is refused, naming it as ``names`` says (the CLI passes
+    its flags) or as the option's name."""
+    unknown = sorted(set(options) - set(CONFIG_FIELDS))
+    if unknown:
+        raise ParameterError(unknown[0], options[unknown[0]],
+                             "a reconstruction option: " + ", ".join(CONFIG_FIELDS))
+    table: dict = {}
+    if isinstance(config, ReconstructionConfig):
+        cfg = config
+    elif isinstance(config, Mapping):
+        table = dict(config)
+        cfg = ReconstructionConfig.from_dict(table)
+    elif config is not None:
+        table = load_toml(config)
+        cfg = ReconstructionConfig.from_dict(table)
+    else:
+        cfg = ReconstructionConfig()
+    changes = dict(options)
+    if method is not None:
+        changes["method"] = method
+    slab = changes.get("slab")
+    if slab is not None and not isinstance(slab, Slab):
+        changes["slab"], nd = slab_from_table(dict(slab), section="slab")
+        if nd is not None:
+            changes.setdefault("n_dipoles", nd)
+    given = {**ReconstructionConfig.given_fields(table),
+             **{f: f for f in changes if f != "method"}, **(names or {})}
+    return cfg.replace(**changes).validate(given)
+
+
+def check_capture(capture: Capture, config: ReconstructionConfig, *,
+                  names: Mapping[str, str] | None = None) -> None:
+    """The checks a reconstruction runs on a capture before any work: its geometry and time
+    window (``clnlos.inverse.pipeline.resolve_geometry``), some signal, light inside the
+    kept window (``clnlos.config.check_light_in_window``)."""
+    names = dict(names or {})
+    bw, start, _ = resolve_geometry(capture, config, names=names)
+    if not np.any(capture.transient):
+        raise InputFileError(f"{capture.source or 'the capture'}: the capture holds no signal "
+                             "(all zero): nothing to reconstruct")
+    check_light_in_window(capture.transient, bw, start, config, names=names,
+                          source=capture.source or "the capture")
+
+
+def with_slab(config: ReconstructionConfig, capture: Capture, *, no_slab: bool = False
+              ) -> tuple[ReconstructionConfig, str | None]:
+    """(config, note): a config without a slab takes the one the capture recorded (a clnlos
+    simulation; ``clnlos.inverse.pipeline.setup_slab``) unless ``no_slab``; the note says
+    which (None where the config names its slab)."""
+    if no_slab:
+        return config.replace(slab=None), None
+    if config.slab is not None:
+        return config, None
+    return setup_slab(config, capture)
+
+
+def reconstruct(capture: Capture | PathLike, method: str | None = None, *,
+                config: PathLike | Mapping[str, Any] | ReconstructionConfig | None = None,
+                no_slab: bool = False, dtype: DTypeLike = np.float32, device: Device = None,
+                names: Mapping[str, str] | None = None,
+                log: Callable[[str], None] | None = None,
+                progress: Callable[[int, int], None] | None = None,
+                setup: Callable[[str], None] | None = None,
+                **options: Any) -> Reconstruction:
+    """Reconstruct the hidden albedo volume of a capture, as ``clnlos reconstruct`` does.
+
+    ``capture``: a ``clnlos.io.capture.Capture`` or a file path (``read_capture``).
+    ``method``: ``"lct"`` (light-cone transform), ``"fk"`` (f-k migration) or
+    ``"iterative"`` (regularised inversion of the light-cone operator; default the config's,
+    else ``"lct"``). ``config`` and ``options``: ``reconstruction_config``. Without a slab
+    in them the slab the capture recorded is deconvolved first (``no_slab=True`` skips it);
+    the note saying so goes to ``log`` (default: the first of ``Reconstruction.notes``).
+    ``progress(k, n)`` follows the iterative method's iterations, ``setup(step)`` its set-up.
+
+    Returns a ``clnlos.inverse.pipeline.Reconstruction``: ``volume`` ``[z, y, x]``
+    (albedo, a.u.; depth bin k spans [k, k + 1) c dt / 2 behind the scan plane), ``extents``
+    (m), ``params`` (the SNRs and rules that ran), ``notes``, ``timings_s``."""
+    if not isinstance(capture, Capture):
+        capture = read_capture(capture)
+    cfg = reconstruction_config(config, method=method, names=names, **options)
+    check_capture(capture, cfg, names=names)
+    cfg, note = with_slab(cfg, capture, no_slab=no_slab)
+    if note and log is not None:
+        log(note)
+    queue = get_queue(device)
+    rec = run_pipeline(capture, cfg, dtype=dtype, device=queue, progress=progress,
+                       setup=setup)
+    if note and log is None:
+        rec.notes.insert(0, note)
+    return rec
+
+
+def plot_volume(volume: Reconstruction | np.ndarray | PathLike, ax: Axes | None = None, *,
+                extents: Mapping[str, float] | None = None, view: str = "xy",
+                gamma: float | None = None, log: bool = False,
+                colorbar: bool = True) -> Axes:
+    """Draw a volume on matplotlib axes and return them (a new figure's when ``ax`` is None).
+
+    ``volume``: a ``clnlos.inverse.pipeline.Reconstruction``, an array ``[z, y, x]``
+    (with ``extents`` in m, else voxel indices) or a volume file of ``clnlos reconstruct``.
+    ``view``: ``"xy"`` (maximum over depth), ``"xz"`` / ``"yz"`` (maximum over y / x, depth
+    down the vertical axis), ``"depth"`` (depth of the brightest voxel, m). ``gamma`` or
+    ``log`` rescale the display (value / max)^gamma or log10(value / max)."""
+    if isinstance(volume, Reconstruction):
+        vol, ext = volume.volume, volume.extents
+    elif isinstance(volume, np.ndarray):
+        vol, ext = volume, extents
+    else:
+        vol, ext, _ = read_volume(volume)
+    return volume_axes(np.asarray(vol), dict(ext) if ext else None, ax=ax, view=view,
+                       gamma=gamma, log=log, colorbar=colorbar)
