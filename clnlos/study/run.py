@@ -356,7 +356,8 @@ def _glyph_entries(opts: StudyOptions, geo: Geometry, material: str, glyphs, see
 
 def study_plan(materials, opts: StudyOptions) -> list[tuple[dict, dict]]:
     """Every (meta, sample) of the study: the materials at each geometry, the legibility
-    sweeps (legible geometry), the geometry sweeps (the seed's letters), the random extras."""
+    sweeps (legible geometry; on ``aware_glyphs`` where set, for every inversion alike), the
+    tilt sweep, the geometry sweeps (the seed's letters), the random extras."""
     plan = []
     for geo in opts.geometries:
         for m in materials:
@@ -367,11 +368,12 @@ def study_plan(materials, opts: StudyOptions) -> list[tuple[dict, dict]]:
         for v in values:
             for m in opts.sweep_materials:
                 kw = {"height_m": v} if var == "letter_height_m" else {"exposure_s": v}
-                plan += _glyph_entries(opts, legible, m, opts.glyphs, opts.sweep_seeds,
+                # every inversion on the same glyphs: "smallest legible" compares them
+                plan += _glyph_entries(opts, legible, m, opts.aware_glyphs or opts.glyphs,
+                                       opts.sweep_seeds,
                                        {"set": "legibility_sweep", "variable": var,
                                         "value": float(v)},
-                                       inversions=opts.sweep_inversions,
-                                       aware_glyphs=opts.aware_glyphs, **kw)
+                                       inversions=opts.sweep_inversions, **kw)
     for t in opts.tilts_deg:
         for m in opts.tilt_materials:
             plan += _glyph_entries(opts, legible, m, opts.tilt_glyphs or opts.glyphs,
