@@ -13,6 +13,7 @@ import numpy as np
 import pytest
 from scipy.ndimage import gaussian_filter
 
+from clnlos.errors import ParameterError
 from clnlos.forward.geometry import letters_mask
 from clnlos.study.clarity import clarity_label, clarity_score, label_thresholds
 from clnlos.study.classify import dihedral
@@ -332,3 +333,24 @@ def test_real_data_folder_is_named_not_searched(tmp_path, shared_data):
         assert real_capture_dir(tmp_path) is None
     assert len(caught) == 1 and "--real-data" in str(caught[0].message)
     assert real_capture_dir(shared_data) == shared_data / "cdt"
+
+
+def test_quick_plan_runs_auto_at_the_legible_geometry_and_compares_sweeps_on_equal_glyphs():
+    """The quick study: brdf auto only where auto_geometries says; every inversion of a
+    legibility sweep point on the same glyphs (smallest legible compares them)."""
+    from clnlos.brdf.presets import preset_names
+    from clnlos.study.run import LEGIBLE_GEOMETRY, study_plan
+
+    opts = StudyOptions.quick().validate()
+    plan = study_plan(list(preset_names()), opts)
+    auto_geos = {m["geometry"] for m, _ in plan if m.get("inversion") == "auto"}
+    assert auto_geos == {LEGIBLE_GEOMETRY}
+    sweep = {}
+    for m, _ in plan:
+        if m["set"] == "legibility_sweep":
+            sweep.setdefault((m["variable"], m["value"], m["material"], m["inversion"]),
+                             set()).add(m["glyph"])
+    for (var, val, mat, inv), glyphs in sweep.items():
+        assert glyphs == sweep[(var, val, mat, "lambertian")], (var, val, mat, inv)
+    with pytest.raises(ParameterError):
+        replace(opts, auto_geometries=("nowhere",)).validate()

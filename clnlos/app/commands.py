@@ -586,7 +586,7 @@ def register_study(sub, add_device) -> None:
     g.add_argument("--quick", action="store_true", help=f"built-in default: "
                    f"{len(quick.glyphs)} glyphs x {quick.seeds} noise realisation(s) per "
                    f"material and geometry, {len(quick.sweep_glyphs)} glyphs per geometry-"
-                   f"sweep point, {quick.n_dataset} extra random samples (about 3 minutes on "
+                   f"sweep point, {quick.n_dataset} extra random samples (about 5 minutes on "
                    "2 cores)")
     g.add_argument("--full", action="store_true", help=f"{len(full.glyphs)} glyphs x "
                    f"{full.seeds} noise realisations per material and geometry, "

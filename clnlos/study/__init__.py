@@ -22,7 +22,7 @@ def run(out_dir: str | os.PathLike = "out/study", *, full: bool = False,
     """Run the material study and write ``out_dir/report.html`` and ``results.json``.
 
     ``options``: a ``clnlos.study.run.StudyOptions``; default the quick study
-    (``StudyOptions.quick()``, about 3 minutes on 2 CPU cores) or with ``full`` the full one.
+    (``StudyOptions.quick()``, about 5 minutes on 2 CPU cores) or with ``full`` the full one.
     ``method`` (reconstruction method), ``labels`` (what the CNN learns: "legibility", "nr",
     "fft"), ``real_data`` (a folder whose ``cdt/`` holds the real CDT captures),
     ``transport`` ("confocal" or "both") and ``n_dataset`` (extra random samples) override

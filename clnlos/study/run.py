@@ -193,12 +193,13 @@ class StudyOptions:
     label: str = "full"
     real_data: Path | None = None       # folder holding cdt/*.mat (the real CDT captures)
     transport: str = "both"             # "both": also the bistatic comparison stage (--full);
-    #                                     "confocal": the quick default (about 3 minutes)
+    #                                     "confocal": the quick default (about 5 minutes)
     transport_glyphs: tuple[str, ...] | None = None  # the comparison's (default: glyphs)
     face_rings: int = COMPARE_RINGS     # the comparison's bistatic face samples
     face_angles: int = COMPARE_ANGLES
     inversions: tuple[str, ...] = INVERSIONS          # per material row (INVERSIONS)
     sweep_inversions: tuple[str, ...] = ("lambertian", "known")  # the legibility sweeps'
+    auto_geometries: tuple[str, ...] | None = None  # where "auto" runs (default: every one)
     aware_glyphs: tuple[str, ...] | None = None  # what the BRDF-aware inversions
     #                                               reconstruct (default: glyphs)
     tilts_deg: tuple[float, ...] = TILTS_DEG
@@ -210,10 +211,12 @@ class StudyOptions:
     def quick(cls) -> StudyOptions:
         """The built-in default (the README main job, about 5 minutes on 2 CPU cores): a
         24 x 24 scan with 64 ps bins (QUICK_GRID); one noise realisation per glyph; the
-        BRDF-aware inversions and the tilt sweep on two glyphs, the geometry sweeps on two;
+        BRDF-aware inversions and the tilt sweep on two glyphs ("auto" at the legible
+        geometry only), the geometry sweeps on two;
         legibility sweeps at the two sizes and exposures below the legible geometry's."""
         return cls(n_dataset=0, seeds=1, grid=QUICK_GRID, sweep_glyphs=("E", "H"),
-                   aware_glyphs=("E", "P"), tilts_deg=(0.0, 10.0, 20.0),
+                   aware_glyphs=("E", "P"), auto_geometries=(LEGIBLE_GEOMETRY,),
+                   tilts_deg=(0.0, 10.0, 20.0),
                    tilt_glyphs=("E", "P"), tilt_inversions=("lambertian", "known"),
                    legibility_sweeps={"letter_height_m": (0.1, 0.2),
                                       "exposure_s": (0.001, 0.01)},
@@ -260,6 +263,10 @@ class StudyOptions:
                 not self.tilt_glyphs or any(g not in self.glyphs for g in self.tilt_glyphs)):
             raise ParameterError("tilt_glyphs", self.tilt_glyphs,
                                  f"one or more of {''.join(self.glyphs)}")
+        names = {g.name for g in self.geometries}
+        if self.auto_geometries is not None and not set(self.auto_geometries) <= names:
+            raise ParameterError("auto_geometries", self.auto_geometries,
+                                 "names of the study's geometries: " + ", ".join(sorted(names)))
         if LEGIBLE_GEOMETRY not in {g.name for g in self.geometries}:
             raise ParameterError("geometries", [g.name for g in self.geometries],
                                  f"a list that includes {LEGIBLE_GEOMETRY!r}")
@@ -360,9 +367,11 @@ def study_plan(materials, opts: StudyOptions) -> list[tuple[dict, dict]]:
     tilt sweep, the geometry sweeps (the seed's letters), the random extras."""
     plan = []
     for geo in opts.geometries:
+        invs = tuple(i for i in opts.inversions if i != AUTO or opts.auto_geometries is None
+                     or geo.name in opts.auto_geometries)
         for m in materials:
             plan += _glyph_entries(opts, geo, m, opts.glyphs, opts.seeds, {"set": "main"},
-                                   inversions=opts.inversions, aware_glyphs=opts.aware_glyphs)
+                                   inversions=invs, aware_glyphs=opts.aware_glyphs)
     legible = opts.geometry(LEGIBLE_GEOMETRY)
     for var, values in opts.legibility_sweeps.items():
         for v in values:
@@ -1137,7 +1146,8 @@ def study_statement(main: dict, seed: dict | None, need: list[dict], f: dict,
            f"targets in {pct(seed['identification_lambertian_and_diffuse'])} and "
            f"strong-specular ones in {pct(seed['identification_strong_specular'])}; "
            + "; ".join(f"{names[i]} strong-specular "
-                       f"{pct(seed['by_inversion'][i]['strong_specular'])}" for i in aware)
+                       f"{pct(seed['by_inversion'][i]['strong_specular'])}" for i in aware
+                       if seed["by_inversion"][i]["strong_specular"] is not None)
            + ". " if seed else "")
         + f"Smallest legible letters (identification >= {LEGIBLE_ACCURACY:g}, the best "
         f"inversion for each material): "
