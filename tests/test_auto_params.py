@@ -147,9 +147,10 @@ def test_lightcone_snr_of_counts_from_their_noise(tiny_capture, queue):
 def test_upre_lightcone_snr_falls_as_the_slab_snr_rises(tiny_capture, queue):
     """The light-cone UPRE adapts to the slab deconvolution before it: a deeper slab
     deconvolution (higher slab SNR) leaves more amplified noise, and the light-cone SNR
-    chosen for it falls (the low-exposure diagnosis, tools/results/experiments/lct_low_exposure/lct_low_exposure_*:
-    at the slab SNR the LCT needs, UPRE's light-cone SNR gives the oracle's IoU; at GCV's
-    lower slab SNR it rises towards its cap)."""
+    chosen for it falls (the low-exposure diagnosis,
+    tools/results/experiments/lct_low_exposure/lct_low_exposure_*: at the slab SNR the LCT
+    needs, UPRE's light-cone SNR gives the oracle's IoU; at GCV's lower slab SNR it rises
+    towards its cap)."""
     cap, _ = tiny_capture
     base = ReconstructionConfig(slab=cap.recorded_slab()[0], method="lct")
     inv = [reconstruct(cap, base.replace(snr=a).validate(), device=queue

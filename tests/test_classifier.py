@@ -217,3 +217,22 @@ def test_report_names_the_largest_rise_of_p_as_photons_fall():
             for n, p in ((1e7, 0.9), (1e6, 0.7), (1e5, 0.8), (1e4, 0.2))]
     assert _trend(rows, "s") == ("s: P(legible) 0.90 with all 1e+07 photons, 0.20 with "
                                  "1e+04; largest rise as photons fall +0.10.")
+
+
+def test_report_says_when_the_classifier_is_no_verdict():
+    """The report's sentences: a split below its one-feature baseline is named; real captures
+    with P < 0.5 at all photons or a P that rises as photons fall are 'not a verdict'."""
+    from clnlos.study.classifier_report import baseline_verdict, real_verdict
+
+    good = {k: {"balanced_accuracy": 0.9, "baseline": 0.8} for k in ("glyph", "geometry",
+                                                                      "material")}
+    assert "beats" in baseline_verdict(good)
+    bad = {**good, "geometry": {"balanced_accuracy": 0.6, "baseline": 0.8}}
+    assert "by geometry" in baseline_verdict(bad) and "glyph" not in baseline_verdict(bad)
+
+    def rows(ps):
+        return [{"capture": "c", "photons": 10.0 ** (8 - k), "p_legible": p}
+                for k, p in enumerate(ps)]
+    assert real_verdict(rows([0.95, 0.9, 0.6, 0.2])).startswith("On every real capture")
+    assert "below 0.5" in real_verdict(rows([0.3, 0.2, 0.1]))
+    assert "rising" in real_verdict(rows([0.9, 0.7, 0.85, 0.1]))

@@ -100,6 +100,7 @@ def classifier_section(results, thinning, table, png) -> list[str]:
         table(["held out by", "n", "legible", "balanced accuracy", "AUC", "ECE",
                "majority (accuracy)", "one feature (balanced accuracy)", "its features",
                "even odds", "per fold"], _split_rows(results)),
+        f"<p>{html.escape(baseline_verdict(results['classifier']['splits']))}</p>",
         f"<img alt='reliability' src='data:image/png;base64,{png(fig_reliability(results))}'/>"]
     if not thinning:
         out.append("<p>No real captures: run the study with <code>--real-data DIR</code> for "
@@ -113,7 +114,8 @@ def classifier_section(results, thinning, table, png) -> list[str]:
         f"<img alt='thinned real captures' src='data:image/png;base64,"
         f"{png(thinning_figure(thinning))}'/>",
         "<p>" + " ".join(html.escape(_trend(thinning, n))
-                         for n in dict.fromkeys(r["capture"] for r in thinning)) + "</p>",
+                         for n in dict.fromkeys(r["capture"] for r in thinning))
+        + " " + html.escape(real_verdict(thinning)) + "</p>",
         table(["capture", "fraction", "photons", "P(legible)"], _thinning_rows(thinning))]
     return out
 
@@ -127,3 +129,40 @@ def _trend(rows, capture: str) -> str:
     return (f"{capture}: P(legible) {p[0]:.2f} with all {rs[0]['photons']:.3g} photons, "
             f"{p[-1]:.2f} with {rs[-1]['photons']:.3g}; largest rise as photons fall "
             f"{max(rise, 0.0):+.2f}.")
+
+
+def baseline_verdict(splits: dict) -> str:
+    """One sentence: where the CNN's balanced accuracy is below its one-feature baseline's
+    (there the feature is the better judge)."""
+    below = [k for k in SPLITS if splits[k]["balanced_accuracy"] < splits[k]["baseline"]]
+    if not below:
+        return "The CNN beats its one-feature baseline on every split."
+    return (f"Held out by {' and by '.join(below)} the CNN is below its one-feature baseline: "
+            "there the feature, thresholded on the training split, is the better judge.")
+
+
+def real_verdict(rows: list[dict], tolerance: float = 0.05) -> str:
+    """One sentence on whether P(legible) on the real captures can be read as a verdict: it
+    has seen only simulations; a classifier inside its domain gives a P that falls as the
+    photons fall (within ``tolerance``) and is high where the letters are clear."""
+    caps = list(dict.fromkeys(r["capture"] for r in rows))
+    full = {c: max((r for r in rows if r["capture"] == c), key=lambda r: r["photons"])
+            for c in caps}
+    rises = {}
+    for c in caps:
+        p = [r["p_legible"] for r in sorted((r for r in rows if r["capture"] == c),
+                                            key=lambda r: -r["photons"])]
+        rises[c] = max((b - a for a, b in zip(p, p[1:], strict=False)), default=0.0)
+    not_falling = [c for c in caps if rises[c] > tolerance]
+    low = [c for c in caps if full[c]["p_legible"] < 0.5]
+    if not not_falling and not low:
+        return ("On every real capture P(legible) is at least 0.5 with all its photons and "
+                "falls as they are thinned.")
+    parts = []
+    if low:
+        parts.append(f"P(legible) below 0.5 with all photons on {', '.join(low)}")
+    if not_falling:
+        parts.append(f"rising by more than {tolerance:g} as photons fall on "
+                     f"{', '.join(not_falling)}")
+    return ("Not a verdict on these captures: the classifier has seen only simulations, and "
+            "here it gives " + "; ".join(parts) + ". Read the MIPs above by eye.")

@@ -1054,7 +1054,7 @@ def make_findings(geometries, need, geometry_rows, validation, label_metric,
                    if v is not None], default=None)
     f["brdf_aware_closes_gap"] = bool(best_sp is not None and ld is not None
                                       and best_sp >= ld - GAP_CLOSED)
-    f["tilt"] = tilt_findings(tilts, opts.inversions)
+    f["tilt"] = tilt_findings(tilts, opts.tilt_inversions)
     f["statement"] = study_statement(main, seed, need, f, opts)
     return f
 
