@@ -43,6 +43,13 @@ ENTRIES: tuple[tuple[str, str, str, str], ...] = (
      "Eq. 9 against Eq. 8 per preset (clnlos/study/confocal_error.py)"),
     ("confocal_error_16pt.*", "python tools/confocal_error.py --points 16", "current",
      "the same on a 16-point scan"),
+    ("legibility_classifier.json", "clnlos study --quick --real-data ../shared/data (at "
+     "bf147bd, the 32 x 32 quick grid; the label, calibration and augmentation variants "
+     "measured by hand)", "superseded",
+     "the legibility classifier's splits, real-capture thinning, cost and the variants not "
+     "taken (issue 40); the current numbers are in the study's results.json"),
+    ("legibility_thinning_real.png", "clnlos study --quick --real-data ../shared/data (at "
+     "bf147bd)", "superseded", "the thinned real captures' MIPs with P(legible) (issue 40)"),
     ("brdf_operator_check.*", "python tools/brdf_operator_check.py", "current",
      "the BRDF-aware inversion's operator against simulate (docs/brdf.md)"),
     ("brdf_evaluate.*", "clnlos brdf evaluate ../shared/data/brdf -o tools/results/"
