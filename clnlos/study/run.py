@@ -267,7 +267,7 @@ class StudyOptions:
         if self.auto_geometries is not None and not set(self.auto_geometries) <= names:
             raise ParameterError("auto_geometries", self.auto_geometries,
                                  "names of the study's geometries: " + ", ".join(sorted(names)))
-        if LEGIBLE_GEOMETRY not in {g.name for g in self.geometries}:
+        if LEGIBLE_GEOMETRY not in names:
             raise ParameterError("geometries", [g.name for g in self.geometries],
                                  f"a list that includes {LEGIBLE_GEOMETRY!r}")
         return self
