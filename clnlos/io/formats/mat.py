@@ -174,7 +174,8 @@ def _declared_mat5(path) -> None:
         return
     shape, cls = info[name]
     t_last = name == "rect_data" or "tofgrid" in info or shape[2] > max(shape[0], shape[1])
-    bin_width = (LCT_MAT_BIN_WIDTH_S if name == "rect_data" else FK_MAT_BIN_WIDTH_S if t_last
+    lct_bin = None if "bin_resolution" in info else LCT_MAT_BIN_WIDTH_S  # read with the data
+    bin_width = (lct_bin if name == "rect_data" else FK_MAT_BIN_WIDTH_S if t_last
                  else CDT_MAT_BIN_WIDTH_S)
     tyx = ((shape[2], shape[1], shape[0]) if name == "rect_data"  # from_lct's transpose
            else (shape[2], shape[0], shape[1]) if t_last else shape)
