@@ -53,6 +53,7 @@ from clnlos.inverse.brdf_choice import (
     choose_lobe,
     score_margin,
 )
+from clnlos.inverse.capture_defaults import format_defaults
 from clnlos.inverse.gcv import GcvBins, binned_power
 from clnlos.inverse.methods import InversionGrid, method_class
 from clnlos.inverse.reproducibility import (
@@ -1072,6 +1073,13 @@ def reconstruct(capture: Capture, config: ReconstructionConfig, *, dtype=np.floa
     each set-up step (pipeline, operator, step size, warm start) as it starts.
     """
     capture, reader_notes = without_direct(capture, config.direct_cut_s)
+    if capture.bin_width_s is not None or config.bin_width_s is not None:
+        bw = config.bin_width_s or capture.bin_width_s
+        start = config.start_s if config.start_s is not None else capture.start_s
+        kept, _ = preprocess_bins(capture.transient.shape[0], bw, start,
+                                  config.max_path_m, None)
+        config, notes = format_defaults(capture.attrs, config, bins_kept=kept, bin_width_s=bw)
+        reader_notes += notes
     bw, start, sw = resolve_geometry(capture, config)
     queue = get_queue(device)
     key = (capture.transient.shape, bw, start, sw, json.dumps(config.as_attrs(), sort_keys=True),
