@@ -14,7 +14,7 @@ import io
 
 import numpy as np
 
-from clnlos import C0
+from clnlos.physics.constants import C0
 from clnlos.brdf.models import retro_slice
 from clnlos.brdf.presets import preset_model
 from clnlos.config import snr_rule_applies

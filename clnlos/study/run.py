@@ -52,7 +52,7 @@ from pathlib import Path
 import numpy as np
 from scipy.special import stdtrit  # Student's t quantile (what scipy.stats.t.ppf calls)
 
-from clnlos.app.progress import counter, progress_bar
+from clnlos.io.progress import counter, progress_bar
 from clnlos.brdf.lobes import AUTO, retro_lobe
 from clnlos.brdf.models import BRDFModel
 from clnlos.brdf.presets import preset_model, preset_table
