@@ -14,7 +14,7 @@ import numpy as np
 from tqdm import tqdm
 
 from clnlos.app.demo import demo_files, demo_inputs, run_demo
-from clnlos.app.progress import counter, progress_bar
+from clnlos.io.progress import counter, progress_bar
 from clnlos.app.reconstruct import reconstruct_to_files
 from clnlos.app.simulate import figure_path, simulate_to_file
 from clnlos.bench import ONLY_HELP, sections_of
@@ -63,7 +63,7 @@ from clnlos.io.outputs import HDF5_SUFFIXES, check_outputs
 from clnlos.physics.lobe import LOBE_TOLERANCE
 from clnlos.runtime.device import get_queue
 from clnlos.runtime.limits import capture_use, check_memory
-from clnlos import study
+import clnlos.study as study  # the package (study.run: the function)
 from clnlos.study.dataset import MAX_WORKERS, StudyGrid, check_scheduler_address
 from clnlos.study.run import (
     LABEL_METRICS,

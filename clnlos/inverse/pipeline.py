@@ -41,7 +41,7 @@ from dataclasses import dataclass, field
 import numpy as np
 import pyopencl.array as cla
 
-from clnlos import C0
+from clnlos.physics.constants import C0
 from clnlos.brdf.lobes import AUTO, auto_ladder
 from clnlos.config import ReconstructionConfig, check_window
 from clnlos.errors import InputFileError, ParameterError
