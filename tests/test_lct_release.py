@@ -16,7 +16,7 @@ from clnlos.io.formats.mat import (
     lct_rect_data,
     starts_with_direct_reflection,
 )
-from lct_published import PUBLISHED_Z_OFFSET, published_lct
+from reference.lct_published import PUBLISHED_Z_OFFSET, published_lct
 
 
 def _ncc(a, b) -> float:

@@ -32,7 +32,8 @@ from pathlib import Path
 
 ROOT = Path(__file__).resolve().parents[1]
 PLACEHOLDER = re.compile(r"\{\{\s*(const|list|falloff|generated|source|oracle):([\w./\-]+)\s*\}\}")
-RESULT_FIGURES = ("slab_calibration.png", "real_cdt_defaults.png")
+RESULT_FIGURES = ("slab_calibration.png", "real_cdt_defaults.png", "lct_release_check.png",
+                  "real_materials.png")
 # the columns of an oracle summary a page shows: (CSV column, heading)
 ORACLE_COLUMNS = (("capture", "capture"), ("method", "method"), ("seeds", "seeds"),
                   ("auto_iou_mean", "default IoU"), ("gcv_rule_iou_mean", "GCV rule IoU"),

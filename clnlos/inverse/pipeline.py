@@ -68,6 +68,7 @@ from clnlos.inverse.reproducibility import (
 from clnlos.inverse.snr import (
     ARRIVAL_SIGMAS,
     LEAD_FRACTION,
+    background_subtracted,
     MEASURED_MODEL_SNR,
     SNR_MAX,
     SNR_MIN,
@@ -483,7 +484,8 @@ class ReconstructionPipeline:
         """The capture preprocessed and normalised once (:class:`PreparedCapture`), for
         :meth:`_reconstruct` (every candidate of a split search reuses it)."""
         noise = self.raw_noise(transient) if noise is None else noise
-        x = cla.to_device(self.queue, np.ascontiguousarray(transient, self.dtype))
+        x = cla.to_device(self.queue, np.ascontiguousarray(
+            background_subtracted(transient, noise, self.dtype)))
         tau = self._timed({} if timings is None else timings, "preprocess", self.pre, x)
         profile, peak = self._profile_peak(tau)
         total = float(profile.sum())

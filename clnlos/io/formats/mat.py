@@ -19,7 +19,10 @@ Layouts, told apart by their variables (MATLAB index order (i, j, k) = numpy ord
   (:func:`clnlos.io.capture.without_direct`).
 * f-k (Lindell, Wetzstein & O'Toole 2019): ``meas`` of size (N, N, T) = (y, x, t) and
   ``tofgrid`` (N, N), the time of flight (ps) from the laser and detector to each scan
-  point, which is removed (each column moved earlier by it, fractionally, counts
+  point. The published code (``cnlos_reconstruction.m`` of nlos-fk) shows the front view as
+  ``meas``'s first index running down the image and its second to the right (it reverses
+  both and labels both axes from +w to -w, which ``imagesc`` draws back the same way), so
+  row i is y = -i: [t, y, x] = meas[::-1, :, :] transposed. The time of flight is removed (each column moved earlier by it, fractionally, counts
   conserved); 32 ps bins (the published code's ``bin_resolution``), scan width not stored.
   A ``meas`` of size (N, N, T) without ``tofgrid`` is read the same way, already aligned.
 """
@@ -102,12 +105,16 @@ def lct_rect_data(transient: np.ndarray) -> np.ndarray:
 
 
 def from_fk(meas, tofgrid, path) -> Capture:
-    arr = validate_transient(np.transpose(meas, (2, 0, 1)), path)
+    """The f-k layout (module docstring): rows run down the published front view."""
+    meas = np.asarray(meas)
+    if meas.ndim != 3:
+        raise InputFileError(f"{path}: 'meas' must be 3D (N, N, T), got {meas.shape}")
+    arr = validate_transient(np.transpose(meas[::-1], (2, 0, 1)), path)
     attrs = {"format": "fk-mat"}
     shifts = None
     if tofgrid is not None:
         try:
-            tof = np.asarray(tofgrid, np.float64)
+            tof = np.asarray(tofgrid, np.float64)[::-1]  # rows as the transient's
         except (TypeError, ValueError):
             raise InputFileError(f"{path}: 'tofgrid' must be numbers (ps)") from None
         if tof.shape != arr.shape[1:]:
