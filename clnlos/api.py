@@ -21,6 +21,7 @@ from clnlos.config import (
     ReconstructionConfig,
     Slab,
     check_light_in_window,
+    drop_other_methods_settings,
     load_toml,
     slab_from_table,
 )
@@ -96,6 +97,7 @@ def simulate(scene: PathLike | Scene | Mapping[str, Any], *, dtype: DTypeLike = 
 def reconstruction_config(config: PathLike | Mapping[str, Any] | ReconstructionConfig | None
                           = None, *, method: str | None = None,
                           names: Mapping[str, str] | None = None,
+                          notes: list[str] | None = None,
                           **options: Any) -> ReconstructionConfig:
     """The validated reconstruction parameters: ``config`` (a TOML path, its parsed table or a
     ``clnlos.config.ReconstructionConfig``; default the built-in defaults), then
@@ -103,7 +105,9 @@ def reconstruction_config(config: PathLike | Mapping[str, Any] | ReconstructionC
     e.g. ``snr=1e5``, ``iterations=50``, ``slab={"thickness_m": 0.0254, ...}``) over it.
 
     A field the method does not read is refused, naming it as ``names`` says (the CLI passes
-    its flags) or as the option's name."""
+    its flags) or as the option's name; where ``method`` overrides the config's, the config's
+    settings for its own method are left unused instead, with a note appended to ``notes``
+    (``clnlos.config.drop_other_methods_settings``)."""
     unknown = sorted(set(options) - set(CONFIG_FIELDS))
     if unknown:
         raise ParameterError(unknown[0], options[unknown[0]],
@@ -129,7 +133,17 @@ def reconstruction_config(config: PathLike | Mapping[str, Any] | ReconstructionC
             changes.setdefault("n_dipoles", nd)
     given = {**ReconstructionConfig.given_fields(table),
              **{f: f for f in changes if f != "method"}, **(names or {})}
-    return cfg.replace(**changes).validate(given)
+    cfg = cfg.replace(**changes)
+    if method is not None or "method" in options:  # the file's other method's settings
+        said = (names or {}).get("method")
+        said = f"{said} {cfg.method}" if said else f"method={cfg.method!r}"
+        file_fields = {f: n for f, n in ReconstructionConfig.given_fields(table).items()
+                       if f not in changes}
+        cfg, unused, dropped = drop_other_methods_settings(cfg, file_fields, said)
+        given = {f: n for f, n in given.items() if f not in unused}
+        if notes is not None:
+            notes.extend(dropped)
+    return cfg.validate(given)
 
 
 def check_capture(capture: Capture, config: ReconstructionConfig, *,
@@ -181,7 +195,9 @@ def reconstruct(capture: Capture | PathLike, method: str | None = None, *,
     (m), ``params`` (the SNRs and rules that ran), ``notes``, ``timings_s``."""
     if not isinstance(capture, Capture):
         capture = read_capture(capture)
-    cfg = reconstruction_config(config, method=method, names=names, **options)
+    config_notes: list[str] = []
+    cfg = reconstruction_config(config, method=method, names=names, notes=config_notes,
+                                **options)
     check_capture(capture, cfg, names=names)
     cfg, note = with_slab(cfg, capture, no_slab=no_slab)
     if note and log is not None:
@@ -191,6 +207,7 @@ def reconstruct(capture: Capture | PathLike, method: str | None = None, *,
                        setup=setup)
     if note and log is None:
         rec.notes.insert(0, note)
+    rec.notes[:0] = config_notes
     return rec
 
 

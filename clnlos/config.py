@@ -303,6 +303,35 @@ def check_light_in_window(transient, bin_width_s: float, start_s: float, config,
                              f"with light in the capture (bin {lit[0]})")
 
 
+def drop_other_methods_settings(config: ReconstructionConfig, file_fields: dict[str, str],
+                                method_said: str
+                                ) -> tuple[ReconstructionConfig, dict[str, str], list[str]]:
+    """(config, unused, notes) where a method given over a config file (``method_said``: how
+    the user set it, ``--method fk`` or ``method='fk'``) does not read some of the file's
+    settings (``file_fields``: field -> "section.key" the file set): those (``unused``) go
+    back to their defaults, with one note naming them, instead of the error
+    :meth:`ReconstructionConfig.validate` gives a setting the user asked for a method that
+    does not read it (the file was written for its own method). A ``snr_rule`` the new
+    method cannot use goes back to "auto" too."""
+    method = config.method
+    if method not in method_names():
+        return config, {}, []  # validate names the unknown method
+    unused = {f: sec for f, sec in file_fields.items() if method not in methods_reading(f)}
+    if "snr_rule" in file_fields and not snr_rule_applies(str(config.snr_rule), method):
+        unused["snr_rule"] = file_fields["snr_rule"]
+    if not unused:
+        return config, {}, []
+    defaults = ReconstructionConfig()
+
+    def shown(v):
+        return f"{v:g}" if isinstance(v, float) else repr(v)
+
+    said = ", ".join(f"{sec} = {shown(getattr(config, f))}" for f, sec in unused.items())
+    note = (f"{method_said}: the config's {said} left unused (set for another method; "
+            f"{method!r} does not read {'it' if len(unused) == 1 else 'them'})")
+    return config.replace(**{f: getattr(defaults, f) for f in unused}), unused, [note]
+
+
 @dataclass(frozen=True)
 class ReconstructionConfig:
     """Reconstruction parameters; the field defaults are the defaults (stated once here)."""

@@ -43,6 +43,7 @@ from clnlos.config import (
     ReconstructionConfig,
     check_geometry,
     check_window,
+    drop_other_methods_settings,
     load_toml,
     slab_from_table,
     slab_table,
@@ -171,7 +172,16 @@ def config_from_args(args) -> ReconstructionConfig:
         base.update(slab_given)
         changes["slab"], _ = slab_from_table(
             base, names={k: flag for k, flag in SLAB_FLAGS.values()})
-    return cfg.replace(**changes).validate(names)
+    cfg = cfg.replace(**changes)
+    if args.method is not None:  # the file's settings for its own method: unused, noted
+        file_fields = {f: n for f, n in ReconstructionConfig.given_fields(table).items()
+                       if f not in changes}
+        cfg, unused, notes = drop_other_methods_settings(cfg, file_fields,
+                                                         f"--method {args.method}")
+        names = {f: n for f, n in names.items() if f not in unused}
+        for note in notes:
+            print(f"clnlos: note: {note}", file=sys.stderr)
+    return cfg.validate(names)
 
 
 def _pipeline_fits(capture, cfg, queue, dtype, names=None):
