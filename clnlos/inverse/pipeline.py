@@ -608,6 +608,7 @@ class ReconstructionPipeline:
             if isinstance(deconv, TailFilledDeconvolution):
                 out = self._timed(timings, "deconvolve", deconv, prep.tau, prep.fills)
                 added["tail_fill_snr"] = deconv.fill_snr  # the fill's SNR (tail_fill)
+                added["tail_filled_snr_applied"] = deconv.applied_snr  # its final filter's
             else:
                 out = self._timed(timings, "deconvolve", deconv, prep.tau)
             if self.n_guard:
