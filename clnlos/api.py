@@ -234,6 +234,9 @@ def reconstruct(capture: Capture | PathLike, method: str | None = None, *,
     if note and log is None:
         rec.notes.insert(0, note)
     rec.notes[:0] = config_notes
+    if cfg.method == "iterative" and cfg.iterations == 0:
+        rec.notes.append("--iterations 0: no iteration ran; the volume is the iterative "
+                         "method's warm start (its LCT reconstruction)")
     if python:
         rec.notes[:] = [python_keywords(n) for n in rec.notes]
     return rec

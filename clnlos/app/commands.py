@@ -6,6 +6,7 @@ from __future__ import annotations
 
 import argparse
 import importlib.util
+import json
 import math
 import sys
 from pathlib import Path
@@ -330,6 +331,16 @@ def register_reconstruct(sub, add_device) -> None:
 
 
 # ------------------------------------------------------------------ plot
+def plot_title(path, attrs) -> str:
+    """The figure title of a volume file: its name and the method that made it (its params,
+    as ``clnlos reconstruct`` titles its own figure)."""
+    try:
+        method = json.loads(attrs.get("params", "{}")).get("method")
+    except (TypeError, ValueError):
+        method = None
+    return f"{Path(path).name}" + (f" ({method})" if isinstance(method, str) else "")
+
+
 def cmd_plot(args) -> int:
     out = Path(args.output) if args.output else Path(args.volume).with_suffix(".png")
     check_outputs({"-o": out}, inputs=[args.volume], suffixes={"-o": (".png",)},
@@ -337,7 +348,7 @@ def cmd_plot(args) -> int:
     if args.gamma is not None and not (np.isfinite(args.gamma) and 0 < args.gamma <= 10):
         raise ParameterError("--gamma", args.gamma, "a number > 0 and <= 10")
     volume, extents, attrs = read_volume(args.volume)
-    save_figure(volume_figure(volume, extents, f"{Path(args.volume).name}",
+    save_figure(volume_figure(volume, extents, plot_title(args.volume, attrs),
                               gamma=args.gamma, log=args.log), out)
     print(f"wrote {out}")
     return 0
