@@ -123,6 +123,7 @@ def test_every_command_runs_in_order(tmp_path):
                 assert (clone / path).exists(), f"{page}: {cmd} says it wrote {path}"
             assert "clnlos: error" not in r.stderr, r.stderr
             done.add(shell_cmd.replace(f"{BIN}/", ""))
+    assert len(done) >= 10, done
     glossy_reads_as_the_readme_says(clone)
 
 
@@ -140,4 +141,3 @@ def glossy_reads_as_the_readme_says(clone: Path) -> None:
     read = {name: identify(read_volume(clone / "out" / f"{name}.h5")[0].max(axis=0),
                            templates)[0] for name in ("glossy_lam", "glossy_qg")}
     assert read["glossy_qg"] == obj.text and read["glossy_lam"] != obj.text, read
-    assert len(done) >= 10, done
