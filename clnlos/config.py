@@ -69,7 +69,10 @@ optional and its default is the field default of :class:`ReconstructionConfig`::
 A field that only some methods read (clnlos.inverse.methods.MethodEntry.reads: falloff for
 lct and fk, [inversion] snr for lct and iterative, iterations, l1_weight, tv_weight,
 depth_min_m, slab_model, brdf and brdf_terms for iterative) is refused when the user sets it
--- as a key of the TOML or as a flag -- for a method that does not read it.
+-- as a key of the TOML or as a flag -- for a method that does not read it; where a flag
+(``--method``) or keyword (``method=``) changes the method over a TOML written for another,
+the TOML's settings for its own method are left unused instead, with a note
+(:func:`drop_other_methods_settings`).
 """
 
 from __future__ import annotations
