@@ -47,8 +47,9 @@ class TailFilledDeconvolution:
     (the noise-free cap, 1e10) turns that mismatch at the window's end into voxels past the
     target (docs/validation/parameter-rules.md). The fill is H P x_k, blurred again by H,
     so it needs only what a moderate SNR already restores; a near-inverse W (SNR
-    1e8-1e10: noise-free captures, 1e12 photons) makes the fixed-point iteration diverge instead (85 bins of 96 ps, a
-    5.1 ns tail: the fill grows 49x per step, a target at 0.5 m reconstructed at 1.1 m).
+    1e8-1e10: noise-free captures, 1e12 photons) makes the fixed-point iteration diverge
+    instead (85 bins of 96 ps, a 5.1 ns tail: the fill grows 49x per step, a target at
+    0.5 m reconstructed at 1.1 m).
     Measured there, the fill's error against the true tail is 0.6% at SNR 1e4, 1.3% at 1e5,
     1.4% at 1e6; from 1e7 it diverges. Should the fill still diverge (a change larger than
     its first), its SNR is lowered tenfold and the fill restarted, down to
