@@ -44,7 +44,7 @@ import pyopencl.array as cla
 from clnlos.physics.constants import C0
 from clnlos.brdf.lobes import AUTO, auto_ladder
 from clnlos.config import ReconstructionConfig, check_window
-from clnlos.errors import InputFileError, ParameterError
+from clnlos.errors import InputFileError, MissingParameterError, ParameterError
 from clnlos.forward.blur import blur_time_scales, confocal_lag_energy, confocal_psf, slab_blur
 from clnlos.inverse.brdf_choice import (
     LOBE_NOT_SEARCHED,
@@ -611,6 +611,7 @@ class ReconstructionPipeline:
             if isinstance(deconv, TailFilledDeconvolution):
                 out = self._timed(timings, "deconvolve", deconv, prep.tau, prep.fills)
                 added["tail_fill_snr"] = deconv.fill_snr  # the fill's SNR (tail_fill)
+                added["tail_filled_snr_applied"] = deconv.applied_snr  # its final filter's
             else:
                 out = self._timed(timings, "deconvolve", deconv, prep.tau)
             if self.n_guard:
@@ -1045,13 +1046,13 @@ def resolve_geometry(capture: Capture, config: ReconstructionConfig, *,
     src = capture.source or "the capture"
     bw = config.bin_width_s if config.bin_width_s is not None else capture.bin_width_s
     if bw is None:
-        raise ParameterError("--bin-width", None, f"> 0: {src} does not store its bin "
-                             "width; give --bin-width or [capture] bin_width_s")
+        raise MissingParameterError("--bin-width", f"{src} does not store its bin width; "
+                                    "give --bin-width (s) or [capture] bin_width_s")
     sw = config.scan_width_m if config.scan_width_m is not None else capture.scan_width_m
     if sw is None:
         why = capture.attrs.get("scan_width_unknown", f"{src} does not store the scan width")
-        raise ParameterError("--scan-width", None, f"> 0: {why}; give --scan-width (the "
-                             "side along x, m) or [capture] scan_width_m")
+        raise MissingParameterError("--scan-width", f"{why}; give --scan-width (the side "
+                                    "along x, m) or [capture] scan_width_m")
     ny, nx = capture.transient.shape[1:]
     if config.scan_width_m is None and capture.scan_height_m is not None and not math.isclose(
             capture.scan_height_m / ny, sw / nx, rel_tol=1e-6):
