@@ -163,10 +163,7 @@ def check_capture(capture: Capture, config: ReconstructionConfig, *,
     implausible or contradicting geometry value (``clnlos.config.plausibility_warnings``),
     some signal, light inside the kept window (``clnlos.config.check_light_in_window``)."""
     names = dict(names or {})
-<<<<<<< HEAD
     capture, _ = without_direct(capture, config.direct_cut_s)
-    bw, start, _ = resolve_geometry(capture, config, names=names)
-=======
     bw, start, sw = resolve_geometry(capture, config, names=names)
     given = {f: names.get(f, FIELD_NAMES[f]) for f in ("scan_width_m", "bin_width_s", "start_s")
              if getattr(config, f) is not None}
@@ -175,7 +172,6 @@ def check_capture(capture: Capture, config: ReconstructionConfig, *,
             recorded={"scan_width_m": capture.scan_width_m, "bin_width_s": capture.bin_width_s,
                       "start_s": capture.start_s}, given=given):
         warnings.warn(line, PlausibilityWarning, stacklevel=3)
->>>>>>> i51
     if not np.any(capture.transient):
         raise InputFileError(f"{capture.source or 'the capture'}: the capture holds no signal "
                              "(all zero): nothing to reconstruct")

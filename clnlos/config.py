@@ -82,12 +82,8 @@ the TOML's settings for its own method are left unused instead, with a note
 from __future__ import annotations
 
 import dataclasses
-<<<<<<< HEAD
-=======
 import math
 import re
-import tomllib
->>>>>>> i51
 from dataclasses import asdict, dataclass
 
 import numpy as np
@@ -216,16 +212,6 @@ def snr_rule_applies(rule: str, method: str) -> bool:
     return rule == split_rule(method)
 
 
-<<<<<<< HEAD
-=======
-# The one range table of the capture geometry (SI units): (low, high, low allowed). The flags,
-# the [capture] table and the values read from capture files are all checked against it.
-GEOMETRY_LIMITS: dict[str, tuple[float, float, bool]] = {
-    "scan_width_m": (0.0, 1e3, False),   # side of the scanned area along x (m), > 0
-    "bin_width_s": (0.0, 1e-6, False),   # histogram bin (s), > 0
-    "start_s": (-1e-3, 1e-3, True),      # start of bin 0, round trip (s)
-}
-
 # Plausible geometry of a lab NLOS capture: a value past these is more likely a unit slip (cm
 # for m, ns for ps) than a scene, and gets one warning line (:func:`plausibility_warnings`).
 PLAUSIBLE_SCAN_WIDTH_M = 10.0    # side of the scanned area (m)
@@ -236,7 +222,8 @@ CONTRADICTION_RTOL = 1e-3
 
 # config field -> its ``clnlos reconstruct`` flag (the CLI's RECON_FLAGS derive from it)
 FIELD_FLAGS: dict[str, str] = {
-    "scan_width_m": "--scan-width", "bin_width_s": "--bin-width", "snr": "--snr",
+    "scan_width_m": "--scan-width", "bin_width_s": "--bin-width",
+    "direct_cut_s": "--direct-cut", "snr": "--snr",
     "snr_rule": "--snr-rule", "inversion_snr": "--inversion-snr", "falloff": "--falloff",
     "max_path_m": "--max-path", "bins": "--bins", "method": "--method",
     "iterations": "--iterations", "tv_weight": "--tv-weight", "l1_weight": "--l1-weight",
@@ -315,7 +302,6 @@ def spelled(how: str, value) -> str:
     return f"{how} = {v}" if "." in how else f"{how}={v}"
 
 
->>>>>>> i51
 # TOML (section, key) -> config field; the one table both directions use.
 TOML_FIELDS: dict[tuple[str, str], str] = {
     ("capture", "scan_width_m"): "scan_width_m",

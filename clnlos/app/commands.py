@@ -105,23 +105,7 @@ def _add_precision(p) -> None:
 
 # ------------------------------------------------------------------ reconstruct
 # CLI flag -> ReconstructionConfig field (error messages name the flag the user typed)
-<<<<<<< HEAD
-RECON_FLAGS = {"scan_width": ("scan_width_m", "--scan-width"),
-               "bin_width": ("bin_width_s", "--bin-width"),
-               "direct_cut": ("direct_cut_s", "--direct-cut"),
-               "snr": ("snr", "--snr"), "snr_rule": ("snr_rule", "--snr-rule"),
-               "inversion_snr": ("inversion_snr", "--inversion-snr"),
-               "falloff": ("falloff", "--falloff"), "max_path": ("max_path_m", "--max-path"),
-               "bins": ("bins", "--bins"), "method": ("method", "--method"),
-               "iterations": ("iterations", "--iterations"),
-               "tv_weight": ("tv_weight", "--tv-weight"),
-               "l1_weight": ("l1_weight", "--l1-weight"),
-               "depth_min": ("depth_min_m", "--depth-min"),
-               "slab_model": ("slab_model", "--slab-model"),
-               "brdf": ("brdf", "--brdf"), "brdf_terms": ("brdf_terms", "--brdf-terms")}
-=======
 RECON_FLAGS = {flag[2:].replace("-", "_"): (field, flag) for field, flag in FIELD_FLAGS.items()}
->>>>>>> i51
 
 
 def _decades(values) -> str:
