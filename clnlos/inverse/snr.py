@@ -201,12 +201,12 @@ def background_subtracted(y: np.ndarray, noise: NoiseEstimate, dtype=np.float32
     """Photon counts ``y`` [t, y, x] less their background (dark counts and ambient light,
     ``noise.background_per_bin`` per bin and scan point) from the first recorded bin on: a
     constant floor that a radiometric weighting (t/T)^p would turn into a ramp toward the
-    end of the window. Other data, or counts without a background, are returned as given
-    (in ``dtype``)."""
+    end of the window. Other data, counts without a background or without a bin above it
+    (``noise.first_arrival_s`` None), are returned as given (in ``dtype``)."""
     a = np.asarray(y)
     b = noise.background_per_bin
-    if not (noise.photon_counts and b > 0):
-        return np.asarray(a, dtype)
+    if not (noise.photon_counts and b > 0 and noise.first_arrival_s is not None):
+        return np.asarray(a, dtype)  # no light found above the floor: nothing to take it from
     out = np.array(a, dtype=dtype, copy=True)
     k0 = first_recorded_bin(out.reshape(out.shape[0], -1).sum(axis=1, dtype=np.float64))
     out[k0:] -= b

@@ -43,11 +43,14 @@ import numpy as np
 from scipy.ndimage import gaussian_filter
 
 from clnlos.config import ReconstructionConfig
+from clnlos.forward.model import ForwardModel
+from clnlos.forward.scene import Scene
 from clnlos.inverse.pipeline import reconstruct
+from clnlos.inverse.snr import estimate_noise, first_recorded_bin
 from clnlos.io.capture import Capture, without_direct
 from clnlos.io.figures import new_figure
 from clnlos.io.files import read_capture
-from clnlos.study.real_capture import capture_config
+from clnlos.study.real_capture import capture_config, estimate_letters, measurement_summary
 from clnlos.study.resolution import chart_features, fwhm_1d, json_ready, otoole_lateral_bound_m
 from clnlos.study.thinning_real import thinned_series
 
@@ -70,6 +73,11 @@ CATALOG = {
 }
 REFLECTANCE_FALLOFF = {"lambertian": 4.0, "retroreflective": 2.0}  # LCT and f-k's (t/T)^p
 HEADLINE = ("data_diffuse_s", "data_s_u")  # the diffuse S against the retroreflective S
+TWIN_MATERIALS = {"data_diffuse_s": "lambertian", "data_s_u": "retroreflective"}
+TWIN_SLAB_M = 0.15       # the twin's letter: the reconstruction within this depth of its peak
+TWIN_PULSE_S = 70e-12    # the twin's pulse FWHM where the capture shows no direct reflection
+TWIN_DENSITY_PER_M2 = 4e5  # surface elements per m^2 of the twin's letter
+TWIN_SEED = 4748
 
 
 @dataclass(frozen=True)
@@ -83,6 +91,7 @@ class RealPlan:
     inversions: tuple[str, ...] = ("lct", "fk")
     points: int | None = None         # None: the capture's own scan
     bin_width_s: float | None = None  # None: the release's published 16 ps
+    twins: bool = True                # the simulated twins of the diffuse and retroreflective S
 
     @classmethod
     def quick(cls) -> RealPlan:
@@ -127,9 +136,9 @@ def prepared_capture(path: Path, plan: RealPlan) -> tuple[Capture, Reconstructio
                       cap.scan_width_m, cap.source, {k: v for k, v in cap.attrs.items()
                                                      if k != "direct_end_s"})
     kw = {}
-    if plan.bin_width_s is not None:
-        kw["bins"] = max(1, int(round(cap.transient.shape[0] * cap.bin_width_s
-                                      / plan.bin_width_s)))
+    target = plan.bin_width_s or cap.attrs.get("bin_width_default_s")
+    if target and target > cap.bin_width_s:
+        kw["bins"] = max(1, int(round(cap.transient.shape[0] * cap.bin_width_s / target)))
     return cap, ReconstructionConfig(**kw).validate()
 
 
@@ -196,16 +205,24 @@ def _front(cap: Capture, counts: np.ndarray, cfg: ReconstructionConfig, queue) -
 
 
 def capture_rows(path: Path, plan: RealPlan, queue, progress=None) -> dict:
-    """One capture's entry: photons, the reference variant and its half agreement per
-    variant, the blob control, and per variant the scores along the ladder and the photons
-    needed (median and range over the series)."""
+    """One capture's entry (:func:`ladder_rows` of the capture as read, with its name,
+    family, material and target)."""
     name = Path(path).stem
     family, material, target = CATALOG[name]
     cap, base = prepared_capture(path, plan)
+    invs = plan.inversions if family == "lct" else ("lct",)
+    rows = ladder_rows(cap, base, plan, invs, queue, progress)
+    return {"name": name, "family": family, "material": material, "target": target, **rows}
+
+
+def ladder_rows(cap: Capture, base: ReconstructionConfig, plan: RealPlan, inversions, queue,
+                progress=None) -> dict:
+    """Photons, the reference variant and each variant's half agreement, the blob control,
+    and per variant the scores along the ladder and the photons needed (median and range
+    over the series) of a capture of photon counts."""
     counts = np.rint(cap.transient).astype(np.float32)
     photons = float(counts.sum(dtype=np.float64))
-    invs = plan.inversions if family == "lct" else ("lct",)
-    var = variants(invs)
+    var = variants(inversions)
     cfgs = {v: variant_config(base, *v) for v in var}
     half = thinned_series(counts, (1.0, 0.5), seed=HALVES_SEED)[1]
     other = counts - half
@@ -237,12 +254,75 @@ def capture_rows(path: Path, plan: RealPlan, queue, progress=None) -> dict:
                      else None,
                      "photons_needed_range": [min(got), max(got)] if got else None,
                      "fraction_needed": (float(np.median(got)) / photons
-                                         if len(got) == len(needed) else None)})
-    return {"name": name, "family": family, "material": material, "target": target,
-            "photons": photons, "fractions": list(plan.ladder), "reference":
-            {"inversion": best[0], "reflectance": best[1]}, "blob_ncc": blob_control(ref),
-            "blob_fails": bool(blob_control(ref) < KEEP_LEVEL), "rows": rows,
+                                         if len(got) == len(needed) else None),
+                     "at_most": bool(got and max(s[-1] for s in scores) >= KEEP_LEVEL)})
+    blob = blob_control(ref)
+    return {"photons": photons, "fractions": list(plan.ladder),
+            "reference": {"inversion": best[0], "reflectance": best[1]}, "blob_ncc": blob,
+            "blob_fails": bool(blob < KEEP_LEVEL), "rows": rows,
             "arrays": {"reference": ref.astype(np.float32)}}
+
+
+def twin_scene(cap: Capture, letters: dict, material: str, pulse_fwhm_s: float) -> Scene:
+    """The simulated twin of a real capture: its scan and time axis, the ``letters``
+    (:func:`clnlos.study.real_capture.estimate_letters`) in ``material`` (no slab), a laser
+    pulse of the FWHM measured on the real capture."""
+    nt, _, nx = cap.transient.shape
+    objects = [{"shape": "letters", "text": L["text"], "height_m": L["height_m"],
+                "stroke_m": L["stroke_m"], "translate_m": [*L["centre_m"], L["depth_m"]],
+                "rotate_deg": [0.0, L["tilt_deg"], 0.0], "material": material,
+                "albedo": 1.0} for L in letters["letters"]]
+    return Scene.from_dict({
+        "seed": 0, "scan": {"width_m": cap.scan_width_m, "points": nx},
+        "time": {"bin_width_s": cap.bin_width_s, "bins": nt, "start_s": cap.start_s},
+        "objects": objects, "laser": {"pulse_width_s": pulse_fwhm_s},
+        "sampling": {"density_per_m2": TWIN_DENSITY_PER_M2, "splat_order": 1}})
+
+
+def twin_counts(tau: np.ndarray, signal_photons: float, background_per_bin: float,
+                first_bin: int, seed: int) -> np.ndarray:
+    """Poisson counts of a noise-free transient scaled to ``signal_photons``, over a floor of
+    ``background_per_bin`` per bin and scan point from ``first_bin`` on (the real capture's)."""
+    lam = np.asarray(tau, np.float64) * (signal_photons / max(float(tau.sum()), 1e-300))
+    lam[first_bin:] += background_per_bin
+    return np.random.default_rng(seed).poisson(lam).astype(np.float32)
+
+
+def letter_twin(path: Path, plan: RealPlan, material: str, queue, progress=None) -> dict:
+    """A real capture of an S beside its simulated twin in ``material``: the S estimated from
+    the real reference reconstruction (its depth slab: the brightest voxel's +-TWIN_SLAB_M,
+    so the U behind the retroreflective S stays out), simulated at the same scan, bins,
+    signal photons and background, measured (photons, peak time, temporal FWHM of the
+    scan-summed profile) and thinned like the real capture (:func:`ladder_rows`)."""
+    name = Path(path).stem
+    cap, base = prepared_capture(path, plan)
+    noise = estimate_noise(cap.transient, cap.bin_width_s, cap.start_s)
+    rec = reconstruct(cap, variant_config(base, "lct", "retroreflective"), device=queue)
+    v = rec.volume
+    kz = int(np.unravel_index(np.argmax(v), v.shape)[0])
+    k = max(1, int(round(TWIN_SLAB_M / rec.extents["voxel_depth_m"])))
+    sub = np.zeros_like(v)
+    sub[max(0, kz - k):kz + k + 1] = v[max(0, kz - k):kz + k + 1]
+    letters = estimate_letters(sub, rec.extents, "S")
+    raw = read_capture(path)
+    pulse = (direct_reflection_fwhm(raw.transient, raw.bin_width_s)
+             if "direct_end_s" in raw.attrs else None) or TWIN_PULSE_S
+    tau = ForwardModel(twin_scene(cap, letters, material, pulse), queue=queue).run()
+    first = first_recorded_bin(cap.transient.reshape(cap.transient.shape[0], -1).sum(axis=1))
+    n_scan = cap.transient.shape[1] * cap.transient.shape[2]
+    floor = noise.background_per_bin
+    signal = max(float(cap.transient.sum()) - floor * n_scan * (cap.transient.shape[0] - first),
+                 1.0)
+    twin = Capture(twin_counts(tau, signal, floor, first, TWIN_SEED), cap.bin_width_s,
+                   cap.start_s, cap.scan_width_m, "simulated twin", {})
+    keys = ("photons", "peak_time_s", "temporal_fwhm_s")
+    real_m = measurement_summary(cap.transient, cap.bin_width_s, name)
+    twin_m = measurement_summary(twin.transient, cap.bin_width_s, f"{name} twin")
+    rows = ladder_rows(twin, base, plan, ("lct",), queue, progress)
+    return {"name": name, "material": material, "letters": letters,
+            "pulse_fwhm_s": pulse, "background_per_bin": floor,
+            "real": {k: real_m[k] for k in keys}, "twin": {k: twin_m[k] for k in keys},
+            **rows}
 
 
 def headline_ratios(captures: list[dict]) -> list[dict]:
@@ -276,26 +356,32 @@ def headline_ratios(captures: list[dict]) -> list[dict]:
     return out
 
 
-def temporal_fwhm_at_brightest(transient: np.ndarray, bin_width_s: float) -> float | None:
-    """FWHM (s) of the time profile at the brightest scan point (its target's return
-    broadened by the system: an upper bound on the system's response)."""
-    t = np.asarray(transient, np.float64)
-    y, x = np.unravel_index(np.argmax(t.sum(axis=0)), t.shape[1:])
-    p = t[:, y, x]
-    return fwhm_1d(p, bin_width_s, int(np.argmax(p)))
+def direct_reflection_fwhm(transient: np.ndarray, bin_width_s: float) -> float | None:
+    """The system's response as the direct reflection off the wall shows it (a window that
+    starts at its peak, as the LCT release's): twice the time from the scan-summed peak to
+    half of it (s); None where it does not fall to half within the window."""
+    p = np.asarray(transient, np.float64).reshape(transient.shape[0], -1).sum(axis=1)
+    k = int(np.argmax(p))
+    below = np.flatnonzero(p[k:] < p[k] / 2)
+    if not below.size:
+        return None
+    j = k + int(below[0])
+    frac = (p[j - 1] - p[k] / 2) / (p[j - 1] - p[j]) if p[j - 1] > p[j] else 0.0
+    return float(2 * (j - 1 - k + frac + 0.5) * bin_width_s)
 
 
 def chart_resolution(path: Path, queue) -> dict:
     """A real chart's resolved features (:func:`chart_features` on its default
     reconstruction at full photons), the smallest resolved and unresolved spacings, and
-    O'Toole's lateral bound at its depth with the temporal FWHM measured at its brightest
-    scan point."""
-    cap, _ = without_direct(read_capture(path))
-    rec = reconstruct(read_capture(path), ReconstructionConfig().validate(), device=queue)
+    O'Toole's lateral bound at its depth with the system's temporal FWHM measured on the
+    direct reflection (:func:`direct_reflection_fwhm`)."""
+    raw = read_capture(path)
+    cap, _ = without_direct(raw)
+    rec = reconstruct(raw, ReconstructionConfig().validate(), device=queue)
     feats = chart_features(rec.volume, rec.extents)
     res = [f["spacing_m"] for f in feats["features"].values() if f["resolved"]]
     unres = [f["spacing_m"] for f in feats["features"].values() if not f["resolved"]]
-    fwhm = temporal_fwhm_at_brightest(cap.transient, cap.bin_width_s)
+    fwhm = direct_reflection_fwhm(raw.transient, raw.bin_width_s)
     bound = (otoole_lateral_bound_m(cap.scan_width_m, feats["chart_depth_m"], fwhm)
              if fwhm else None)
     return {"name": Path(path).stem, "chart_depth_m": feats["chart_depth_m"],
@@ -323,6 +409,13 @@ def real_materials(data_dir: Path, plan: RealPlan, queue=None, progress=None) ->
                      "bin_width_s": plan.bin_width_s},
             "captures": captures, "headline": headline_ratios(captures), "charts": charts}
     section["headline_rows"] = headline_rows(section)
+    if plan.twins:
+        by = {p.stem: p for p in paths}
+        twins = [letter_twin(by[n], plan, m, queue, progress)
+                 for n, m in TWIN_MATERIALS.items() if n in by]
+        section["twins"] = twins
+        section["twin_headline"] = headline_ratios(
+            [{**t, "name": t["name"]} for t in twins])
     return section
 
 
