@@ -75,7 +75,7 @@ from pathlib import Path
 import numpy as np
 
 from clnlos.brdf.data import TEXT_ENCODING
-from clnlos.brdf.presets import material_names
+from clnlos.brdf.presets import material_names, retroreflector
 from clnlos.checks import choice, did_you_mean, input_file, integer, positive
 from clnlos.config import check_keys, load_toml, slab_from_table
 from clnlos.errors import InputFileError, ParameterError
@@ -298,6 +298,7 @@ def _object(i: int, o: dict) -> SceneObject:
             names = material_names()
             raise ParameterError(f"{sec}.material", m, ", ".join(names) + ", a BRDF texture "
                                  ".h5 or a model table" + did_you_mean(m.lower(), names))
+        retroreflector(m, f"{sec}.material")  # a retroreflective table's fields, checked
         kw["material"] = m
     for k in ("height_m", "stroke_m", "radius_m"):
         if k in o:
