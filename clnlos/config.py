@@ -61,14 +61,16 @@ optional and its default is the field default of :class:`ReconstructionConfig`::
     brdf = "lambertian"          # iterative: the voxels' reflectance: "lambertian", a
                                  # material name, a BRDF texture or fitted model .h5, or
                                  # "auto" (the lobe chosen from the capture by held-out
-                                 # photons, clnlos.inverse.brdf_choice); LCT and f-k are
-                                 # Lambertian (clnlos.brdf.lobes)
+                                 # photons, clnlos.inverse.brdf_choice; it tries the
+                                 # "retroreflective" lobe too); LCT and f-k: "lambertian"
+                                 # (their falloff) or "retroreflective" (falloff 2, the
+                                 # published variant; an explicit falloff wins)
     brdf_terms = "auto"          # iterative: separable terms K of the lobe, or "auto" (the
                                  # fewest within clnlos.physics.lobe.LOBE_TOLERANCE)
 
 A field that only some methods read (clnlos.inverse.methods.MethodEntry.reads: falloff for
 lct and fk, [inversion] snr for lct and iterative, iterations, l1_weight, tv_weight,
-depth_min_m, slab_model, brdf and brdf_terms for iterative) is refused when the user sets it
+depth_min_m, slab_model and brdf_terms for iterative) is refused when the user sets it
 -- as a key of the TOML or as a flag -- for a method that does not read it.
 """
 
@@ -94,6 +96,7 @@ from clnlos.checks import (
 from clnlos.errors import InputFileError, ParameterError
 from clnlos.inverse.methods import (
     auto_snr_rule,
+    CLOSED_FORM_BRDFS,
     default_falloffs,
     method_names,
     methods_reading,
@@ -385,10 +388,12 @@ class ReconstructionConfig:
             v["depth_min_m"] = real(nm("depth_min_m"), self.depth_min_m, 0.0, 1e3)
         v["slab_model"] = choice(nm("slab_model"), self.slab_model, SLAB_MODELS)
         v["brdf"] = check_brdf_spec(self.brdf, nm("brdf"))
-        if v["brdf"] != LAMBERTIAN and self.method != "iterative":
-            raise ParameterError(nm("brdf"), self.brdf, f"\"{LAMBERTIAN}\" with method "
-                                 f"{self.method!r} (LCT and f-k invert Lambertian voxels; a "
-                                 "BRDF needs method \"iterative\")")
+        if v["brdf"] not in CLOSED_FORM_BRDFS and self.method in ("lct", "fk"):
+            raise ParameterError(nm("brdf"), self.brdf, " or ".join(
+                f"\"{b}\"" for b in CLOSED_FORM_BRDFS) + f" with method {self.method!r} "
+                "(LCT and f-k model a reflectance by their falloff alone: 4 and 2 for "
+                "Lambertian, 2 for retroreflective; any other BRDF, and \"auto\", needs "
+                "method \"iterative\")")
         v["brdf_terms"] = ("auto" if self.brdf_terms == "auto"
                            else integer(nm("brdf_terms"), self.brdf_terms, 1, MAX_TERMS))
         for field in names:  # what the user set for a method that does not read it

@@ -50,7 +50,7 @@ def test_spot_average_matches_an_integration_over_the_disc(ratio):
 
 def _plate_signal(queue, z, material):
     d = {"scan": {"width_m": 0.04, "points": 4},
-         "time": {"bin_width_s": 40e-12, "bins": 256, "start_s": 0.0},
+         "time": {"bin_width_s": 40e-12, "bins": 512, "start_s": 0.0},
          "sampling": {"density_per_m2": 4e6},
          "objects": [{"shape": "rectangle", "size_m": [0.02, 0.02],
                       "translate_m": [0.0, 0.0, z], "material": material}]}

@@ -88,16 +88,25 @@ class MethodEntry:
 METHODS: dict[str, MethodEntry] = {
     "lct": MethodEntry("clnlos.inverse.lct", "LCTMethod", 4.0,
                        "light-cone transform with a Wiener filter (O'Toole et al. 2018)",
-                       "reproducibility", "reproducibility", ("falloff", "inversion_snr")),
+                       "reproducibility", "reproducibility",
+                       ("falloff", "inversion_snr", "brdf")),
     "fk": MethodEntry("clnlos.inverse.fk", "FKMethod", 2.0,
                       "f-k (Stolt) migration (Lindell et al. 2019)", "reproducibility",
-                      "reproducibility", ("falloff",)),
+                      "reproducibility", ("falloff", "brdf")),
     "iterative": MethodEntry("clnlos.inverse.iterative", "IterativeMethod", None,
                              "FISTA on the light-cone transport, L1 + TV, warm-started by "
                              "LCT", "thinning", "gcv",
                              ("inversion_snr", "iterations", "l1_weight", "tv_weight",
                               "depth_min_m", "slab_model", "brdf", "brdf_terms")),
 }
+
+
+# LCT's and f-k's retroreflective variant (O'Toole et al. 2018, cnlos_reconstruction.m
+# ``isdiffuse = 0``): the radiometric exponent of a retroreflector whose cone the scanned spot
+# holds (1/r^2; clnlos.physics.retroreflector); ``brdf = "retroreflective"`` asks for it
+RETROREFLECTIVE_FALLOFF = 2.0
+# the reflectances LCT and f-k take (``brdf``): their falloff is all they model of it
+CLOSED_FORM_BRDFS = ("lambertian", "retroreflective")
 
 
 def method_names() -> tuple[str, ...]:
@@ -166,8 +175,13 @@ class Inversion:
                     dtype=self.dtype, queue=self.queue, scratch=self.scratch)
 
     def falloff(self) -> dict:
-        """``{"falloff": x}`` when the config sets one, else ``{}`` (the method's default)."""
-        return {} if self.config.falloff is None else {"falloff": self.config.falloff}
+        """``{"falloff": x}`` when the config sets one, else RETROREFLECTIVE_FALLOFF for
+        ``brdf = "retroreflective"``, else ``{}`` (the method's default)."""
+        if self.config.falloff is not None:
+            return {"falloff": self.config.falloff}
+        if self.config.brdf == "retroreflective":
+            return {"falloff": RETROREFLECTIVE_FALLOFF}
+        return {}
 
     def configure(self, tau_g, noise, rule_snr: float, timed, probe=None,
                   slab_influence=None, rule: str | None = None) -> dict:

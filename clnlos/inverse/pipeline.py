@@ -42,7 +42,7 @@ import numpy as np
 import pyopencl.array as cla
 
 from clnlos import C0
-from clnlos.brdf.lobes import AUTO, auto_ladder
+from clnlos.brdf.lobes import AUTO, auto_challengers, auto_ladder
 from clnlos.config import ReconstructionConfig, check_window
 from clnlos.errors import InputFileError, ParameterError
 from clnlos.forward.blur import blur_time_scales, confocal_lag_energy, confocal_psf, slab_blur
@@ -50,6 +50,7 @@ from clnlos.inverse.brdf_choice import (
     LOBE_NOT_SEARCHED,
     LOBE_NOT_SEARCHED_REASON,
     LOBE_SEARCH_ITERATIONS,
+    challenge,
     choose_lobe,
     score_margin,
 )
@@ -655,6 +656,7 @@ class ReconstructionPipeline:
             return score_margin(fits[new.name], fits[best.name], held, noise_runs)
 
         chosen, tried = choose_lobe(auto_ladder(), score, margin)
+        chosen, tried = challenge(chosen, tried, auto_challengers(), score, margin)
         return chosen, {"brdf_rule_used": "thinning", "brdf_chosen": chosen.name,
                         "brdf_tried": json.dumps([[c, v] for c, v in tried])}
 
