@@ -75,6 +75,9 @@ class MethodEntry:
     # the config fields of the inversion that only some methods read which this one reads
     # (a user who sets one for a method that does not read it is told so: clnlos.config)
     reads: tuple[str, ...] = ()
+    # the most time bins the method inverts when ``bins`` is not set: a longer capture's bins
+    # are summed in pairs until it fits (clnlos.inverse.pipeline.bins_for); None: all of them
+    max_bins: int | None = None
 
     def __post_init__(self):
         if self.split_rule not in ("thinning", "reproducibility"):
@@ -84,6 +87,11 @@ class MethodEntry:
             raise ValueError(f"auto_snr_rule {self.auto_snr_rule!r}: \"gcv\" or "
                              f"{self.split_rule!r}")
 
+
+# the iterative method's default time grid: at most 512 bins, the published LCT code's grid of
+# the 2048-bin captures of O'Toole et al. (4 ps bins summed to 16 ps); each iteration costs
+# light-cone FFTs on a grid twice the bins deep (a 64 x 64 x 2048 capture took minutes)
+ITERATIVE_MAX_BINS = 512
 
 METHODS: dict[str, MethodEntry] = {
     "lct": MethodEntry("clnlos.inverse.lct", "LCTMethod", 4.0,
@@ -97,7 +105,8 @@ METHODS: dict[str, MethodEntry] = {
                              "FISTA on the light-cone transport, L1 + TV, warm-started by "
                              "LCT", "thinning", "gcv",
                              ("inversion_snr", "iterations", "l1_weight", "tv_weight",
-                              "depth_min_m", "slab_model", "brdf", "brdf_terms")),
+                              "depth_min_m", "slab_model", "brdf", "brdf_terms"),
+                             ITERATIVE_MAX_BINS),
 }
 
 
