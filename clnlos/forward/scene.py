@@ -62,7 +62,9 @@ plate", "black anode plate", "fuchsia lacquer board", "aluminium diffuse reflect
 "glass fibre", "standard white plate", "cement board"); a BRDF texture file
 (``material = "tex.h5"``, written by ``clnlos brdf texture``, path relative to the scene);
 an analytic model table (``material = { model = "phong", kd = 0.2, ks = 0.8, shininess = 40
-}``); or ``brdf_retro_csv = "f.csv"`` (columns theta_deg, brdf: the confocal slice).
+}``); "retroreflective" (:mod:`clnlos.physics.retroreflector`; its fields overridden by a
+table ``{ model = "retroreflective", spot_radius_m = 0.02, ... }``, fields and ranges:
+``RETRO_LIMITS``; confocal transport only); or ``brdf_retro_csv = "f.csv"`` (columns theta_deg, brdf: the confocal slice).
 """
 
 from __future__ import annotations
