@@ -212,4 +212,9 @@ class Inversion:
         raise NotImplementedError(f"method {self.name!r} has no forward model")
 
     def used(self) -> dict:
-        return {}
+        """What the method chose that the volume records: for a method with a falloff (its
+        registry entry), ``falloff_used`` (the config's, the ``brdf``'s or its own)."""
+        entry = METHODS.get(self.name)
+        if entry is None or entry.falloff is None:
+            return {}
+        return {"falloff_used": self.falloff().get("falloff", entry.falloff)}
