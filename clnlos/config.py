@@ -65,14 +65,17 @@ optional and its default is the field default of :class:`ReconstructionConfig`::
     brdf = "lambertian"          # iterative: the voxels' reflectance: "lambertian", a
                                  # material name, a BRDF texture or fitted model .h5, or
                                  # "auto" (the lobe chosen from the capture by held-out
-                                 # photons, clnlos.inverse.brdf_choice); LCT and f-k are
-                                 # Lambertian (clnlos.brdf.lobes)
+                                 # photons, clnlos.inverse.brdf_choice; it tries the
+                                 # "retroreflective" lobe too); LCT and f-k: "lambertian"
+                                 # (their falloff) or "retroreflective" (falloff 2, the
+                                 # published variant; an explicit falloff wins)
     brdf_terms = "auto"          # iterative: separable terms K of the lobe, or "auto" (the
                                  # fewest within clnlos.physics.lobe.LOBE_TOLERANCE)
 
 A field that only some methods read (clnlos.inverse.methods.MethodEntry.reads: falloff for
 lct and fk, [inversion] snr for lct and iterative, iterations, l1_weight, tv_weight,
-depth_min_m, slab_model, brdf and brdf_terms for iterative) is refused when the user sets it
+depth_min_m, slab_model and brdf_terms for iterative; brdf for iterative, and for lct and fk
+its "lambertian" and "retroreflective") is refused when the user sets it
 -- as a key of the TOML or as a flag -- for a method that does not read it; where a flag
 (``--method``) or keyword (``method=``) changes the method over a TOML written for another,
 the TOML's settings for its own method are left unused instead, with a note
@@ -131,6 +134,9 @@ class MethodEntry:
     # the config fields of the inversion that only some methods read which this one reads
     # (a user who sets one for a method that does not read it is told so: clnlos.config)
     reads: tuple[str, ...] = ()
+    # the most time bins the method inverts when ``bins`` is not set: a longer capture's bins
+    # are summed in pairs until it fits (clnlos.inverse.pipeline.bins_for); None: all of them
+    max_bins: int | None = None
 
     def __post_init__(self):
         if self.split_rule not in ("thinning", "reproducibility"):
@@ -141,19 +147,33 @@ class MethodEntry:
                              f"{self.split_rule!r}")
 
 
+# the iterative method's default time grid: at most 512 bins, the published LCT code's grid of
+# the 2048-bin captures of O'Toole et al. (4 ps bins summed to 16 ps); each iteration costs
+# light-cone FFTs on a grid twice the bins deep (a 64 x 64 x 2048 capture took minutes)
+ITERATIVE_MAX_BINS = 512
+
 METHODS: dict[str, MethodEntry] = {
     "lct": MethodEntry("clnlos.inverse.lct", "LCTMethod", 4.0,
                        "light-cone transform with a Wiener filter (O'Toole et al. 2018)",
-                       "reproducibility", "reproducibility", ("falloff", "inversion_snr")),
+                       "reproducibility", "reproducibility",
+                       ("falloff", "inversion_snr", "brdf")),
     "fk": MethodEntry("clnlos.inverse.fk", "FKMethod", 2.0,
                       "f-k (Stolt) migration (Lindell et al. 2019)", "reproducibility",
-                      "reproducibility", ("falloff",)),
+                      "reproducibility", ("falloff", "brdf")),
     "iterative": MethodEntry("clnlos.inverse.iterative", "IterativeMethod", None,
                              "FISTA on the light-cone transport, L1 + TV, warm-started by "
                              "LCT", "thinning", "gcv",
                              ("inversion_snr", "iterations", "l1_weight", "tv_weight",
-                              "depth_min_m", "slab_model", "brdf", "brdf_terms")),
+                              "depth_min_m", "slab_model", "brdf", "brdf_terms"),
+                             ITERATIVE_MAX_BINS),
 }
+
+# LCT's and f-k's retroreflective variant (O'Toole et al. 2018, cnlos_reconstruction.m
+# ``isdiffuse = 0``): the radiometric exponent of a retroreflector whose cone the scanned spot
+# holds (1/r^2; clnlos.physics.retroreflector); ``brdf = "retroreflective"`` asks for it
+RETROREFLECTIVE_FALLOFF = 2.0
+# the reflectances LCT and f-k take (``brdf``): their falloff is all they model of it
+CLOSED_FORM_BRDFS = ("lambertian", "retroreflective")
 
 
 def method_names() -> tuple[str, ...]:
@@ -460,6 +480,9 @@ class ReconstructionConfig:
     slab_model: str = "influence"
     brdf: str = LAMBERTIAN
     brdf_terms: int | str = "auto"
+    # the fields the user set (validate's ``names``; not a parameter: defaults that depend on
+    # the capture, clnlos.inverse.capture_defaults, leave these alone)
+    user_fields: frozenset = dataclasses.field(default=frozenset(), compare=False, repr=False)
 
     def validate(self, names: dict[str, str] | None = None) -> ReconstructionConfig:
         """A validated copy. ``names`` maps field names to how the user gave them (a CLI
@@ -517,10 +540,12 @@ class ReconstructionConfig:
             v["depth_min_m"] = real(nm("depth_min_m"), self.depth_min_m, 0.0, 1e3)
         v["slab_model"] = choice(nm("slab_model"), self.slab_model, SLAB_MODELS)
         v["brdf"] = check_brdf_spec(self.brdf, nm("brdf"))
-        if v["brdf"] != LAMBERTIAN and self.method != "iterative":
-            raise ParameterError(nm("brdf"), self.brdf, f"\"{LAMBERTIAN}\" with method "
-                                 f"{self.method!r} (LCT and f-k invert Lambertian voxels; a "
-                                 "BRDF needs method \"iterative\")")
+        if v["brdf"] not in CLOSED_FORM_BRDFS and self.method in ("lct", "fk"):
+            raise ParameterError(nm("brdf"), self.brdf, " or ".join(
+                f"\"{b}\"" for b in CLOSED_FORM_BRDFS) + f" with method {self.method!r} "
+                "(LCT and f-k model a reflectance by their falloff alone: 4 and 2 for "
+                "Lambertian, 2 for retroreflective; any other BRDF, and \"auto\", needs "
+                "method \"iterative\")")
         v["brdf_terms"] = ("auto" if self.brdf_terms == "auto"
                            else integer(nm("brdf_terms"), self.brdf_terms, 1, MAX_TERMS))
         for field in names:  # what the user set for a method that does not read it
@@ -529,7 +554,7 @@ class ReconstructionConfig:
                 raise ParameterError(nm(field), getattr(self, field), "only with method "
                                      + " or ".join(f"\"{m}\"" for m in readers)
                                      + f" (method \"{self.method}\" does not use it)")
-        return dataclasses.replace(self, **v)
+        return dataclasses.replace(self, **v, user_fields=self.user_fields | frozenset(names))
 
     def _rules_for_method(self) -> str:
         """The snr_rule values that apply with this config's method, quoted."""
@@ -593,6 +618,7 @@ class ReconstructionConfig:
 
     def as_attrs(self) -> dict:
         d = asdict(self)
+        d.pop("user_fields")
         d["slab"] = None if self.slab is None else {**asdict(self.slab), "ze_used_m":
                                                     self.slab.ze}
         return d

@@ -309,13 +309,17 @@ def register_reconstruct(sub, add_device) -> None:
                         "deconvolution leaves; none fits the light cone alone (Wiener first) "
                         f"(default {C.slab_model})")
     r.add_argument("--brdf",
-                   help="iterative: the voxels' reflectance: lambertian, a material name ("
-                        "clnlos brdf presets: the seed's ten and the analytic ones), a BRDF "
+                   help="the voxels' reflectance. lct, fk: lambertian (their falloff) or "
+                        "retroreflective (falloff 2, the published variant). iterative: "
+                        "lambertian, a material name ("
+                        "clnlos brdf presets: the seed's ten, the analytic ones and "
+                        "retroreflective: the cone's falloff and acceptance), a BRDF "
                         "texture or fitted model .h5 (its retro lobe, averaged over each "
                         "voxel's cell and over the slab's footprint), or auto: the lobe "
-                        "among a ladder from Lambertian to a 0.4 deg mirror whose "
-                        "reconstruction from half the photons best predicts the other half "
-                        f"(2-5 extra reconstructions of half the data) (default {C.brdf})")
+                        "among a ladder from Lambertian to a 0.4 deg mirror, and the "
+                        "retroreflective one, whose reconstruction from half the photons best "
+                        "predicts the other half (3-6 extra reconstructions of half the data) "
+                        f"(default {C.brdf})")
     r.add_argument("--brdf-terms", type=int_or_auto,
                    help="iterative: separable terms K of the lobe (each one more FFT per "
                         "operator apply), or auto: the fewest within a relative error of "

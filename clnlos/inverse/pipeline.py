@@ -42,7 +42,7 @@ import numpy as np
 import pyopencl.array as cla
 
 from clnlos.physics.constants import C0
-from clnlos.brdf.lobes import AUTO, auto_ladder
+from clnlos.brdf.lobes import AUTO, auto_challengers, auto_ladder
 from clnlos.config import ReconstructionConfig, check_window
 from clnlos.errors import InputFileError, MissingParameterError, ParameterError
 from clnlos.forward.blur import blur_time_scales, confocal_lag_energy, confocal_psf, slab_blur
@@ -50,12 +50,13 @@ from clnlos.inverse.brdf_choice import (
     LOBE_NOT_SEARCHED,
     LOBE_NOT_SEARCHED_REASON,
     LOBE_SEARCH_ITERATIONS,
+    challenge,
     choose_lobe,
     score_margin,
 )
 from clnlos.inverse.capture_defaults import format_defaults
 from clnlos.inverse.gcv import GcvBins, binned_power
-from clnlos.inverse.methods import InversionGrid, method_class
+from clnlos.inverse.methods import METHODS, InversionGrid, method_class
 from clnlos.inverse.reproducibility import (
     LIGHTCONE_SNRS,
     candidate_order,
@@ -242,6 +243,21 @@ def preprocess_bins(nt_in: int, bin_width_s: float, start_s: float,
     return n_keep, n_keep if bins is None else int(bins)
 
 
+def bins_for(config: ReconstructionConfig, nt_in: int, bin_width_s: float,
+             start_s: float) -> int | None:
+    """The bins the preprocessing rebins to: the config's ``bins``, else for a method with a
+    ``max_bins`` (:class:`clnlos.inverse.methods.MethodEntry`) the kept bins halved (summed in
+    pairs) until at most that many, else None (all of them)."""
+    cap = METHODS[config.method].max_bins if config.method in METHODS else None
+    if config.bins is not None or cap is None:
+        return config.bins
+    n_keep, _ = preprocess_bins(nt_in, bin_width_s, start_s, config.max_path_m, None)
+    n = n_keep
+    while n > cap:
+        n = (n + 1) // 2
+    return None if n == n_keep else n
+
+
 def device_bytes_needed(shape_in, *, bin_width_s: float, start_s: float,
                         config: ReconstructionConfig, dtype=np.float32) -> tuple[int, int]:
     """(device bytes in all, bytes of the largest buffer) that a pipeline for captures of
@@ -251,7 +267,8 @@ def device_bytes_needed(shape_in, *, bin_width_s: float, start_s: float,
     before a capture is read (:func:`clnlos.runtime.limits.capture_use`) never refuses one that
     fits."""
     nt_in, ny, nx = (int(v) for v in shape_in)
-    _, n = preprocess_bins(nt_in, bin_width_s, start_s, config.max_path_m, config.bins)
+    _, n = preprocess_bins(nt_in, bin_width_s, start_s, config.max_path_m,
+                           bins_for(config, nt_in, bin_width_s, start_s))
     item = np.dtype(dtype).itemsize
     spectrum = 2 * n * 2 * ny * (nx + 1) * 2 * item  # (2n, 2ny, 2nx) real -> half, complex
     return nt_in * ny * nx * item + 2 * spectrum, spectrum
@@ -324,8 +341,9 @@ class ReconstructionPipeline:
         self.config = config
         nt_in, ny, nx = shape_in
         guard = config.guard_fraction if config.slab is not None else 0.0
-        A, self.bin_width_s, n_out = preprocess_matrix(nt_in, bin_width_s, start_s,
-                                                       config.max_path_m, config.bins, guard)
+        A, self.bin_width_s, n_out = preprocess_matrix(
+            nt_in, bin_width_s, start_s, config.max_path_m,
+            bins_for(config, nt_in, bin_width_s, start_s), guard)
         self.scan_width_m = scan_width_m
         self.shape = (n_out, ny, nx)
         self.n_guard = A.shape[0] - n_out
@@ -659,6 +677,7 @@ class ReconstructionPipeline:
             return score_margin(fits[new.name], fits[best.name], held, noise_runs)
 
         chosen, tried = choose_lobe(auto_ladder(), score, margin)
+        chosen, tried = challenge(chosen, tried, auto_challengers(), score, margin)
         return chosen, {"brdf_rule_used": "thinning", "brdf_chosen": chosen.name,
                         "brdf_tried": json.dumps([[c, v] for c, v in tried])}
 
