@@ -432,13 +432,17 @@ def drop_other_methods_settings(config: ReconstructionConfig, file_fields: dict[
     back to their defaults, with one note naming them, instead of the error
     :meth:`ReconstructionConfig.validate` gives a setting the user asked for a method that
     does not read it (the file was written for its own method). A ``snr_rule`` the new
-    method cannot use goes back to "auto" too."""
+    method cannot use goes back to "auto" too, a ``brdf`` LCT and f-k cannot model (other
+    than :data:`CLOSED_FORM_BRDFS`) to "lambertian"."""
     method = config.method
     if method not in method_names():
         return config, {}, []  # validate names the unknown method
     unused = {f: sec for f, sec in file_fields.items() if method not in methods_reading(f)}
     if "snr_rule" in file_fields and not snr_rule_applies(str(config.snr_rule), method):
         unused["snr_rule"] = file_fields["snr_rule"]
+    if ("brdf" in file_fields and method in ("lct", "fk")
+            and str(config.brdf).lower() not in CLOSED_FORM_BRDFS):
+        unused["brdf"] = file_fields["brdf"]  # a BRDF only the iterative method models
     if not unused:
         return config, {}, []
     defaults = ReconstructionConfig()
