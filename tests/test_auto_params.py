@@ -8,6 +8,7 @@ from dataclasses import replace
 import numpy as np
 import pyopencl.array as cla
 import pytest
+import scipy.sparse as sp
 
 from clnlos.bench.oracle import (
     BENCH_CASE,
@@ -28,6 +29,7 @@ from clnlos.bench.oracle import (
 )
 from clnlos.config import ReconstructionConfig
 from clnlos.inverse.gcv import GcvBins, binned_power
+from clnlos.inverse.lct import LCT
 from clnlos.inverse.methods import method_class
 from clnlos.inverse.pipeline import auto_snrs, reconstruct
 from clnlos.inverse.reproducibility import kappa_min
@@ -523,3 +525,42 @@ def test_gcv_bins_block_by_block_equal_one_pass(monkeypatch):
         np.testing.assert_allclose(binned_power(whole, [(0, p[:4]), (4, p[4:])]), direct)
         assert whole.count.sum() == pytest.approx(w.sum())
         assert whole.snr(p, 1.0, 1e8) == blocks.snr(p, 1.0, 1e8)
+
+
+def test_lightcone_noise_power_from_its_law(queue):
+    """Without a slab the light-cone UPRE takes the noise's power spectrum from its law
+    (LCT.column_noise_power, no realisation): Parseval's total exactly, and the mean power
+    per bin of realisations of that noise."""
+    rng = np.random.default_rng(5)
+    nt, n = 32, 4
+    lct = LCT((nt, n, n), bin_width_s=64e-12, scan_width_m=0.4, falloff=2.0, queue=queue,
+              dtype=np.float64)
+    counts = rng.poisson(20.0, (nt + 8, n, n)).astype(np.float64)
+    K = sp.random(nt, nt + 8, density=0.2, random_state=6, format="csr")  # any t-only map
+    d = counts.reshape(nt + 8, -1).sum(axis=1)
+    law = lct.column_noise_power(K, d)
+    M = (lct.to_v.matrix @ K).toarray()
+    assert law.sum() == pytest.approx(8 * nt * n * n * float((M**2 @ d).sum()), rel=1e-9)
+    draws = []
+    for _ in range(300):
+        e = np.sqrt(counts) * rng.standard_normal(counts.shape)
+        x = (K @ e.reshape(nt + 8, -1)).reshape(nt, n, n)
+        draws.append(lct.power(cla.to_device(queue, x)))
+    mean = np.mean(draws, axis=0)
+    assert np.abs(mean - law).sum() / law.sum() < 0.05
+
+
+def test_upre_without_a_slab_reuses_the_spectrum(tiny_capture, queue):
+    """A photon-count capture without a slab: the light-cone SNR by UPRE from the noise's
+    law, reproducible, and the inversion reusing the choice's forward FFT gives the volume
+    of the same SNR given as a number (a fresh transform)."""
+    cap, _ = tiny_capture
+    cfg = ReconstructionConfig(method="lct").validate()
+    auto = reconstruct(cap, cfg, device=queue)
+    assert auto.params["inversion_snr_rule"] == "upre"
+    assert reconstruct(cap, cfg, device=queue).params["inversion_snr_used"] == \
+        auto.params["inversion_snr_used"]
+    fixed = reconstruct(cap, cfg.replace(inversion_snr=auto.params["inversion_snr_used"])
+                        .validate(), device=queue)
+    np.testing.assert_allclose(auto.volume, fixed.volume, rtol=1e-5,
+                               atol=1e-6 * float(fixed.volume.max()))

@@ -157,6 +157,7 @@ class LCT:
                                          queue=self.queue, in_plane=(2 * ny, 2 * nx))
         self._k = get_kernels(self.queue, "resample", real_defines(self.dtype))
         self._gcv_bins = None  # clnlos.inverse.gcv.GcvBins of the light cone, built on first use
+        self.spectrum_of = None  # the transient whose spectrum the work buffer holds (upre_snr)
 
     def _cone_filter(self, pitch: float, scratch: Scratch, cache) -> SpectralFilter:
         """The light-cone convolution on the (2 nt, 2 ny, 2 nx) grid: its spectrum from the
@@ -189,17 +190,49 @@ class LCT:
         """The light-cone Wiener SNR in [snr_min, snr_max] that generalised cross-validation
         (:mod:`clnlos.inverse.gcv`) picks for the transient ``tau`` [t, y, x] (device): V evaluated
         on the filter's own (v, y, x) grid, where the light cone is a convolution."""
-        return self._bins().snr_of(self._power(tau), snr_min, snr_max)
+        power = self.power(tau)
+        self.spectrum_of = tau  # the inversion that follows reuses the spectrum (__call__)
+        return self._bins().snr_of(power, snr_min, snr_max)
 
-    def upre_snr(self, tau: cla.Array, noise: cla.Array, snr_min: float,
-                 snr_max: float) -> float:
+    def upre_snr(self, tau: cla.Array, probe, snr_min: float, snr_max: float) -> float:
         """The light-cone Wiener SNR in [snr_min, snr_max] that the unbiased predictive risk
         estimate (:meth:`clnlos.inverse.gcv.GcvBins.upre_snr`) picks for the transient ``tau``
-        whose noise is like ``noise`` (a realisation of it, same shape, device): on the
+        whose noise ``probe`` describes (:class:`clnlos.inverse.pipeline.NoiseProbe`): on the
         filter's (v, y, x) grid, where the slab deconvolution and the t -> v resampling
-        have coloured it (GCV's white-noise assumption does not hold there)."""
-        return self._bins().upre_snr_of(self._power(tau), self._power(noise), snr_min,
-                                        snr_max)
+        have coloured it (GCV's white-noise assumption does not hold there). The noise's
+        power from its law where the probe has one (:meth:`column_noise_power`, no
+        realisation and no FFT), else from the realisation ``probe()``. The data's spectrum
+        stays in the filter's work buffer: the inversion of ``tau`` that follows reuses it
+        (:meth:`__call__`, one forward FFT for the choice and the inversion together)."""
+        columns = getattr(probe, "columns", None)
+        noise = (self.column_noise_power(*columns()) if columns is not None
+                 else self.power(probe()))
+        power = self.power(tau)
+        self.spectrum_of = tau
+        return self._bins().upre_snr_of(power, noise, snr_min, snr_max)
+
+    def column_noise_power(self, K, d: np.ndarray) -> np.ndarray:
+        """The expected power per bin of :meth:`_bins` of the noise n = K e of every scan
+        column (e independent, variance ``d`` summed over the scan points) after the t -> v
+        resampling and the padding: independent noise is white across the scan, so
+        E|Y(k_v, k_y, k_x)|^2 = sum_t |(F_v M)(k_v, t)|^2 d(t), M = (t -> v) K, F_v the
+        DFT over the 2 nt padded v bins -- the same at every lateral frequency."""
+        nt = self.shape[0]
+        M = (self.to_v.matrix @ K).tocsc()
+        s_half = np.zeros(nt + 1)
+        step = max(1, (1 << 22) // (2 * nt))  # raw columns per block: ~64 MB of spectrum
+        for c0 in range(0, M.shape[1], step):
+            c1 = min(M.shape[1], c0 + step)
+            block = M[:, c0:c1].toarray() * np.sqrt(d[c0:c1])[None, :]
+            f = np.fft.rfft(block, n=2 * nt, axis=0)
+            s_half += (f.real ** 2 + f.imag ** 2).sum(axis=1)
+        k = np.arange(2 * nt)
+        s = s_half[np.minimum(k, 2 * nt - k)]
+        bins = self._bins()
+        plane = bins.index.shape[1:]
+        return binned_power(bins, ((r0, np.broadcast_to(s[r0:r1, None, None],
+                                                          (r1 - r0,) + plane))
+                                   for r0, r1 in row_blocks(bins.index.shape)))
 
     def _bins(self):
         if self._gcv_bins is None:
@@ -207,7 +240,7 @@ class LCT:
             self._gcv_bins = GcvBins.from_blocks(f.gain_rows, f.fft.spec_shape, f.pad_shape[2])
         return self._gcv_bins
 
-    def _power(self, tau: cla.Array) -> np.ndarray:
+    def power(self, tau: cla.Array) -> np.ndarray:
         """|F[t -> v of tau, padded]|^2 on the half spectrum of the light-cone filter,
         summed per bin of :meth:`_bins` (block by block)."""
         bins = self._bins()
@@ -220,17 +253,23 @@ class LCT:
         """The linear model in the (v, y, x) domain used by the inverse: light-cone convolution."""
         return self.cone
 
-    def __call__(self, tau):
-        """Albedo volume [z, y, x] (clamped at 0) from a transient [t, y, x]."""
+    def __call__(self, tau, *, spectrum_kept: bool = False):
+        """Albedo volume [z, y, x] (clamped at 0) from a transient [t, y, x].
+        ``spectrum_kept``: nothing has used the work buffers since :meth:`upre_snr` or
+        :meth:`gcv_snr` of this ``tau`` (the caller knows): their forward FFT is reused."""
         on_device = isinstance(tau, cla.Array)
         x = tau if on_device else cla.to_device(self.queue,
                                                 np.ascontiguousarray(tau, self.dtype))
         if tuple(x.shape) != self.shape:
             raise ShapeError(f"LCT input: expected shape {self.shape}, got {tuple(x.shape)}")
         vol = cla.empty(self.queue, self.shape, self.dtype)
-        self.inverse_filter.filter_padded(
-            lambda buf: self._to_v_padded.apply_into(x, buf),
-            lambda buf: self._to_z_padded.apply_into(buf, vol))
+        read = lambda buf: self._to_z_padded.apply_into(buf, vol)  # noqa: E731
+        if spectrum_kept and self.spectrum_of is not None and self.spectrum_of is x:
+            self.inverse_filter.filter_spectrum(read)  # upre_snr's forward FFT of x reused
+        else:
+            self.inverse_filter.filter_padded(
+                lambda buf: self._to_v_padded.apply_into(x, buf), read)
+        self.spectrum_of = None
         self._k.clamp_nonnegative(self.queue, (round_up(vol.size, 256),), None, vol.data,
                                   np.int64(vol.size))
         return vol if on_device else vol.get()
@@ -256,7 +295,7 @@ def choose_lightcone_snr(lct: LCT, config, noise, tau_g, rule_snr: float, timed,
     if config.inversion_snr != "auto" or noise.noise_free:
         return rule_snr, None
     if noise.photon_counts and LIGHTCONE_RULE == "upre" and probe is not None:
-        return timed("choose_inversion_snr", lct.upre_snr, tau_g, probe(), LIGHTCONE_SNR_MIN,
+        return timed("choose_inversion_snr", lct.upre_snr, tau_g, probe, LIGHTCONE_SNR_MIN,
                      LIGHTCONE_SNR_MAX), "upre"
     return timed("choose_inversion_snr", lct.gcv_snr, tau_g, LIGHTCONE_SNR_MIN,
                  LIGHTCONE_SNR_MAX), "gcv"
@@ -283,10 +322,12 @@ class LCTMethod(Inversion):
 
     def configure(self, tau_g, noise, rule_snr: float, timed, probe=None,
                   slab_influence=None, rule: str | None = None) -> dict:
+        self.lct.spectrum_of = None  # set again by a choice that transforms tau_g
         snr, rule = choose_lightcone_snr(self.lct, self.config, noise, tau_g, rule_snr, timed,
                                          probe, rule)
         self.lct.set_snr(snr)
         return lightcone_snr_params(snr, rule)
 
     def __call__(self, tau_g, *, progress=None, setup=None):
-        return self.lct(tau_g)
+        # the pipeline inverts right after configure(): the SNR choice's spectrum is kept
+        return self.lct(tau_g, spectrum_kept=True)

@@ -152,10 +152,15 @@ NOISE_PROBE_SEED = 0     # the noise realisation of ReconstructionPipeline._nois
 
 class NoiseProbe:
     """A realisation of the inverted transient's noise, computed on the first call (the
-    methods that need it: :mod:`clnlos.inverse.methods`)."""
+    methods that need it: :mod:`clnlos.inverse.methods`); where that noise went through
+    steps along t alone (no slab deconvolution), also its law: ``columns()`` = (K, d), the
+    noise n = K e of every scan column, K (sparse, inverted bins x raw bins) the
+    preprocessing with the normalisation, e independent of variance d (the raw bins'
+    Poisson variance summed over the scan points, float64): enough for its expected power
+    spectrum without a realisation (:meth:`clnlos.inverse.lct.LCT.upre_snr`)."""
 
-    def __init__(self, make):
-        self.make, self.value = make, None
+    def __init__(self, make, columns=None):
+        self.make, self.value, self.columns = make, None, columns
 
     def __call__(self):
         if self.value is None:
@@ -569,7 +574,8 @@ class ReconstructionPipeline:
         elif self.n_guard:
             tau = tau[:self.shape[0]]  # the guard bins dropped: a view of the leading rows
         method = self.config.method
-        probe = (NoiseProbe(lambda: self._probe(prep, deconv, snr))
+        probe = (NoiseProbe(lambda: self._probe(prep, deconv, snr),
+                            None if deconv is not None else lambda: self._noise_columns(prep))
                  if noise.photon_counts and not noise.noise_free else None)
         influence = (None if self.deconv is None else
                      lambda: self._slab_influence(snr))
@@ -894,6 +900,15 @@ class ReconstructionPipeline:
             self._scale_inplace(t, scale)
         return t
 
+    def _noise_columns(self, prep: PreparedCapture) -> tuple:
+        """(K, d) of :class:`NoiseProbe` for a prepared capture without a slab
+        deconvolution: the preprocessing's rows of the inverted grid times the
+        normalisation, and the raw counts' Poisson variance summed over the scan points
+        (the variance of :meth:`_noise_preprocessed`'s realisation)."""
+        y = np.asarray(prep.transient)
+        d = np.maximum(y.reshape(y.shape[0], -1), 0).sum(axis=1, dtype=np.float64)
+        return self._pre_matrix[:self.shape[0]] * prep.scale, d
+
     def _probe(self, prep: PreparedCapture, deconv, snr: float) -> cla.Array:
         """:meth:`_noise_like` of a prepared capture (its preprocessed part kept in
         ``prep``: the same for every candidate of a search), deconvolved by ``deconv`` at
@@ -1069,18 +1084,30 @@ def reconstruct(capture: Capture, config: ReconstructionConfig, *, dtype=np.floa
     Pipelines (PSFs, spectra, FFT plans) are kept in :data:`clnlos.runtime.caches.PIPELINES` (LRU
     under a byte budget), so many captures of one geometry (a study) pay the set-up once.
     ``progress(k, n)`` follows the iterative method's iterations and ``setup(step)`` names
-    each set-up step (pipeline, operator, step size, warm start) as it starts.
+    each set-up step (pipeline, operator, step size, warm start) as it starts. A pipeline
+    built for this call records its set-up as the stage "plan" of the timings.
     """
     bw, start, sw = resolve_geometry(capture, config)
     queue = get_queue(device)
     key = (capture.transient.shape, bw, start, sw, json.dumps(config.as_attrs(), sort_keys=True),
            np.dtype(dtype).str, queue)
-    pipe = PIPELINES.get(key, lambda: ReconstructionPipeline(
-        capture.transient.shape, bin_width_s=bw, start_s=start, scan_width_m=sw,
-        config=config, dtype=dtype, queue=queue, setup=setup), queue)
+    built: list[float] = []
+
+    def build() -> ReconstructionPipeline:
+        t0 = time.perf_counter()
+        plan = ReconstructionPipeline(
+            capture.transient.shape, bin_width_s=bw, start_s=start, scan_width_m=sw,
+            config=config, dtype=dtype, queue=queue, setup=setup)
+        queue.finish()
+        built.append(time.perf_counter() - t0)
+        return plan
+
+    pipe = PIPELINES.get(key, build, queue)
     rec = pipe.run(capture.transient, keep_transient=keep_transient, progress=progress,
                    model_snr=model_snr_for(capture, config), setup=setup,
                    time_shifts=capture.time_shift_bins)
+    if built:  # a plan built for this capture (none kept): its set-up is a stage of the run
+        rec.timings_s = {"plan": built[0], **rec.timings_s}
     note = aligned_window_note(capture)
     if note:
         rec.notes.insert(0, note)

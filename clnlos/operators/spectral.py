@@ -337,6 +337,18 @@ class SpectralFilter(LinearOperator):
         self.fft.inverse(spec, buf, needed=self.in_shape)
         return read_output(buf)
 
+    def filter_spectrum(self, read_output, *, adjoint: bool = False):
+        """:meth:`filter_padded` on the spectrum the last forward transform left in the work
+        buffers (:meth:`power_blocks` of the same input, nothing run on them since): the
+        product with the filter and the inverse FFT alone."""
+        spec = self.scratch.array("b", self.fft.spec_shape, self.fft.cdtype)
+        multiply_spectrum(self.kernels, self.H, spec, h_scale=self.h_scale, adjoint=adjoint,
+                          folded=self.folded,
+                          inv_snr=self.inv_snr if self.mode == "wiener" else None)
+        buf = self.work_buffer
+        self.fft.inverse(spec, buf, needed=self.in_shape)
+        return read_output(buf)
+
     def _apply(self, x_g):
         return self._filter(x_g, adjoint=False)
 
