@@ -28,7 +28,7 @@ from clnlos.bench.oracle import (
     write_rows,
 )
 from clnlos.config import ReconstructionConfig
-from clnlos.inverse.gcv import GcvBins, binned_power
+from clnlos.inverse.gcv import GcvBins, binned_power, row_counts
 from clnlos.inverse.lct import LCT
 from clnlos.inverse.methods import method_class
 from clnlos.inverse.pipeline import auto_snrs, reconstruct
@@ -524,6 +524,9 @@ def test_gcv_bins_block_by_block_equal_one_pass(monkeypatch):
                              minlength=whole.count.size)
         np.testing.assert_allclose(binned_power(whole, [(0, p[:4]), (4, p[4:])]), direct)
         assert whole.count.sum() == pytest.approx(w.sum())
+        rows = rng.random(g.shape[0])  # a power constant along each row: no spectrum pass
+        np.testing.assert_allclose(rows @ row_counts(whole), binned_power(
+            whole, [(0, np.broadcast_to(rows[:, None, None], g.shape))]))
         assert whole.snr(p, 1.0, 1e8) == blocks.snr(p, 1.0, 1e8)
 
 

@@ -21,7 +21,8 @@ def cmd_bench(args) -> int:
     argv = ["-o", args.output] + (["--quick"] if args.quick else []) + (
         ["--tiny"] if args.tiny else []) + (["--only", args.only] if args.only else []) + (
         ["--device", args.device] if args.device else []) + (
-        ["--brdf-data", args.brdf_data] if args.brdf_data else [])
+        ["--brdf-data", args.brdf_data] if args.brdf_data else []) + (
+        ["--real-data", args.real_data] if args.real_data else [])
     bench_main(argv)
     return 0
 
@@ -36,6 +37,10 @@ def bench_arguments(b, add_device) -> None:
     b.add_argument("--only", default=None, help=ONLY_HELP + " (default: all)")
     b.add_argument("--brdf-data", default=None, metavar="DIR",
                    help="folder of measured BRDFs (*_gonio.csv) for the brdf_measured section "
+                        "(default: none, those rows skipped with a note)")
+    b.add_argument("--real-data", default=None, metavar="DIR",
+                   help="folder holding the released LCT capture lct/data_s_u.mat (e.g. "
+                        "../shared/data) for auto_params_cost's rows on real counts "
                         "(default: none, those rows skipped with a note)")
     add_force(b)
     add_device(b)

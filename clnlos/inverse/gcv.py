@@ -192,6 +192,22 @@ def _trial_snrs(snr_min: float, snr_max: float) -> np.ndarray:
     return np.logspace(np.log10(snr_min), np.log10(snr_max), n)
 
 
+def row_counts(bins: GcvBins) -> np.ndarray:
+    """(rows of the half spectrum, bins): the frequencies of each row in each bin, with their
+    multiplicity (:func:`half_spectrum_weights`): the power per bin of a power spectrum
+    constant along each row (a function of the first frequency alone) of row values s is
+    ``s @ row_counts(bins)``, no pass over the spectrum."""
+    n_bins = bins.count.size
+    w = half_spectrum_weights(bins.n_last, bins.index.shape[-1])
+    out = np.zeros((bins.index.shape[0], n_bins))
+    for r0, r1 in row_blocks(bins.index.shape):
+        idx = bins.index[r0:r1].astype(np.int64)
+        idx += (np.arange(r1 - r0) * n_bins)[:, None, None]
+        out[r0:r1] = np.bincount(idx.ravel(), weights=np.broadcast_to(w, idx.shape).ravel(),
+                                 minlength=(r1 - r0) * n_bins).reshape(r1 - r0, n_bins)
+    return out
+
+
 def binned_power(bins: GcvBins, blocks) -> np.ndarray:
     """The power per bin of ``bins`` from ``blocks``, an iterable of (r0, |Y|^2 of rows
     r0:r0 + len) (:meth:`clnlos.operators.spectral.SpectralFilter.power_blocks`)."""

@@ -34,7 +34,7 @@ from clnlos import C0
 from clnlos.checks import real
 from clnlos.config import FALLOFF_RANGE, METHOD_FALLOFF
 from clnlos.errors import ParameterError, ShapeError
-from clnlos.inverse.gcv import GcvBins, binned_power
+from clnlos.inverse.gcv import GcvBins, binned_power, row_counts
 from clnlos.inverse.methods import Inversion, InversionGrid
 from clnlos.inverse.snr import (
     CLOSED_FORM_SLAB_SNR_MIN,
@@ -158,6 +158,7 @@ class LCT:
         self._k = get_kernels(self.queue, "resample", real_defines(self.dtype))
         self._gcv_bins = None  # clnlos.inverse.gcv.GcvBins of the light cone, built on first use
         self.spectrum_of = None  # the transient whose spectrum the work buffer holds (upre_snr)
+        self._row_counts = None  # clnlos.inverse.gcv.row_counts of the bins, on first use
 
     def _cone_filter(self, pitch: float, scratch: Scratch, cache) -> SpectralFilter:
         """The light-cone convolution on the (2 nt, 2 ny, 2 nx) grid: its spectrum from the
@@ -227,12 +228,9 @@ class LCT:
             f = np.fft.rfft(block, n=2 * nt, axis=0)
             s_half += (f.real ** 2 + f.imag ** 2).sum(axis=1)
         k = np.arange(2 * nt)
-        s = s_half[np.minimum(k, 2 * nt - k)]
-        bins = self._bins()
-        plane = bins.index.shape[1:]
-        return binned_power(bins, ((r0, np.broadcast_to(s[r0:r1, None, None],
-                                                          (r1 - r0,) + plane))
-                                   for r0, r1 in row_blocks(bins.index.shape)))
+        if self._row_counts is None:  # once per plan: the bins' frequencies per v row
+            self._row_counts = row_counts(self._bins())
+        return s_half[np.minimum(k, 2 * nt - k)] @ self._row_counts
 
     def _bins(self):
         if self._gcv_bins is None:

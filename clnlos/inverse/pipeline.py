@@ -906,7 +906,8 @@ class ReconstructionPipeline:
         normalisation, and the raw counts' Poisson variance summed over the scan points
         (the variance of :meth:`_noise_preprocessed`'s realisation)."""
         y = np.asarray(prep.transient)
-        d = np.maximum(y.reshape(y.shape[0], -1), 0).sum(axis=1, dtype=np.float64)
+        y = y.reshape(y.shape[0], -1)
+        d = (np.maximum(y, 0) if y.min() < 0 else y).sum(axis=1, dtype=np.float64)
         return self._pre_matrix[:self.shape[0]] * prep.scale, d
 
     def _probe(self, prep: PreparedCapture, deconv, snr: float) -> cla.Array:
