@@ -31,7 +31,8 @@ from clnlos.config import ReconstructionConfig
 from clnlos.inverse.gcv import GcvBins, binned_power, row_counts
 from clnlos.inverse.lct import LCT
 from clnlos.inverse.methods import method_class
-from clnlos.inverse.pipeline import auto_snrs, reconstruct
+from clnlos.inverse.parameter_choice import auto_snrs
+from clnlos.inverse.pipeline import reconstruct
 from clnlos.inverse.reproducibility import kappa_min
 from clnlos.inverse.snr import (
     K_SNR,
@@ -279,7 +280,7 @@ def test_closed_form_methods_take_a_deeper_slab_stage(queue):
 def test_a_slab_snr_floor_acts_before_the_model_accuracy():
     """The floor raises the data's SNR, never lowers it, and comes before the model's
     accuracy is combined: a measured capture (MEASURED_MODEL_SNR) stays below that."""
-    from clnlos.inverse.pipeline import method_slab_snr
+    from clnlos.inverse.parameter_choice import method_slab_snr
 
     assert method_slab_snr(2e4, None) == 2e4
     assert method_slab_snr(2e4, 3e5) == 3e5 and method_slab_snr(5e7, 3e5) == 5e7
@@ -482,7 +483,7 @@ def test_rebinning_error_is_zero_for_whole_bins_and_grows_with_the_bin_ratio():
     to 128, 64, 41 ps bins leaves a bound that rises as the bins shrink (the sub-bin
     arrival time the model loses matters less): 1.7e3, 1.3e4, 1.1e5 measured."""
     from clnlos.forward.blur import confocal_lag_energy
-    from clnlos.inverse.pipeline import preprocess_matrix
+    from clnlos.inverse.preprocessing import preprocess_matrix
     from clnlos.inverse.snr import rebinning_error, represented_snr
     from clnlos.physics.slab import CDT_SLAB
 

@@ -27,7 +27,8 @@ from clnlos.forward.pulse import PulseBlur
 from clnlos.forward.transport import LightConeTransport
 from clnlos.inverse.fk import FKMigration
 from clnlos.inverse.lct import LCT
-from clnlos.inverse.pipeline import preprocess_matrix, reconstruct
+from clnlos.inverse.pipeline import reconstruct
+from clnlos.inverse.preprocessing import preprocess_matrix
 from clnlos.io.capture import Capture
 from clnlos.io.files import read_capture, write_capture
 from clnlos.operators.base import dot_test

@@ -30,7 +30,7 @@ from clnlos.errors import ParameterError
 from clnlos.forward.scene import Scene
 from clnlos.inverse.methods import METHODS as METHOD_ENTRIES
 from clnlos.inverse.methods import default_falloffs, method_names
-from clnlos.inverse.pipeline import device_bytes_needed
+from clnlos.inverse.preprocessing import device_bytes_needed
 from clnlos.inverse.reproducibility import kappa_min
 from clnlos.inverse.reproducibility import LIGHTCONE_SNRS as RP_LC
 from clnlos.inverse.reproducibility import SLAB_SNRS as RP_SLAB
