@@ -157,7 +157,6 @@ class LCT:
                                          queue=self.queue, in_plane=(2 * ny, 2 * nx))
         self._k = get_kernels(self.queue, "resample", real_defines(self.dtype))
         self._gcv_bins = None  # clnlos.inverse.gcv.GcvBins of the light cone, built on first use
-        self.spectrum_of = None  # the transient whose spectrum the work buffer holds (upre_snr)
         self._row_counts = None  # clnlos.inverse.gcv.row_counts of the bins, on first use
 
     def _cone_filter(self, pitch: float, scratch: Scratch, cache) -> SpectralFilter:
@@ -191,9 +190,7 @@ class LCT:
         """The light-cone Wiener SNR in [snr_min, snr_max] that generalised cross-validation
         (:mod:`clnlos.inverse.gcv`) picks for the transient ``tau`` [t, y, x] (device): V evaluated
         on the filter's own (v, y, x) grid, where the light cone is a convolution."""
-        power = self.power(tau)
-        self.spectrum_of = tau  # the inversion that follows reuses the spectrum (__call__)
-        return self._bins().snr_of(power, snr_min, snr_max)
+        return self._bins().snr_of(self.power(tau), snr_min, snr_max)
 
     def upre_snr(self, tau: cla.Array, probe, snr_min: float, snr_max: float) -> float:
         """The light-cone Wiener SNR in [snr_min, snr_max] that the unbiased predictive risk
@@ -208,9 +205,7 @@ class LCT:
         columns = getattr(probe, "columns", None)
         noise = (self.column_noise_power(*columns()) if columns is not None
                  else self.power(probe()))
-        power = self.power(tau)
-        self.spectrum_of = tau
-        return self._bins().upre_snr_of(power, noise, snr_min, snr_max)
+        return self._bins().upre_snr_of(self.power(tau), noise, snr_min, snr_max)
 
     def column_noise_power(self, K, d: np.ndarray) -> np.ndarray:
         """The expected power per bin of :meth:`_bins` of the noise n = K e of every scan
@@ -244,30 +239,26 @@ class LCT:
         bins = self._bins()
         return binned_power(bins, self.inverse_filter.power_blocks(
             row_blocks(bins.index.shape),
-            write_input=lambda buf: self._to_v_padded.apply_into(tau, buf)))
+            write_input=lambda buf: self._to_v_padded.apply_into(tau, buf), source=tau))
 
     @property
     def forward_operator(self) -> LinearOperator:
         """The linear model in the (v, y, x) domain used by the inverse: light-cone convolution."""
         return self.cone
 
-    def __call__(self, tau, *, spectrum_kept: bool = False):
-        """Albedo volume [z, y, x] (clamped at 0) from a transient [t, y, x].
-        ``spectrum_kept``: nothing has used the work buffers since :meth:`upre_snr` or
-        :meth:`gcv_snr` of this ``tau`` (the caller knows): their forward FFT is reused."""
+    def __call__(self, tau):
+        """Albedo volume [z, y, x] (clamped at 0) from a transient [t, y, x]; right after
+        :meth:`upre_snr` or :meth:`gcv_snr` of the same ``tau``, with their forward
+        transform (:meth:`clnlos.operators.spectral.SpectralFilter.filter_padded`)."""
         on_device = isinstance(tau, cla.Array)
         x = tau if on_device else cla.to_device(self.queue,
                                                 np.ascontiguousarray(tau, self.dtype))
         if tuple(x.shape) != self.shape:
             raise ShapeError(f"LCT input: expected shape {self.shape}, got {tuple(x.shape)}")
         vol = cla.empty(self.queue, self.shape, self.dtype)
-        read = lambda buf: self._to_z_padded.apply_into(buf, vol)  # noqa: E731
-        if spectrum_kept and self.spectrum_of is not None and self.spectrum_of is x:
-            self.inverse_filter.filter_spectrum(read)  # upre_snr's forward FFT of x reused
-        else:
-            self.inverse_filter.filter_padded(
-                lambda buf: self._to_v_padded.apply_into(x, buf), read)
-        self.spectrum_of = None
+        self.inverse_filter.filter_padded(
+            lambda buf: self._to_v_padded.apply_into(x, buf),
+            lambda buf: self._to_z_padded.apply_into(buf, vol), source=x)
         self._k.clamp_nonnegative(self.queue, (round_up(vol.size, 256),), None, vol.data,
                                   np.int64(vol.size))
         return vol if on_device else vol.get()
@@ -320,12 +311,10 @@ class LCTMethod(Inversion):
 
     def configure(self, tau_g, noise, rule_snr: float, timed, probe=None,
                   slab_influence=None, rule: str | None = None) -> dict:
-        self.lct.spectrum_of = None  # set again by a choice that transforms tau_g
         snr, rule = choose_lightcone_snr(self.lct, self.config, noise, tau_g, rule_snr, timed,
                                          probe, rule)
         self.lct.set_snr(snr)
         return lightcone_snr_params(snr, rule)
 
     def __call__(self, tau_g, *, progress=None, setup=None):
-        # the pipeline inverts right after configure(): the SNR choice's spectrum is kept
-        return self.lct(tau_g, spectrum_kept=True)
+        return self.lct(tau_g)
