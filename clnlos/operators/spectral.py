@@ -185,7 +185,7 @@ class SpectralFilter(LinearOperator):
         self.scratch = Scratch(self.queue) if scratch is None else scratch
         self.scratch.reserve("a", pad_shape, self.dtype)
         self.scratch.reserve("b", self.fft.spec_shape, self.fft.cdtype)
-        self._kept = None  # (input, slot "b" requests) of the spectrum power_blocks left
+        self.kept = None  # (input, slot "b" requests) of the spectrum power_blocks left
 
     @property
     def work_buffer(self) -> cla.Array:
@@ -205,7 +205,7 @@ class SpectralFilter(LinearOperator):
         new.H = H
         new.h_scale = (base.h_scale if H is base.H else 1.0) if h_scale is None else h_scale
         new.folded = base.folded if H is base.H else False
-        new._kept = None
+        new.kept = None
         return new
 
     def set_snr(self, snr: float) -> None:
@@ -274,7 +274,7 @@ class SpectralFilter(LinearOperator):
             source = x_g
         _, spec = self._forward_padded(write_input, nonzero, zeroed)
         # a weak reference: a kept spectrum never keeps its input alive
-        self._kept = None if source is None else (weakref.ref(source),
+        self.kept = None if source is None else (weakref.ref(source),
                                                   self.scratch.requests["b"])
         for r0, r1 in blocks:
             s = spec[r0:r1].get()
@@ -358,7 +358,7 @@ class SpectralFilter(LinearOperator):
         """The spectrum of ``source`` that :meth:`power_blocks` left in slot "b", or None:
         another input, or the slot asked for since (its contents may have changed). Used
         once: the filter overwrites it."""
-        kept, self._kept = self._kept, None
+        kept, self.kept = self.kept, None
         if source is None or kept is None or kept[0]() is not source or \
                 kept[1] != self.scratch.requests.get("b"):
             return None
