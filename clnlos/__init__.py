@@ -19,12 +19,10 @@ grid and light-cone physics), :mod:`clnlos.diffusion` (the slab transmittance, s
 Array axis order everywhere: transients ``[t, y, x]``, volumes ``[z, y, x]``; SI units.
 """
 
-__version__ = "0.2.0"
+import importlib
 
-C0 = 299_792_458.0
-"""Speed of light in vacuum, m/s."""
-
-import importlib  # noqa: E402
+from clnlos.physics.constants import C0  # the speed of light (m/s), stated there
+from clnlos.version import __version__  # stated there (pyproject reads it)
 
 # the API's names -> their module, imported on first use (PEP 562): ``import clnlos`` and the
 # CLI's start-up (``clnlos --version``) load neither the pipeline nor the study

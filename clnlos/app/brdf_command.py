@@ -8,7 +8,6 @@ from pathlib import Path
 from tqdm import tqdm
 
 from clnlos.app.flags import add_force, require
-from clnlos.app.progress import counter, progress_bar
 from clnlos.brdf.data import CSV_COLUMNS
 from clnlos.brdf.evaluate import MODELS as EVAL_MODELS
 from clnlos.brdf.evaluate import MODES as EVAL_MODES
@@ -29,6 +28,7 @@ from clnlos.checks import integer
 from clnlos.errors import ParameterError
 from clnlos.io.files import save_figure
 from clnlos.io.outputs import HDF5_SUFFIXES, check_outputs
+from clnlos.io.progress import counter, progress_bar
 
 BRDF_MODELS = ["mlp", "mlp-seed", "five-param", "torrance-sparrow", "phong", "minnaert",
                "lambert"]

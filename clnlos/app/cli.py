@@ -14,9 +14,9 @@ import signal
 import sys
 import warnings
 
-from clnlos import __version__
 from clnlos.errors import ClnlosError
 from clnlos.io.outputs import Terminated, install_sigterm_cleanup, user_path
+from clnlos.version import __version__
 
 EXIT_USAGE = 2
 ENVIRONMENT = "clnlos.runtime.environment"  # check_environment, before any command's work

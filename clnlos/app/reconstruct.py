@@ -9,7 +9,7 @@ from pathlib import Path
 import numpy as np
 
 from clnlos.api import reconstruct
-from clnlos.app.progress import progress_bar, stage
+from clnlos.io.progress import progress_bar, stage
 from clnlos.config import ReconstructionConfig
 from clnlos.inverse.pipeline import Reconstruction
 from clnlos.io.capture import Capture
@@ -50,7 +50,7 @@ def reconstruct_to_files(capture: Capture, out, config: ReconstructionConfig, *,
     """Reconstruct (:func:`clnlos.api.reconstruct`: the slab the capture recorded unless the
     config names one or ``no_slab``; its note to ``log``) and write the volume (HDF5) and its
     figure (PNG beside it) together, atomically, with the provenance of the result; the
-    iterative method shows a progress bar (:mod:`clnlos.app.progress`), its set-up steps
+    iterative method shows a progress bar (:mod:`clnlos.io.progress`), its set-up steps
     beside it, then its iterations."""
     out = Path(out)
     queue = get_queue(queue)

@@ -6,7 +6,7 @@ from __future__ import annotations
 import argparse
 from pathlib import Path
 
-from clnlos import study
+import clnlos.study as study  # the package (study.run: the function)
 from clnlos.app.flags import add_force, require
 from clnlos.checks import integer
 from clnlos.errors import InputFileError

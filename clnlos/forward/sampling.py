@@ -9,7 +9,7 @@ from dataclasses import dataclass
 
 import numpy as np
 
-from clnlos import C0
+from clnlos.physics.constants import C0
 from clnlos.brdf.presets import material_retro as preset_retro
 from clnlos.errors import ParameterError
 from clnlos.forward.geometry import (

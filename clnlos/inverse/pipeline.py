@@ -41,12 +41,12 @@ from dataclasses import dataclass, field
 import numpy as np
 import pyopencl.array as cla
 
-from clnlos import C0
 from clnlos.brdf.lobes import AUTO
 from clnlos.config import ReconstructionConfig
 from clnlos.errors import InputFileError
 from clnlos.forward.blur import blur_time_scales, confocal_lag_energy, confocal_psf, slab_blur
 from clnlos.inverse.brdf_choice import LOBE_NOT_SEARCHED, LOBE_NOT_SEARCHED_REASON
+from clnlos.inverse.capture_defaults import format_defaults
 from clnlos.inverse.gcv import GcvBins, binned_power
 from clnlos.inverse.methods import InversionGrid, method_class
 from clnlos.inverse.parameter_choice import (
@@ -66,6 +66,7 @@ from clnlos.inverse.preprocessing import (
     centred_extents,
     cut_level,
     describe_slab,
+    preprocess_bins,
     preprocess_matrix,
     resolve_geometry,
     window_end_level,
@@ -85,6 +86,7 @@ from clnlos.inverse.snr import (
 from clnlos.inverse.tail_fill import TailFilledDeconvolution
 from clnlos.io.capture import Capture, without_direct
 from clnlos.operators.resample import AxisResample
+from clnlos.physics.constants import C0
 from clnlos.physics.grid import row_blocks
 from clnlos.physics.lobe import RetroLobe
 from clnlos.runtime.buffers import Scratch, host_view, round_up
@@ -580,6 +582,13 @@ def reconstruct(capture: Capture, config: ReconstructionConfig, *, dtype=np.floa
     built for this call records its set-up as the stage "plan" of the timings.
     """
     capture, reader_notes = without_direct(capture, config.direct_cut_s)
+    if capture.bin_width_s is not None or config.bin_width_s is not None:
+        bw = config.bin_width_s or capture.bin_width_s
+        start = config.start_s if config.start_s is not None else capture.start_s
+        kept, _ = preprocess_bins(capture.transient.shape[0], bw, start,
+                                  config.max_path_m, None)
+        config, notes = format_defaults(capture.attrs, config, bins_kept=kept, bin_width_s=bw)
+        reader_notes += notes
     bw, start, sw = resolve_geometry(capture, config)
     queue = get_queue(device)
     key = (capture.transient.shape, bw, start, sw, json.dumps(config.as_attrs(), sort_keys=True),

@@ -11,12 +11,12 @@ import time
 
 import numpy as np
 
-from clnlos import C0
 from clnlos.config import ReconstructionConfig, check_window
 from clnlos.errors import InputFileError, ParameterError
 from clnlos.inverse.snr import ARRIVAL_SIGMAS
 from clnlos.io.capture import Capture
 from clnlos.operators.resample import overlap_matrix
+from clnlos.physics.constants import C0
 
 
 def preprocess_matrix(nt_in: int, bin_width_s: float, start_s: float, max_path_m: float | None,

@@ -58,7 +58,7 @@ from dataclasses import dataclass
 
 import numpy as np
 
-from clnlos import C0
+from clnlos.physics.constants import C0
 
 K_SNR = 100.0
 MEASURED_MODEL_SNR = 1e4  # accuracy of the slab model on measured captures (see docstring)

@@ -14,7 +14,8 @@ import pyopencl as cl
 from pyopencl import _find_pyopencl_include_path  # pyopencl's own header folder
 from pyopencl.cache import create_built_program_from_source_cached
 
-from clnlos import C0, __version__
+from clnlos.physics.constants import C0
+from clnlos.version import __version__
 from clnlos.errors import KernelBuildError
 from clnlos.runtime.caches import CACHES
 

@@ -41,6 +41,8 @@ CDT_MAT_BIN_WIDTH_S = 16e-12  # the CDT capture format's histogram bin
 FK_MAT_BIN_WIDTH_S = 32e-12   # bin_resolution of the f-k data files
 LCT_MAT_BIN_WIDTH_S = 4e-12   # the LCT release's SPAD bin (cnlos_reconstruction.m)
 LCT_DIRECT_END_S = 600 * LCT_MAT_BIN_WIDTH_S  # the direct reflection the published code zeroes
+LCT_RELEASE_BIN_WIDTH_S = 16e-12  # ... and its time bin (4 ps summed in fours, K = 2)
+LCT_RELEASE_FALLOFF = 2.0     # its published default falloff (t/T)^2 (retroreflective)
 DIRECT_PEAK_FRACTION = 0.02   # a direct reflection peaks within this fraction of the window
 DIRECT_PEAK_OVER_MEDIAN = 10.0  # ... this many times above the window's median
 
@@ -67,7 +69,11 @@ def from_lct(rect_data, width, bin_resolution, path) -> Capture:
     if rect_data.ndim != 3:
         raise InputFileError(f"{path}: 'rect_data' must be 3D (N, N, T), got {rect_data.shape}")
     arr = validate_transient(np.transpose(rect_data[::-1, ::-1, :], (2, 1, 0)), path)
-    attrs = {"format": "lct-mat"}
+    attrs = {"format": "lct-mat", "falloff_default": LCT_RELEASE_FALLOFF,
+             "falloff_source": "the published code's default for this release (isdiffuse = "
+                               "0: retroreflective targets, 1/r^2)",
+             "bin_width_default_s": LCT_RELEASE_BIN_WIDTH_S,
+             "bin_width_default_source": "the published code sums the 4 ps bins in fours"}
     if starts_with_direct_reflection(arr):
         attrs["direct_end_s"] = LCT_DIRECT_END_S
     if bin_resolution is None:
