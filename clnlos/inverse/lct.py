@@ -195,8 +195,8 @@ class LCT:
     def upre_snr(self, tau: cla.Array, probe, snr_min: float, snr_max: float) -> float:
         """The light-cone Wiener SNR in [snr_min, snr_max] that the unbiased predictive risk
         estimate (:meth:`clnlos.inverse.gcv.GcvBins.upre_snr`) picks for the transient ``tau``
-        whose noise ``probe`` describes (:class:`clnlos.inverse.parameter_choice.NoiseProbe`): on the
-        filter's (v, y, x) grid, where the slab deconvolution and the t -> v resampling
+        whose noise ``probe`` describes (:class:`clnlos.inverse.parameter_choice.NoiseProbe`):
+        on the filter's (v, y, x) grid, where the slab deconvolution and the t -> v resampling
         have coloured it (GCV's white-noise assumption does not hold there). The noise's
         power from its law where the probe has one (:meth:`column_noise_power`, no
         realisation and no FFT), else from the realisation ``probe()``. The data's spectrum
