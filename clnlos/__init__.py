@@ -21,23 +21,31 @@ Array axis order everywhere: transients ``[t, y, x]``, volumes ``[z, y, x]``; SI
 
 import importlib
 
-from clnlos.api import (
-    plot_volume,
-    read_capture,
-    reconstruct,
-    reconstruction_config,
-    simulate,
-)
 from clnlos.physics.constants import C0  # the speed of light (m/s), stated there
 from clnlos.version import __version__  # stated there (pyproject reads it)
+
+# the API's names -> their module, imported on first use (PEP 562): ``import clnlos`` and the
+# CLI's start-up (``clnlos --version``) load neither the pipeline nor the study
+_LAZY = {"plot_volume": "clnlos.api", "read_capture": "clnlos.api",
+         "reconstruct": "clnlos.api", "reconstruction_config": "clnlos.api",
+         "simulate": "clnlos.api", "study": None}
 
 __all__ = ["C0", "__version__", "plot_volume", "read_capture", "reconstruct",
            "reconstruction_config", "simulate", "study"]
 
 
 def __getattr__(name: str):
-    """``clnlos.study`` on first use (PEP 562): the study's imports (scipy.signal, the
-    dataset's workers) stay out of ``import clnlos`` until a study runs."""
-    if name == "study":
-        return importlib.import_module("clnlos.study")
-    raise AttributeError(f"module 'clnlos' has no attribute {name!r}")
+    """The API (:mod:`clnlos.api`) and ``clnlos.study`` on first use (PEP 562): their
+    imports (the pipeline, scipy, the study's workers) stay out of ``import clnlos``."""
+    if name not in _LAZY:
+        raise AttributeError(f"module 'clnlos' has no attribute {name!r}")
+    module = _LAZY[name]
+    if module is None:
+        return importlib.import_module(f"clnlos.{name}")
+    value = getattr(importlib.import_module(module), name)
+    globals()[name] = value  # later look-ups skip this function
+    return value
+
+
+def __dir__() -> list[str]:
+    return sorted(set(globals()) | set(__all__))

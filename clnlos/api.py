@@ -32,7 +32,8 @@ from clnlos.config import (
 from clnlos.errors import InputFileError, MissingParameterError, ParameterError
 from clnlos.forward.model import ForwardModel
 from clnlos.forward.scene import Scene
-from clnlos.inverse.pipeline import Reconstruction, resolve_geometry, setup_slab
+from clnlos.inverse.pipeline import Reconstruction
+from clnlos.inverse.preprocessing import resolve_geometry, setup_slab
 from clnlos.inverse.pipeline import reconstruct as run_pipeline
 from clnlos.io.capture import Capture, without_direct
 from clnlos.io.figures import volume_axes
@@ -159,7 +160,7 @@ def reconstruction_config(config: PathLike | Mapping[str, Any] | ReconstructionC
 def check_capture(capture: Capture, config: ReconstructionConfig, *,
                   names: Mapping[str, str] | None = None) -> None:
     """The checks a reconstruction runs on a capture before any work: its geometry and time
-    window (``clnlos.inverse.pipeline.resolve_geometry``), a ``PlausibilityWarning`` per
+    window (``clnlos.inverse.preprocessing.resolve_geometry``), a ``PlausibilityWarning`` per
     implausible or contradicting geometry value (``clnlos.config.plausibility_warnings``),
     some signal, light inside the kept window (``clnlos.config.check_light_in_window``)."""
     names = dict(names or {})
@@ -182,7 +183,7 @@ def check_capture(capture: Capture, config: ReconstructionConfig, *,
 def with_slab(config: ReconstructionConfig, capture: Capture, *, no_slab: bool = False
               ) -> tuple[ReconstructionConfig, str | None]:
     """(config, note): a config without a slab takes the one the capture recorded (a clnlos
-    simulation; ``clnlos.inverse.pipeline.setup_slab``) unless ``no_slab``; the note says
+    simulation; ``clnlos.inverse.preprocessing.setup_slab``) unless ``no_slab``; the note says
     which (None where the config names its slab)."""
     if no_slab:
         return config.replace(slab=None), None

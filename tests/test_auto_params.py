@@ -8,6 +8,7 @@ from dataclasses import replace
 import numpy as np
 import pyopencl.array as cla
 import pytest
+import scipy.sparse as sp
 
 from clnlos.bench.oracle import (
     BENCH_CASE,
@@ -27,9 +28,11 @@ from clnlos.bench.oracle import (
     write_rows,
 )
 from clnlos.config import ReconstructionConfig
-from clnlos.inverse.gcv import GcvBins, binned_power
+from clnlos.inverse.gcv import GcvBins, binned_power, row_counts
+from clnlos.inverse.lct import LCT
 from clnlos.inverse.methods import method_class
-from clnlos.inverse.pipeline import auto_snrs, reconstruct
+from clnlos.inverse.parameter_choice import auto_snrs
+from clnlos.inverse.pipeline import reconstruct
 from clnlos.inverse.reproducibility import kappa_min
 from clnlos.inverse.snr import (
     K_SNR,
@@ -277,7 +280,7 @@ def test_closed_form_methods_take_a_deeper_slab_stage(queue):
 def test_a_slab_snr_floor_acts_before_the_model_accuracy():
     """The floor raises the data's SNR, never lowers it, and comes before the model's
     accuracy is combined: a measured capture (MEASURED_MODEL_SNR) stays below that."""
-    from clnlos.inverse.pipeline import method_slab_snr
+    from clnlos.inverse.parameter_choice import method_slab_snr
 
     assert method_slab_snr(2e4, None) == 2e4
     assert method_slab_snr(2e4, 3e5) == 3e5 and method_slab_snr(5e7, 3e5) == 5e7
@@ -480,7 +483,7 @@ def test_rebinning_error_is_zero_for_whole_bins_and_grows_with_the_bin_ratio():
     to 128, 64, 41 ps bins leaves a bound that rises as the bins shrink (the sub-bin
     arrival time the model loses matters less): 1.7e3, 1.3e4, 1.1e5 measured."""
     from clnlos.forward.blur import confocal_lag_energy
-    from clnlos.inverse.pipeline import preprocess_matrix
+    from clnlos.inverse.preprocessing import preprocess_matrix
     from clnlos.inverse.snr import rebinning_error, represented_snr
     from clnlos.physics.slab import CDT_SLAB
 
@@ -522,4 +525,46 @@ def test_gcv_bins_block_by_block_equal_one_pass(monkeypatch):
                              minlength=whole.count.size)
         np.testing.assert_allclose(binned_power(whole, [(0, p[:4]), (4, p[4:])]), direct)
         assert whole.count.sum() == pytest.approx(w.sum())
+        rows = rng.random(g.shape[0])  # a power constant along each row: no spectrum pass
+        np.testing.assert_allclose(rows @ row_counts(whole), binned_power(
+            whole, [(0, np.broadcast_to(rows[:, None, None], g.shape))]))
         assert whole.snr(p, 1.0, 1e8) == blocks.snr(p, 1.0, 1e8)
+
+
+def test_lightcone_noise_power_from_its_law(queue):
+    """Without a slab the light-cone UPRE takes the noise's power spectrum from its law
+    (LCT.column_noise_power, no realisation): Parseval's total exactly, and the mean power
+    per bin of realisations of that noise."""
+    rng = np.random.default_rng(5)
+    nt, n = 32, 4
+    lct = LCT((nt, n, n), bin_width_s=64e-12, scan_width_m=0.4, falloff=2.0, queue=queue,
+              dtype=np.float64)
+    counts = rng.poisson(20.0, (nt + 8, n, n)).astype(np.float64)
+    K = sp.random(nt, nt + 8, density=0.2, random_state=6, format="csr")  # any t-only map
+    d = counts.reshape(nt + 8, -1).sum(axis=1)
+    law = lct.column_noise_power(K, d)
+    M = (lct.to_v.matrix @ K).toarray()
+    assert law.sum() == pytest.approx(8 * nt * n * n * float((M**2 @ d).sum()), rel=1e-9)
+    draws = []
+    for _ in range(300):
+        e = np.sqrt(counts) * rng.standard_normal(counts.shape)
+        x = (K @ e.reshape(nt + 8, -1)).reshape(nt, n, n)
+        draws.append(lct.power(cla.to_device(queue, x)))
+    mean = np.mean(draws, axis=0)
+    assert np.abs(mean - law).sum() / law.sum() < 0.05
+
+
+def test_upre_without_a_slab_reuses_the_spectrum(tiny_capture, queue):
+    """A photon-count capture without a slab: the light-cone SNR by UPRE from the noise's
+    law, reproducible, and the inversion reusing the choice's forward FFT gives the volume
+    of the same SNR given as a number (a fresh transform)."""
+    cap, _ = tiny_capture
+    cfg = ReconstructionConfig(method="lct").validate()
+    auto = reconstruct(cap, cfg, device=queue)
+    assert auto.params["inversion_snr_rule"] == "upre"
+    assert reconstruct(cap, cfg, device=queue).params["inversion_snr_used"] == \
+        auto.params["inversion_snr_used"]
+    fixed = reconstruct(cap, cfg.replace(inversion_snr=auto.params["inversion_snr_used"])
+                        .validate(), device=queue)
+    np.testing.assert_allclose(auto.volume, fixed.volume, rtol=1e-5,
+                               atol=1e-6 * float(fixed.volume.max()))

@@ -371,7 +371,7 @@ def test_reconstruction_buffers_are_checked_against_the_device_before_reading(tm
     --bins 64 it does (33 MiB)."""
     from clnlos.app.commands import _pipeline_fits
     from clnlos.errors import DeviceMemoryError
-    from clnlos.inverse.pipeline import device_bytes_needed
+    from clnlos.inverse.preprocessing import device_bytes_needed
     from clnlos.runtime.limits import capture_use
 
     cfg = ReconstructionConfig(method="lct").validate()

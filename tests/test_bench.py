@@ -15,7 +15,8 @@ from clnlos.bench.harness import ROW_KEYS, Bench
 pytestmark = pytest.mark.slow  # runs the benchmark harness
 
 REPORT_SECTIONS = ("diffusion", "lightcone", "brdf", "iterative")  # through main: the report
-BRDF_DATA = Path(__file__).resolve().parents[1].parent / "shared" / "data" / "brdf"
+SHARED = Path(__file__).resolve().parents[1].parent / "shared" / "data"
+BRDF_DATA = SHARED / "brdf"
 TORCH = importlib.util.find_spec("torch") is not None
 
 
@@ -34,6 +35,7 @@ def section_rows(queue):
         if name not in REPORT_SECTIONS:
             b = Bench(queue, "tiny")
             b.options["brdf_data"] = BRDF_DATA
+            b.options["real_data"] = SHARED  # absent: the released capture's rows skipped
             fn(b)
             runs[name] = b
     return runs
@@ -176,7 +178,7 @@ def test_auto_params_cost_rows(section_rows):
     the one returned, the fixed row's gain is zero and every gain is against it."""
     from clnlos.bench.sections import auto_params_rules
 
-    rows = section_rows["auto_params_cost"].rows
+    rows = [r for r in section_rows["auto_params_cost"].rows if not r.get("released")]
     for method in ("lct", "fk", "iterative"):
         mine = {r["rule"]: r for r in rows if r["method"] == method}
         assert set(mine) == {rule for rule, _ in auto_params_rules(method)}
@@ -190,3 +192,21 @@ def test_auto_params_cost_rows(section_rows):
             assert r["peak_mem_bytes"] > 0 and r["peak_above_start_bytes"] >= 0
     assert {"upre", "gcv+upre"} <= {r["rule"] for r in rows if r["method"] == "lct"}
     assert "upre" not in {r["rule"] for r in rows if r["method"] == "fk"}
+
+
+def test_auto_params_cost_on_the_released_capture(section_rows):
+    """With ../shared/data: the fixed and the default light-cone SNR of LCT on the released
+    S+U capture, each with the stages its volume records (the choice among them for auto)
+    and its pipeline time over the fixed one's; without it a note says the rows are
+    skipped."""
+    b = section_rows["auto_params_cost"]
+    rows = {r["rule"]: r for r in b.rows if r.get("released")}
+    if not (SHARED / "lct" / "data_s_u.mat").is_file():
+        assert not rows and any("no released LCT capture" in n for n in b.notes)
+        pytest.skip("../shared/data/lct not present")
+    assert set(rows) == {"fixed", "auto"}
+    assert rows["fixed"]["over_fixed"] == 1.0
+    assert "choose_inversion_snr" in rows["auto"]["stages_s"]
+    assert "choose_inversion_snr" not in rows["fixed"]["stages_s"]
+    assert rows["auto"]["inversion_snr_rule"] == "upre"
+    assert rows["auto"]["pipeline_s"] == pytest.approx(sum(rows["auto"]["stages_s"].values()))

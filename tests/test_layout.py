@@ -11,6 +11,8 @@ from __future__ import annotations
 
 import ast
 import re
+import subprocess
+import sys
 from pathlib import Path
 
 import pytest
@@ -279,3 +281,27 @@ def test_every_cache_is_registered():
                 if where not in PURE_MEMOS and f"{node.name}.cache_clear" not in text:
                     bad.append(where)
     assert not bad, bad
+
+
+def loaded_modules(code: str) -> set[str]:
+    """The modules a fresh interpreter has loaded after running ``code``."""
+    out = subprocess.run([sys.executable, "-c", code + "\nimport sys\n"
+                          "print('\\n'.join(sorted(sys.modules)))"],
+                         capture_output=True, text=True, check=True)
+    return set(out.stdout.split())
+
+
+HEAVY = ("torch", "matplotlib", "scipy.stats", "clnlos.study", "clnlos.bench", "dask")
+
+
+def test_the_cli_starts_light():
+    """`clnlos --version` loads no command's module; `clnlos reconstruct` (its module and the
+    API) neither the study, scipy.stats, torch nor matplotlib."""
+    start = loaded_modules("import clnlos.app.cli as c; c.build_parser(only='')")
+    assert not {m for m in start if m.startswith(("clnlos.app.commands", "clnlos.api",
+                                                  "pyopencl", "scipy") + HEAVY)}
+    recon = loaded_modules("import clnlos, clnlos.app.cli as c; c.build_parser('reconstruct');"
+                           " clnlos.reconstruct")
+    assert "clnlos.inverse.pipeline" in recon  # the check can see what it checks
+    assert not {m for m in recon if m.startswith(HEAVY)}, sorted(
+        m for m in recon if m.startswith(HEAVY))

@@ -10,12 +10,9 @@ import pytest
 from clnlos.bench.oracle import OracleCase, simulate_case
 from clnlos.config import ReconstructionConfig
 from clnlos.errors import ParameterError
-from clnlos.inverse.pipeline import (
-    DECONVOLVED_KEPT,
-    ReconstructionPipeline,
-    reconstruct,
-    resolve_geometry,
-)
+from clnlos.inverse.parameter_choice import DECONVOLVED_KEPT
+from clnlos.inverse.pipeline import ReconstructionPipeline, reconstruct
+from clnlos.inverse.preprocessing import resolve_geometry
 from clnlos.inverse.reproducibility import (
     KAPPA_MIN,
     KAPPA_MIN_SLAB_ONLY,
@@ -166,10 +163,10 @@ def test_lct_takes_the_first_candidate_whose_halves_agree(small_capture, queue):
 def test_no_candidate_agreeing_takes_the_most_reproducible(small_capture, queue, monkeypatch):
     """Where no candidate reaches the threshold (here: a threshold above 1), every candidate
     is tried, the most reproducible is used, and a note says so."""
-    import clnlos.inverse.pipeline as pipeline
+    import clnlos.inverse.parameter_choice as choice
 
     cap, _ = small_capture
-    monkeypatch.setattr(pipeline, "kappa_min", lambda lightcone_filter: 1.01)
+    monkeypatch.setattr(choice, "kappa_min", lambda lightcone_filter: 1.01)
     rec = reconstruct(cap, _config(cap, method="lct"), device=queue)
     tried = json.loads(rec.params["reproducibility_tried"])
     assert len(tried) == len(SLAB_SNRS) * len(LIGHTCONE_SNRS)
@@ -208,10 +205,10 @@ def test_each_method_searches_to_its_own_bar(small_capture, queue, monkeypatch):
     light-cone filter follows the slab stage, takes its first candidate; f-k, whose slab
     filter is its only regularisation, finds none at KAPPA_MIN_SLAB_ONLY, tries all of
     SLAB_SNRS_SLAB_ONLY and notes the fallback."""
-    import clnlos.inverse.pipeline as pipeline
+    import clnlos.inverse.parameter_choice as choice
 
     cap, _ = small_capture
-    monkeypatch.setattr(pipeline, "mask_agreement", lambda a, b: 0.75)
+    monkeypatch.setattr(choice, "mask_agreement", lambda a, b: 0.75)
     lct = reconstruct(cap, _config(cap, method="lct"), device=queue).params
     assert lct["reproducibility_agreed"] and len(json.loads(lct["reproducibility_tried"])) == 1
     assert (lct["snr_used"], lct["inversion_snr_used"]) == (SLAB_SNRS[-1], LIGHTCONE_SNRS[-1])

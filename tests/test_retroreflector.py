@@ -138,7 +138,7 @@ def test_auto_challenger_must_beat_the_walk_by_the_margin():
 def test_iterative_sums_long_captures_to_its_bin_cap():
     from clnlos.config import ReconstructionConfig
     from clnlos.inverse.methods import ITERATIVE_MAX_BINS
-    from clnlos.inverse.pipeline import bins_for
+    from clnlos.inverse.preprocessing import bins_for
     it = ReconstructionConfig(method="iterative").validate()
     assert bins_for(it, 2048, 4e-12, 0.0) == ITERATIVE_MAX_BINS
     assert bins_for(it, 300, 16e-12, 0.0) is None

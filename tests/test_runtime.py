@@ -14,7 +14,7 @@ from clnlos import settings
 from clnlos.app.cli import main
 from clnlos.errors import DeviceCapabilityError, DeviceError, KernelBuildError
 from clnlos.runtime import device as runtime
-from clnlos.runtime import fft, programs
+from clnlos.runtime import caches, fft, programs
 
 ROOT = Path(__file__).resolve().parents[1]
 
@@ -350,3 +350,28 @@ def test_one_registry_clears_every_cache():
     r = subprocess.run([sys.executable, "-c", CLEAR_ALL], capture_output=True, text=True,
                        timeout=300)
     assert r.returncode == 0 and r.stdout.strip() == "ok", r.stderr
+
+
+def test_kernel_binaries_cached_on_disk_keyed_by_the_headers(queue, tmp_path, monkeypatch):
+    """Built programs go to pyopencl's on-disk binary cache (also on PoCL, where pyopencl
+    itself would skip it): a second build of the same family adds nothing there, a family
+    whose sources hash differently (an edited header) is a new entry, and both build."""
+    monkeypatch.setenv("XDG_CACHE_HOME", str(tmp_path))  # pyopencl's cache folder under it
+
+    def entries() -> int:
+        return sum(1 for p in (tmp_path / "pyopencl").rglob("*") if p.is_file())
+
+    def build():
+        caches.CACHES.clear()  # the in-memory program cache: the disk is asked again
+        return programs.get_kernels(queue, "resample", programs.real_defines(np.float32))
+
+    assert build().scale_inplace is not None
+    first = entries()
+    assert first > 0
+    build()
+    assert entries() == first
+    src, digest = programs.source_with_headers("resample")
+    monkeypatch.setattr(programs, "source_with_headers",
+                        lambda family: (src, digest[::-1]))  # the same text, other headers
+    assert build().scale_inplace is not None
+    assert entries() > first

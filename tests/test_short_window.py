@@ -19,7 +19,8 @@ from clnlos.config import ReconstructionConfig
 from clnlos.diffusion import lateral_integral_profile
 from clnlos.forward.blur import blur_time_scales, slab_blur
 from clnlos.forward.scene import Scene
-from clnlos.inverse.pipeline import cut_level, reconstruct, window_end_level
+from clnlos.inverse.pipeline import reconstruct
+from clnlos.inverse.preprocessing import cut_level, window_end_level
 from clnlos.inverse.tail_fill import TAIL_FILLED_SNR_MAX, TailFilledDeconvolution
 from clnlos.io.capture import Capture
 from clnlos.io.files import read_capture
@@ -259,7 +260,7 @@ def test_guard_bins_hold_the_cut(queue, patch_transient):
     max_path (the real CDT captures' case): the plain filter runs, its ringing at the cut
     stays in the dropped guard bins, and the patch is at 0.5 m."""
     from clnlos import C0
-    from clnlos.inverse.pipeline import GUARD_PEAKS
+    from clnlos.inverse.preprocessing import GUARD_PEAKS
 
     tau, width = patch_transient
     sc = blur_time_scales(CDT_SLAB, bin_width_s=DT, queue=queue)

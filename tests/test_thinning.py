@@ -12,7 +12,8 @@ from clnlos.bench.oracle import OracleCase, simulate_case
 from clnlos.config import ReconstructionConfig, snr_rule_applies
 from clnlos.errors import ParameterError
 from clnlos.inverse.methods import auto_snr_rule, split_rule
-from clnlos.inverse.pipeline import ReconstructionPipeline, reconstruct, resolve_geometry
+from clnlos.inverse.pipeline import ReconstructionPipeline, reconstruct
+from clnlos.inverse.preprocessing import resolve_geometry
 from clnlos.inverse.snr import MEASURED_MODEL_SNR
 from clnlos.inverse.thinning import (
     CV_STEP,

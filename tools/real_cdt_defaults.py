@@ -33,7 +33,8 @@ def main(argv=None) -> int:
 
     from clnlos.bench.oracle import write_rows
     from clnlos.config import ReconstructionConfig
-    from clnlos.inverse.pipeline import reconstruct, resolve_geometry
+    from clnlos.inverse.pipeline import reconstruct
+    from clnlos.inverse.preprocessing import resolve_geometry
     from clnlos.inverse.snr import combined_snr, lightcone_snr
     from clnlos.io.files import atomic_path, read_capture, save_figure_file
 

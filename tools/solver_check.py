@@ -20,7 +20,9 @@ import numpy as np
 
 from clnlos.bench.oracle import HOLDOUT_CASES, ORACLE_CASES, simulate_case, write_rows
 from clnlos.config import ReconstructionConfig
-from clnlos.inverse.pipeline import ReconstructionPipeline, model_snr_for, resolve_geometry
+from clnlos.inverse.parameter_choice import model_snr_for
+from clnlos.inverse.pipeline import ReconstructionPipeline
+from clnlos.inverse.preprocessing import resolve_geometry
 from clnlos.inverse.solvers import DEFAULT_TOL
 from clnlos.study.metrics import mip_iou
 

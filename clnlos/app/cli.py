@@ -8,21 +8,42 @@ Ctrl-C (temporaries removed, one line) and exits with 128 + 15.
 from __future__ import annotations
 
 import argparse
+import importlib
 import re
 import signal
 import sys
 import warnings
 
-import pyopencl as cl
-
-from clnlos.version import __version__
-from clnlos.app import commands as cli_commands
 from clnlos.errors import ClnlosError
 from clnlos.io.outputs import Terminated, install_sigterm_cleanup, user_path
-from clnlos.runtime.device import list_devices, resolve_device_spec, select_device
-from clnlos.runtime.environment import check_environment
+from clnlos.version import __version__
 
 EXIT_USAGE = 2
+ENVIRONMENT = "clnlos.runtime.environment"  # check_environment, before any command's work
+
+# sub-command -> (module, its function adding the command's arguments, one-line help). A
+# command's module is imported by name (importlib) only when that command runs or the whole
+# parser is built (tests, --help of every command): `clnlos --version` loads none of them and
+# `clnlos reconstruct` neither the study, the bench nor the BRDF fits -- a plugin table like
+# clnlos.inverse.methods, which the import graph does not show
+COMMANDS = {
+    "devices": ("clnlos.app.devices_command", "devices_arguments",
+                "list OpenCL platforms and devices"),
+    "reconstruct": ("clnlos.app.commands", "reconstruct_arguments",
+                    "reconstruct a hidden volume from a capture"),
+    "plot": ("clnlos.app.commands", "plot_arguments",
+             "re-render the figure of a reconstructed volume"),
+    "simulate": ("clnlos.app.commands", "simulate_arguments",
+                 "simulate a confocal capture from a scene TOML"),
+    "demo": ("clnlos.app.demo", "demo_arguments",
+             "simulate 'UT' behind the slab, reconstruct with LCT, f-k and the iterative "
+             "method, score"),
+    "brdf": ("clnlos.app.brdf_command", "brdf_arguments",
+             "fit, tabulate and plot BRDF models"),
+    "study": ("clnlos.app.study_command", "study_arguments", "the material study (main job)"),
+    "bench": ("clnlos.app.bench_command", "bench_arguments",
+              "accuracy versus time of every kernel knob (bench.json, bench.html)"),
+}
 
 
 class _Parser(argparse.ArgumentParser):
@@ -57,34 +78,24 @@ def _add_device(p: argparse.ArgumentParser) -> None:
                         "(default: $CLNLOS_DEVICE, else the first GPU, else the first device)")
 
 
-def cmd_devices(args) -> int:
-    devs = list_devices()
-    default = select_device(args.device, args.settings)  # no such device: one-line error
-    spec = resolve_device_spec(args.device, args.settings)
-    print(f"{'':2}{'P:D':5} {'platform':32} {'device':40} {'version':22} {'CUs':>4} "
-          f"{'mem GiB':>8} {'fp64':>5} {'img':>4}")
-    for d in devs:
-        mark = "*" if default is not None and d.name == default.name.strip() and \
-            d.platform == default.platform.name.strip() else " "
-        print(f"{mark} {d.spec:5} {d.platform[:32]:32} {d.name[:40]:40} {d.version[:22]:22} "
-              f"{d.compute_units:4d} {d.global_mem_bytes / 2**30:8.1f} "
-              f"{'yes' if d.fp64 else 'no':>5} {'yes' if d.images else 'no':>4}")
-    print(f"* = default device{' for spec ' + repr(spec) if spec else ''} "
-          "(set with --device or CLNLOS_DEVICE)")
-    return 0
+def command_named(argv: list[str]) -> str | None:
+    """The sub-command an argument list runs: its first word that is not an option (the
+    top level has no option taking a value), None for none (``--version``, ``--help``)."""
+    return next((a for a in argv if not a.startswith("-")), None)
 
 
-def build_parser() -> argparse.ArgumentParser:
+def build_parser(only: str | None = None) -> argparse.ArgumentParser:
+    """The parser with every sub-command's help; the arguments of the command named ``only``
+    alone when given (of none for a name that is no command's), else of every command."""
     p = _Parser(prog="clnlos", description="GPU-portable OpenCL kernels for non-line-of-sight "
                 "imaging through scattering slabs: simulate, reconstruct, study materials.")
     p.add_argument("--version", action="version", version=f"clnlos {__version__}")
     sub = p.add_subparsers(dest="command", parser_class=_Parser, metavar="COMMAND")
 
-    d = sub.add_parser("devices", help="list OpenCL platforms and devices")
-    _add_device(d)
-    d.set_defaults(func=cmd_devices)
-
-    cli_commands.register(sub, _add_device)
+    for name, (module, arguments, help_) in COMMANDS.items():
+        c = sub.add_parser(name, help=help_)
+        if only is None or only == name:
+            getattr(importlib.import_module(module), arguments)(c, _add_device)
     return p
 
 
@@ -104,13 +115,15 @@ def main(argv: list[str] | None = None) -> int:
 
 
 def _main(argv: list[str] | None) -> int:
-    parser = build_parser()
+    argv = sys.argv[1:] if argv is None else list(argv)
+    parser = build_parser(only=command_named(argv) or "")  # "": no command's arguments
     try:
         args = parser.parse_args(argv)
         if getattr(args, "func", None) is None:  # bare `clnlos` (or a bare group)
             parser.print_help()
             return 0
-        args.settings = check_environment()  # CLNLOS_* read once, passed to the command
+        # CLNLOS_* read once, passed to the command (the checks load the FFT backends)
+        args.settings = importlib.import_module(ENVIRONMENT).check_environment()
         return int(args.func(args) or 0)
     except SystemExit as exc:
         return int(exc.code) if isinstance(exc.code, int) else EXIT_USAGE
@@ -129,7 +142,8 @@ def _main(argv: list[str] | None) -> int:
         where = f"{name}: " if name else ""
         return _fail(f"{where}{(str(exc.strerror or exc).splitlines() or [''])[0]}")
     except Exception as exc:  # OpenCL runtime errors a user can cause (device memory, ...)
-        if isinstance(exc, cl.MemoryError | cl.LogicError | cl.RuntimeError):
+        cl = sys.modules.get("pyopencl")  # not loaded: no OpenCL error can have happened
+        if cl is not None and isinstance(exc, cl.MemoryError | cl.LogicError | cl.RuntimeError):
             return _fail(f"OpenCL error: {exc}")
         raise
 

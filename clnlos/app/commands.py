@@ -5,38 +5,16 @@ prints what it wrote."""
 from __future__ import annotations
 
 import argparse
-import importlib.util
 import json
 import math
 import sys
 from pathlib import Path
 
 import numpy as np
-from tqdm import tqdm
 
-from clnlos.app.demo import demo_files, demo_inputs, run_demo
-from clnlos.io.progress import counter, progress_bar
+from clnlos.app.flags import DTYPES, add_force, add_precision
 from clnlos.app.reconstruct import reconstruct_to_files
 from clnlos.app.simulate import figure_path, simulate_to_file
-from clnlos.bench import ONLY_HELP, sections_of
-from clnlos.bench import main as bench_main
-from clnlos.brdf.data import CSV_COLUMNS
-from clnlos.brdf.evaluate import MODELS as EVAL_MODELS
-from clnlos.brdf.evaluate import MODES as EVAL_MODES
-from clnlos.brdf.evaluate import (
-    TRAIN_FRACTION,
-    evaluate,
-    is_rows_json,
-    measured_files,
-    summary_table,
-    write_rows,
-)
-from clnlos.brdf.fit import fit_to_file
-from clnlos.brdf.models import model_spec
-from clnlos.brdf.plot import brdf_figure, read_samples
-from clnlos.brdf.store import load_model
-from clnlos.brdf.texture import MAX_NODES, MIN_NODES, tabulate, write_texture
-from clnlos.checks import integer
 from clnlos.config import (
     DEPTH_GUARD_M,
     FIELD_FLAGS,
@@ -51,11 +29,11 @@ from clnlos.config import (
     slab_table,
 )
 from clnlos.config import ReconstructionConfig as C
-from clnlos.errors import InputFileError, MissingDependencyError, OutputFileError, ParameterError
+from clnlos.errors import ParameterError
 from clnlos.forward.scene import Scene
 from clnlos.inverse.methods import METHODS as METHOD_ENTRIES
 from clnlos.inverse.methods import default_falloffs, method_names
-from clnlos.inverse.pipeline import device_bytes_needed
+from clnlos.inverse.preprocessing import device_bytes_needed
 from clnlos.inverse.reproducibility import kappa_min
 from clnlos.inverse.reproducibility import LIGHTCONE_SNRS as RP_LC
 from clnlos.inverse.reproducibility import SLAB_SNRS as RP_SLAB
@@ -66,41 +44,6 @@ from clnlos.io.outputs import HDF5_SUFFIXES, check_outputs
 from clnlos.physics.lobe import LOBE_TOLERANCE
 from clnlos.runtime.device import get_queue
 from clnlos.runtime.limits import capture_use, check_memory
-import clnlos.study as study  # the package (study.run: the function)
-from clnlos.study.dataset import MAX_WORKERS, StudyGrid, check_scheduler_address
-from clnlos.study.run import (
-    LABEL_METRICS,
-    TRANSPORT_CHOICES,
-    StudyOptions,
-)
-
-DTYPES = {"float32": np.float32, "float64": np.float64}
-
-# optional dependencies: import name -> (extra, what needs it)
-EXTRAS = {"torch": ("ml", "the torch CPU wheel: pip install torch==2.13.0"),
-          "dask": ("study", "dask[distributed]"),
-          "distributed": ("study", "dask[distributed]")}
-
-
-def require(module: str, what: str) -> None:
-    """One line naming the extra when an optional dependency is missing."""
-    if importlib.util.find_spec(module) is None:
-        extra, hint = EXTRAS[module]
-        raise MissingDependencyError(
-            f"{what} needs {module!r}, which is not installed: pip install 'clnlos[{extra}]' "
-            f"({hint})")
-
-
-def _add_force(p) -> None:
-    p.add_argument("--force", action="store_true",
-                   help="replace an existing file at a path written beside the output (or "
-                        "in the output folder) that clnlos did not write; inputs are never "
-                        "replaced")
-
-
-def _add_precision(p) -> None:
-    p.add_argument("--dtype", choices=sorted(DTYPES), default="float32",
-                   help="kernel precision (default %(default)s)")
 
 
 # ------------------------------------------------------------------ reconstruct
@@ -226,8 +169,8 @@ def cmd_reconstruct(args) -> int:
     return 0
 
 
-def register_reconstruct(sub, add_device) -> None:
-    r = sub.add_parser("reconstruct", help="reconstruct a hidden volume from a capture")
+def reconstruct_arguments(r, add_device) -> None:
+    """The arguments of ``clnlos reconstruct`` on the parser ``r``."""
     r.add_argument("capture", help="capture: clnlos or y-tal HDF5, MATLAB .mat (CDT, LCT, "
                                    "f-k layouts), NumPy .npy [t, y, x]")
     r.add_argument("-o", "--output", required=True,
@@ -333,8 +276,8 @@ def register_reconstruct(sub, add_device) -> None:
     r.add_argument("--n", type=float, help=f"slab refractive index (relative) {slab}")
     r.add_argument("--no-slab", action="store_true",
                    help="skip the slab deconvolution (also of a slab the capture recorded)")
-    _add_force(r)
-    _add_precision(r)
+    add_force(r)
+    add_precision(r)
     add_device(r)
     r.set_defaults(func=cmd_reconstruct)
 
@@ -363,19 +306,19 @@ def cmd_plot(args) -> int:
     return 0
 
 
-def register_plot(sub) -> None:
-    p = sub.add_parser("plot", help="re-render the figure of a reconstructed volume")
+def plot_arguments(p, add_device) -> None:
+    """The arguments of ``clnlos plot`` on the parser ``p`` (no device: no kernels)."""
     p.add_argument("volume", help="volume HDF5 written by clnlos reconstruct")
     p.add_argument("-o", "--output", help="PNG (default: beside the volume)")
     g = p.add_mutually_exclusive_group()
     g.add_argument("--gamma", type=float, help="display (value / max)^gamma, e.g. 0.5 to "
                    "lift faint parts (default: linear)")
     g.add_argument("--log", action="store_true", help="display log10(value / max)")
-    _add_force(p)
+    add_force(p)
     p.set_defaults(func=cmd_plot)
 
 
-# ------------------------------------------------------------------ simulate, demo
+# ------------------------------------------------------------------ simulate
 def cmd_simulate(args) -> int:
     out = Path(args.output)
     scene = Scene.from_toml(args.scene)
@@ -390,301 +333,15 @@ def cmd_simulate(args) -> int:
     return 0
 
 
-def cmd_demo(args) -> int:
-    out = Path(args.output)
-    if out.exists() and not out.is_dir():
-        raise OutputFileError(f"-o {out}: is a file; the demo writes a folder")
-    scene, cfg = demo_inputs(args.scene, args.config)
-    outs = {f"-o {name}": out / name for name in demo_files()}
-    check_outputs(outs, inputs=[args.scene, args.config, *scene.input_paths()],
-                  implied=dict.fromkeys(outs), force=args.force)
-    run_demo(out, scene, cfg, queue=get_queue(args.device, settings=args.settings))
-    return 0
-
-
-def register_forward(sub, add_device) -> None:
-    s = sub.add_parser("simulate", help="simulate a confocal capture from a scene TOML")
+def simulate_arguments(s, add_device) -> None:
+    """The arguments of ``clnlos simulate`` on the parser ``s``."""
     s.add_argument("scene", help="scene description (TOML)")
     s.add_argument("-o", "--output", required=True,
                    help="output capture (.h5; a PNG is written beside)")
     s.add_argument("--format", choices=["clnlos", "tal"], default="clnlos",
                    help="capture format: clnlos (clnlos HDF5) or tal (y-tal HDF5) "
                         "(default %(default)s)")
-    _add_force(s)
-    _add_precision(s)
+    add_force(s)
+    add_precision(s)
     add_device(s)
     s.set_defaults(func=cmd_simulate)
-    d = sub.add_parser("demo", help="simulate 'UT' behind the slab, reconstruct with LCT, f-k "
-                                    "and the iterative method, score")
-    d.add_argument("-o", "--output", default="out/demo",
-                   help="output folder (default %(default)s)")
-    d.add_argument("--scene", help="scene TOML with letters as objects[0] (default: built-in)")
-    d.add_argument("--config", help="reconstruction TOML (default: built-in; its slab "
-                   "defaults to the scene's)")
-    _add_force(d)
-    add_device(d)
-    d.set_defaults(func=cmd_demo)
-
-
-# ------------------------------------------------------------------ brdf
-BRDF_MODELS = ["mlp", "mlp-seed", "five-param", "torrance-sparrow", "phong", "minnaert",
-               "lambert"]
-
-
-def cmd_brdf_fit(args) -> int:
-    if args.model in ("mlp", "mlp-seed"):
-        require("torch", f"brdf fit --model {args.model}")
-    outs = {"-o": Path(args.output)}
-    if args.metrics_json:
-        outs["--metrics-json"] = Path(args.metrics_json)
-    check_outputs(outs, inputs=[args.data, args.test], suffixes={"-o": HDF5_SUFFIXES})
-
-    train = read_samples(args.data)
-    test = read_samples(args.test) if args.test else None
-    unit = "epoch" if args.model in ("mlp", "mlp-seed") else "start"
-    with progress_bar(None, f"brdf fit {args.model}", unit) as bar:
-        metrics = fit_to_file(args.model, train, test, args.output, seed=args.seed,
-                              metrics_json=args.metrics_json, progress=counter(bar))
-    for k, v in metrics.items():
-        if k != "loss_log":
-            print(f"{k}: {v:.4g}" if isinstance(v, float) else f"{k}: {v}")
-    print(f"wrote {args.output}")
-    return 0
-
-
-def cmd_brdf_texture(args) -> int:
-    for flag, v in (("--resolution", args.resolution), ("--dphi", args.dphi),
-                    ("--retro", args.retro)):
-        if v is not None:
-            integer(flag, v, MIN_NODES, MAX_NODES)
-    check_outputs({"-o": Path(args.output)}, inputs=[args.model],
-                  suffixes={"-o": HDF5_SUFFIXES})
-    model, meta = load_model(args.model)
-    spec = model_spec(model)  # stored so the texture can be checked against it when used
-    tex = tabulate(model, args.resolution, args.dphi or args.resolution, args.retro,
-                   provenance={"model_file": str(args.model), **meta,
-                               **({} if spec is None else {"model_spec": spec})})
-    write_texture(args.output, tex)
-    print(f"wrote {args.output} texture {tex.shape} [theta_i, theta_s, dphi], "
-          f"retro slice {len(tex.retro)}")
-    return 0
-
-
-def cmd_brdf_plot(args) -> int:
-    out = Path(args.output) if args.output else Path(args.model).with_suffix(".png")
-    check_outputs({"-o": out}, inputs=[args.model, args.data], suffixes={"-o": (".png",)},
-                  implied={} if args.output else {"-o": None}, force=args.force)
-    model, meta = load_model(args.model)
-    data = read_samples(args.data) if args.data else None
-    save_figure(brdf_figure(model, f"{args.model}: {meta['metrics'].get('model', '')}", data),
-                out)
-    print(f"wrote {out}")
-    return 0
-
-
-def cmd_brdf_evaluate(args) -> int:
-    if any(m in ("mlp", "mlp-seed") for m in args.models):
-        require("torch", "brdf evaluate with an MLP model")
-    if args.splits < 1 or args.splits > 100:
-        raise ParameterError("--splits", args.splits, "an integer from 1 to 100")
-    out = Path(args.output)
-    outs = {"-o": out, "(json)": out.with_suffix(".json")}
-    check_outputs(outs, inputs=measured_files(args.directory), suffixes={"-o": (".csv",)},
-                  implied={"(json)": is_rows_json}, force=args.force)
-    rows = evaluate(args.directory, models=args.models, modes=args.modes,
-                    splits=tuple(range(args.splits)), materials=args.material,
-                    progress=lambda jobs: tqdm(jobs, desc="brdf evaluate", unit="fit"))
-    write_rows(rows, out, out.with_suffix(".json"))
-    print(summary_table(rows))
-    print(f"wrote {out} and {out.with_suffix('.json')}")
-    return 0
-
-
-def register_brdf(sub, add_device) -> None:
-    b = sub.add_parser("brdf", help="fit, tabulate and plot BRDF models")
-    bs = b.add_subparsers(dest="brdf_command", required=True)
-    f = bs.add_parser("fit", help="fit a model to measured data (CSV or pbrt .brdf)")
-    data = (f"measured samples: CSV with columns {','.join(CSV_COLUMNS)} (angles in degrees, "
-            "BRDF in 1/sr; # comment lines) or pbrt-v2 .brdf")
-    f.add_argument("data", help=data)
-    f.add_argument("--model", required=True, choices=BRDF_MODELS,
-                   help="mlp: the peak-keeping neural BRDF; mlp-seed: the seed's MLP recipe "
-                        "(both need torch); five-param, torrance-sparrow, phong, minnaert, "
-                        "lambert: analytic models fitted by least squares in log space")
-    f.add_argument("-o", "--output", required=True, help="fitted model (.h5)")
-    f.add_argument("--test", help="held-out data (same formats) for the test metrics "
-                   "(default: none, training metrics only)")
-    f.add_argument("--metrics-json", help="also write the metrics to this JSON file "
-                   "(default: printed only)")
-    f.add_argument("--seed", type=int, default=0,
-                   help="random seed: the networks' initialisation and validation split, or "
-                        "the analytic fits' random starts (default %(default)s)")
-    f.set_defaults(func=cmd_brdf_fit)
-    t = bs.add_parser("texture", help="tabulate a model to a BRDF texture (HDF5)")
-    t.add_argument("model", help="fitted model (.h5) written by clnlos brdf fit")
-    t.add_argument("-o", "--output", required=True,
-                   help="output texture (.h5): the [theta_i, theta_s, delta-phi] table and "
-                        "the retro slice")
-    t.add_argument("--resolution", type=int, default=64,
-                   help="theta_i and theta_s nodes over 0-90 deg (default %(default)s)")
-    t.add_argument("--dphi", type=int, default=None,
-                   help="delta-phi nodes over 0-180 deg (default: --resolution)")
-    t.add_argument("--retro", type=int, default=256,
-                   help="nodes of the retro slice f(w, w) over 0-90 deg, what the light-cone "
-                        "kernel reads (default %(default)s)")
-    t.set_defaults(func=cmd_brdf_texture)
-    p = bs.add_parser("plot", help="in-plane curves at theta_i 30/45/60 with the data")
-    p.add_argument("model", help="fitted model (.h5) written by clnlos brdf fit")
-    p.add_argument("--data", help="measured CSV or .brdf to overlay (default: none)")
-    p.add_argument("-o", "--output", help="PNG (default: beside the model)")
-    _add_force(p)
-    p.set_defaults(func=cmd_brdf_plot)
-    e = bs.add_parser("evaluate", help="interpolation and extrapolation scores of models on "
-                      "every NAME_gonio.csv/NAME_test.csv pair in a directory")
-    e.add_argument("directory", help="folder of NAME_gonio.csv / NAME_test.csv pairs")
-    e.add_argument("-o", "--output", required=True, help="rows as CSV (JSON beside it)")
-    e.add_argument("--models", nargs="+", default=list(EVAL_MODELS), choices=BRDF_MODELS,
-                   metavar="MODEL", help="models to score, of " + ", ".join(BRDF_MODELS)
-                   + " (default " + " ".join(EVAL_MODELS) + ")")
-    split = f"{TRAIN_FRACTION * 100:g}/{(1 - TRAIN_FRACTION) * 100:g}"
-    e.add_argument("--modes", nargs="+", default=list(EVAL_MODES), choices=list(EVAL_MODES),
-                   help=f"interp: fit and score a random {split} split of all directions; "
-                        "extrap: fit NAME_gonio.csv, score NAME_test.csv (default "
-                        + " ".join(EVAL_MODES) + ")")
-    e.add_argument("--splits", type=int, default=1,
-                   help="random interpolation splits, seeds 0 to N-1 (default %(default)s)")
-    e.add_argument("--material", nargs="+", help="only sets whose name contains one of these "
-                   "(default: every set)")
-    _add_force(e)
-    e.set_defaults(func=cmd_brdf_evaluate)
-
-
-# ------------------------------------------------------------------ study
-def cmd_study(args) -> int:
-    if args.workers is not None:
-        integer("--workers", args.workers, 1, MAX_WORKERS)
-    if args.scheduler is not None:
-        check_scheduler_address("--scheduler", args.scheduler)
-    require("torch", "clnlos study (its CNN)")
-    if args.scheduler is not None or (args.workers or 2) > 1:
-        require("distributed", "clnlos study with worker processes")
-
-    out = Path(args.output)
-    outs = {"-o report.html": out / "report.html", "-o results.json": out / "results.json"}
-    check_outputs(outs, implied=dict.fromkeys(outs), force=args.force)
-    if args.real_data is not None and not args.real_data.is_dir():  # not after the minutes
-        raise InputFileError(f"--real-data {args.real_data}: "
-                             + ("not a folder" if args.real_data.exists()
-                                else "no such folder"))
-    res = study.run(out, full=args.full, method=args.method, labels=args.labels,
-                    real_data=args.real_data, transport=args.transport,
-                    n_dataset=args.n_dataset, workers=args.workers, scheduler=args.scheduler,
-                    device=args.device)
-    for geo in res["geometries"]:
-        print(f"geometry {geo['name']}: {geo['description']}; stroke / resolution "
-              f"{geo['stroke_over_resolution']:.2f}")
-        for m in geo["materials"]:
-            i = m["identification"]
-            print(f"  {m['name']:36s} {m['brdf_class']:26s} identification "
-                  f"{i['accuracy']:.2f} [{i['ci'][0]:.2f}, {i['ci'][1]:.2f}] (chance "
-                  f"{i['chance']:.3f}, n {i['n']}) IoU {m['iou']:.3f} (box "
-                  f"{m['iou_box_baseline']:.3f}) label {m['label']} CNN {m['cnn_label']} "
-                  f"seed {m['seed_label']}")
-    print(f"labels {res['labels']['source']}; legibility CNN on held-out splits: " + "; ".join(
-        f"{k} balanced accuracy {v['balanced_accuracy']:.3f} (one-feature baseline "
-        f"{v['baseline']:.3f}), AUC {v['auc']:.3f}, ECE {v['ece']:.3f}"
-        for k, v in res["classifier"]["splits"].items()))
-    print(res["findings"]["statement"])
-    print(f"wrote {out / 'report.html'} and results.json")
-    return 0
-
-
-def register_study(sub, add_device) -> None:
-    quick, full = StudyOptions.quick(), StudyOptions()
-    s = sub.add_parser("study", help="the material study (main job)")
-    g = s.add_mutually_exclusive_group()
-    g.add_argument("--quick", action="store_true", help=f"built-in default: "
-                   f"{len(quick.glyphs)} glyphs x {quick.seeds} noise realisation(s) per "
-                   f"material and geometry, {len(quick.sweep_glyphs)} glyphs per geometry-"
-                   f"sweep point, {quick.n_dataset} extra random samples (about 5 minutes on "
-                   "2 cores)")
-    g.add_argument("--full", action="store_true", help=f"{len(full.glyphs)} glyphs x "
-                   f"{full.seeds} noise realisations per material and geometry, "
-                   f"{len(full.sweep_glyphs)} glyphs per geometry-sweep point, "
-                   f"{full.n_dataset} extra random samples (within 20 minutes on 2 cores)")
-    s.add_argument("-o", "--output", default="out/study",
-                   help="output folder: report.html, results.json and the sample cache "
-                        "(default %(default)s)")
-    s.add_argument("--method", choices=list(method_names()), default=None,
-                   help=f"reconstruction method (default {StudyGrid.method})")
-    s.add_argument("--labels", choices=list(LABEL_METRICS), default=full.labels,
-                   help="what the CNN learns: legibility (glyph identified and IoU above "
-                        "its box baseline: ground truth), nr (the no-reference metric "
-                        f"{LABEL_METRICS['nr']}) or fft (the seed's FFT clarity "
-                        f"{LABEL_METRICS['fft']}, the seed's recipe) (default %(default)s)")
-    w = s.add_mutually_exclusive_group()
-    w.add_argument("--workers", type=int, default=None,
-                   help="local Dask worker processes (default: CPU count; 1 = serial)")
-    w.add_argument("--scheduler", default=None, help="address of an existing Dask scheduler, "
-                   "e.g. tcp://HOST:8786 (default: none, local workers)")
-    s.add_argument("--real-data", type=Path, default=None, metavar="DIR",
-                   help="folder whose cdt/ holds the real CDT captures (letters_ut.mat, "
-                        "letter_s.mat, resolution_70.mat): the report adds the real capture "
-                        "beside its simulation, the real chart's resolved features and the "
-                        "CNN's verdict on them; a folder without them is noted and skipped "
-                        "(default: none)")
-    s.add_argument("--transport", choices=list(TRANSPORT_CHOICES), default=None,
-                   help="confocal: every sample with the seed's confocal transport (Eq. 9); "
-                        "both: also the materials at the legible geometry under the bistatic "
-                        f"transport (Eq. 8 in full, {full.face_rings} x {full.face_angles} "
-                        "face samples, about 8 s a sample on 2 cores: some 10-15 minutes more "
-                        "for the quick study), their table, ranks and rank correlation "
-                        f"(default: {quick.transport} with --quick, {full.transport} with "
-                        "--full)")
-    s.add_argument("--n-dataset", type=int, default=None, help=argparse.SUPPRESS)
-    _add_force(s)
-    add_device(s)
-    s.set_defaults(func=cmd_study)
-
-
-# ------------------------------------------------------------------ bench
-def cmd_bench(args) -> int:
-    """Thin front of :func:`clnlos.bench.main` (runs from an installed package)."""
-    if args.only is not None:
-        sections_of(args.only)  # an unknown section: one line before any work
-    out = Path(args.output)
-    outs = {"-o bench.json": out / "bench.json", "-o bench.html": out / "bench.html"}
-    check_outputs(outs, implied=dict.fromkeys(outs), force=args.force)
-    argv = ["-o", args.output] + (["--quick"] if args.quick else []) + (
-        ["--tiny"] if args.tiny else []) + (["--only", args.only] if args.only else []) + (
-        ["--device", args.device] if args.device else []) + (
-        ["--brdf-data", args.brdf_data] if args.brdf_data else [])
-    bench_main(argv)
-    return 0
-
-
-def register_bench(sub, add_device) -> None:
-    b = sub.add_parser("bench", help="accuracy versus time of every kernel knob (bench.json, "
-                                     "bench.html)")
-    g = b.add_mutually_exclusive_group()
-    g.add_argument("--quick", action="store_true", help="about 6 minutes on 2 CPU cores")
-    g.add_argument("--tiny", action="store_true", help=argparse.SUPPRESS)
-    b.add_argument("-o", "--output", default="out/bench",
-                   help="output folder: bench.json and bench.html (default %(default)s)")
-    b.add_argument("--only", default=None, help=ONLY_HELP + " (default: all)")
-    b.add_argument("--brdf-data", default=None, metavar="DIR",
-                   help="folder of measured BRDFs (*_gonio.csv) for the brdf_measured section "
-                        "(default: none, those rows skipped with a note)")
-    _add_force(b)
-    add_device(b)
-    b.set_defaults(func=cmd_bench)
-
-
-def register(sub, add_device) -> None:
-    """Add the pipeline sub-commands to the parser ``sub``."""
-    register_reconstruct(sub, add_device)
-    register_plot(sub)
-    register_forward(sub, add_device)
-    register_brdf(sub, add_device)
-    register_study(sub, add_device)
-    register_bench(sub, add_device)

@@ -9,14 +9,15 @@ import json
 import tomllib
 from pathlib import Path
 
+from clnlos.app.flags import add_force
 from clnlos.app.reconstruct import reconstruct_to_files
 from clnlos.app.simulate import simulate_to_file
 from clnlos.config import ReconstructionConfig, load_toml
-from clnlos.errors import ParameterError
+from clnlos.errors import OutputFileError, ParameterError
 from clnlos.forward.scene import Scene
 from clnlos.inverse.methods import method_names
 from clnlos.io.files import atomic_path, read_capture
-from clnlos.io.outputs import stamp
+from clnlos.io.outputs import check_outputs, stamp
 from clnlos.runtime.device import get_queue
 from clnlos.study.metrics import letters_truth_mask, mip_iou, peak_depth_m
 
@@ -75,3 +76,27 @@ def run_demo(out_dir, scene, config, *, queue=None, log=print) -> dict:
         tmp.write_text(json.dumps(stamp(summary), indent=1))
     log(f"wrote {out / 'summary.json'}")
     return summary
+
+
+def cmd_demo(args) -> int:
+    out = Path(args.output)
+    if out.exists() and not out.is_dir():
+        raise OutputFileError(f"-o {out}: is a file; the demo writes a folder")
+    scene, cfg = demo_inputs(args.scene, args.config)
+    outs = {f"-o {name}": out / name for name in demo_files()}
+    check_outputs(outs, inputs=[args.scene, args.config, *scene.input_paths()],
+                  implied=dict.fromkeys(outs), force=args.force)
+    run_demo(out, scene, cfg, queue=get_queue(args.device, settings=args.settings))
+    return 0
+
+
+def demo_arguments(d, add_device) -> None:
+    """The arguments of ``clnlos demo`` on the parser ``d``."""
+    d.add_argument("-o", "--output", default="out/demo",
+                   help="output folder (default %(default)s)")
+    d.add_argument("--scene", help="scene TOML with letters as objects[0] (default: built-in)")
+    d.add_argument("--config", help="reconstruction TOML (default: built-in; its slab "
+                   "defaults to the scene's)")
+    add_force(d)
+    add_device(d)
+    d.set_defaults(func=cmd_demo)

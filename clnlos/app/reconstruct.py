@@ -50,7 +50,7 @@ def reconstruct_to_files(capture: Capture, out, config: ReconstructionConfig, *,
     """Reconstruct (:func:`clnlos.api.reconstruct`: the slab the capture recorded unless the
     config names one or ``no_slab``; its note to ``log``) and write the volume (HDF5) and its
     figure (PNG beside it) together, atomically, with the provenance of the result; the
-    iterative method shows a progress bar (:mod:`clnlos.app.progress`), its set-up steps
+    iterative method shows a progress bar (:mod:`clnlos.io.progress`), its set-up steps
     beside it, then its iterations."""
     out = Path(out)
     queue = get_queue(queue)
@@ -72,7 +72,7 @@ def reconstruct_to_files(capture: Capture, out, config: ReconstructionConfig, *,
                           device=queue.device.name.strip())}
     name = Path(capture.source).name if capture.source else "capture"
     title = f"{title_extra + ': ' if title_extra else ''}{name} ({config.method})"
-    volume = DeflatedArray(rec.volume.astype(np.float32))  # compressed while the figure draws
+    volume = DeflatedArray(np.asarray(rec.volume, np.float32))  # compressed as the figure draws
     fig = figure(rec.volume, rec.extents, title)
     with write_group([out, out.with_suffix(".png")]) as (tmp_h5, tmp_png):
         write_h5_file(tmp_h5, {"volume": volume}, attrs)

@@ -72,10 +72,14 @@ def main(argv=None) -> dict:
     ap.add_argument("--only", default=",".join(SECTIONS), help=ONLY_HELP + " (default: all)")
     ap.add_argument("--brdf-data", default=None, type=Path,
                     help="measured BRDFs of brdf_measured (default: none, those rows skipped)")
+    ap.add_argument("--real-data", default=None, type=Path,
+                    help="folder holding the released captures (lct/data_s_u.mat) of "
+                         "auto_params_cost (default: none, those rows skipped)")
     args = ap.parse_args(argv)
     sections = sections_of(args.only)  # all checked before the first one runs
     b = Bench(get_queue(args.device), "tiny" if args.tiny else "quick" if args.quick else "full")
     b.options["brdf_data"] = args.brdf_data
+    b.options["real_data"] = args.real_data
     t0 = time.perf_counter()
     section_s = {}
     for name in sections:

@@ -56,7 +56,7 @@ from clnlos.inverse.lct import LCT
 from clnlos.inverse.methods import method_class, split_rule
 from clnlos.inverse.pipeline import reconstruct
 from clnlos.io.capture import Capture
-from clnlos.io.files import write_capture
+from clnlos.io.files import read_capture, write_capture
 from clnlos.operators.spectral import multiply_spectrum
 from clnlos.physics.grid import grid_offsets
 from clnlos.physics.slab import CDT_SLAB
@@ -559,6 +559,44 @@ def bench_auto_params_cost(b: Bench):
                              iterations=(rec.solver or {}).get("iterations"),
                              peak_above_start_bytes=max(0, peak - start))
                 r["peak_mem_bytes"] = peak
+    _released_capture_cost(b)
+
+
+# the released S+U capture of the LCT paper (retroreflective letters around a corner, no
+# slab, 64 x 64 x 2048 bins of 4 ps; README of the data folder), under --real-data DIR
+RELEASED_LCT_CAPTURE = "lct/data_s_u.mat"
+
+
+def _released_capture_cost(b: Bench) -> None:
+    """The fixed and the default ("auto") light-cone SNR of LCT on the released capture
+    (``b.options["real_data"]``: a folder holding RELEASED_LCT_CAPTURE; skipped with a note
+    without it), as read by ``clnlos reconstruct`` (at ``tiny`` and ``quick`` rebinned to
+    512 bins): the time of one run (plans built by a run before), the stages' times the
+    volume records, and auto's pipeline time over the fixed one's (no ground truth: no
+    error)."""
+    data = b.options.get("real_data")
+    path = None if data is None else Path(data) / RELEASED_LCT_CAPTURE
+    if path is None or not path.is_file():
+        where = "given" if data is None else f"at {path}"
+        b.note(f"auto_params_cost: no released LCT capture {where}: its rows are skipped "
+               f"(--real-data DIR with {RELEASED_LCT_CAPTURE})")
+        return
+    cap = read_capture(path)
+    base = ReconstructionConfig(method="lct", **({} if b.size == "full" else {"bins": 512}))
+    fixed_s = None
+    for rule, fields in (("fixed", {"inversion_snr": FIXED_SNRS[1]}), ("auto", {})):
+        cfg = base.replace(**fields).validate()
+        reconstruct(cap, cfg, device=b.q)  # plans built: the row times the rule
+        rec, timing = timed_once(lambda cfg=cfg: reconstruct(cap, cfg, device=b.q), b.q)
+        stage_s = float(sum(rec.timings_s.values()))
+        fixed_s = stage_s if rule == "fixed" else fixed_s
+        b.record("auto_params_cost", f"lct@{Path(RELEASED_LCT_CAPTURE).name}", rule,
+                 np.float32, timing, None, method="lct", capture=str(path.name), rule=rule,
+                 released=True, grid="x".join(map(str, rec.volume.shape)),
+                 stages_s=dict(rec.timings_s), pipeline_s=stage_s,
+                 over_fixed=stage_s / fixed_s,
+                 inversion_snr_used=rec.params.get("inversion_snr_used"),
+                 inversion_snr_rule=rec.params.get("inversion_snr_rule"))
 
 
 # ------------------------------------------------------------------ cost per grid and reach

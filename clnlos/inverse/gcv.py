@@ -65,7 +65,7 @@ def half_spectrum_weights(n_last: int, n_half: int) -> np.ndarray:
 @dataclass(frozen=True)
 class GcvBins:
     """The frequencies of one filter grouped by |H|^2: ``index`` (bin of each frequency of
-    the half spectrum (n0, n1, n2h), uint16 where the bins allow), ``n_last`` (the full
+    the half spectrum (n0, n1, n2h), uint16), ``n_last`` (the full
     length of the last axis: the half spectrum's column multiplicities,
     :func:`half_spectrum_weights`), ``count`` (frequencies per bin, with their
     multiplicity) and ``gain`` (mean |H|^2 per bin). Built and used block by block of rows
@@ -86,29 +86,32 @@ class GcvBins:
     @classmethod
     def from_blocks(cls, gain_rows, shape, n_last: int) -> GcvBins:
         """Bins of |H|^2 given by ``gain_rows(r0, r1)`` (its rows r0:r1 of a half spectrum
-        of ``shape``, float64) without the whole of it in memory."""
+        of ``shape``, float64) without the whole of it in memory, each row read once: the
+        bin of a gain is floor(-log10 |H|^2 BINS_PER_DECADE), numbered from the largest
+        gain's after the one pass (bins no frequency falls in dropped)."""
         shape = tuple(int(v) for v in shape)
         blocks = row_blocks(shape)
-        top = max(float(np.max(gain_rows(r0, r1))) for r0, r1 in blocks)
-        origin = math.floor(-math.log10(max(top, GAIN_FLOOR)) * BINS_PER_DECADE)
-        n_bins = math.floor(-math.log10(GAIN_FLOOR) * BINS_PER_DECADE) - origin + 1
-        index = np.empty(shape, np.uint16 if n_bins <= 1 << 16 else np.int32)
+        # -log10 |H|^2 * BINS_PER_DECADE lies in [-2^15, 2^15) for gains above 1e-1024:
+        # int16 raw bins, shifted to be >= 0 for the counts
+        shift = 1 << 15
+        raw = np.empty(shape, np.int16)
         w = half_spectrum_weights(n_last, shape[-1])
-        count = np.zeros(n_bins)
-        total = np.zeros(n_bins)
+        count = np.zeros(2 * shift)
+        total = np.zeros(2 * shift)
         for r0, r1 in blocks:
             g = np.maximum(np.asarray(gain_rows(r0, r1), np.float64), GAIN_FLOOR)
-            idx = np.floor(-np.log10(g) * BINS_PER_DECADE).astype(np.int64) - origin
-            np.clip(idx, 0, n_bins - 1, out=idx)
-            index[r0:r1] = idx
-            wb = np.broadcast_to(w, g.shape)
-            count += np.bincount(idx.ravel(), weights=wb.ravel(), minlength=n_bins)
-            total += np.bincount(idx.ravel(), weights=(wb * g).ravel(), minlength=n_bins)
+            b = np.floor(-np.log10(g) * BINS_PER_DECADE)
+            raw[r0:r1] = b
+            idx = b.astype(np.int64).ravel() + shift
+            wb = np.broadcast_to(w, g.shape).ravel()
+            count += np.bincount(idx, weights=wb, minlength=2 * shift)
+            total += np.bincount(idx, weights=wb * g.ravel(), minlength=2 * shift)
         used = count > 0
-        keep = np.flatnonzero(used)  # bins in use, renumbered from 0
-        renumber = np.cumsum(used) - 1
+        keep = np.flatnonzero(used)  # bins in use, renumbered from 0 (largest gain first)
+        renumber = (np.cumsum(used) - 1).astype(np.uint16)  # at most 2^16 raw bins
+        index = raw.view(np.uint16)  # renumbered in place, block by block
         for r0, r1 in blocks:
-            index[r0:r1] = renumber[index[r0:r1]]
+            index[r0:r1] = renumber[raw[r0:r1].astype(np.int32) + shift]
         return cls(index, int(n_last), count[keep], total[keep] / count[keep])
 
     def power_per_bin(self, power: np.ndarray) -> np.ndarray:
@@ -187,6 +190,22 @@ def _trial_snrs(snr_min: float, snr_max: float) -> np.ndarray:
     decades = np.log10(snr_max / snr_min)
     n = max(2, int(np.ceil(decades * TRIALS_PER_DECADE)) + 1)
     return np.logspace(np.log10(snr_min), np.log10(snr_max), n)
+
+
+def row_counts(bins: GcvBins) -> np.ndarray:
+    """(rows of the half spectrum, bins): the frequencies of each row in each bin, with their
+    multiplicity (:func:`half_spectrum_weights`): the power per bin of a power spectrum
+    constant along each row (a function of the first frequency alone) of row values s is
+    ``s @ row_counts(bins)``, no pass over the spectrum."""
+    n_bins = bins.count.size
+    w = half_spectrum_weights(bins.n_last, bins.index.shape[-1])
+    out = np.zeros((bins.index.shape[0], n_bins))
+    for r0, r1 in row_blocks(bins.index.shape):
+        idx = bins.index[r0:r1].astype(np.int64)
+        idx += (np.arange(r1 - r0) * n_bins)[:, None, None]
+        out[r0:r1] = np.bincount(idx.ravel(), weights=np.broadcast_to(w, idx.shape).ravel(),
+                                 minlength=(r1 - r0) * n_bins).reshape(r1 - r0, n_bins)
+    return out
 
 
 def binned_power(bins: GcvBins, blocks) -> np.ndarray:

@@ -34,7 +34,7 @@ from clnlos.physics.constants import C0
 from clnlos.checks import real
 from clnlos.config import FALLOFF_RANGE, METHOD_FALLOFF
 from clnlos.errors import ParameterError, ShapeError
-from clnlos.inverse.gcv import GcvBins, binned_power
+from clnlos.inverse.gcv import GcvBins, binned_power, row_counts
 from clnlos.inverse.methods import Inversion, InversionGrid
 from clnlos.inverse.snr import (
     CLOSED_FORM_SLAB_SNR_MIN,
@@ -157,6 +157,7 @@ class LCT:
                                          queue=self.queue, in_plane=(2 * ny, 2 * nx))
         self._k = get_kernels(self.queue, "resample", real_defines(self.dtype))
         self._gcv_bins = None  # clnlos.inverse.gcv.GcvBins of the light cone, built on first use
+        self._row_counts = None  # clnlos.inverse.gcv.row_counts of the bins, on first use
 
     def _cone_filter(self, pitch: float, scratch: Scratch, cache) -> SpectralFilter:
         """The light-cone convolution on the (2 nt, 2 ny, 2 nx) grid: its spectrum from the
@@ -189,17 +190,42 @@ class LCT:
         """The light-cone Wiener SNR in [snr_min, snr_max] that generalised cross-validation
         (:mod:`clnlos.inverse.gcv`) picks for the transient ``tau`` [t, y, x] (device): V evaluated
         on the filter's own (v, y, x) grid, where the light cone is a convolution."""
-        return self._bins().snr_of(self._power(tau), snr_min, snr_max)
+        return self._bins().snr_of(self.power(tau), snr_min, snr_max)
 
-    def upre_snr(self, tau: cla.Array, noise: cla.Array, snr_min: float,
-                 snr_max: float) -> float:
+    def upre_snr(self, tau: cla.Array, probe, snr_min: float, snr_max: float) -> float:
         """The light-cone Wiener SNR in [snr_min, snr_max] that the unbiased predictive risk
         estimate (:meth:`clnlos.inverse.gcv.GcvBins.upre_snr`) picks for the transient ``tau``
-        whose noise is like ``noise`` (a realisation of it, same shape, device): on the
-        filter's (v, y, x) grid, where the slab deconvolution and the t -> v resampling
-        have coloured it (GCV's white-noise assumption does not hold there)."""
-        return self._bins().upre_snr_of(self._power(tau), self._power(noise), snr_min,
-                                        snr_max)
+        whose noise ``probe`` describes (:class:`clnlos.inverse.parameter_choice.NoiseProbe`):
+        on the filter's (v, y, x) grid, where the slab deconvolution and the t -> v resampling
+        have coloured it (GCV's white-noise assumption does not hold there). The noise's
+        power from its law where the probe has one (:meth:`column_noise_power`, no
+        realisation and no FFT), else from the realisation ``probe()``. The data's spectrum
+        stays in the filter's work buffer: the inversion of ``tau`` that follows reuses it
+        (:meth:`__call__`, one forward FFT for the choice and the inversion together)."""
+        columns = getattr(probe, "columns", None)
+        noise = (self.column_noise_power(*columns()) if columns is not None
+                 else self.power(probe()))
+        return self._bins().upre_snr_of(self.power(tau), noise, snr_min, snr_max)
+
+    def column_noise_power(self, K, d: np.ndarray) -> np.ndarray:
+        """The expected power per bin of :meth:`_bins` of the noise n = K e of every scan
+        column (e independent, variance ``d`` summed over the scan points) after the t -> v
+        resampling and the padding: independent noise is white across the scan, so
+        E|Y(k_v, k_y, k_x)|^2 = sum_t |(F_v M)(k_v, t)|^2 d(t), M = (t -> v) K, F_v the
+        DFT over the 2 nt padded v bins -- the same at every lateral frequency."""
+        nt = self.shape[0]
+        M = (self.to_v.matrix @ K).tocsc()
+        s_half = np.zeros(nt + 1)
+        step = max(1, (1 << 22) // (2 * nt))  # raw columns per block: ~64 MB of spectrum
+        for c0 in range(0, M.shape[1], step):
+            c1 = min(M.shape[1], c0 + step)
+            block = M[:, c0:c1].toarray() * np.sqrt(d[c0:c1])[None, :]
+            f = np.fft.rfft(block, n=2 * nt, axis=0)
+            s_half += (f.real ** 2 + f.imag ** 2).sum(axis=1)
+        k = np.arange(2 * nt)
+        if self._row_counts is None:  # once per plan: the bins' frequencies per v row
+            self._row_counts = row_counts(self._bins())
+        return s_half[np.minimum(k, 2 * nt - k)] @ self._row_counts
 
     def _bins(self):
         if self._gcv_bins is None:
@@ -207,13 +233,13 @@ class LCT:
             self._gcv_bins = GcvBins.from_blocks(f.gain_rows, f.fft.spec_shape, f.pad_shape[2])
         return self._gcv_bins
 
-    def _power(self, tau: cla.Array) -> np.ndarray:
+    def power(self, tau: cla.Array) -> np.ndarray:
         """|F[t -> v of tau, padded]|^2 on the half spectrum of the light-cone filter,
         summed per bin of :meth:`_bins` (block by block)."""
         bins = self._bins()
         return binned_power(bins, self.inverse_filter.power_blocks(
             row_blocks(bins.index.shape),
-            write_input=lambda buf: self._to_v_padded.apply_into(tau, buf)))
+            write_input=lambda buf: self._to_v_padded.apply_into(tau, buf), source=tau))
 
     @property
     def forward_operator(self) -> LinearOperator:
@@ -221,7 +247,9 @@ class LCT:
         return self.cone
 
     def __call__(self, tau):
-        """Albedo volume [z, y, x] (clamped at 0) from a transient [t, y, x]."""
+        """Albedo volume [z, y, x] (clamped at 0) from a transient [t, y, x]; right after
+        :meth:`upre_snr` or :meth:`gcv_snr` of the same ``tau``, with their forward
+        transform (:meth:`clnlos.operators.spectral.SpectralFilter.filter_padded`)."""
         on_device = isinstance(tau, cla.Array)
         x = tau if on_device else cla.to_device(self.queue,
                                                 np.ascontiguousarray(tau, self.dtype))
@@ -230,7 +258,7 @@ class LCT:
         vol = cla.empty(self.queue, self.shape, self.dtype)
         self.inverse_filter.filter_padded(
             lambda buf: self._to_v_padded.apply_into(x, buf),
-            lambda buf: self._to_z_padded.apply_into(buf, vol))
+            lambda buf: self._to_z_padded.apply_into(buf, vol), source=x)
         self._k.clamp_nonnegative(self.queue, (round_up(vol.size, 256),), None, vol.data,
                                   np.int64(vol.size))
         return vol if on_device else vol.get()
@@ -256,7 +284,7 @@ def choose_lightcone_snr(lct: LCT, config, noise, tau_g, rule_snr: float, timed,
     if config.inversion_snr != "auto" or noise.noise_free:
         return rule_snr, None
     if noise.photon_counts and LIGHTCONE_RULE == "upre" and probe is not None:
-        return timed("choose_inversion_snr", lct.upre_snr, tau_g, probe(), LIGHTCONE_SNR_MIN,
+        return timed("choose_inversion_snr", lct.upre_snr, tau_g, probe, LIGHTCONE_SNR_MIN,
                      LIGHTCONE_SNR_MAX), "upre"
     return timed("choose_inversion_snr", lct.gcv_snr, tau_g, LIGHTCONE_SNR_MIN,
                  LIGHTCONE_SNR_MAX), "gcv"

@@ -41,62 +41,54 @@ from dataclasses import dataclass, field
 import numpy as np
 import pyopencl.array as cla
 
-from clnlos.physics.constants import C0
-from clnlos.brdf.lobes import AUTO, auto_challengers, auto_ladder
-from clnlos.config import ReconstructionConfig, check_window
-from clnlos.errors import InputFileError, MissingParameterError, ParameterError
+from clnlos.brdf.lobes import AUTO
+from clnlos.config import ReconstructionConfig
+from clnlos.errors import InputFileError
 from clnlos.forward.blur import blur_time_scales, confocal_lag_energy, confocal_psf, slab_blur
-from clnlos.inverse.brdf_choice import (
-    LOBE_NOT_SEARCHED,
-    LOBE_NOT_SEARCHED_REASON,
-    LOBE_SEARCH_ITERATIONS,
-    challenge,
-    choose_lobe,
-    score_margin,
-)
+from clnlos.inverse.brdf_choice import LOBE_NOT_SEARCHED, LOBE_NOT_SEARCHED_REASON
 from clnlos.inverse.capture_defaults import format_defaults
 from clnlos.inverse.gcv import GcvBins, binned_power
-from clnlos.inverse.methods import METHODS, InversionGrid, method_class
-from clnlos.inverse.reproducibility import (
-    LIGHTCONE_SNRS,
-    candidate_order,
-    first_reproducible,
-    kappa_min,
-    mask_agreement,
-    otsu_mask,
-    slab_snrs,
+from clnlos.inverse.methods import InversionGrid, method_class
+from clnlos.inverse.parameter_choice import (
+    SPLIT_EMPTY,
+    SPLIT_EMPTY_REASON,
+    NoiseProbe,
+    ParameterSearches,
+    PreparedCapture,
+    auto_snrs,
+    method_slab_snr,
+    model_snr_for,
+)
+from clnlos.inverse.preprocessing import (
+    GUARD_PEAKS,
+    MIN_DEPTH_BINS,
+    aligned_window_note,
+    bins_for,
+    centred_extents,
+    cut_level,
+    describe_slab,
+    preprocess_bins,
+    preprocess_matrix,
+    resolve_geometry,
+    window_end_level,
 )
 from clnlos.inverse.snr import (
     ARRIVAL_SIGMAS,
     LEAD_FRACTION,
-    background_subtracted,
-    MEASURED_MODEL_SNR,
     SNR_MAX,
     SNR_MIN,
     NoiseEstimate,
+    background_subtracted,
     column_shift_error,
     combined_accuracy,
-    combined_snr,
     estimate_noise,
-    is_counts,
-    lightcone_snr,
     rebinning_error,
     represented_snr,
 )
 from clnlos.inverse.tail_fill import TailFilledDeconvolution
-from clnlos.inverse.thinning import (
-    CV_FACTOR_RANGE,
-    CV_FOLDS,
-    CV_NOISE_RUNS,
-    CV_SIGNIFICANCE,
-    CV_STEP,
-    descend_factor,
-    fitted_residual,
-    scaled_fit,
-    thin_counts,
-)
 from clnlos.io.capture import Capture, without_direct
-from clnlos.operators.resample import AxisResample, overlap_matrix
+from clnlos.operators.resample import AxisResample
+from clnlos.physics.constants import C0
 from clnlos.physics.grid import row_blocks
 from clnlos.physics.lobe import RetroLobe
 from clnlos.runtime.buffers import Scratch, host_view, round_up
@@ -130,208 +122,12 @@ class Reconstruction:
     notes: list[str] = field(default_factory=list)  # one line each, for the user
 
 
-def preprocess_matrix(nt_in: int, bin_width_s: float, start_s: float, max_path_m: float | None,
-                      bins: int | None, guard_fraction: float = 0.0):
-    """(matrix, new bin width, n_out): align to t = 0, crop to max path, rebin -- one resampling.
-
-    The matrix has ``n_out + n_guard`` rows: up to ``guard_fraction * n_out`` extra bins past
-    the kept window, taken from the capture where it extends that far. The slab
-    deconvolution runs on them (light that entered the window late leaves the slab after
-    it), then they are dropped, so the deconvolution's edge effects fall outside the volume.
-    """
-    src_edges = start_s + bin_width_s * np.arange(nt_in + 1)
-    n_keep, n_out = preprocess_bins(nt_in, bin_width_s, start_s, max_path_m, bins)
-    t_keep = n_keep * bin_width_s
-    dt_out = t_keep / n_out
-    n_avail = int(np.floor((src_edges[-1] - t_keep) / dt_out + 1e-9))
-    n_guard = max(0, min(n_avail, int(np.ceil(guard_fraction * n_out))))
-    dst_edges = np.linspace(0.0, t_keep + n_guard * dt_out, n_out + n_guard + 1)
-    return overlap_matrix(src_edges, dst_edges), dt_out, n_out
-
-
 INFLUENCE_ENERGY_TOL = 1e-5  # the slab influence's kernel keeps all but this of its energy
-NOISE_PROBE_SEED = 0     # the noise realisation of ReconstructionPipeline._noise_like
 
 
-class NoiseProbe:
-    """A realisation of the inverted transient's noise, computed on the first call (the
-    methods that need it: :mod:`clnlos.inverse.methods`)."""
-
-    def __init__(self, make):
-        self.make, self.value = make, None
-
-    def __call__(self):
-        if self.value is None:
-            self.value = self.make()
-        return self.value
-
-DECONVOLVED_KEPT = 4  # slab SNRs whose deconvolution a prepared capture keeps (a search's)
-
-
-@dataclass
-class PreparedCapture:
-    """A capture preprocessed once for every reconstruction made of it (the candidates of a
-    split search: :meth:`ReconstructionPipeline.reproducibility_snrs`,
-    :meth:`ReconstructionPipeline.thinning_factor`): the raw counts and their noise
-    estimate, the preprocessed and normalised transient ``tau`` (device, guard bins kept;
-    never changed), its scan-summed profile and the normalisation ``scale``; filled in as
-    the candidates need them: the slab GCV pick, the deconvolutions by slab SNR (the last
-    DECONVOLVED_KEPT, with what each added to a volume's params and notes), the tail fills
-    of the data and of the noise realisation (:class:`TailFilledDeconvolution` memos), and
-    the noise realisation preprocessed (:meth:`ReconstructionPipeline._probe`)."""
-
-    transient: np.ndarray
-    noise: NoiseEstimate
-    tau: cla.Array
-    profile: np.ndarray
-    scale: float
-    gcv_snr: float | None = None
-    deconvolved: dict = field(default_factory=dict)
-    fills: dict = field(default_factory=dict)
-    noise_fills: dict = field(default_factory=dict)
-    noise_tau: cla.Array | None = None
-
-    def keep(self, snr: float, entry: tuple) -> tuple:
-        """Keep the deconvolution at ``snr`` (the oldest dropped past DECONVOLVED_KEPT)."""
-        self.deconvolved[snr] = entry
-        while len(self.deconvolved) > DECONVOLVED_KEPT:
-            self.deconvolved.pop(next(iter(self.deconvolved)))
-        return entry
-
-
-MIN_DEPTH_BINS = 2  # a volume with fewer depth bins has no depth to resolve (a note says so)
-GUARD_PEAKS = 2.0  # a cut is harmless behind this many blur peak lags of guard bins (the
-#                   deconvolved bins past the volume): the inverse filter's ringing stays there
-
-
-def cut_level(snr: float) -> float:
-    """The light still arriving at a window's end (fraction of the peak) above which the cut
-    matters to a Wiener deconvolution of SNR ``snr``: 1 / sqrt(snr), the amplitude the
-    filter itself treats as noise (1e-2 at SNR 1e4; 1e-5 for a noise-free capture at the
-    SNR cap, whose inverse filter turns even a 0.3% step into the brightest voxels)."""
-    return 1.0 / math.sqrt(snr)
-
-
-def window_end_level(profile: np.ndarray, *, background: float, end_bins: int,
-                     photon_counts: bool, sigma: float, n_scan: int) -> float:
-    """How much light still arrives at the end of the time window: the mean of the scan-summed
-    transient ``profile`` over its last ``end_bins`` bins above ``background`` (per bin of
-    the profile), as a fraction of its peak above the background; 0 where that excess is
-    within ARRIVAL_SIGMAS standard deviations of the mean's noise (Poisson for counts,
-    ``sigma`` per bin and scan point otherwise)."""
-    m = max(1, min(int(end_bins), profile.size))
-    excess = float(profile[-m:].mean()) - background
-    top = float(profile.max()) - background
-    if not top > 0:
-        return 0.0
-    std = (math.sqrt(max(float(profile[-m:].mean()), 1.0) / m) if photon_counts
-           else sigma * math.sqrt(n_scan / m))
-    return max(0.0, excess / top) if excess > ARRIVAL_SIGMAS * std else 0.0
-
-
-def preprocess_bins(nt_in: int, bin_width_s: float, start_s: float,
-                    max_path_m: float | None, bins: int | None) -> tuple[int, int]:
-    """(capture bins kept from t = 0, bins after rebinning) of :func:`preprocess_matrix`,
-    from the capture's time axis alone."""
-    t_end = start_s + bin_width_s * nt_in
-    if max_path_m is not None:
-        t_end = min(t_end, max_path_m / C0)
-    if t_end <= 0:
-        raise ParameterError("preprocess.max_path_m", max_path_m,
-                             "a path length that keeps some of the capture's time window")
-    n_keep = max(1, int(round(t_end / bin_width_s)))
-    return n_keep, n_keep if bins is None else int(bins)
-
-
-def bins_for(config: ReconstructionConfig, nt_in: int, bin_width_s: float,
-             start_s: float) -> int | None:
-    """The bins the preprocessing rebins to: the config's ``bins``, else for a method with a
-    ``max_bins`` (:class:`clnlos.inverse.methods.MethodEntry`) the kept bins halved (summed in
-    pairs) until at most that many, else None (all of them)."""
-    cap = METHODS[config.method].max_bins if config.method in METHODS else None
-    if config.bins is not None or cap is None:
-        return config.bins
-    n_keep, _ = preprocess_bins(nt_in, bin_width_s, start_s, config.max_path_m, None)
-    n = n_keep
-    while n > cap:
-        n = (n + 1) // 2
-    return None if n == n_keep else n
-
-
-def device_bytes_needed(shape_in, *, bin_width_s: float, start_s: float,
-                        config: ReconstructionConfig, dtype=np.float32) -> tuple[int, int]:
-    """(device bytes in all, bytes of the largest buffer) that a pipeline for captures of
-    ``shape_in`` [t, y, x] allocates at least: the capture, and twice (the filter's and
-    the work buffer) the half spectrum of the inversion's padded grid (2 n, 2 ny, 2 nx),
-    n the bins after preprocessing. Lower bounds, from the declared sizes alone: a check
-    before a capture is read (:func:`clnlos.runtime.limits.capture_use`) never refuses one that
-    fits."""
-    nt_in, ny, nx = (int(v) for v in shape_in)
-    _, n = preprocess_bins(nt_in, bin_width_s, start_s, config.max_path_m,
-                           bins_for(config, nt_in, bin_width_s, start_s))
-    item = np.dtype(dtype).itemsize
-    spectrum = 2 * n * 2 * ny * (nx + 1) * 2 * item  # (2n, 2ny, 2nx) real -> half, complex
-    return nt_in * ny * nx * item + 2 * spectrum, spectrum
-
-
-def model_snr_for(capture: Capture, config: ReconstructionConfig) -> float:
-    """The slab model's accuracy as an SNR (:mod:`clnlos.inverse.snr`): the configured number, or
-    for "auto" infinite when the capture was simulated by clnlos with this very slab (the
-    model made the data) and MEASURED_MODEL_SNR otherwise."""
-    if config.model_snr != "auto":
-        return float(config.model_snr)
-    if config.slab is None:  # no deconvolution: the recorded slab is not read (--no-slab)
-        return math.inf
-    recorded = capture.recorded_slab()
-    if recorded is not None and recorded[0] == config.slab:
-        return math.inf
-    return MEASURED_MODEL_SNR
-
-
-def method_slab_snr(gcv_snr: float, slab_snr_min: float | None,
-                    photon_snr: float | None = None) -> float:
-    """The data's slab SNR for a method: cross-validation's ``gcv_snr``; where
-    ``photon_snr`` (the photon rule's, :mod:`clnlos.inverse.snr`) is given and higher, the
-    geometric mean sqrt(gcv_snr photon_snr); at least the method's ``slab_snr_min`` where it
-    has one (:attr:`clnlos.inverse.methods.Inversion.slab_snr_min`). Before the model's
-    accuracy is combined with it (:func:`auto_snrs`, which also clips to SNR_MAX)."""
-    snr = gcv_snr
-    if photon_snr is not None and photon_snr > gcv_snr:
-        snr = math.sqrt(gcv_snr * photon_snr)
-    return snr if slab_snr_min is None else max(snr, float(slab_snr_min))
-
-
-def auto_snrs(noise: NoiseEstimate, config: ReconstructionConfig,
-              model_snr: float = math.inf, *, data_snr: float | None = None,
-              data_inversion_snr: float | None = None) -> tuple[float, float]:
-    """(deconvolution SNR, light-cone SNR) of a capture: the configured numbers, or for
-    "auto" the data's own (``data_snr`` for the slab, combined with ``model_snr``;
-    ``data_inversion_snr`` for the light cone: :mod:`clnlos.inverse.gcv`) where given, else the
-    photon rule of :mod:`clnlos.inverse.snr` (photon count and model accuracy;
-    :func:`lightcone_snr`)."""
-    if config.snr != "auto":
-        snr = float(config.snr)
-    else:
-        snr = combined_snr(noise.snr if data_snr is None else data_snr, model_snr)
-    if config.inversion_snr != "auto":
-        inv = float(config.inversion_snr)
-    else:
-        inv = lightcone_snr(snr) if data_inversion_snr is None else float(data_inversion_snr)
-    return snr, inv
-
-
-# what a split search records where a half of the split holds no counts (the GCV rule kept)
-SPLIT_EMPTY_REASON = "a half of the split holds no counts"
-SPLIT_EMPTY = f"gcv ({SPLIT_EMPTY_REASON})"
-
-
-class ReconstructionPipeline:
+class ReconstructionPipeline(ParameterSearches):
     """The composed stages for one capture geometry (shape, bin width, scan width);
     ``setup(step)`` names each step of the construction as it starts."""
-
-    # the factors on GCV's slab SNR the thinning search may reach (clnlos.inverse.thinning;
-    # a measurement may widen it: tools/snr_rule_check.py --both-ways)
-    thinning_factor_range = CV_FACTOR_RANGE
 
     def __init__(self, shape_in, *, bin_width_s: float, start_s: float, scan_width_m: float,
                  config: ReconstructionConfig, dtype=np.float32, queue=None, setup=None):
@@ -590,7 +386,8 @@ class ReconstructionPipeline:
         elif self.n_guard:
             tau = tau[:self.shape[0]]  # the guard bins dropped: a view of the leading rows
         method = self.config.method
-        probe = (NoiseProbe(lambda: self._probe(prep, deconv, snr))
+        probe = (NoiseProbe(lambda: self._probe(prep, deconv, snr),
+                            None if deconv is not None else lambda: self._noise_columns(prep))
                  if noise.photon_counts and not noise.noise_free else None)
         influence = (None if self.deconv is None else
                      lambda: self._slab_influence(snr))
@@ -647,219 +444,6 @@ class ReconstructionPipeline:
         k0, k1 = self.raw_window
         return estimate_noise(np.asarray(transient)[k0:k1], self.raw_bin_width_s,
                               self.raw_start_s + k0 * self.raw_bin_width_s)
-
-    def brdf_lobe(self, transient: np.ndarray, noise: NoiseEstimate, model_snr: float,
-                  setup=None) -> tuple[RetroLobe, dict]:
-        """(the retro lobe ``brdf = "auto"`` takes for this capture, the params recording the
-        search): the lobe of :func:`clnlos.brdf.lobes.auto_ladder` whose reconstruction from
-        one half of a binomial split of the counts best predicts the other half
-        (:mod:`clnlos.inverse.brdf_choice`); the Lambertian lobe where the capture is not
-        counts or a half is empty (:data:`LOBE_NOT_SEARCHED`)."""
-        halves = self._split(transient) if (noise.photon_counts and not noise.noise_free
-                                            and is_counts(np.asarray(transient))) else None
-        if halves is None:
-            return RetroLobe.lambert(), {"brdf_rule_used": LOBE_NOT_SEARCHED}
-        train, test = halves
-        held, phi, noise_runs = self._held_out_prediction_target(test)
-        fits: dict[str, np.ndarray] = {}
-
-        def score(cand: RetroLobe) -> float:
-            if setup is not None:
-                setup(f"BRDF lobe by thinning: {cand.name}")
-            with self.invert.iteration_budget(LOBE_SEARCH_ITERATIONS):
-                rec = self.run(train, model_snr=model_snr, slab_snr_factor=1.0, lobe=cand)
-            pred = self.invert.predict(rec.volume)
-            pred = (pred if phi is None else phi.apply_device(pred)).get()
-            fits[cand.name] = scaled_fit(pred, held)
-            return fitted_residual(fits[cand.name], held, scaled=True)
-
-        def margin(new: RetroLobe, best: RetroLobe) -> float:
-            return score_margin(fits[new.name], fits[best.name], held, noise_runs)
-
-        chosen, tried = choose_lobe(auto_ladder(), score, margin)
-        chosen, tried = challenge(chosen, tried, auto_challengers(), score, margin)
-        return chosen, {"brdf_rule_used": "thinning", "brdf_chosen": chosen.name,
-                        "brdf_tried": json.dumps([[c, v] for c, v in tried])}
-
-    def _held_out_prediction_target(self, y2: np.ndarray):
-        """(the held-out half as the inversion sees it, host; the slab's influence Phi2 that a
-        prediction goes through, or None without a slab; realisations of its noise): with a
-        slab, :meth:`_held_out` (deconvolved at its own GCV SNR); without, preprocessed and
-        divided by its peak."""
-        if self.deconv is not None:
-            held, snr, noise_runs = self._held_out(y2)
-            return held, self._slab_influence(snr), noise_runs
-        tau = self.pre(cla.to_device(self.queue, np.ascontiguousarray(y2, self.dtype)))
-        _, peak = self._profile_peak(tau)
-        scale = 1.0 / peak if peak > 0 else 1.0
-        if peak > 0:
-            self._scale_inplace(tau, scale)
-        noise_runs = [self._noise_like(y2, scale, None, 0.0, NOISE_PROBE_SEED + 1 + j).get()
-                      for j in range(CV_NOISE_RUNS)]
-        return tau.get(), None, noise_runs
-
-    def _thinning_applies(self, transient: np.ndarray, noise: NoiseEstimate,
-                          model_snr: float) -> bool:
-        """Whether an "auto" slab SNR is chosen by thinning: the config's rule is thinning
-        (:attr:`clnlos.config.ReconstructionConfig.thinning`), with a slab, a method with a
-        forward model and a capture of photon counts (``noise``: the raw capture's,
-        :meth:`raw_noise`); under ``snr_rule = "auto"`` also only where the slab model is
-        exact (``model_snr`` infinite: a capture clnlos simulated with this slab). The score
-        takes Phi2 L rho for the held-out photons' mean: on a measured capture the model's
-        own error (MEASURED_MODEL_SNR, 1e4) exceeds the photon noise it would judge by, and
-        the combined SNR is capped at it anyway."""
-        return self.invert.forward_model and self._split_search_applies(
-            self.config.thinning, transient, noise, model_snr)
-
-    def _reproducibility_applies(self, transient: np.ndarray, noise: NoiseEstimate,
-                                 model_snr: float) -> bool:
-        """Whether "auto" SNRs are chosen by split-half reproducibility: the config's rule
-        is it (:attr:`clnlos.config.ReconstructionConfig.reproducibility`: LCT and f-k under
-        "auto"), with a slab, an "auto" slab SNR and a capture of photon counts; under
-        ``snr_rule = "auto"`` also only where the slab model is exact (``model_snr``
-        infinite). On a measured capture the model's error is the same in both halves: they
-        would agree on it, and the combined SNR is capped at MEASURED_MODEL_SNR anyway."""
-        return self._split_search_applies(self.config.reproducibility, transient, noise,
-                                          model_snr)
-
-    def _split_search_applies(self, rule_on: bool, transient: np.ndarray,
-                              noise: NoiseEstimate, model_snr: float) -> bool:
-        """The gate both split searches share: their rule on (``rule_on``), not under
-        ``snr_rule = "auto"`` where the slab model is inexact (``model_snr`` finite), an
-        "auto" slab SNR, a slab, and a capture of photon counts (``noise``: the raw
-        capture's, :meth:`raw_noise`)."""
-        c = self.config
-        if not rule_on or (c.snr_rule == "auto" and math.isfinite(model_snr)):
-            return False
-        return (c.snr == "auto" and self.deconv is not None and noise.photon_counts
-                and not noise.noise_free and is_counts(np.asarray(transient)))
-
-    def _split(self, transient: np.ndarray) -> tuple[np.ndarray, np.ndarray] | None:
-        """The binomial split of the counts (:func:`clnlos.inverse.thinning.thin_counts`),
-        or None where a half holds no counts in the kept window (the searches then keep
-        the GCV rule, recorded as :data:`SPLIT_EMPTY`)."""
-        halves = thin_counts(np.asarray(transient))
-        k0, k1 = self.raw_window
-        return halves if all(np.any(h[k0:k1]) for h in halves) else None
-
-    def reproducibility_candidates(self) -> list[tuple[float, float | None]]:
-        """The (slab SNR, light-cone SNR) settings the search tries, least regularised first
-        (:func:`clnlos.inverse.reproducibility.candidate_order`): the light-cone SNRs where
-        the method has a light-cone filter and the config leaves its SNR to "auto"."""
-        lc = (LIGHTCONE_SNRS if self.invert.lightcone_filter
-              and self.config.inversion_snr == "auto" else (None,))
-        return candidate_order(slab_snrs(self.invert.lightcone_filter), lc)
-
-    def reproducibility_snrs(self, transient: np.ndarray, model_snr: float = math.inf,
-                             setup=None, *, resampled: float = math.inf
-                             ) -> tuple[tuple[float, float | None] | None, dict]:
-        """((slab SNR, light-cone SNR or None), the params recording the search): the first
-        of :meth:`reproducibility_candidates` at which the two halves of a binomial split of
-        the counts (:func:`clnlos.inverse.thinning.thin_counts`) give Otsu masks of their
-        max-intensity projections that agree with Cohen's kappa >= the method's bar
-        (:func:`clnlos.inverse.reproducibility.kappa_min`), else the most
-        reproducible candidate (:mod:`clnlos.inverse.reproducibility`; a note says so). The
-        candidates are used as given: on a measured capture (``snr_rule`` by name) the
-        model's accuracy is not combined with them. Where a half holds no counts in the
-        window, the method's GCV rule stands (None, and a note)."""
-        halves = self._split(transient)
-        if halves is None:
-            return None, {"snr_rule_used": SPLIT_EMPTY}
-        prepared = [self.prepare(h) for h in halves]
-
-        def agreement(cand: tuple[float, float | None]) -> float:
-            if setup is not None:
-                lc = "" if cand[1] is None else f", light cone {cand[1]:.3g}"
-                setup(f"SNRs by reproducibility: slab {cand[0]:.3g}{lc}")
-            masks = [otsu_mask(self._reconstruct(h, {}, model_snr=model_snr, snrs=cand,
-                                                 resampled=resampled).volume)
-                     for h in prepared]
-            return mask_agreement(*masks)
-
-        bar = kappa_min(self.invert.lightcone_filter)
-        chosen, tried, agreed = first_reproducible(self.reproducibility_candidates(),
-                                                   agreement, bar)
-        kappa = dict(tried)[chosen]
-        return chosen, {"snr_rule_used": "reproducibility", "reproducibility_kappa": kappa,
-                        "reproducibility_kappa_min": bar,
-                        "reproducibility_agreed": agreed,
-                        "reproducibility_tried": json.dumps([[c[0], c[1], k]
-                                                             for c, k in tried])}
-
-    def thinning_factor(self, transient: np.ndarray, model_snr: float = math.inf,
-                        setup=None, *, resampled: float = math.inf) -> tuple[float, dict]:
-        """(factor on GCV's slab SNR, the params recording the search) by cross-validation
-        on a binomial split of the counts (:mod:`clnlos.inverse.thinning`): for each
-        candidate the first half is reconstructed at that factor on its own GCV pick and its
-        prediction Phi2 L rho scored against the second half deconvolved at that half's own
-        GCV SNR (with CV_FOLDS = 2 also the other way round, the score the folds' mean).
-        Where a half holds no counts in the window, GCV's pick (factor 1) stands."""
-        halves = self._split(transient)
-        if halves is None:
-            return 1.0, {"snr_rule_used": SPLIT_EMPTY}
-        folds = []
-        for train, test in list(zip(halves, halves[::-1], strict=True))[:CV_FOLDS]:
-            held, snr, noise = self._held_out(test)
-            folds.append((self.prepare(train), held, self._slab_influence(snr), noise,
-                          float(np.sum(np.square(held, dtype=np.float64)))))
-        gcv_train: list[float] = []
-        fits: dict[float, list[np.ndarray]] = {}
-
-        def score(f: float) -> float:
-            if setup is not None:
-                setup(f"slab SNR by thinning: {f:.3g} x GCV's pick")
-            scores, fits[f] = [], []
-            for train, held, phi, _, _ in folds:
-                rec = self._reconstruct(train, {}, model_snr=model_snr, slab_snr_factor=f,
-                                        resampled=resampled)
-                gcv_train.append(rec.params.get("snr_data", math.nan))
-                pred = phi.apply_device(self.invert.predict(rec.volume)).get()
-                fits[f].append(scaled_fit(pred, held))
-                scores.append(fitted_residual(fits[f][-1], held, scaled=True))
-            return float(np.mean(scores))
-
-        def margin(f_new: float, f_best: float) -> float:
-            """CV_SIGNIFICANCE standard errors of the score difference's part from the
-            held-out half's noise, 2 <n, q_new - q_best> / ||held||^2 over each fold's noise
-            realisations (the folds' variances summed as if independent). The split's own
-            variation (which half each photon went to) is not in it: on a 16 x 16 'UT' it
-            was 3-6x larger (12 split seeds), so a choice between neighbouring factors can
-            depend on THINNING_SEED (clnlos.inverse.thinning)."""
-            var = 0.0
-            for k, (_, _, _, noise, energy) in enumerate(folds):
-                d = (fits[f_new][k] - fits[f_best][k]).ravel()
-                var += np.mean([(2.0 * float(r.ravel() @ d) / energy) ** 2 for r in noise])
-            return CV_SIGNIFICANCE * math.sqrt(var) / len(folds)
-
-        def clipped(f: float) -> bool:  # the step before already at SNR_MAX: no change
-            g = gcv_train[0] if gcv_train else math.nan
-            return not g * f / CV_STEP < SNR_MAX
-
-        factor, tried = descend_factor(score, limit=clipped, margin=margin,
-                                       factor_range=self.thinning_factor_range)
-        return factor, {"snr_rule_used": "thinning", "thinning_factor": factor,
-                        "thinning_tried": json.dumps([[f, v] for f, v in tried])}
-
-    def _held_out(self, y2: np.ndarray) -> tuple[np.ndarray, float, list[np.ndarray]]:
-        """(the held-out half's deconvolved transient on the inverted grid, host; its GCV
-        slab SNR; CV_NOISE_RUNS realisations of its noise through the same steps,
-        :meth:`_noise_like`): preprocessed, divided by its peak (the score fits the scale)
-        and deconvolved at the SNR GCV picks for it (:meth:`slab_gcv_snr`), tail-filled where
-        the window needs it."""
-        tau = self.pre(cla.to_device(self.queue, np.ascontiguousarray(y2, self.dtype)))
-        profile, peak = self._profile_peak(tau)
-        if peak > 0:
-            self._scale_inplace(tau, 1.0 / peak)
-        noise = self.raw_noise(y2)
-        snr = self.slab_gcv_snr(tau)
-        deconv = self._deconvolution_for(profile, noise, snr, {}, [])
-        deconv.set_snr(snr)
-        out = deconv(tau)[:self.shape[0]].get()
-        scale = 1.0 / peak if peak > 0 else 1.0
-        noise_runs = [self._noise_like(y2, scale, deconv, snr, NOISE_PROBE_SEED + 1 + j).get()
-                      for j in range(CV_NOISE_RUNS)]
-        return out, snr, noise_runs
-
     @staticmethod
     def _profile_peak(tau: cla.Array) -> tuple[np.ndarray, float]:
         """(the scan-summed profile [t], float64; the peak) of a preprocessed transient:
@@ -883,53 +467,6 @@ class ReconstructionPipeline:
         restores the unseen tail the filter then sees."""
         self.deconv.set_snr(snr)
         return self.deconv.influence(in_shape=self.shape, energy_tol=INFLUENCE_ENERGY_TOL)
-
-    def _noise_like(self, transient: np.ndarray, scale: float, deconv, snr: float,
-                    seed: int = NOISE_PROBE_SEED) -> cla.Array:
-        """A realisation of the noise of the transient the inversion receives: Gaussian of
-        the capture's Poisson variance (each bin's count; ``transient`` holds counts), seed
-        ``seed`` (default NOISE_PROBE_SEED), through the same linear steps as the data
-        (preprocessing, the normalisation ``scale``: :meth:`_noise_preprocessed`; the slab
-        deconvolution ``deconv`` at ``snr`` when not None, the guard bins dropped): the
-        noise spectrum of :meth:`clnlos.inverse.lct.LCT.upre_snr`.
-        """
-        t = self._noise_preprocessed(transient, scale, seed)
-        if deconv is not None:
-            deconv.set_snr(snr)
-            t = deconv(t)
-        return t[:self.shape[0]] if self.n_guard else t
-
-    def _noise_preprocessed(self, transient: np.ndarray, scale: float,
-                            seed: int = NOISE_PROBE_SEED) -> cla.Array:
-        """The noise realisation of :meth:`_noise_like` preprocessed and normalised (guard
-        bins kept), drawn block by block of rows (the same stream as one draw; no
-        float64 temporary of the capture's size)."""
-        y = np.asarray(transient)
-        rng = np.random.default_rng(seed)
-        n = np.empty(y.shape, self.dtype)
-        rows = max(1, (1 << 20) // max(1, int(np.prod(y.shape[1:]))))
-        for r0 in range(0, y.shape[0], rows):
-            blk = y[r0:r0 + rows]
-            n[r0:r0 + rows] = np.sqrt(np.maximum(blk, 0), dtype=np.float64) * \
-                rng.standard_normal(blk.shape)
-        t = self.pre(cla.to_device(self.queue, n))
-        if scale != 1.0:
-            self._scale_inplace(t, scale)
-        return t
-
-    def _probe(self, prep: PreparedCapture, deconv, snr: float) -> cla.Array:
-        """:meth:`_noise_like` of a prepared capture (its preprocessed part kept in
-        ``prep``: the same for every candidate of a search), deconvolved by ``deconv`` at
-        ``snr`` (a tail fill's memo kept too)."""
-        if prep.noise_tau is None:
-            prep.noise_tau = self._noise_preprocessed(prep.transient, prep.scale)
-        t = prep.noise_tau
-        if deconv is not None:
-            deconv.set_snr(snr)
-            t = (deconv(t, prep.noise_fills) if isinstance(deconv, TailFilledDeconvolution)
-                 else deconv(t))
-        return t[:self.shape[0]] if self.n_guard else t
-
     def result_notes(self, volume: np.ndarray, noise: NoiseEstimate, params: dict,
                      transient: np.ndarray) -> list[str]:
         """One line each for a result that holds little or nothing, naming the cause: a
@@ -1038,52 +575,6 @@ class ReconstructionPipeline:
         return self._tail_deconv
 
 
-def setup_slab(config: ReconstructionConfig, capture: Capture
-               ) -> tuple[ReconstructionConfig, str]:
-    """For a config without a slab: the slab the capture recorded (a clnlos simulation), with
-    a one-line note of what was chosen."""
-    recorded = capture.recorded_slab()
-    if recorded is None:
-        return config, ("no slab given (--slab-* flags or [slab]) or recorded in the capture: "
-                        "no deconvolution runs (plain NLOS)")
-    slab, nd = recorded
-    cfg = config.replace(slab=slab, n_dipoles=config.n_dipoles if nd is None else nd)
-    return cfg, f"using the slab recorded in the capture: {describe_slab(slab)} (--no-slab " \
-                "to skip the deconvolution)"
-
-
-def describe_slab(slab) -> str:
-    return (f"d = {slab.thickness_m:g} m, mu_a = {slab.mu_a:g} 1/m, mu_s' = "
-            f"{slab.mu_s_prime:g} 1/m, n = {slab.n:g}")
-
-
-def resolve_geometry(capture: Capture, config: ReconstructionConfig, *,
-                     names: dict[str, str] | None = None) -> tuple[float, float, float]:
-    """(bin_width_s, start_s, scan_width_m): the config overrides the file; the time window
-    is checked (:func:`clnlos.config.check_window`, errors naming ``names`` or the TOML
-    fields)."""
-    src = capture.source or "the capture"
-    bw = config.bin_width_s if config.bin_width_s is not None else capture.bin_width_s
-    if bw is None:
-        raise MissingParameterError("--bin-width", f"{src} does not store its bin width; "
-                                    "give --bin-width (s) or [capture] bin_width_s")
-    sw = config.scan_width_m if config.scan_width_m is not None else capture.scan_width_m
-    if sw is None:
-        why = capture.attrs.get("scan_width_unknown", f"{src} does not store the scan width")
-        raise MissingParameterError("--scan-width", f"{why}; give --scan-width (the side "
-                                    "along x, m) or [capture] scan_width_m")
-    ny, nx = capture.transient.shape[1:]
-    if config.scan_width_m is None and capture.scan_height_m is not None and not math.isclose(
-            capture.scan_height_m / ny, sw / nx, rel_tol=1e-6):
-        raise InputFileError(f"{capture.source or 'the capture'}: a scan pitch of "
-                             f"{sw / nx:.4g} m along x and {capture.scan_height_m / ny:.4g} m "
-                             "along y: clnlos reconstructs scans of square cells only")
-    start = config.start_s if config.start_s is not None else capture.start_s
-    check_window(capture.transient.shape[0], float(bw), float(start), config, names=names,
-                 source=capture.source or "the capture")
-    return float(bw), float(start), float(sw)
-
-
 def reconstruct(capture: Capture, config: ReconstructionConfig, *, dtype=np.float32,
                 device=None, keep_transient: bool = False, progress=None,
                 setup=None) -> Reconstruction:
@@ -1092,7 +583,8 @@ def reconstruct(capture: Capture, config: ReconstructionConfig, *, dtype=np.floa
     Pipelines (PSFs, spectra, FFT plans) are kept in :data:`clnlos.runtime.caches.PIPELINES` (LRU
     under a byte budget), so many captures of one geometry (a study) pay the set-up once.
     ``progress(k, n)`` follows the iterative method's iterations and ``setup(step)`` names
-    each set-up step (pipeline, operator, step size, warm start) as it starts.
+    each set-up step (pipeline, operator, step size, warm start) as it starts. A pipeline
+    built for this call records its set-up as the stage "plan" of the timings.
     """
     capture, reader_notes = without_direct(capture, config.direct_cut_s)
     if capture.bin_width_s is not None or config.bin_width_s is not None:
@@ -1106,46 +598,26 @@ def reconstruct(capture: Capture, config: ReconstructionConfig, *, dtype=np.floa
     queue = get_queue(device)
     key = (capture.transient.shape, bw, start, sw, json.dumps(config.as_attrs(), sort_keys=True),
            np.dtype(dtype).str, queue)
-    pipe = PIPELINES.get(key, lambda: ReconstructionPipeline(
-        capture.transient.shape, bin_width_s=bw, start_s=start, scan_width_m=sw,
-        config=config, dtype=dtype, queue=queue, setup=setup), queue)
+    built: list[float] = []
+
+    def build() -> ReconstructionPipeline:
+        t0 = time.perf_counter()
+        plan = ReconstructionPipeline(
+            capture.transient.shape, bin_width_s=bw, start_s=start, scan_width_m=sw,
+            config=config, dtype=dtype, queue=queue, setup=setup)
+        queue.finish()
+        built.append(time.perf_counter() - t0)
+        return plan
+
+    pipe = PIPELINES.get(key, build, queue)
     rec = pipe.run(capture.transient, keep_transient=keep_transient, progress=progress,
                    model_snr=model_snr_for(capture, config), setup=setup,
                    time_shifts=capture.time_shift_bins)
+    if built:  # a plan built for this capture (none kept): its set-up is a stage of the run
+        rec.timings_s = {"plan": built[0], **rec.timings_s}
     note = aligned_window_note(capture)
     if note:
         rec.notes.insert(0, note)
     rec.notes[:0] = reader_notes
     rec.extents = centred_extents(rec.extents, capture.scan_center_m)
     return rec
-
-
-def centred_extents(extents: dict, center) -> dict:
-    """The volume's lateral extents moved to a scan grid centred at ``center`` (x, y) m."""
-    cx, cy = (float(v) for v in center)
-    out = dict(extents)
-    for key, shift in (("x_min_m", cx), ("x_max_m", cx), ("y_min_m", cy), ("y_max_m", cy)):
-        out[key] = extents[key] + shift
-    return out
-
-
-def aligned_window_note(capture: Capture) -> str | None:
-    """One line where a reader cut the window to the bins every scan point recorded after
-    moving the columns to align them (:func:`clnlos.io.formats.common.align_columns`)."""
-    recorded = capture.attrs.get("aligned_from_bins")
-    shifts = capture.time_shift_bins
-    kept = capture.transient.shape[0]
-    if shifts is None or recorded is None or kept >= recorded:
-        return None
-    bw = capture.bin_width_s or 0.0
-    return (f"the columns were moved {np.min(shifts):.4g}-{np.max(shifts):.4g} bins earlier "
-            f"to align the scan points: the window is cut to the {kept} bins "
-            f"({kept * bw * 1e9:.3g} ns) every scan point recorded, of {recorded}")
-
-
-
-
-
-
-
-

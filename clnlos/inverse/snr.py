@@ -33,7 +33,7 @@ the level our sweeps on the shared CDT captures confirm (1e4 and 3e4 legible, 1e
 the photon count's 1.5e6 unreadable).
 
 Resampling error. A capture whose time axis was resampled -- rebinned to other bins
-(``bins``, ``max_path_m``: :func:`clnlos.inverse.pipeline.preprocess_matrix`) or its columns
+(``bins``, ``max_path_m``: :func:`clnlos.inverse.preprocessing.preprocess_matrix`) or its columns
 moved by fractions of a bin (a reader aligning y-tal's first and last bounces or an f-k
 tofgrid) -- is no longer exactly the slab blur of anything on its grid: rebinning does not
 commute with the blur (a sub-bin arrival time is lost in the bin), and a fractional shift

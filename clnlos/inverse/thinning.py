@@ -26,7 +26,7 @@ factor with the method).
 By name (``snr_rule = "thinning"``), for the iterative method on photon counts: 2-3
 reconstructions of half the data on top of the one (the candidates share the halves'
 preprocessing, GCV picks and deconvolutions,
-:class:`clnlos.inverse.pipeline.PreparedCapture`). Why only deeper, what it measured and why
+:class:`clnlos.inverse.parameter_choice.PreparedCapture`). Why only deeper, what it measured and why
 it is not the default: docs/validation/parameter-rules.md.
 """
 

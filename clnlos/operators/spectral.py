@@ -17,6 +17,8 @@ least twice the causal PSF support keeps the circular convolution from wrapping.
 
 from __future__ import annotations
 
+import weakref
+
 import numpy as np
 import pyopencl.array as cla
 import scipy.sparse as sp
@@ -183,6 +185,7 @@ class SpectralFilter(LinearOperator):
         self.scratch = Scratch(self.queue) if scratch is None else scratch
         self.scratch.reserve("a", pad_shape, self.dtype)
         self.scratch.reserve("b", self.fft.spec_shape, self.fft.cdtype)
+        self.kept = None  # (input, slot "b" requests) of the spectrum power_blocks left
 
     @property
     def work_buffer(self) -> cla.Array:
@@ -202,6 +205,7 @@ class SpectralFilter(LinearOperator):
         new.H = H
         new.h_scale = (base.h_scale if H is base.H else 1.0) if h_scale is None else h_scale
         new.folded = base.folded if H is base.H else False
+        new.kept = None
         return new
 
     def set_snr(self, snr: float) -> None:
@@ -229,7 +233,7 @@ class SpectralFilter(LinearOperator):
     def _filter(self, x_g: cla.Array, adjoint: bool) -> cla.Array:
         write, nonzero, zeroed = self._padder(x_g, adjoint)
         return self.filter_padded(write, self._pad.adjoint_device, adjoint=adjoint, nonzero=nonzero,
-                                  zeroed=zeroed)
+                                  zeroed=zeroed, source=None if adjoint else x_g)
 
     def gain_squared(self) -> np.ndarray:
         """|h_scale H|^2 on the (n0, n1, n2h) half-spectrum grid, unfolded (host, float64):
@@ -254,17 +258,24 @@ class SpectralFilter(LinearOperator):
         return g[fw - lo][:, np.minimum(ky, n1 - ky)]
 
     def power_blocks(self, blocks, x_g: cla.Array | None = None, *, write_input=None,
-                     nonzero=None):
+                     nonzero=None, source=None):
         """The power spectrum |F[pad(x)]|^2 of the input as this filter pads it (``x_g``), or
         as ``write_input(buf)`` writes it into the zeroed padded grid (data in its
         low-corner ``nonzero`` block), block by block: yields (r0, rows r0:r1 of it, float32)
         for each (r0, r1) of ``blocks`` (rows of the half spectrum), after one forward FFT;
         no host array of the spectrum's size (a GCV bin sum,
-        :class:`clnlos.inverse.gcv.BinnedPower`, needs no more)."""
+        :class:`clnlos.inverse.gcv.BinnedPower`, needs no more). The spectrum stays in the
+        work buffer: the next :meth:`filter_padded` of the same input (``x_g``, or the array
+        ``source`` that ``write_input`` writes) skips its forward transform when nothing
+        has asked for that buffer since (an SNR chosen, then the data filtered with it)."""
         zeroed = True
         if write_input is None:
             write_input, nonzero, zeroed = self._padder(x_g)
+            source = x_g
         _, spec = self._forward_padded(write_input, nonzero, zeroed)
+        # a weak reference: a kept spectrum never keeps its input alive
+        self.kept = None if source is None else (weakref.ref(source),
+                                                  self.scratch.requests["b"])
         for r0, r1 in blocks:
             s = spec[r0:r1].get()
             yield r0, s.real * s.real + s.imag * s.imag
@@ -323,19 +334,35 @@ class SpectralFilter(LinearOperator):
         return buf, spec
 
     def filter_padded(self, write_input, read_output, *, adjoint: bool = False,
-                      nonzero=None, zeroed: bool = True):
+                      nonzero=None, zeroed: bool = True, source=None):
         """The filter with the padding and the crop done by the caller's own passes:
         ``write_input(buf)`` writes the input into the padded grid ``buf`` (zeroed first
         unless ``zeroed=False``; data only in its low-corner ``nonzero`` block, default
         ``in_shape``), ``read_output(buf)`` reads the result from its ``in_shape`` block
         (the rest of ``buf`` is not computed). A resampling that writes straight into the
-        padded grid saves the separate pad and crop passes (LCT's t -> v and u -> z)."""
-        buf, spec = self._forward_padded(write_input, nonzero, zeroed)
+        padded grid saves the separate pad and crop passes (LCT's t -> v and u -> z).
+        ``source``: the array ``write_input`` writes, whose spectrum :meth:`power_blocks` may
+        have left in the work buffer (then reused: no forward transform)."""
+        spec = self._kept_spectrum(source)
+        if spec is None:
+            buf, spec = self._forward_padded(write_input, nonzero, zeroed)
+        else:
+            buf = self.work_buffer
         multiply_spectrum(self.kernels, self.H, spec, h_scale=self.h_scale, adjoint=adjoint,
                           folded=self.folded,
                           inv_snr=self.inv_snr if self.mode == "wiener" else None)
         self.fft.inverse(spec, buf, needed=self.in_shape)
         return read_output(buf)
+
+    def _kept_spectrum(self, source):
+        """The spectrum of ``source`` that :meth:`power_blocks` left in slot "b", or None:
+        another input, or the slot asked for since (its contents may have changed). Used
+        once: the filter overwrites it."""
+        kept, self.kept = self.kept, None
+        if source is None or kept is None or kept[0]() is not source or \
+                kept[1] != self.scratch.requests.get("b"):
+            return None
+        return self.scratch.array("b", self.fft.spec_shape, self.fft.cdtype)
 
     def _apply(self, x_g):
         return self._filter(x_g, adjoint=False)

@@ -125,6 +125,9 @@ class Scratch:
         self.queue = queue
         self._need: dict[str, int] = {}
         self._bufs: dict[str, cl.Buffer] = {}
+        # views handed out per slot: what a stage left in a slot is still there while this
+        # count has not moved (SpectralFilter's kept spectrum)
+        self.requests: dict[str, int] = {}
 
     def reserve(self, slot: str, shape, dtype) -> None:
         nbytes = int(np.prod(shape)) * np.dtype(dtype).itemsize
@@ -133,6 +136,7 @@ class Scratch:
     def array(self, slot: str, shape, dtype):
         """A ``shape``/``dtype`` view of the slot (reserved first if it was not)."""
         self.reserve(slot, shape, dtype)
+        self.requests[slot] = self.requests.get(slot, 0) + 1
         buf = self._bufs.get(slot)
         if buf is None or buf.size < self._need[slot]:
             # arrays handed out earlier keep the old buffer alive until they are dropped
