@@ -28,7 +28,7 @@ from clnlos.version import __version__  # stated there (pyproject reads it)
 # CLI's start-up (``clnlos --version``) load neither the pipeline nor the study
 _LAZY = {"plot_volume": "clnlos.api", "read_capture": "clnlos.api",
          "reconstruct": "clnlos.api", "reconstruction_config": "clnlos.api",
-         "simulate": "clnlos.api", "study": None}
+         "simulate": "clnlos.api", "api": None, "study": None}
 
 __all__ = ["C0", "__version__", "plot_volume", "read_capture", "reconstruct",
            "reconstruction_config", "simulate", "study"]
