@@ -106,7 +106,7 @@ def bracket_text(lo, hi, unit: str) -> str:
         return f"> {lo:g} {unit} (the largest tried)" if lo is not None else "not swept"
     if lo is None:
         return f"<= {hi:g} {unit} (the smallest tried)"
-    return f"{lo:g}-{hi:g} {unit}"
+    return f"{lo:g} to {hi:g} {unit}"
 
 
 def exposure_points(results, material: str, series: str, value_key: str = "value"):
