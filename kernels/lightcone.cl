@@ -17,6 +17,15 @@
  * BRDF: without RETRO_TABLE, f = 1/pi (Lambertian; albedo separate). With RETRO_TABLE,
  * f_m(theta) is interpolated linearly in a table of N_THETA samples per material over
  * theta in [0, pi/2] (the confocal slice f(w, w) of any BRDF model or measurement).
+ * With RETRO_CONE as well, a retroreflector's cone averaged over the scanned spot is added
+ * (clnlos.physics.retroreflector, Eq. 3):
+ *
+ *   f_eff = f_m(theta) + f0_m(theta) S(c_m / r^2),   S(x) = (1 - exp(-x)) / x,
+ *
+ * f0_m the cone's peak slice (a second table, zero for other materials) and c_m = a^2 /
+ * (2 sigma^2) the material's spot constant (m^2: a the spot's radius, sigma the cone's rms
+ * angle): 1 / r^4 where the cone is wider than the spot (S = 1), 1 / r^2 where the spot holds
+ * all of it (S = c_m^-1 r^2).
  *
  * lightcone_accumulate: one work item per scan point; it owns its histogram column, so no
  * atomics are needed (right for CPUs). lightcone_accumulate_group (built with
@@ -61,7 +70,9 @@ inline real_t element_term(__global const real_t *restrict pos, __global const r
                            __global const real_t *restrict area,
                            __global const real_t *restrict albedo,
                            __global const int *restrict material,
-                           __global const real_t *restrict retro, const size_t e,
+                           __global const real_t *restrict retro,
+                           __global const real_t *restrict cone,
+                           __global const real_t *restrict spot, const size_t e,
                            const real_t sx, const real_t sy, const real_t to_bin,
                            const real_t b0, real_t *bin)
 {
@@ -79,7 +90,17 @@ inline real_t element_term(__global const real_t *restrict pos, __global const r
     const int i0 = min((int)th, N_THETA - 2);
     const real_t ft = th - (real_t)i0;
     __global const real_t *tab = retro + (size_t)material[e] * N_THETA;
-    const real_t fr = tab[i0] * ((real_t)1 - ft) + tab[i0 + 1] * ft;
+    real_t fr = tab[i0] * ((real_t)1 - ft) + tab[i0 + 1] * ft;
+#ifdef RETRO_CONE
+    const real_t c = spot[material[e]];
+    if (c > 0) {
+        __global const real_t *cn = cone + (size_t)material[e] * N_THETA;
+        const real_t x = c / r2;
+        const real_t s = x < (real_t)1e-4 ? (real_t)1 - (real_t)0.5 * x
+                                          : -expm1(-x) / x;
+        fr += (cn[i0] * ((real_t)1 - ft) + cn[i0 + 1] * ft) * s;
+    }
+#endif
 #else
     const real_t fr = INV_PI;
 #endif
@@ -94,6 +115,8 @@ __kernel void lightcone_accumulate(
     __global const real_t *restrict albedo,  /* [n_el] */
     __global const int *restrict material,   /* [n_el] material index into the retro table */
     __global const real_t *restrict retro,   /* [n_materials, N_THETA] f(theta) (1/sr) */
+    __global const real_t *restrict cone,    /* [n_materials, N_THETA] f0(theta) (1/sr) */
+    __global const real_t *restrict spot,    /* [n_materials] spot constants c (m^2) */
     const int n_el,
     const int nx, const int ny, const real_t scan_x0, const real_t scan_y0, const real_t pitch,
     const int nt, const real_t start_s, const real_t bin_width_s,
@@ -112,7 +135,7 @@ __kernel void lightcone_accumulate(
 
     for (size_t e = 0; e < (size_t)n_el; ++e) {
         real_t b;
-        const real_t w = element_term(pos, nrm, area, albedo, material, retro, e, sx, sy,
+        const real_t w = element_term(pos, nrm, area, albedo, material, retro, cone, spot, e, sx, sy,
                                       to_bin, b0, &b);
         if (w != 0)
             deposit(out, col, n_scan, nt, b, w);
@@ -163,6 +186,7 @@ __kernel void lightcone_accumulate_group(
     __global const real_t *restrict pos, __global const real_t *restrict nrm,
     __global const real_t *restrict area, __global const real_t *restrict albedo,
     __global const int *restrict material, __global const real_t *restrict retro,
+    __global const real_t *restrict cone, __global const real_t *restrict spot,
     const int n_el,
     const int nx, const int ny, const real_t scan_x0, const real_t scan_y0, const real_t pitch,
     const int nt, const real_t start_s, const real_t bin_width_s,
@@ -183,7 +207,7 @@ __kernel void lightcone_accumulate_group(
     const real_t b0 = start_s / bin_width_s;
     for (size_t e = lid; e < (size_t)n_el; e += lsz) {
         real_t b;
-        const real_t w = element_term(pos, nrm, area, albedo, material, retro, e, sx, sy,
+        const real_t w = element_term(pos, nrm, area, albedo, material, retro, cone, spot, e, sx, sy,
                                       to_bin, b0, &b);
         if (w != 0)
             deposit_local(hist, nt, b, w);

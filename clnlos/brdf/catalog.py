@@ -30,6 +30,11 @@ ANALYTIC_PRESETS: dict[str, BRDFModel | None] = {
     "mirror-like": BRDFModel("microfacet", {"kd": 0.0, "ks": 1.0, "alpha": 0.01, "f0": 0.95}),
 }
 
+# the retroreflective preset (clnlos.physics.retroreflector): a material of its own, not a
+# BRDFModel (its confocal return depends on the distance to the scanned spot, not on theta
+# alone); a scene may override its parameters with a table {model = "retroreflective", ...}
+RETROREFLECTIVE = "retroreflective"
+
 CLASSES = ("strong specular", "strong specular + diffuse", "strong diffuse", "Lambertian")
 LAMBERTIAN = "lambertian"   # a reconstruction's default reflectance
 AUTO = "auto"               # a reconstruction's lobe chosen from the capture
@@ -48,7 +53,15 @@ def preset_names() -> list[str]:
 
 
 def material_names() -> list[str]:
-    return ["lambertian", *preset_table(), *(k for k in ANALYTIC_PRESETS if k != "lambertian")]
+    return ["lambertian", *preset_table(), *(k for k in ANALYTIC_PRESETS if k != "lambertian"),
+            RETROREFLECTIVE]
+
+
+def is_retroreflective(material) -> bool:
+    """Whether a scene material (a name or a model table) is the retroreflective preset."""
+    if isinstance(material, dict):
+        return str(material.get("model", "")).lower() == RETROREFLECTIVE
+    return str(material).lower() == RETROREFLECTIVE
 
 
 def is_file_spec(spec) -> bool:

@@ -29,7 +29,13 @@ from clnlos.brdf.catalog import (
     is_file_spec,
 )
 from clnlos.brdf.models import BRDFModel, retro_slice
-from clnlos.brdf.presets import ANALYTIC_PRESETS, preset_model, preset_table
+from clnlos.brdf.presets import (
+    ANALYTIC_PRESETS,
+    RETROREFLECTIVE,
+    preset_model,
+    preset_table,
+    retroreflector,
+)
 from clnlos.brdf.store import load_model
 from clnlos.brdf.texture import read_texture
 from clnlos.physics.lobe import THETA_NODES, RetroLobe
@@ -58,6 +64,8 @@ def named_lobe(key: str) -> RetroLobe:
     """The retro lobe of a material name (lower case), built once per process."""
     if key == LAMBERTIAN:
         return RetroLobe.lambert()
+    if key == RETROREFLECTIVE:
+        return RetroLobe.retroreflector(retroreflector(key), key)
     if key in preset_table():
         return model_lobe(preset_model(key), key)
     model = ANALYTIC_PRESETS.get(key)
@@ -77,7 +85,7 @@ def ladder_lobe(alpha: float) -> RetroLobe:
 
 def lobe_by_name(name: str) -> RetroLobe:
     """The lobe a reconstruction recorded by name (``brdf_used``): a spec, or a lobe of the
-    ``"auto"`` ladder."""
+    ``"auto"`` ladder (its challengers are specs)."""
     for lobe in auto_ladder():
         if lobe.name == name:
             return lobe
@@ -89,4 +97,11 @@ def auto_ladder() -> list[RetroLobe]:
     return [RetroLobe.lambert(), *(ladder_lobe(a) for a in sorted(AUTO_ALPHAS, reverse=True))]
 
 
-__all__ = ["AUTO", "LAMBERTIAN", "auto_ladder", "check_brdf_spec", "lobe_by_name", "retro_lobe"]
+def auto_challengers() -> list[RetroLobe]:
+    """The lobes ``"auto"`` scores beside the ladder, each against the ladder's choice
+    (:func:`clnlos.inverse.brdf_choice.challenge`): the retroreflector
+    (:mod:`clnlos.physics.retroreflector`), a family of its own (its falloff in r)."""
+    return [named_lobe(RETROREFLECTIVE)]
+
+
+__all__ = ["AUTO", "LAMBERTIAN", "auto_challengers", "auto_ladder", "check_brdf_spec", "lobe_by_name", "retro_lobe"]

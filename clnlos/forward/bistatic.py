@@ -48,6 +48,7 @@ import numpy as np
 import pyopencl as cl
 import pyopencl.array as cla
 
+from clnlos.brdf.catalog import is_retroreflective
 from clnlos.brdf.models import make_model
 from clnlos.brdf.presets import ANALYTIC_PRESETS, preset_model, preset_table
 from clnlos.brdf.texture import checked_texture, read_texture, tabulate
@@ -183,6 +184,11 @@ def material_texture(obj, base_dir, n_theta: int, n_dphi: int) -> np.ndarray | N
         raise ParameterError("transport.model", "bistatic", "'confocal' for an object with "
                              f"brdf_retro_csv = {obj.brdf_retro_csv!r} (a confocal slice, no "
                              "bistatic BRDF)")
+    if is_retroreflective(obj.material):
+        raise ParameterError("transport.model", "bistatic", "'confocal' for a retroreflective "
+                             "object (its return depends on the scanned spot it lands in: "
+                             "the confocal light cone models it, clnlos.physics.retroreflector; "
+                             "Eq. 8's bistatic paths have no spot)")
     tex, _, note = _material_texture(*_material_key(obj.material, base_dir), int(n_theta),
                                      int(n_dphi))
     if note:
@@ -386,6 +392,8 @@ def auto_choice(scene, samples, rms_m: float) -> tuple[str, str]:
     for i, obj in enumerate(scene.objects):
         if obj.brdf_retro_csv is not None:
             return "confocal", f"objects[{i}] has only a confocal slice (brdf_retro_csv)"
+        if is_retroreflective(obj.material):
+            return "confocal", f"objects[{i}] is retroreflective (confocal light cone only)"
     z_all = samples.elements.pos[:, 2]
     for i, obj in enumerate(scene.objects):
         retro = material_retro(obj, scene.base_dir)

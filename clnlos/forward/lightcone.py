@@ -18,11 +18,13 @@ class LightCone:
     """Plan: confocal light-cone accumulation on one scan/time grid, dtype and device.
 
     Output [bins, points, points]; ``retro`` compiles the BRDF-table path, else Lambertian;
+    ``cone`` adds a retroreflector's spot-averaged cone (kernels/lightcone.cl, RETRO_CONE);
     ``describe`` names the grid in a memory error (default: its shape).
     """
 
     def __init__(self, *, points: int, width_m: float, bins: int, bin_width_s: float,
-                 start_s: float, retro: bool, splat_order: int = 1, dtype=np.float32,
+                 start_s: float, retro: bool, cone: bool = False, splat_order: int = 1,
+                 dtype=np.float32,
                  queue=None, variant: str = "auto", describe: str | None = None):
         self.queue = get_queue(queue)
         self.dtype = require_dtype(self.queue.device, dtype)
@@ -32,8 +34,10 @@ class LightCone:
         require_memory(self.queue.device, int(np.prod(self.shape)) * self.dtype.itemsize,
                        describe or f"transient {self.shape}")
         defines = {**real_defines(self.dtype), "SPLAT_ORDER": int(splat_order)}
-        if retro:
+        if retro or cone:
             defines.update(RETRO_TABLE=True, N_THETA=N_THETA)
+        if cone:
+            defines["RETRO_CONE"] = True
         self.variant = choose_lightcone_variant(self.queue.device, variant, bins, self.dtype)
         if self.variant == "group":
             defines["GROUP_VARIANT"] = True
@@ -51,12 +55,14 @@ class LightCone:
             return cla.to_device(q, np.ascontiguousarray(a, t))
 
         table = samples.retro_tables if samples.retro_tables is not None else np.zeros((1, 1))
+        cone = samples.cone_tables if samples.cone_tables is not None else np.zeros((1, 1))
+        spot = samples.spot_constants if samples.spot_constants is not None else np.zeros(1)
         pitch = self.width_m / self.points
         x0 = -self.width_m / 2 + pitch / 2
         r = dt.type
         args = (dev(el.pos).data, dev(el.normal).data, dev(el.area).data,
                 dev(samples.albedo).data, dev(samples.material, np.int32).data, dev(table).data,
-                kernel_int(len(el), "surface elements"),
+                dev(cone).data, dev(spot).data, kernel_int(len(el), "surface elements"),
                 kernel_int(self.points), kernel_int(self.points), r(x0), r(x0), r(pitch),
                 kernel_int(self.bins, "time bins"), r(self.start_s), r(self.bin_width_s),
                 out.data)

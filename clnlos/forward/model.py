@@ -171,9 +171,11 @@ def confocal_stages(scene: Scene, samples: SurfaceSamples, dtype, queue) -> Tran
                  f"{margin} scan cells past each side)")
     cone = LightCone(points=n_ext, width_m=n_ext * s.pitch_m, bins=s.bins,
                      bin_width_s=s.bin_width_s, start_s=s.start_s,
-                     retro=samples.retro_tables is not None, splat_order=s.splat_order,
+                     retro=samples.retro_tables is not None,
+                     cone=samples.cone_tables is not None, splat_order=s.splat_order,
                      dtype=dtype, queue=queue, describe=grid)
-    kind = "brdf-table" if samples.retro_tables is not None else "lambertian"
+    kind = ("retroreflective" if samples.cone_tables is not None else "brdf-table"
+            if samples.retro_tables is not None else "lambertian")
     stages = [Stage(f"lightcone:{kind}", cone, cone)]
     if s.slab is not None:
         check_slab_window(s)

@@ -11,6 +11,7 @@ import numpy as np
 
 from clnlos.physics.constants import C0
 from clnlos.brdf.presets import material_retro as preset_retro
+from clnlos.brdf.presets import retroreflector
 from clnlos.errors import ParameterError
 from clnlos.forward.geometry import (
     Elements,
@@ -84,6 +85,16 @@ def check_scene_size(scene: Scene, device, dtype) -> None:
                  device_total=int(n * (8 * item + 4)), device_buffer=int(n * 3 * item))
 
 
+def material_cone(obj: SceneObject) -> tuple[np.ndarray, float] | None:
+    """(the cone's peak slice f0(theta) on N_THETA angles (1/sr), the spot constant c (m^2))
+    of a retroreflective object (:mod:`clnlos.physics.retroreflector`, Eq. 3: its return
+    f_eff = f(theta) + f0(theta) S(c / r^2)); None for any other material."""
+    retro = None if obj.brdf_retro_csv is not None else retroreflector(obj.material)
+    if retro is None:
+        return None
+    return retro.cone_slice(np.linspace(0, np.pi / 2, N_THETA)), retro.spot_constant_m2
+
+
 @dataclass
 class SurfaceSamples:
     """Elements of all objects with per-element albedo and material index."""
@@ -92,13 +103,20 @@ class SurfaceSamples:
     albedo: np.ndarray
     material: np.ndarray
     retro_tables: np.ndarray | None  # [n_materials, N_THETA] or None when all Lambertian
+    # retroreflective objects (material_cone): [n_materials, N_THETA] cone slices and
+    # [n_materials] spot constants (m^2; 0 and an all-zero slice for the other materials),
+    # or None when no object is retroreflective
+    cone_tables: np.ndarray | None = None
+    spot_constants: np.ndarray | None = None
 
 
 def sample_scene(scene: Scene, density: float | None = None) -> SurfaceSamples:
     density = scene.density_per_m2 if density is None else density
     parts, alb, mats, tables = [], [], [], []
     retros = [material_retro(o, scene.base_dir) for o in scene.objects]
+    cones = [material_cone(o) for o in scene.objects]
     any_table = any(r is not None for r in retros)
+    any_cone = any(c is not None for c in cones)
     for obj, retro in zip(scene.objects, retros, strict=True):
         el = sample_object(obj, density, scene.base_dir)
         parts.append(el)
@@ -108,9 +126,13 @@ def sample_scene(scene: Scene, density: float | None = None) -> SurfaceSamples:
             mats.append(np.full(len(el), len(tables) - 1, np.int32))
         else:
             mats.append(np.zeros(len(el), np.int32))
+    cone_tables = spot = None
+    if any_cone:
+        cone_tables = np.stack([np.zeros(N_THETA) if c is None else c[0] for c in cones])
+        spot = np.array([0.0 if c is None else c[1] for c in cones])
     return SurfaceSamples(Elements.concat(parts), np.concatenate(alb),
                           np.concatenate(mats).astype(np.int32),
-                          np.asarray(tables) if any_table else None)
+                          np.asarray(tables) if any_table else None, cone_tables, spot)
 
 
 FRONT_MIN_Z_M = 1e-6  # elements nearer the relay plane than this return no light: the light
@@ -147,8 +169,11 @@ def check_scene_geometry(scene: Scene, *, emit: bool = True) -> list[str]:
                             + front[:, 2] ** 2) / C0
         if t_near.min() >= t1 or t_far.max() < t0:
             raise ParameterError("time", f"[{t0:.3g}, {t1:.3g}) s",
-                                 f"a window that sees {name}: its light returns between "
-                                 f"{t_near.min():.3g} s and {t_far.max():.3g} s")
+                                 f"a window that sees {name}, {front[:, 2].min():.4g} m "
+                                 f"behind the relay plane: its light returns between "
+                                 f"{t_near.min():.4g} s and {t_far.max():.4g} s (round trip); "
+                                 "set [time] start_s before and start_s + bins * "
+                                 "bin_width_s after these")
         if t_far.max() >= t1 or t_near.min() < t0:
             notes.append(f"{name} returns light partly outside the time window "
                          f"[{t0:.3g}, {t1:.3g}) s")

@@ -62,7 +62,9 @@ plate", "black anode plate", "fuchsia lacquer board", "aluminium diffuse reflect
 "glass fibre", "standard white plate", "cement board"); a BRDF texture file
 (``material = "tex.h5"``, written by ``clnlos brdf texture``, path relative to the scene);
 an analytic model table (``material = { model = "phong", kd = 0.2, ks = 0.8, shininess = 40
-}``); or ``brdf_retro_csv = "f.csv"`` (columns theta_deg, brdf: the confocal slice).
+}``); "retroreflective" (:mod:`clnlos.physics.retroreflector`; its fields overridden by a
+table ``{ model = "retroreflective", spot_radius_m = 0.02, ... }``, fields and ranges:
+``RETRO_LIMITS``; confocal transport only); or ``brdf_retro_csv = "f.csv"`` (columns theta_deg, brdf: the confocal slice).
 """
 
 from __future__ import annotations
@@ -75,7 +77,7 @@ from pathlib import Path
 import numpy as np
 
 from clnlos.brdf.data import TEXT_ENCODING
-from clnlos.brdf.presets import material_names
+from clnlos.brdf.presets import material_names, retroreflector
 from clnlos.checks import choice, did_you_mean, input_file, integer, positive
 from clnlos.config import check_keys, load_toml, slab_from_table
 from clnlos.errors import InputFileError, ParameterError
@@ -298,6 +300,7 @@ def _object(i: int, o: dict) -> SceneObject:
             names = material_names()
             raise ParameterError(f"{sec}.material", m, ", ".join(names) + ", a BRDF texture "
                                  ".h5 or a model table" + did_you_mean(m.lower(), names))
+        retroreflector(m, f"{sec}.material")  # a retroreflective table's fields, checked
         kw["material"] = m
     for k in ("height_m", "stroke_m", "radius_m"):
         if k in o:

@@ -193,7 +193,8 @@ class LightConeTransport(LinearOperator):
                                  "lambertian" if lobe is None else lobe.name)
         z = self.depth_m[self.k_min:]
         G = lobe_weight_table(lobe, z, self.pitch_m, n_off, footprint_rms_m)
-        sep = separable_terms(G, z, self.pitch_m, name=lobe.name, terms=terms)
+        sep = separable_terms(G, z, self.pitch_m, name=lobe.name, terms=terms,
+                              tolerance=lobe.tolerance)
         a = np.zeros((sep.terms, nt))
         a[:, self.k_min:] = sep.a
         return SeparableLobe(a, sep.b, sep.errors, sep.name)

@@ -15,8 +15,12 @@ placing voxels in front of each scan point and predicts the second half worse. T
 walked from the Lambertian: a sharper lobe is taken where its score is lower than the best
 so far by more than CV_SIGNIFICANCE standard errors of the held-out noise's part in the
 difference (:func:`score_margin`), and the walk stops at the first lobe that is not.
+A lobe of another family (:func:`clnlos.brdf.lobes.auto_challengers`: the retroreflector,
+whose falloff in r differs, not only its width in theta) does not fit the order of the walk:
+each is scored after it against the lobe the walk chose and taken where its score is lower
+by more than the same margin (:func:`challenge`).
 The search never sees the truth, only the capture; it costs one reconstruction of half the
-data per lobe tried (2 to 5).
+data per lobe tried (3 to 6).
 """
 
 from __future__ import annotations
@@ -73,3 +77,20 @@ def choose_lobe(ladder: Sequence[RetroLobe], score: Callable[[RetroLobe], float]
         if gain > (0.0 if margin is None else margin(ladder[k], ladder[best])):
             best = k
     return ladder[best], tried
+
+
+def challenge(best: RetroLobe, tried: list[tuple[str, float]], challengers: Sequence[RetroLobe],
+              score: Callable[[RetroLobe], float],
+              margin: Callable[[RetroLobe, RetroLobe], float] | None = None
+              ) -> tuple[RetroLobe, list[tuple[str, float]]]:
+    """(``best``, or the challenger that beats it by more than ``margin``, and ``tried`` with
+    each challenger's (name, score) appended): the lobes of another family than the walk's
+    (module docstring), each against the best so far."""
+    tried = list(tried)
+    best_score = dict(tried)[best.name]
+    for cand in challengers:
+        s = float(score(cand))
+        tried.append((cand.name, s))
+        if best_score - s > (0.0 if margin is None else margin(cand, best)):
+            best, best_score = cand, s
+    return best, tried

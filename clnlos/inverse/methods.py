@@ -42,7 +42,10 @@ from dataclasses import dataclass
 from typing import TYPE_CHECKING
 
 from clnlos.config import (
+    CLOSED_FORM_BRDFS,
+    ITERATIVE_MAX_BINS,
     METHODS,
+    RETROREFLECTIVE_FALLOFF,
     MethodEntry,
     auto_snr_rule,
     default_falloffs,
@@ -56,7 +59,7 @@ if TYPE_CHECKING:  # annotations only: this module imports no OpenCL code
     import pyopencl.array as cla
 
 # the registry, stated in clnlos.config, read here by the pipeline, the CLI, the study, the bench
-__all__ = ["METHODS", "Inversion", "InversionGrid", "MethodEntry", "auto_snr_rule",
+__all__ = ["CLOSED_FORM_BRDFS", "ITERATIVE_MAX_BINS", "METHODS", "RETROREFLECTIVE_FALLOFF", "Inversion", "InversionGrid", "MethodEntry", "auto_snr_rule",
            "default_falloffs", "method_class", "method_names", "methods_reading", "split_rule"]
 
 
@@ -105,8 +108,13 @@ class Inversion:
                     dtype=self.dtype, queue=self.queue, scratch=self.scratch)
 
     def falloff(self) -> dict:
-        """``{"falloff": x}`` when the config sets one, else ``{}`` (the method's default)."""
-        return {} if self.config.falloff is None else {"falloff": self.config.falloff}
+        """``{"falloff": x}`` when the config sets one, else RETROREFLECTIVE_FALLOFF for
+        ``brdf = "retroreflective"``, else ``{}`` (the method's default)."""
+        if self.config.falloff is not None:
+            return {"falloff": self.config.falloff}
+        if self.config.brdf == "retroreflective":
+            return {"falloff": RETROREFLECTIVE_FALLOFF}
+        return {}
 
     def configure(self, tau_g, noise, rule_snr: float, timed, probe=None,
                   slab_influence=None, rule: str | None = None) -> dict:
@@ -128,4 +136,9 @@ class Inversion:
         raise NotImplementedError(f"method {self.name!r} has no forward model")
 
     def used(self) -> dict:
-        return {}
+        """What the method chose that the volume records: for a method with a falloff (its
+        registry entry), ``falloff_used`` (the config's, the ``brdf``'s or its own)."""
+        entry = METHODS.get(self.name)
+        if entry is None or entry.falloff is None:
+            return {}
+        return {"falloff_used": self.falloff().get("falloff", entry.falloff)}

@@ -28,6 +28,12 @@ angles):
 (i0e the scaled modified Bessel function: the azimuthal average of the Gaussian).
 For a Lambertian f, G = 1.
 
+A retroreflector (:mod:`clnlos.physics.retroreflector`) returns a cone that the scanned
+spot collects in part: its f_eff depends on r as well as theta, f_eff(theta, r) = f(theta) +
+f0(theta) S(c / r^2) (that module's Eq. 3: f its diffuse floor, f0 the cone's peak slice,
+c its spot constant), and (1) averages it over the cell with r = r(x). Where the spot holds
+the whole cone (S ~ r^2 / c) G grows as r^2: the voxel's falloff is 1/r^2, not 1/r^4.
+
 G is not shift-invariant in z (the lobe is a function of |d| / z), so it does not fit the
 light cone's convolution in (v, y, x) as one kernel; its K leading singular terms do,
 
@@ -49,9 +55,13 @@ import numpy as np
 from scipy.special import i0e
 
 from clnlos.errors import ParameterError
+from clnlos.physics.retroreflector import spot_factor
 
 THETA_NODES = 4097        # retro slice samples over [0, pi/2] (0.022 deg apart)
 LOBE_TOLERANCE = 1e-3     # weighted relative error of the separable terms (3)
+# ... for a retroreflector's lobe: its entrance profile ends at the acceptance angle with a
+# kink, which (3) converges to slowly (12 terms for 0.6%; 4 terms for 1%, docs/brdf.md)
+RETRO_LOBE_TOLERANCE = 1e-2
 MAX_TERMS = 12            # terms of (3) at most
 CELL_SAMPLES_PER_WIDTH = 3.0  # sub-samples of a cell per lobe width (1): the lobe resolved
 MAX_CELL_SAMPLES = 24     # per axis
@@ -65,9 +75,35 @@ class RetroLobe:
 
     f: np.ndarray
     name: str
+    # a retroreflector's cone: its peak slice f0(theta) on the same angles (1/sr) and its
+    # spot constant c (m^2) (module docstring); None and 0 for every other lobe
+    cone: np.ndarray | None = None
+    spot_constant_m2: float = 0.0
+    # the weighted relative error of its separable terms (3) that "auto" terms stop at
+    tolerance: float = LOBE_TOLERANCE
 
     def __post_init__(self) -> None:
         self.f.setflags(write=False)  # shared: lobes are built once per process
+        if self.cone is not None:
+            self.cone.setflags(write=False)
+
+    @classmethod
+    def retroreflector(cls, retro, name: str) -> RetroLobe:
+        """The lobe of a :class:`clnlos.physics.retroreflector.Retroreflector`: its diffuse
+        floor as f, its cone and spot constant beside it."""
+        th = np.linspace(0.0, np.pi / 2, THETA_NODES)
+        return cls(retro.diffuse_slice(th), name, retro.cone_slice(th),
+                   float(retro.spot_constant_m2), RETRO_LOBE_TOLERANCE)
+
+    def effective(self, theta, r2) -> np.ndarray:
+        """f_eff(theta, r) (1/sr) at angles ``theta`` (rad) and squared distances ``r2``
+        (m^2) from the scan point, from the slice ``f`` given on :attr:`theta` (for a
+        retroreflector, ``f`` plus its cone times S; else ``f``)."""
+        out = np.interp(theta, self.theta, self.f)
+        if self.cone is not None:
+            out = out + np.interp(theta, self.theta, self.cone) * spot_factor(
+                self.spot_constant_m2 / np.maximum(r2, 1e-300))
+        return out
 
     @property
     def theta(self) -> np.ndarray:
@@ -75,12 +111,14 @@ class RetroLobe:
 
     @property
     def lambertian(self) -> bool:
-        return bool(np.allclose(self.f, 1.0 / np.pi, rtol=1e-9, atol=0.0))
+        return self.cone is None and bool(np.allclose(self.f, 1.0 / np.pi, rtol=1e-9,
+                                                      atol=0.0))
 
     @property
     def flat(self) -> bool:
-        """The same at every angle: a Lambertian lobe of another albedo (G constant)."""
-        return bool(np.allclose(self.f, self.f[0], rtol=1e-9, atol=0.0))
+        """The same at every angle and distance: a Lambertian lobe of another albedo (G
+        constant)."""
+        return self.cone is None and bool(np.allclose(self.f, self.f[0], rtol=1e-9, atol=0.0))
 
     @classmethod
     def from_samples(cls, f, name: str) -> RetroLobe:
@@ -182,16 +220,23 @@ def cell_samples(pitch_m: float, depth_m: float, width_rad: float) -> int:
                                                          / max(width_rad, 1e-9)))))
 
 
-def cell_average(theta, f, oy, ox, z: float, pitch_m: float, m: int) -> np.ndarray:
-    """pi <f(theta(x)) w(x)>_cell / <w(x)>_cell of (1), w = 1 / r^8, on m x m sub-samples of
-    the cells centred at lateral offsets (oy, ox) (m) from the scan point at depth z (m)."""
+def cell_average(theta, f, oy, ox, z: float, pitch_m: float, m: int, cone=None,
+                 spot_constant_m2: float = 0.0) -> np.ndarray:
+    """pi <f_eff(theta(x), r(x)) w(x)>_cell / <w(x)>_cell of (1), w = 1 / r^8, on m x m
+    sub-samples of the cells centred at lateral offsets (oy, ox) (m) from the scan point at
+    depth z (m); f_eff = f, plus a retroreflector's ``cone`` times S(c / r^2) where given
+    (module docstring; f and cone on the angles ``theta``)."""
     u = ((np.arange(m) + 0.5) / m - 0.5) * pitch_m
     uy, ux = (a.ravel() for a in np.meshgrid(u, u, indexing="ij"))
     X = ox[:, None] + ux[None, :]
     Y = oy[:, None] + uy[None, :]
     rho2 = X * X + Y * Y
     w = 1.0 / (rho2 + z * z) ** 4
-    lobe = np.interp(np.arctan(np.sqrt(rho2) / z), theta, f)
+    th = np.arctan(np.sqrt(rho2) / z)
+    lobe = np.interp(th, theta, f)
+    if cone is not None:
+        lobe = lobe + np.interp(th, theta, cone) * spot_factor(
+            spot_constant_m2 / (rho2 + z * z))
     return np.pi * (lobe * w).sum(axis=1) / w.sum(axis=1)
 
 
@@ -222,10 +267,12 @@ def lobe_weight_table(lobe: RetroLobe, depths_m, pitch_m: float, n_offsets: tupl
         # cells that reach into the lobe are sub-sampled, the rest sampled at the centre
         near = np.hypot(np.maximum(oy - pitch_m, 0), np.maximum(ox - pitch_m, 0)) \
             <= z * math.tan(min(NEAR_WIDTHS * width, 1.5))
-        G[k] = np.pi * np.interp(np.arctan(np.hypot(oy, ox) / z), th, f)
+        at = RetroLobe(f, lobe.name, lobe.cone, lobe.spot_constant_m2)
+        G[k] = np.pi * at.effective(np.arctan(np.hypot(oy, ox) / z), oy * oy + ox * ox + z * z)
         m = cell_samples(pitch_m, z, width)
         if m > 1 and near.any():
-            G[k, near] = cell_average(th, f, oy[near], ox[near], z, pitch_m, m)
+            G[k, near] = cell_average(th, f, oy[near], ox[near], z, pitch_m, m, lobe.cone,
+                                      lobe.spot_constant_m2)
     return G.reshape(z_all.size, ny, nx)
 
 

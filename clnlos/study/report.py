@@ -384,7 +384,7 @@ def real_materials_html(results, out_dir) -> list[str]:
     :mod:`clnlos.study.real_materials`) when the study made one."""
     section = results.get("real_materials")
     if section:
-        return [real_materials.section_html(section, out_dir)]
+        return [real_materials.section_html(section, out_dir, png_base64)]
     return []
 
 

@@ -97,7 +97,9 @@ from clnlos.study.plan import (  # noqa: F401 (the plan's names: re-exported)
     study_plan,
 )
 from clnlos.study.quality import METRICS, pearson, validate_metrics
+from clnlos.study.real_materials import RealPlan, real_capture_paths, real_materials
 from clnlos.study.report import write_report
+from clnlos.study.resolution import json_ready
 from clnlos.study.samples import (  # noqa: F401 (re-exported)
     identification_of,
     label_of,
@@ -232,6 +234,14 @@ def run_study(out_dir: Path, opts: StudyOptions, *, workers: int | None = None,
     if real is not None:
         timings["real_thinning_s"] = real["thinning_s"]
 
+    # -- the material question on the real captures (LCT release, CDT): photons needed
+    t0 = time.perf_counter()
+    real_section = None
+    if opts.real_data is not None and real_capture_paths(opts.real_data):
+        real_section = real_materials(opts.real_data, RealPlan.quick() if opts.label == "quick"
+                                      else RealPlan(), device)
+    timings["real_materials_s"] = time.perf_counter() - t0
+
     findings = make_findings(geometries, need, geometry_rows, validation, label_metric,
                              classifier_splits, agreement, opts, tilts)
     ious = np.array([r["iou"] for r in results])
@@ -280,7 +290,8 @@ def run_study(out_dir: Path, opts: StudyOptions, *, workers: int | None = None,
         "dataset": {"n": len(results), "iou_median": float(np.median(ious)),
                     "iou_histogram": {"edges": edges.tolist(), "counts": hist.tolist()},
                     "iou_zero_fraction": float(np.mean(ious == 0))},
-        "findings": findings, "timings_s": timings, "n_dataset": len(results)}
+        "findings": findings, "timings_s": timings, "n_dataset": len(results),
+        "real_materials": real_section}
     if comparison is not None:
         results_json["transport_comparison"] = {
             **{k: v for k, v in comparison.items() if k not in ("plan", "results")},
@@ -292,6 +303,8 @@ def run_study(out_dir: Path, opts: StudyOptions, *, workers: int | None = None,
     write_report(out_dir, results_json, plan, results, real)
     timings["report_s"] = time.perf_counter() - t0
     results_json["cost"] = study_cost(plan, results, timings, comparison)
+    results_json["real_materials"] = (None if real_section is None
+                                      else json_ready(real_section))  # arrays: the report's
     with atomic_path(out_dir / "results.json") as tmp:
         tmp.write_text(json.dumps(stamp(results_json), indent=1))
     return results_json
