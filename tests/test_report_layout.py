@@ -62,7 +62,7 @@ def test_sweep_thresholds_never_claim_beyond_the_sweep():
     assert sweep_bracket([(0.001, 0.2), (0.01, 0.5)]) == (0.01, None)
     assert bracket_text(None, 0.001, "s") == "<= 0.001 s (the smallest tried)"
     assert bracket_text(1.0, None, "s") == "> 1 s (the largest tried)"
-    assert bracket_text(0.001, 0.01, "s") == "0.001-0.01 s"
+    assert bracket_text(0.001, 0.01, "s") == "0.001 to 0.01 s"
 
 
 def test_no_verdict_where_the_intervals_overlap():
@@ -77,7 +77,7 @@ def test_no_verdict_where_the_intervals_overlap():
     exposure = clear[-1]
     assert "standard white plate &lt;= 0.001 s (the smallest tried)" in exposure
     assert "aluminium alloy sample &gt; 1 s (the largest tried)" in exposure
-    assert "0.01-0.1 s" in exposure  # the lacquer board: bracketed by the sweep
+    assert "0.01 to 0.1 s" in exposure  # the lacquer board: bracketed by the sweep
 
 
 def test_photons_needed_rows_bracket_each_series():

@@ -359,3 +359,29 @@ def test_quick_plan_runs_auto_at_the_legible_geometry_and_compares_sweeps_on_equ
         assert glyphs == sweep[(var, val, mat, "lambertian")], (var, val, mat, inv)
     with pytest.raises(ParameterError):
         replace(opts, auto_geometries=("nowhere",)).validate()
+
+
+def test_quick_study_keeps_its_questions():
+    """The quick study asks what the full one asks (issue 25, 50): at least four letter
+    heights, exposures over two decades, both geometries, the tilt sweep; its sweep points
+    at the legible geometry's own size and exposure are the main set's samples (no extra
+    render)."""
+    import json as json_
+
+    from clnlos.brdf.presets import preset_names
+    from clnlos.study.run import DEFAULT_EXPOSURE_S, LEGIBLE_GEOMETRY, SEED_GEOMETRY, study_plan
+
+    opts = StudyOptions.quick().validate()
+    heights = opts.legibility_sweeps["letter_height_m"]
+    exposures = opts.legibility_sweeps["exposure_s"]
+    assert len(set(heights)) >= 4 and max(exposures) / min(exposures) >= 100
+    assert {g.name for g in opts.geometries} == {LEGIBLE_GEOMETRY, SEED_GEOMETRY}
+    assert len(opts.tilts_deg) >= 2 and max(opts.tilts_deg) > 0
+    legible = opts.geometry(LEGIBLE_GEOMETRY)
+    assert legible.letter_height_m in heights and DEFAULT_EXPOSURE_S in exposures
+    plan = study_plan(list(preset_names()), opts)
+    main = {json_.dumps(s, sort_keys=True) for m, s in plan if m["set"] == "main"}
+    own = {("letter_height_m", legible.letter_height_m), ("exposure_s", DEFAULT_EXPOSURE_S)}
+    shared = [s for m, s in plan if m["set"] == "legibility_sweep"
+              and (m["variable"], m["value"]) in own]
+    assert shared and all(json_.dumps(s, sort_keys=True) in main for s in shared)

@@ -180,9 +180,15 @@ def study_statement(main: dict, seed: dict | None, need: list[dict], f: dict,
     best = [n for n in need if n["inversion"] == "best"]
 
     def cost(n, var, unit):
+        """The threshold in words, never beyond the sweep: at the smallest value tried it
+        is an upper bound, where none reached it a lower one."""
+        swept = sorted(opts.legibility_sweeps.get(var, ()))
         if n[var] is None:
-            return f"{n['material']}: not within the swept values"
-        return f"{n['material']}: {n[var]:g} {unit} ({n[f'{var}_inversion']} inversion)"
+            return (f"{n['material']}: > {swept[-1]:g} {unit} (the largest tried)" if swept
+                    else f"{n['material']}: not within the swept values")
+        at = f"<= {n[var]:g} {unit} (the smallest tried)" if swept and n[var] <= swept[0] \
+            else f"{n[var]:g} {unit}"
+        return f"{n['material']}: {at} ({n[f'{var}_inversion']} inversion)"
 
     tilt = f["tilt"]["per_tilt"]
     tilt_txt = "; ".join(

@@ -106,7 +106,7 @@ def bracket_text(lo, hi, unit: str) -> str:
         return f"> {lo:g} {unit} (the largest tried)" if lo is not None else "not swept"
     if lo is None:
         return f"<= {hi:g} {unit} (the smallest tried)"
-    return f"{lo:g}-{hi:g} {unit}"
+    return f"{lo:g} to {hi:g} {unit}"
 
 
 def exposure_points(results, material: str, series: str, value_key: str = "value"):
@@ -169,7 +169,7 @@ def _identification_panel(ax, results) -> None:
     ax.set_yticks(y)
     ax.set_yticklabels([f"{short_name(m['name'], 24)}\n{m['brdf_class']}" for m in mats],
                        fontsize=6.5)
-    ax.set(xlim=(0, 1.02), ylim=(-0.6, len(mats) - 0.4),
+    ax.set(xlim=(-0.02, 1.02), ylim=(-0.6, len(mats) - 0.4),
            xlabel="identification accuracy (Wilson 95% interval)",
            title=f"which glyph? per material, {geo['letter_height_m']:g} m letters at "
                  f"{geo['depth_m']:g} m, 0.1 s per point")

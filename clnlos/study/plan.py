@@ -111,14 +111,16 @@ class StudyOptions:
         """The built-in default (the README main job, about 5 minutes on 2 CPU cores): a
         24 x 24 scan with 64 ps bins (QUICK_GRID); one noise realisation per glyph; the
         BRDF-aware inversions and the tilt sweep (0 and 10 deg) on two glyphs ("auto" at the
-        legible geometry only), the geometry sweeps on two; legibility sweeps at the two
-        sizes and exposures below the legible geometry's."""
+        legible geometry only), the geometry sweeps on two; legibility sweeps at four letter
+        heights and five exposures over four decades, the legible geometry's own (0.3 m, 0.1 s)
+        among them: those points are the main set's samples, rendered once (docs/performance.md,
+        the quick study's budget)."""
         return cls(n_dataset=0, seeds=1, grid=QUICK_GRID, sweep_glyphs=("E", "H"),
                    aware_glyphs=("E", "P"), auto_geometries=(LEGIBLE_GEOMETRY,),
                    tilts_deg=(0.0, 10.0),
                    tilt_glyphs=("E", "P"), tilt_inversions=("lambertian", "known"),
-                   legibility_sweeps={"letter_height_m": (0.1, 0.2),
-                                      "exposure_s": (0.001, 0.01)},
+                   legibility_sweeps={"letter_height_m": (0.1, 0.15, 0.2, 0.3),
+                                      "exposure_s": (1e-5, 1e-4, 0.001, 0.01, 0.1)},
                    geometry_sweep_materials=(SWEEP_MATERIALS[0], SWEEP_MATERIALS[-1]),
                    sweeps={"scan_width_m": (0.3, 0.6, 0.8), "depth_m": (0.3, 0.5, 0.7),
                            "slab_thickness_m": (0.0, 0.0254, 0.0508)}, label="quick",

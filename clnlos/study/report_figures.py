@@ -47,8 +47,11 @@ def fig_materials(results, plan, res, geometry: str):
     glyphs = results["options"]["glyphs"]
     mats = geo["materials"]
     w = geo["scan_width_m"]
+    # a fixed grid, no layout engine: solving one for 80 panels costs seconds per figure
     fig, axes = plt.subplots(len(mats), len(glyphs), figsize=(11.5, 1.45 * len(mats) + 0.6),
-                             squeeze=False, constrained_layout=True)
+                             squeeze=False, gridspec_kw={"left": 0.1, "right": 0.93,
+                                                         "top": 0.97, "bottom": 0.04,
+                                                         "wspace": 0.05, "hspace": 0.3})
     ext = (-w / 2, w / 2, -w / 2, w / 2)
     im = None
     for i, m in enumerate(mats):
@@ -65,7 +68,7 @@ def fig_materials(results, plan, res, geometry: str):
                 ax.set_ylabel(short_name(m["name"], 18), fontsize=7)
     axes[-1, 0].set_xticks([-w / 2, 0, w / 2])
     axes[-1, 0].set_xlabel("x (m)", fontsize=7)
-    fig.colorbar(im, ax=axes, shrink=0.5, label="MIP / max (a.u.)")
+    fig.colorbar(im, cax=fig.add_axes((0.945, 0.35, 0.01, 0.3)), label="MIP / max (a.u.)")
     return fig
 
 
@@ -82,8 +85,11 @@ def fig_figure8(results, plan, res, geometry: str):
     aware = next((inv for inv in ("known", "auto") if inv in results.get("inversions", ())),
                  None)
     ncol = 7 if aware else 6
+    # a fixed grid, no layout engine (see fig_materials)
     fig, axes = plt.subplots(len(mats), ncol, figsize=(11.5, 1.75 * len(mats) + 0.8),
-                             squeeze=False, constrained_layout=True)
+                             squeeze=False, gridspec_kw={"left": 0.09, "right": 0.925,
+                                                         "top": 0.95, "bottom": 0.04,
+                                                         "wspace": 0.45, "hspace": 0.12})
     titles = ("measurement, sum over t", "x-t (y = 0)", "y-t (x = 0)",
               "Lambertian MIP", "x-z (max over y)", "y-z (max over x)",
               f"{INVERSION_LABELS.get(aware, '')} MIP")
@@ -116,17 +122,19 @@ def fig_figure8(results, plan, res, geometry: str):
                 outline_mask(ax, r["truth"], w)
             if j in (4, 5):
                 ax.axhline(geo["depth_m"], color="tab:red", lw=0.6, ls=":")
-            ax.tick_params(labelsize=6)
+            # each column's x axis is the same in every row: its numbers on the bottom row
+            ax.tick_params(labelsize=6, labelbottom=i == len(mats) - 1)
             if i == 0:
                 ax.set_title(titles[j], fontsize=8)
             if i == len(mats) - 1:
                 ax.set_xlabel("x (m)" if j in (0, 1, 3, 4, 6) else "y (m)", fontsize=7)
             ax.set_ylabel({0: f"{short_name(m['name'], 16)}\ny (m)", 1: "t (ns)", 2: "t (ns)",
                            3: "y (m)", 4: "z (m)", 5: "z (m)", 6: "y (m)"}[j], fontsize=7)
-        if i == 0:
-            fig.colorbar(first, ax=axes[:, 0], shrink=0.3, location="left",
-                         label="counts / max")
-            fig.colorbar(im, ax=axes[:, ncol - 1], shrink=0.3, label="/ max (a.u.)")
+        if i == 0:  # beside the grid, in axes of their own
+            fig.colorbar(first, cax=fig.add_axes((0.955, 0.55, 0.01, 0.3)),
+                         label="measurement: counts / max")
+            fig.colorbar(im, cax=fig.add_axes((0.955, 0.15, 0.01, 0.3)),
+                         label="reconstruction: / max (a.u.)")
     fig.suptitle(f"glyph {glyph}, geometry {geometry}: {geo['description']} "
                  f"(c t / 2 at the window end: {C0 * t_ns * 1e-9 / 2:.2f} m)", fontsize=8)
     return fig
