@@ -7,6 +7,7 @@ The Python API (:mod:`clnlos.api`, the functions the CLI calls)::
     rec = clnlos.reconstruct(capture, method="lct")  # the recorded slab is deconvolved
     clnlos.plot_volume(rec)                          # matplotlib axes
     clnlos.study.run("out/study")                    # the material study
+    clnlos.legibility("x.mat", model="out/study").p_legible  # its judge on any capture
 
 The packages follow the physics (docs/architecture.md): :mod:`clnlos.physics` (pure slab,
 grid and light-cone physics), :mod:`clnlos.diffusion` (the slab transmittance, stage 1),
@@ -35,13 +36,16 @@ from clnlos.api import (  # noqa: E402
     simulate,
 )
 
-__all__ = ["C0", "__version__", "plot_volume", "read_capture", "reconstruct",
+__all__ = ["C0", "__version__", "legibility", "plot_volume", "read_capture", "reconstruct",
            "reconstruction_config", "simulate", "study"]
 
 
 def __getattr__(name: str):
-    """``clnlos.study`` on first use (PEP 562): the study's imports (scipy.signal, the
-    dataset's workers) stay out of ``import clnlos`` until a study runs."""
+    """``clnlos.study`` and ``clnlos.legibility`` (a study's judge on a capture or volume,
+    :func:`clnlos.study.judge_apply.legibility`) on first use (PEP 562): the study's imports
+    (scipy.signal, the dataset's workers) stay out of ``import clnlos`` until used."""
     if name == "study":
         return importlib.import_module("clnlos.study")
+    if name == "legibility":
+        return importlib.import_module("clnlos.study.judge_apply").legibility
     raise AttributeError(f"module 'clnlos' has no attribute {name!r}")

@@ -6,6 +6,7 @@ from __future__ import annotations
 
 import argparse
 import importlib.util
+import json
 import math
 import sys
 from pathlib import Path
@@ -65,6 +66,7 @@ from clnlos.runtime.device import get_queue
 from clnlos.runtime.limits import capture_use, check_memory
 from clnlos import study
 from clnlos.study.dataset import MAX_WORKERS, StudyGrid, check_scheduler_address
+from clnlos.study.judge_apply import judge_from, legibility
 from clnlos.study.run import (
     LABEL_METRICS,
     TRANSPORT_CHOICES,
@@ -545,7 +547,8 @@ def cmd_study(args) -> int:
         integer("--workers", args.workers, 1, MAX_WORKERS)
     if args.scheduler is not None:
         check_scheduler_address("--scheduler", args.scheduler)
-    require("torch", "clnlos study (its CNN)")
+    if args.labels != "legibility":
+        require("torch", f"clnlos study --labels {args.labels} (the seed recipe's CNN)")
     if args.scheduler is not None or (args.workers or 2) > 1:
         require("distributed", "clnlos study with worker processes")
 
@@ -570,7 +573,7 @@ def cmd_study(args) -> int:
                   f"{i['chance']:.3f}, n {i['n']}) IoU {m['iou']:.3f} (box "
                   f"{m['iou_box_baseline']:.3f}) label {m['label']} CNN {m['cnn_label']} "
                   f"seed {m['seed_label']}")
-    print(f"labels {res['labels']['source']}; legibility CNN on held-out splits: " + "; ".join(
+    print(f"labels {res['labels']['source']}; legibility judge on held-out splits: " + "; ".join(
         f"{k} balanced accuracy {v['balanced_accuracy']:.3f} (one-feature baseline "
         f"{v['baseline']:.3f}), AUC {v['auc']:.3f}, ECE {v['ece']:.3f}"
         for k, v in res["classifier"]["splits"].items()))
@@ -660,6 +663,33 @@ def register_bench(sub, add_device) -> None:
     b.set_defaults(func=cmd_bench)
 
 
+def cmd_legibility(args) -> int:
+    judge = judge_from(args.model)  # a missing or foreign judge: one error line, no work
+    missing = [f for f in args.files if not Path(f).is_file()]
+    if missing:
+        raise InputFileError(f"{missing[0]}: no such file")
+    for f in args.files:
+        v = legibility(f, judge, device=args.device)
+        print(json.dumps({"file": f, "p_legible": v.p_legible, "model": v.kind,
+                          "features": v.features}) if args.json else v.line(), flush=True)
+    return 0
+
+
+def register_legibility(sub, add_device) -> None:
+    g = sub.add_parser("legibility", help="P(legible) of captures or reconstructions by a "
+                       "study's trained judge")
+    g.add_argument("files", nargs="+", metavar="FILE",
+                   help="a volume .h5 (any method, grid or size) or a capture in any format "
+                        "clnlos reads (reconstructed as the judge was trained, with two "
+                        "binomial halves of its photons)")
+    g.add_argument("--model", required=True, metavar="STUDY_DIR",
+                   help="a study output folder holding judge.json (or the judge.json itself)")
+    g.add_argument("--json", action="store_true",
+                   help="one JSON object per line: file, p_legible, model, features")
+    add_device(g)
+    g.set_defaults(func=cmd_legibility)
+
+
 def register(sub, add_device) -> None:
     """Add the pipeline sub-commands to the parser ``sub``."""
     register_reconstruct(sub, add_device)
@@ -667,4 +697,5 @@ def register(sub, add_device) -> None:
     register_forward(sub, add_device)
     register_brdf(sub, add_device)
     register_study(sub, add_device)
+    register_legibility(sub, add_device)
     register_bench(sub, add_device)

@@ -12,10 +12,9 @@ Two models, one per input:
 * ``volume``: a reconstruction of any method, grid or size: the MIP's features only
   (:data:`~clnlos.study.judge_features.MIP_FEATURES`).
 
-The model. Features x standardised by the training set's mean and deviation, each with its
-square (a bump as well as a slope per feature), then
+The model. Features x standardised by the training set's mean and deviation, z, then
 
-    P(legible) = sigmoid(w . [z, z^2] + b),
+    P(legible) = sigmoid(w . z + b),
 
 (w, b) maximising the class-balanced log likelihood minus JUDGE_L2 |w|^2 / 2 (Newton's
 method), and the intercept then shifted by the training set's log-odds of legible (what
@@ -57,11 +56,6 @@ JUDGE_L2 = 1.0           # the weights' Gaussian prior: penalty JUDGE_L2 |w|^2 /
 NEWTON_STEPS = 50
 JUDGE_SPLITS = ("glyph", "geometry", "material")
 JUDGE_FOLDS = {"glyph": 4, "geometry": 5, "material": 3}
-
-
-def design(z: np.ndarray) -> np.ndarray:
-    """[z, z^2] of standardised features z [n, k] -> [n, 2 k]."""
-    return np.concatenate([z, z * z], axis=1)
 
 
 def class_balanced_weights(y) -> np.ndarray:
@@ -106,12 +100,12 @@ class JudgeModel:
         X = np.asarray(X, np.float64)
         mean, scale = X.mean(axis=0), X.std(axis=0)
         scale = np.where(scale > 0, scale, 1.0)
-        w, b = fit_logistic(design((X - mean) / scale), y, class_balanced_weights(y))
+        w, b = fit_logistic((X - mean) / scale, y, class_balanced_weights(y))
         return cls(tuple(features), mean, scale, w, b, prior_log_odds(y))
 
     def logit(self, X: np.ndarray) -> np.ndarray:
         z = (np.asarray(X, np.float64).reshape(-1, len(self.features)) - self.mean) / self.scale
-        return design(z) @ self.weights + self.bias + self.log_odds
+        return z @ self.weights + self.bias + self.log_odds
 
     def predict_proba(self, X: np.ndarray) -> np.ndarray:
         return 1.0 / (1.0 + np.exp(-np.clip(self.logit(X), -30, 30)))
@@ -119,7 +113,7 @@ class JudgeModel:
     def state(self) -> dict:
         return {"features": list(self.features), "mean": self.mean.tolist(),
                 "scale": self.scale.tolist(), "weights": self.weights.tolist(),
-                "bias": self.bias, "log_odds": self.log_odds, "design": "[z, z^2]"}
+                "bias": self.bias, "log_odds": self.log_odds, "model": "sigmoid(w . (x - mean) / scale + bias + log_odds)"}
 
     @classmethod
     def from_state(cls, s: dict) -> JudgeModel:
@@ -181,7 +175,8 @@ def grouped_validation(X: np.ndarray, y, groups: dict[str, np.ndarray], features
                        splits=JUDGE_SPLITS, folds=None, seed: int = 0) -> tuple[dict, dict]:
     """Grouped cross-validation of the model on (X, y) per split (whole groups held out),
     beside the one-feature baseline (each feature thresholded at its best cut on the
-    training folds, the best kept) and the majority class. Returns (results.json
+    training folds, the best kept) and the majority class; a split of one group is left
+    out. Returns (results.json
     ``classifier.splits``: balanced_accuracy, auc, ece, majority, baseline per split; details:
     n, legible, reliability, the baseline's features, per-fold scores)."""
     folds = dict(JUDGE_FOLDS if folds is None else folds)
@@ -190,6 +185,8 @@ def grouped_validation(X: np.ndarray, y, groups: dict[str, np.ndarray], features
     feats = {f: X[:, k] for k, f in enumerate(features)}
     out, details = {}, {}
     for name in splits:
+        if len(np.unique(groups[name])) < 2:  # nothing to hold out
+            continue
         fold = group_folds(groups[name], folds.get(name, 4), seed)
         p, base, major = np.zeros(n), np.zeros(n, bool), np.zeros(n, bool)
         per = []

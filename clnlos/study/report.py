@@ -693,7 +693,8 @@ def write_report(out_dir, results, plan, res, real=None) -> None:
         f"{results['resolution']['bound_lateral_m'] * 100:.2f} cm.</p>",
         "<h2>A real capture and its simulation</h2>", _real_html(results),
         *classifier_section(results, None if real is None else real.get("thinning"),
-                            _table, _png),
+                            _table, _png, None if real is None else [
+                                r for r in real.get("family", ()) if "mip" in r]),
         *_transport_section(results.get("transport_comparison")),
         "<h2>No-reference metrics against ground truth</h2>",
         "<p>Pearson r over the glyph reconstructions (point-biserial for identified).</p>",

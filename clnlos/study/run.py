@@ -21,13 +21,17 @@ The question is answered with legibility, not with how well a blob covers the ta
 5. Measured resolution (:mod:`clnlos.study.resolution`) and a real capture beside its
    simulation (:mod:`clnlos.study.real_capture`), when a folder of the real CDT captures
    is given (``real_data``, ``--real-data DIR``: its ``cdt/*.mat``).
-6. The legibility classifier (torch CNN, CPU, seeded; :mod:`clnlos.study.classify`,
-   :mod:`clnlos.study.heldout`) trained on every reconstruction with ground truth to give
-   P(legible) (identified and IoU above the box baseline), validated on held-out glyphs,
-   geometries and materials against the majority and a one-feature baseline, and applied to
-   the real captures thinned to fewer photons (:mod:`clnlos.study.thinning_real`);
-   ``--labels fft`` / ``nr`` add the seed's recipe (FFT clarity / no-reference terciles),
-   whose three classes label the materials.
+6. The legibility judge (:mod:`clnlos.study.judge_study`): a calibrated logistic model on
+   scale- and position-invariant measured features (:mod:`clnlos.study.judge_features`),
+   the agreement of two binomial photon halves' reconstructions among them, trained on
+   simulated twins of the real CDT and LCT capture families (:mod:`clnlos.study.twins`)
+   to give P(legible) (identified and IoU above the box baseline), validated on held-out
+   glyphs, geometries and materials against the majority and a one-feature baseline and by
+   family on every real capture's thinning ladder (:mod:`clnlos.study.judge_real`), saved
+   as judge.json (``clnlos legibility FILE... --model STUDY_DIR``) and applied to the real
+   captures thinned to fewer photons (:mod:`clnlos.study.thinning_real`);
+   ``--labels fft`` / ``nr`` add the seed's recipe (a torch CNN, :mod:`clnlos.study.classify`:
+   FFT clarity / no-reference terciles), whose three classes label the materials.
 7. With ``transport = "both"`` (``--transport both``): the materials at the legible geometry
    under the bistatic transport too (Eq. 8 in full, :mod:`clnlos.study.transport_compare`),
    their table and ranks under both and the rank correlation. Everything else is simulated
@@ -63,7 +67,7 @@ from clnlos.inverse.methods import method_names
 from clnlos.io.files import atomic_path
 from clnlos.io.outputs import stamp
 from clnlos.study.clarity import label_thresholds
-from clnlos.study.classify import LEGIBILITY_EPOCHS, SEED_EPOCHS, train_classifier
+from clnlos.study.classify import SEED_EPOCHS, train_classifier
 from clnlos.study.dataset import (
     StudyGrid,
     cpu_workers,
@@ -72,13 +76,7 @@ from clnlos.study.dataset import (
     scene_dict,
     window_m,
 )
-from clnlos.study.heldout import (
-    BASELINE_FEATURES,
-    SPLIT_FOLDS,
-    fold_plan,
-    legibility_set,
-    validate_legibility,
-)
+from clnlos.study.judge_study import study_judge
 from clnlos.study.legibility import (
     GLYPHS,
     LEGIBLE_ACCURACY,
@@ -175,8 +173,7 @@ QUICK_GRID = StudyGrid(points=24, bin_width_s=64e-12)
 @dataclass
 class StudyOptions:
     n_dataset: int = 200                # extra random reconstructions (metric validation)
-    epochs: int | None = None           # the CNNs' (None: SEED_EPOCHS for the seed's recipe,
-    #                                     LEGIBILITY_EPOCHS for the legibility classifier)
+    epochs: int | None = None           # the seed recipe's CNN (None: SEED_EPOCHS)
     grid: StudyGrid = field(default_factory=StudyGrid)
     materials: list[str] | None = None  # default: the ten presets
     seeds: int = 2                      # noise realisations per material, glyph, geometry
@@ -206,6 +203,7 @@ class StudyOptions:
     tilt_materials: tuple[str, ...] = TILT_MATERIALS
     tilt_glyphs: tuple[str, ...] | None = None  # default: glyphs
     tilt_inversions: tuple[str, ...] = INVERSIONS
+    judge_twins: int = 16               # twin scenes per twin geometry (clnlos.study.twins)
 
     @classmethod
     def quick(cls) -> StudyOptions:
@@ -223,7 +221,7 @@ class StudyOptions:
                    geometry_sweep_materials=(SWEEP_MATERIALS[0], SWEEP_MATERIALS[-1]),
                    sweeps={"scan_width_m": (0.3, 0.6, 0.8), "depth_m": (0.3, 0.5, 0.7),
                            "slab_thickness_m": (0.0, 0.0254, 0.0508)}, label="quick",
-                   transport="confocal")
+                   transport="confocal", judge_twins=8)
 
     def validate(self) -> StudyOptions:
         if self.labels not in LABEL_METRICS:
@@ -232,6 +230,8 @@ class StudyOptions:
             raise ParameterError("--method", self.grid.method, ", ".join(method_names()))
         if self.grid.snr_rule not in SNR_RULES:  # every method it is valid for (StudyGrid)
             raise ParameterError("snr_rule", self.grid.snr_rule, ", ".join(SNR_RULES))
+        if self.judge_twins < 1:
+            raise ParameterError("judge_twins", self.judge_twins, ">= 1")
         if self.n_dataset < 0:
             raise ParameterError("--n-dataset", self.n_dataset, ">= 0")
         if self.seeds < 1:
@@ -682,24 +682,6 @@ def train_cnn(plan, results, opts: StudyOptions, label_metric: str, thresholds):
     return predict, report, labels
 
 
-def train_legibility(pairs, opts: StudyOptions, workers: int = 1):
-    """The legibility classifier on every (sample, result) pair with ground truth (any plan:
-    pass every reconstruction the study made) and its held-out validation
-    (:func:`clnlos.study.heldout.validate_legibility`). Returns (the ensemble of the folds'
-    networks, results.json ``classifier.splits``, results.json ``cnn``: the details)."""
-    data = legibility_set(pairs)
-    epochs = opts.epochs or LEGIBILITY_EPOCHS
-    with progress_bar(len(fold_plan(data, opts.seed)), "study CNN", "network") as bar:
-        ensemble, splits, details = validate_legibility(
-            data, epochs=epochs, seed=opts.seed, workers=workers, progress=counter(bar))
-    report = {"label": "legible: identified by the template rule and IoU above the box "
-                       "baseline", "second_head": "IoU - box baseline IoU",
-              "epochs": epochs, "n": len(data), "legible": int(data.legible.sum()),
-              "split_folds": dict(SPLIT_FOLDS), "baseline_features": list(BASELINE_FEATURES),
-              "networks": len(ensemble.members), "splits": details}
-    return ensemble, splits, report
-
-
 def real_capture_dir(root: Path | None) -> Path | None:
     """``root/cdt`` when it holds at least one of the real CDT captures, else None (with a
     one-line warning when ``root`` was given: the study goes on without the real data)."""
@@ -815,8 +797,12 @@ def run_study(out_dir: Path, opts: StudyOptions, *, workers: int | None = None,
     t0 = time.perf_counter()
     rendered = [(plan, results)] + ([] if comparison is None else
                                     [(comparison["plan"], comparison["results"])])
-    legibility, classifier_splits, cnn = train_legibility(
-        [(s, r) for p, rs in rendered for (_, s), r in zip(p, rs, strict=True)], opts, nw)
+    with progress_bar(None, "legibility judge twins", "scene") as bar:
+        legibility, classifier, judge, family = study_judge(
+            [(s, r) for p, rs in rendered for (_, s), r in zip(p, rs, strict=True)], out_dir,
+            per_geometry=opts.judge_twins, seed=opts.seed, cache=cache,
+            real_root=opts.real_data, device=device, progress=counter(bar))
+    classifier_splits = classifier["splits"]
     predict, seed_cnn = legibility.predict_proba, None
     labels = _samples_labels(results, cnn_samples(plan, label_metric), label_metric,
                              thresholds)
@@ -882,10 +868,10 @@ def run_study(out_dir: Path, opts: StudyOptions, *, workers: int | None = None,
         "real_capture": None if real is None else real["summary"],
         "real_captures_cnn": None if real is None else [
             {k: v for k, v in c.items() if k != "mip"} for c in real["cnn"]],
-        "classifier": {"splits": classifier_splits, "real_thinning": [] if real is None else [
+        "classifier": {**classifier, "real_thinning": [] if real is None else [
             {k: r[k] for k in ("capture", "fraction", "photons", "p_legible")}
             for r in real["thinning"]]},
-        "cnn": cnn, **({} if seed_cnn is None else {"cnn_seed_recipe": seed_cnn}),
+        "judge": judge, **({} if seed_cnn is None else {"cnn_seed_recipe": seed_cnn}),
         "labels": {"source": opts.labels, "metric": label_metric,
                    "corr_with_iou": validation[label_metric]["iou"]
                    if label_metric in validation else pearson(truth["identified"],
@@ -912,6 +898,8 @@ def run_study(out_dir: Path, opts: StudyOptions, *, workers: int | None = None,
             "geometry": LEGIBLE_GEOMETRY}
     t0 = time.perf_counter()
     results_json["cost"] = study_cost(plan, results, timings, comparison)
+    if real is not None:
+        real["family"] = family  # the family split's MIPs, for the report's figure
     write_report(out_dir, results_json, plan, results, real)
     timings["report_s"] = time.perf_counter() - t0
     results_json["cost"] = study_cost(plan, results, timings, comparison)
