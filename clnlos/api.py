@@ -29,7 +29,7 @@ from clnlos.forward.model import ForwardModel
 from clnlos.forward.scene import Scene
 from clnlos.inverse.pipeline import Reconstruction, resolve_geometry, setup_slab
 from clnlos.inverse.pipeline import reconstruct as run_pipeline
-from clnlos.io.capture import Capture
+from clnlos.io.capture import Capture, without_direct
 from clnlos.io.figures import volume_axes
 from clnlos.io.files import read_capture as read_any
 from clnlos.io.files import read_volume
@@ -138,6 +138,7 @@ def check_capture(capture: Capture, config: ReconstructionConfig, *,
     window (``clnlos.inverse.pipeline.resolve_geometry``), some signal, light inside the
     kept window (``clnlos.config.check_light_in_window``)."""
     names = dict(names or {})
+    capture, _ = without_direct(capture, config.direct_cut_s)
     bw, start, _ = resolve_geometry(capture, config, names=names)
     if not np.any(capture.transient):
         raise InputFileError(f"{capture.source or 'the capture'}: the capture holds no signal "

@@ -7,6 +7,10 @@ optional and its default is the field default of :class:`ReconstructionConfig`::
     scan_width_m = 0.7           # side of the scanned area along x (pitch x columns)
     bin_width_s = 16e-12         # overrides the file
     start_s = 0.0                # time of the start of bin 0
+    direct_cut_s = 2.4e-9        # zero the window before this time (round trip, s): the
+                                 # direct reflection off the relay wall; default: what the
+                                 # capture records (the LCT release: the published 600 bins
+                                 # of 4 ps), 0 keeps everything
     [preprocess]
     max_path_m = 2.0             # keep round-trip path lengths c t below this
     bins = 128                   # rebin the kept window to this many bins (mass-conserving)
@@ -114,6 +118,7 @@ DEPTH_GUARD_M = 0.15  # "auto" support: first-arrival depth minus this (slab del
 # how "auto" SNRs are chosen (clnlos.inverse.pipeline; "auto": the method's, MethodEntry)
 SNR_RULES = ("auto", "gcv", "thinning", "reproducibility")
 SLAB_MODELS = ("influence", "none")  # iterative: how the slab deconvolution enters the model
+DIRECT_CUT_RANGE = (0.0, 1e-6)  # direct_cut_s: the window zeroed before this time (s)
 MAX_BINS = 1 << 16    # time bins of a reconstructed volume at most (--bins and the window)
 
 def snr_rule_applies(rule: str, method: str) -> bool:
@@ -140,6 +145,7 @@ TOML_FIELDS: dict[tuple[str, str], str] = {
     ("capture", "scan_width_m"): "scan_width_m",
     ("capture", "bin_width_s"): "bin_width_s",
     ("capture", "start_s"): "start_s",
+    ("capture", "direct_cut_s"): "direct_cut_s",
     ("preprocess", "max_path_m"): "max_path_m",
     ("preprocess", "bins"): "bins",
     ("preprocess", "normalize"): "normalize",
@@ -310,6 +316,7 @@ class ReconstructionConfig:
     scan_width_m: float | None = None
     bin_width_s: float | None = None
     start_s: float | None = None
+    direct_cut_s: float | None = None
     max_path_m: float | None = None
     bins: int | None = None
     normalize: str = "max"
@@ -343,6 +350,8 @@ class ReconstructionConfig:
         for f in GEOMETRY_LIMITS:
             if getattr(self, f) is not None:
                 v[f] = check_geometry(f, getattr(self, f), nm(f))
+        if self.direct_cut_s is not None:
+            v["direct_cut_s"] = real(nm("direct_cut_s"), self.direct_cut_s, *DIRECT_CUT_RANGE)
         if self.max_path_m is not None:
             v["max_path_m"] = positive(nm("max_path_m"), self.max_path_m, upper=1e4)
         if self.bins is not None:

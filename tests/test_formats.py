@@ -12,6 +12,7 @@ import numpy as np
 import pytest
 import scipy.io
 
+from clnlos.io.formats.mat import lct_rect_data
 from clnlos import C0
 from clnlos.app.cli import main
 from clnlos.config import ReconstructionConfig
@@ -171,10 +172,10 @@ def test_tal_unsupported_layouts_are_errors(tmp_path, data, what, needle):
 
 
 def test_matlab_layouts(tmp_path, data):
-    """O'Toole's LCT layout (rect_data (y, x, t), width, bin_resolution) and Lindell's f-k
+    """O'Toole's LCT layout (rect_data in the published orientation, width, bin_resolution) and Lindell's f-k
     layout (meas (y, x, t) + tofgrid in ps) in MATLAB v5 via scipy.io.savemat, the CDT layout
     (meas (t, y down, x)) in v5 and in v7.3 (HDF5, axes reversed as MATLAB writes them)."""
-    rect = np.transpose(data, (1, 2, 0))
+    rect = lct_rect_data(data)
     scipy.io.savemat(tmp_path / "lct.mat", {"rect_data": rect, "width": 0.2,
                                              "bin_resolution": 16e-12})
     assert sniff(tmp_path / "lct.mat") == "mat5"
@@ -203,7 +204,7 @@ def test_same_data_same_volume_across_formats(tmp_path, queue):
     tau = np.round(tau / tau.max() * 1000).astype(np.float32)
     write_capture(tmp_path / "a.h5", tau, bin_width_s=16e-12, start_s=0.0, scan_width_m=0.4)
     write_tal(tmp_path / "b.hdf5", tau, bin_width_s=16e-12, start_s=0.0, scan_width_m=0.4)
-    scipy.io.savemat(tmp_path / "c.mat", {"rect_data": np.transpose(tau, (1, 2, 0)),
+    scipy.io.savemat(tmp_path / "c.mat", {"rect_data": lct_rect_data(tau),
                                            "width": 0.2, "bin_resolution": 16e-12})
     cfg = ReconstructionConfig(method="lct").validate()
     vols = [reconstruct(read_capture(tmp_path / n), cfg, device=queue).volume

@@ -106,6 +106,7 @@ def _add_precision(p) -> None:
 # CLI flag -> ReconstructionConfig field (error messages name the flag the user typed)
 RECON_FLAGS = {"scan_width": ("scan_width_m", "--scan-width"),
                "bin_width": ("bin_width_s", "--bin-width"),
+               "direct_cut": ("direct_cut_s", "--direct-cut"),
                "snr": ("snr", "--snr"), "snr_rule": ("snr_rule", "--snr-rule"),
                "inversion_snr": ("inversion_snr", "--inversion-snr"),
                "falloff": ("falloff", "--falloff"), "max_path": ("max_path_m", "--max-path"),
@@ -246,6 +247,11 @@ def register_reconstruct(sub, add_device) -> None:
                    help="side of the scanned area along x (m; the pitch is this over the "
                         f"columns, the same along y) {from_file}")
     r.add_argument("--bin-width", type=float, help=f"histogram bin width (s) {from_file}")
+    r.add_argument("--direct-cut", type=float,
+                   help="zero the window before this round-trip time (s): the direct "
+                        "reflection off the relay wall; 0 keeps everything (default: what "
+                        "the capture records: the LCT release's first 2.4 ns, as the "
+                        "published code; none elsewhere)")
     r.add_argument("--snr", type=number_or_auto,
                    help="Wiener SNR of the slab deconvolution (dimensionless), or auto: chosen "
                         "from the capture by --snr-rule (generalised cross-validation, at most "

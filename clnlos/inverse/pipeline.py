@@ -92,7 +92,7 @@ from clnlos.inverse.thinning import (
     scaled_fit,
     thin_counts,
 )
-from clnlos.io.capture import Capture
+from clnlos.io.capture import Capture, without_direct
 from clnlos.operators.resample import AxisResample, overlap_matrix
 from clnlos.physics.grid import row_blocks
 from clnlos.physics.lobe import RetroLobe
@@ -1071,6 +1071,7 @@ def reconstruct(capture: Capture, config: ReconstructionConfig, *, dtype=np.floa
     ``progress(k, n)`` follows the iterative method's iterations and ``setup(step)`` names
     each set-up step (pipeline, operator, step size, warm start) as it starts.
     """
+    capture, reader_notes = without_direct(capture, config.direct_cut_s)
     bw, start, sw = resolve_geometry(capture, config)
     queue = get_queue(device)
     key = (capture.transient.shape, bw, start, sw, json.dumps(config.as_attrs(), sort_keys=True),
@@ -1084,6 +1085,7 @@ def reconstruct(capture: Capture, config: ReconstructionConfig, *, dtype=np.floa
     note = aligned_window_note(capture)
     if note:
         rec.notes.insert(0, note)
+    rec.notes[:0] = reader_notes
     rec.extents = centred_extents(rec.extents, capture.scan_center_m)
     return rec
 
