@@ -3,7 +3,8 @@ tested on every real capture's thinning ladder) and the judge applied to any cap
 
 A real capture is reconstructed with the judge's recipe (:func:`judge_config`: the
 published scan width, window and slab of a shared CDT capture, the capture's own geometry and
-recorded slab otherwise; the recipe's method and SNR rule) together with two binomial halves
+recorded slab otherwise, its time axis rebinned to at most JUDGE_MAX_BINS; the recipe's
+method and SNR rule) together with two binomial halves
 of its photons, at each rung of a nested binomial thinning (:data:`REAL_FRACTIONS`, down to
 where the image is noise).
 
@@ -30,7 +31,7 @@ from clnlos.runtime.device import get_queue
 from clnlos.study.judge_features import mip_of, pearson_r
 from clnlos.study.real_capture import PUBLISHED_SCAN_WIDTH_M, capture_config
 from clnlos.study.thinning_real import thinned_series
-from clnlos.study.twins import judge_reconstructions
+from clnlos.study.twins import JUDGE_MAX_BINS, judge_reconstructions
 
 REAL_FRACTIONS = (1.0, 0.3, 0.1, 0.03, 0.01, 0.003, 1e-3, 3e-4, 1e-4, 3e-5)
 REAL_SEED = 48
@@ -45,8 +46,10 @@ def judge_config(capture, path, recipe: dict) -> ReconstructionConfig:
     name = Path(path).stem if path is not None else ""
     if name in PUBLISHED_SCAN_WIDTH_M:
         return capture_config(name, recipe["method"], snr_rule=recipe["snr_rule"])
-    cfg = ReconstructionConfig(method=recipe["method"], snr_rule=recipe["snr_rule"])
-    cfg = cfg.validate()
+    nt = np.asarray(capture.transient).shape[0]
+    most = int(recipe.get("max_bins", JUDGE_MAX_BINS))
+    cfg = ReconstructionConfig(method=recipe["method"], snr_rule=recipe["snr_rule"],
+                               bins=most if nt > most else None).validate()
     return setup_slab(cfg, capture)[0]
 
 

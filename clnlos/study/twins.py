@@ -54,6 +54,7 @@ from clnlos.study.thinning_real import thinned_series
 
 JUDGE_METHOD = "lct"      # the judge reconstructs a capture (and its halves) this way: the
 JUDGE_SNR_RULE = "gcv"    # closed-form inversion, 3 per capture in well under a second
+JUDGE_MAX_BINS = 256      # a capture from elsewhere keeps at most this many time bins
 
 
 @dataclass(frozen=True)
@@ -218,4 +219,4 @@ def twin_settings(grid: TwinGrid = TwinGrid(), fractions=TWIN_FRACTIONS) -> dict
             "materials": list(TWIN_MATERIALS),
             "photons_per_point": TWIN_PHOTONS_PER_POINT, "background": list(TWIN_BACKGROUND),
             "zoom": TWIN_ZOOM, "shift": TWIN_SHIFT, "method": JUDGE_METHOD,
-            "snr_rule": JUDGE_SNR_RULE}
+            "snr_rule": JUDGE_SNR_RULE, "max_bins": JUDGE_MAX_BINS}
