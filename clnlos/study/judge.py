@@ -18,7 +18,7 @@ The model. Features x standardised by the training set's mean and deviation, z, 
 
 (w, b) maximising the class-balanced log likelihood minus JUDGE_L2 |w|^2 / 2 (Newton's
 method), and the intercept then shifted by the training set's log-odds of legible (what
-undoes the balancing; :func:`clnlos.study.classify.prior_log_odds`).
+undoes the balancing; :func:`prior_log_odds`).
 
 Saved as JSON (:data:`JUDGE_FILE` beside the study's results.json): the feature names, the
 scaler, the weights, the prior and the reconstruction recipe, read back by
@@ -30,11 +30,12 @@ from __future__ import annotations
 
 import json
 from dataclasses import dataclass, field
+from pathlib import Path
 
 import numpy as np
 
-from clnlos.study.classify import prior_log_odds
 from clnlos.study.heldout import (
+    SPLITS,
     apply_rule,
     balanced_accuracy,
     group_folds,
@@ -54,11 +55,19 @@ JUDGE_FILE = "judge.json"
 JUDGE_FORMAT = "clnlos-legibility-judge/1"
 JUDGE_L2 = 1.0           # the weights' Gaussian prior: penalty JUDGE_L2 |w|^2 / 2
 NEWTON_STEPS = 50
-JUDGE_SPLITS = ("glyph", "geometry", "material")
 JUDGE_FOLDS = {"glyph": 4, "geometry": 5, "material": 3}
 
 
+def prior_log_odds(y) -> float:
+    """log(pi / (1 - pi)) of the share pi of positives in ``y``, pi kept within
+    [1/(n+2), (n+1)/(n+2)] (Laplace's rule: finite for a split of one class)."""
+    y = np.asarray(y, bool)
+    pi = (y.sum() + 1) / (len(y) + 2)
+    return float(np.log(pi / (1 - pi)))
+
+
 def class_balanced_weights(y) -> np.ndarray:
+    """Per-sample weights n / (2 n_class): both classes weigh half of the likelihood."""
     y = np.asarray(y, bool)
     n, pos = len(y), int(y.sum())
     return np.where(y, n / (2 * pos) if pos else 0.0, n / (2 * (n - pos)) if n > pos else 0.0)
@@ -159,8 +168,6 @@ class Judge:
 
 def load_judge(path) -> Judge:
     """The judge saved at ``path`` (a judge.json, or a study folder holding one)."""
-    from pathlib import Path
-
     p = Path(path)
     if p.is_dir():
         p = p / JUDGE_FILE
@@ -172,7 +179,7 @@ def load_judge(path) -> Judge:
 
 # ------------------------------------------------------------------ held-out validation
 def grouped_validation(X: np.ndarray, y, groups: dict[str, np.ndarray], features,
-                       splits=JUDGE_SPLITS, folds=None, seed: int = 0) -> tuple[dict, dict]:
+                       splits=SPLITS, folds=None, seed: int = 0) -> tuple[dict, dict]:
     """Grouped cross-validation of the model on (X, y) per split (whole groups held out),
     beside the one-feature baseline (each feature thresholded at its best cut on the
     training folds, the best kept) and the majority class; a split of one group is left

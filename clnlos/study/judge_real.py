@@ -28,6 +28,7 @@ from clnlos.config import ReconstructionConfig
 from clnlos.inverse.pipeline import setup_slab
 from clnlos.io.files import read_capture
 from clnlos.runtime.device import get_queue
+from clnlos.study.heldout import balanced_accuracy, roc_auc
 from clnlos.study.judge_features import mip_of, pearson_r
 from clnlos.study.real_capture import PUBLISHED_SCAN_WIDTH_M, capture_config
 from clnlos.study.thinning_real import thinned_series
@@ -117,8 +118,6 @@ def family_scores(rows: list[dict], tolerance: float = 0.05) -> dict:
     'gone' rung, and whether the issue's bar holds (P >= 0.8 at full photons, no rise above
     ``tolerance``, P < 0.5 wherever the reference says gone); and the balanced accuracy of
     P >= 1/2 against the reference label over the decided rungs."""
-    from clnlos.study.heldout import balanced_accuracy, roc_auc
-
     out, ys, ps = {}, [], []
     for cap in dict.fromkeys(r["capture"] for r in rows):
         rs = [r for r in rows if r["capture"] == cap]
