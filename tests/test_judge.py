@@ -145,7 +145,8 @@ def test_a_judge_from_twins_ranks_a_thinning_ladder(queue):
     assert isinstance(judge, Judge)
     # a new twin (another glyph and seed), its own ladder: P falls as the photons fall
     test = replace_white({**plan[0], "glyph": "U", "seed": 12345})
-    ladder = render_twin(test, grid, fractions, queue)
+    ladder = [r for r in render_twin(test, grid, fractions, queue) if "view" not in r]
+    assert [r["fraction"] for r in ladder] == list(fractions)
     p = judge.capture.predict_proba(feature_matrix([r["features"] for r in ladder],
                                                    CAPTURE_FEATURES))
     assert all(b <= a + 0.05 for a, b in zip(p, p[1:], strict=False)), p

@@ -29,7 +29,7 @@ from clnlos.inverse.pipeline import setup_slab
 from clnlos.io.files import read_capture
 from clnlos.runtime.device import get_queue
 from clnlos.study.heldout import balanced_accuracy, roc_auc
-from clnlos.study.judge_features import mip_of, pearson_r
+from clnlos.study.judge_features import capture_features, feature_matrix, mip_of, pearson_r
 from clnlos.study.real_capture import PUBLISHED_SCAN_WIDTH_M, capture_config
 from clnlos.study.thinning_real import thinned_series
 from clnlos.study.twins import JUDGE_MAX_BINS, judge_reconstructions
@@ -76,8 +76,8 @@ def reference_label(agreement: float) -> str:
 
 def judge_ladder(path, judge, fractions=REAL_FRACTIONS, seed: int = REAL_SEED,
                  device=None, family: str = "") -> list[dict]:
-    """Rows ``{"capture", "family", "fraction", "photons", "p_legible", "p_volume",
-    "agreement", "reference", "mip"}`` of the capture at ``path`` thinned to ``fractions``."""
+    """Rows ``{"capture", "family", "fraction", "photons", "features", "p_legible",
+    "p_volume", "agreement", "reference", "mip"}`` of the capture at ``path`` thinned to ``fractions``."""
     queue = get_queue(device)
     cap = read_capture(path)
     cfg = judge_config(cap, path, judge.recipe)
@@ -88,9 +88,11 @@ def judge_ladder(path, judge, fractions=REAL_FRACTIONS, seed: int = REAL_SEED,
         mip = mip_of(full)
         full_mip = mip if full_mip is None else full_mip
         agree = pearson_r(mip, full_mip)
+        feats = capture_features(full, h1, h2)
         rows.append({"capture": Path(path).stem, "family": family, "fraction": float(f),
-                     "photons": float(counts.sum()),
-                     "p_legible": judge.capture_proba(full, h1, h2),
+                     "photons": float(counts.sum()), "features": feats,
+                     "p_legible": float(judge.capture.predict_proba(
+                         feature_matrix([feats], judge.capture.features))[0]),
                      "p_volume": float(judge.volume_proba([full])[0]),
                      "agreement": agree, "reference": reference_label(agree),
                      "mip": mip.astype(np.float32)})

@@ -15,7 +15,9 @@ N the signal photons (TWIN_PHOTONS_PER_POINT per scan point, P points, T bins) a
 uniform background floor drawn in TWIN_BACKGROUND (what the real captures' late floor
 shows), then binomially thinned (nested, :func:`clnlos.study.thinning_real.thinned_series`)
 to TWIN_FRACTIONS: a ladder from clear to noise per scene, the real captures' thinning ladders'
-span of photons per scan point. Each rung is split into two binomial halves
+span of photons per scan point. Each rung is also seen under a smooth lateral gain
+(:func:`gain_field`, up to TWIN_GAIN across the scan; the label unchanged): real targets are
+unevenly bright. Each rung is split into two binomial halves
 (:func:`clnlos.inverse.thinning.thin_counts`) and the rung and both halves reconstructed with
 the judge's recipe (:data:`JUDGE_METHOD`, the SNR rule JUDGE_SNR_RULE).
 
@@ -86,6 +88,9 @@ TWIN_PHOTONS_PER_POINT = 1e6   # signal photons per scan point at the top of the
 TWIN_BACKGROUND = (0.0, 0.5)   # the floor's photons over the signal's, drawn uniformly
 TWIN_ZOOM = 0.25               # letter height x U[1 - z, 1 + z]
 TWIN_SHIFT = 0.1               # centre within +-this share of the scan width
+TWIN_GAIN = 4.0                # each rung also seen under a lateral gain of up to this ratio
+GAIN_KINDS = ("ramp",)        # ... smooth (a step, gain_field's "step", carves blobs into
+#                                shapes: held out by material 0.61 balanced accuracy)
 TWIN_PULSE_S = 35e-12
 
 
@@ -198,7 +203,28 @@ def render_twin(entry: dict, grid: TwinGrid = TwinGrid(), fractions=TWIN_FRACTIO
         if keep_mips:
             row["mip"] = mip.astype(np.float32)
         rows.append(row)
+        rng = np.random.default_rng(entry["seed"] + len(rows))
+        for kind in GAIN_KINDS:
+            gain = gain_field(full.shape[1:], rng, kind)
+            rows.append({**{k: v for k, v in row.items() if k != "mip"}, "view": kind,
+                         "features": capture_features(full * gain, h1 * gain, h2 * gain)})
     return rows
+
+
+def gain_field(shape, rng: np.random.Generator, kind: str = "ramp") -> np.ndarray:
+    """A lateral gain [y, x] up to TWIN_GAIN (what a real target's uneven brightness does to
+    its MIP: a retroreflective part beside a diffuse one, parts at other depths): along a
+    random direction s = a u + b v (u, v in [-1/2, 1/2] across the scan, |(a, b)| = 1), a
+    ``"ramp"`` exp(k s) or a ``"step"`` of ratio r beyond a random cut."""
+    a, b = rng.normal(size=2)
+    n = max(float(np.hypot(a, b)), 1e-12)
+    v = (np.arange(shape[0]) + 0.5) / shape[0] - 0.5
+    u = (np.arange(shape[1]) + 0.5) / shape[1] - 0.5
+    t = (a * u[None, :] + b * v[:, None]) / n
+    ratio = float(np.exp(np.log(TWIN_GAIN) * rng.uniform(0.3, 1.0)))
+    if kind == "ramp":
+        return np.exp(np.log(ratio) * t)
+    return np.where(t > rng.uniform(-0.25, 0.25), ratio, 1.0)
 
 
 def render_twins(plan: list[dict], grid: TwinGrid = TwinGrid(), fractions=TWIN_FRACTIONS,
@@ -218,5 +244,5 @@ def twin_settings(grid: TwinGrid = TwinGrid(), fractions=TWIN_FRACTIONS) -> dict
             "geometries": [asdict(g) for g in TWIN_GEOMETRIES],
             "materials": list(TWIN_MATERIALS),
             "photons_per_point": TWIN_PHOTONS_PER_POINT, "background": list(TWIN_BACKGROUND),
-            "zoom": TWIN_ZOOM, "shift": TWIN_SHIFT, "method": JUDGE_METHOD,
+            "zoom": TWIN_ZOOM, "shift": TWIN_SHIFT, "gain": TWIN_GAIN, "method": JUDGE_METHOD,
             "snr_rule": JUDGE_SNR_RULE, "max_bins": JUDGE_MAX_BINS}
