@@ -24,8 +24,8 @@ from clnlos.io.files import read_capture, read_volume
 from clnlos.runtime.device import get_queue
 from clnlos.study.judge import JUDGE_FILE, JUDGE_FORMAT, Judge, load_judge
 from clnlos.study.judge_features import capture_features, mip_features
-from clnlos.study.judge_real import judge_config
-from clnlos.study.twins import judge_reconstructions
+from clnlos.study.judge_real import binned_laterally, judge_config
+from clnlos.study.twins import JUDGE_MAX_POINTS, judge_reconstructions
 
 
 @dataclass
@@ -72,6 +72,7 @@ def is_volume_file(path) -> bool:
 
 def judge_capture(capture: Capture, judge: Judge, path=None, device=None) -> Verdict:
     """The capture model's verdict on a capture (reconstructed with the judge's recipe)."""
+    capture = binned_laterally(capture, judge.recipe.get("max_points", JUDGE_MAX_POINTS))
     cfg = judge_config(capture, path, judge.recipe)
     counts = np.rint(np.clip(np.asarray(capture.transient, np.float64), 0, None))
     full, h1, h2 = judge_reconstructions(replace(capture, transient=counts.astype(np.float32)),

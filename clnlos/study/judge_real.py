@@ -3,7 +3,8 @@ tested on every real capture's thinning ladder) and the judge applied to any cap
 
 A real capture is reconstructed with the judge's recipe (:func:`judge_config`: the
 published scan width, window and slab of a shared CDT capture, the capture's own geometry and
-recorded slab otherwise, its time axis rebinned to at most JUDGE_MAX_BINS; the recipe's
+recorded slab otherwise, its time axis rebinned to at most JUDGE_MAX_BINS, its scan
+points summed to at most JUDGE_MAX_POINTS a side (:func:`binned_laterally`); the recipe's
 method and SNR rule) together with two binomial halves
 of its photons, at each rung of a nested binomial thinning (:data:`REAL_FRACTIONS`, down to
 where the image is noise).
@@ -32,9 +33,9 @@ from clnlos.study.heldout import balanced_accuracy, roc_auc
 from clnlos.study.judge_features import capture_features, feature_matrix, mip_of, pearson_r
 from clnlos.study.real_capture import PUBLISHED_SCAN_WIDTH_M, capture_config
 from clnlos.study.thinning_real import thinned_series
-from clnlos.study.twins import JUDGE_MAX_BINS, judge_reconstructions
+from clnlos.study.twins import JUDGE_MAX_BINS, JUDGE_MAX_POINTS, judge_reconstructions
 
-REAL_FRACTIONS = (1.0, 0.3, 0.1, 0.03, 0.01, 0.003, 1e-3, 3e-4, 1e-4, 3e-5)
+REAL_FRACTIONS = (1.0, 0.3, 0.1, 0.03, 0.01, 3e-3, 1e-3, 1e-4)
 REAL_SEED = 48
 REFERENCE_AGREEMENT = 0.8   # r(thinned MIP, full MIP) at least this: legible (reference)
 REFERENCE_GONE = 0.3        # below this: the image is gone (reference)
@@ -52,6 +53,21 @@ def judge_config(capture, path, recipe: dict) -> ReconstructionConfig:
     cfg = ReconstructionConfig(method=recipe["method"], snr_rule=recipe["snr_rule"],
                                bins=most if nt > most else None).validate()
     return setup_slab(cfg, capture)[0]
+
+
+def binned_laterally(capture, most: int = JUDGE_MAX_POINTS):
+    """The capture with its scan points summed in k x k blocks (photon counts kept), k the
+    smallest integer that leaves at most ``most`` points per side (unchanged for k = 1 or
+    a capture whose columns were shifted by its reader)."""
+    t = np.asarray(capture.transient)
+    k = -(-max(t.shape[1:]) // most)
+    if k <= 1 or capture.time_shift_bins is not None:
+        return capture
+    ny, nx = (t.shape[1] // k) * k, (t.shape[2] // k) * k
+    b = t[:, :ny, :nx].reshape(t.shape[0], ny // k, k, nx // k, k).sum(axis=(2, 4))
+    w = None if capture.scan_width_m is None else capture.scan_width_m * nx / t.shape[2]
+    h = None if capture.scan_height_m is None else capture.scan_height_m * ny / t.shape[1]
+    return replace(capture, transient=b.astype(t.dtype), scan_width_m=w, scan_height_m=h)
 
 
 def real_capture_paths(root) -> list[tuple[str, Path]]:
@@ -79,7 +95,8 @@ def judge_ladder(path, judge, fractions=REAL_FRACTIONS, seed: int = REAL_SEED,
     """Rows ``{"capture", "family", "fraction", "photons", "features", "p_legible",
     "p_volume", "agreement", "reference", "mip"}`` of the capture at ``path`` thinned to ``fractions``."""
     queue = get_queue(device)
-    cap = read_capture(path)
+    cap = binned_laterally(read_capture(path), judge.recipe.get("max_points",
+                                                              JUDGE_MAX_POINTS))
     cfg = judge_config(cap, path, judge.recipe)
     rows, full_mip = [], None
     for f, counts in zip(fractions, thinned_series(cap.transient, fractions, seed),

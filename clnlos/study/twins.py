@@ -57,6 +57,7 @@ from clnlos.study.thinning_real import thinned_series
 JUDGE_METHOD = "lct"      # the judge reconstructs a capture (and its halves) this way: the
 JUDGE_SNR_RULE = "gcv"    # closed-form inversion, 3 per capture in well under a second
 JUDGE_MAX_BINS = 256      # a capture from elsewhere keeps at most this many time bins
+JUDGE_MAX_POINTS = 32     # ... and this many scan points a side (k x k blocks summed)
 
 
 @dataclass(frozen=True)
@@ -245,4 +246,5 @@ def twin_settings(grid: TwinGrid = TwinGrid(), fractions=TWIN_FRACTIONS) -> dict
             "materials": list(TWIN_MATERIALS),
             "photons_per_point": TWIN_PHOTONS_PER_POINT, "background": list(TWIN_BACKGROUND),
             "zoom": TWIN_ZOOM, "shift": TWIN_SHIFT, "gain": TWIN_GAIN, "method": JUDGE_METHOD,
-            "snr_rule": JUDGE_SNR_RULE, "max_bins": JUDGE_MAX_BINS}
+            "snr_rule": JUDGE_SNR_RULE, "max_bins": JUDGE_MAX_BINS,
+            "max_points": JUDGE_MAX_POINTS}
