@@ -17,6 +17,7 @@ import time
 from pathlib import Path
 
 from clnlos.io.files import atomic_path
+from clnlos.io.outputs import provenance, stamp
 from clnlos.study.dataset import code_version
 from clnlos.study.heldout import geometry_key
 from clnlos.study.judge import JUDGE_FILE, JUDGE_FOLDS, train_judge
@@ -89,8 +90,9 @@ def study_judge(pairs, out_dir: Path, *, per_geometry: int, seed: int = 0,
     family = family_split(real_root, judge, device=device) if real_root is not None else []
     cpu3 = time.process_time()
     judge.info["label"] = LABEL
+    judge.info["provenance"] = {**provenance(), "command": "clnlos study"}
     with atomic_path(out_dir / JUDGE_FILE) as tmp:
-        tmp.write_text(json.dumps(judge.to_json(), indent=1))
+        tmp.write_text(json.dumps(stamp(judge.to_json()), indent=1))
     classifier = {"splits": validation["capture"][0],
                   "volume_splits": validation["volume"][0],
                   "family": {"rows": [{k: v for k, v in r.items() if k != "mip"}
