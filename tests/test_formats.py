@@ -182,8 +182,8 @@ def test_matlab_layouts(tmp_path, data):
     _same(read_capture(tmp_path / "lct.mat"), data, width=0.4)
     tof = np.full((NY, NX), 64.0)  # 64 ps = 2 bins of 32 ps
     padded = np.concatenate([np.zeros((2, NY, NX), np.float32), data])
-    scipy.io.savemat(tmp_path / "fk.mat", {"meas": np.transpose(padded, (1, 2, 0)),
-                                            "tofgrid": tof})
+    scipy.io.savemat(tmp_path / "fk.mat", {"meas": np.transpose(padded, (1, 2, 0))[::-1],
+                                            "tofgrid": tof})  # rows running down
     cap = read_capture(tmp_path / "fk.mat")
     assert cap.bin_width_s == 32e-12 and cap.scan_width_m is None
     np.testing.assert_allclose(cap.transient[:NT], data, atol=1e-4)
@@ -274,3 +274,21 @@ n = 1.12
     np.testing.assert_allclose(vols[0], vols[1], rtol=1e-5, atol=1e-6 * vols[0].max())
     with h5py.File(tmp_path / "tal.h5") as f:
         assert json.loads(f["scene_info"][()])["original_format"] == "clnlos"
+
+
+def test_fk_layout_rows_run_down_and_tofgrid_follows_them(tmp_path):
+    """f-k's meas (y, x, t): the published front view shows row 0 at the top, so clnlos's y
+    (up) is the reversed row; the tofgrid is moved with its rows (an arrival delayed by each
+    row's time of flight lands in one bin after alignment)."""
+    n, nt = 6, 64
+    meas = np.zeros((n, n, nt), np.float32)
+    tof = np.zeros((n, n))
+    for i in range(n):
+        tof[i] = 32.0 * i  # ps: i bins of 32 ps
+        meas[i, :, 10 + i] = 5.0
+    meas[0, 0, 10] = 50.0  # the top-left of the published view
+    scipy.io.savemat(tmp_path / "fk.mat", {"meas": meas, "tofgrid": tof})
+    cap = read_capture(tmp_path / "fk.mat")
+    assert np.all(cap.transient[10] > 0) and not cap.transient[11:].any()
+    t, y, x = np.unravel_index(np.argmax(cap.transient), cap.transient.shape)
+    assert (y, x) == (n - 1, 0)  # top (y up: the last row) on the left

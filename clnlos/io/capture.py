@@ -12,9 +12,10 @@ from dataclasses import dataclass, field
 
 import numpy as np
 
-from clnlos import C0
-from clnlos.config import check_geometry, parse_toml, slab_from_table
+from clnlos.checks import check_geometry, parse_toml
 from clnlos.errors import ClnlosError, InputFileError, ParameterError
+from clnlos.physics.constants import C0
+from clnlos.physics.slab import slab_from_table
 
 CAPTURE_FORMAT = "clnlos-capture-1"  # the format attribute of the clnlos capture files
 

@@ -132,7 +132,7 @@ def classifier_section(results, thinning, table, png, family_mips=None) -> list[
     judge = results["judge"]
     title = "The legibility judge: held-out splits, calibration, real captures thinned"
     cost = judge["cost_s"]
-    out = [f"<h2>{html.escape(title)}</h2>", (
+    out = [f"<h3>{html.escape(title)}</h3>", (
         f"<p>What it predicts: P(legible), legible meaning {html.escape(judge['label'])}. "
         f"The model: {html.escape(judge['model'])}; the capture model reads "
         f"{html.escape(', '.join(judge['capture_features']))} (the last two: the agreement "

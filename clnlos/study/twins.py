@@ -34,12 +34,12 @@ from dataclasses import asdict, dataclass, replace
 
 import numpy as np
 
-from clnlos import C0
 from clnlos.config import ReconstructionConfig
 from clnlos.forward.model import ForwardModel
 from clnlos.forward.scene import Scene
 from clnlos.inverse.pipeline import reconstruct
 from clnlos.inverse.thinning import thin_counts
+from clnlos.physics.constants import C0
 from clnlos.physics.slab import CDT_SLAB
 from clnlos.runtime.device import get_queue
 from clnlos.study.judge_features import capture_features, foreground, mip_of

@@ -19,7 +19,10 @@ Layouts, told apart by their variables (MATLAB index order (i, j, k) = numpy ord
   (:func:`clnlos.io.capture.without_direct`).
 * f-k (Lindell, Wetzstein & O'Toole 2019): ``meas`` of size (N, N, T) = (y, x, t) and
   ``tofgrid`` (N, N), the time of flight (ps) from the laser and detector to each scan
-  point, which is removed (each column moved earlier by it, fractionally, counts
+  point. The published code (``cnlos_reconstruction.m`` of nlos-fk) shows the front view as
+  ``meas``'s first index running down the image and its second to the right (it reverses
+  both and labels both axes from +w to -w, which ``imagesc`` draws back the same way), so
+  row i is y = -i: [t, y, x] = meas[::-1, :, :] transposed. The time of flight is removed (each column moved earlier by it, fractionally, counts
   conserved); 32 ps bins (the published code's ``bin_resolution``), scan width not stored.
   A ``meas`` of size (N, N, T) without ``tofgrid`` is read the same way, already aligned.
 """
@@ -41,6 +44,8 @@ CDT_MAT_BIN_WIDTH_S = 16e-12  # the CDT capture format's histogram bin
 FK_MAT_BIN_WIDTH_S = 32e-12   # bin_resolution of the f-k data files
 LCT_MAT_BIN_WIDTH_S = 4e-12   # the LCT release's SPAD bin (cnlos_reconstruction.m)
 LCT_DIRECT_END_S = 600 * LCT_MAT_BIN_WIDTH_S  # the direct reflection the published code zeroes
+LCT_RELEASE_BIN_WIDTH_S = 16e-12  # ... and its time bin (4 ps summed in fours, K = 2)
+LCT_RELEASE_FALLOFF = 2.0     # its published default falloff (t/T)^2 (retroreflective)
 DIRECT_PEAK_FRACTION = 0.02   # a direct reflection peaks within this fraction of the window
 DIRECT_PEAK_OVER_MEDIAN = 10.0  # ... this many times above the window's median
 
@@ -67,7 +72,11 @@ def from_lct(rect_data, width, bin_resolution, path) -> Capture:
     if rect_data.ndim != 3:
         raise InputFileError(f"{path}: 'rect_data' must be 3D (N, N, T), got {rect_data.shape}")
     arr = validate_transient(np.transpose(rect_data[::-1, ::-1, :], (2, 1, 0)), path)
-    attrs = {"format": "lct-mat"}
+    attrs = {"format": "lct-mat", "falloff_default": LCT_RELEASE_FALLOFF,
+             "falloff_source": "the published code's default for this release (isdiffuse = "
+                               "0: retroreflective targets, 1/r^2)",
+             "bin_width_default_s": LCT_RELEASE_BIN_WIDTH_S,
+             "bin_width_default_source": "the published code sums the 4 ps bins in fours"}
     if starts_with_direct_reflection(arr):
         attrs["direct_end_s"] = LCT_DIRECT_END_S
     if bin_resolution is None:
@@ -96,12 +105,16 @@ def lct_rect_data(transient: np.ndarray) -> np.ndarray:
 
 
 def from_fk(meas, tofgrid, path) -> Capture:
-    arr = validate_transient(np.transpose(meas, (2, 0, 1)), path)
+    """The f-k layout (module docstring): rows run down the published front view."""
+    meas = np.asarray(meas)
+    if meas.ndim != 3:
+        raise InputFileError(f"{path}: 'meas' must be 3D (N, N, T), got {meas.shape}")
+    arr = validate_transient(np.transpose(meas[::-1], (2, 0, 1)), path)
     attrs = {"format": "fk-mat"}
     shifts = None
     if tofgrid is not None:
         try:
-            tof = np.asarray(tofgrid, np.float64)
+            tof = np.asarray(tofgrid, np.float64)[::-1]  # rows as the transient's
         except (TypeError, ValueError):
             raise InputFileError(f"{path}: 'tofgrid' must be numbers (ps)") from None
         if tof.shape != arr.shape[1:]:
