@@ -7,6 +7,7 @@ The Python API (:mod:`clnlos.api`, the functions the CLI calls)::
     rec = clnlos.reconstruct(capture, method="lct")  # the recorded slab is deconvolved
     clnlos.plot_volume(rec)                          # matplotlib axes
     clnlos.study.run("out/study")                    # the material study
+    clnlos.legibility("x.mat", model="out/study").p_legible  # its judge on any capture
 
 The packages follow the physics (docs/architecture.md): :mod:`clnlos.physics` (pure slab,
 grid and light-cone physics), :mod:`clnlos.diffusion` (the slab transmittance, stage 1),
@@ -28,9 +29,10 @@ from clnlos.version import __version__  # stated there (pyproject reads it)
 # CLI's start-up (``clnlos --version``) load neither the pipeline nor the study
 _LAZY = {"plot_volume": "clnlos.api", "read_capture": "clnlos.api",
          "reconstruct": "clnlos.api", "reconstruction_config": "clnlos.api",
-         "simulate": "clnlos.api", "api": None, "study": None}
+         "simulate": "clnlos.api", "api": None, "study": None,
+         "legibility": "clnlos.study.judge_apply"}
 
-__all__ = ["C0", "__version__", "plot_volume", "read_capture", "reconstruct",
+__all__ = ["C0", "__version__", "legibility", "plot_volume", "read_capture", "reconstruct",
            "reconstruction_config", "simulate", "study"]
 
 

@@ -1,7 +1,6 @@
-"""The legibility classifier: its metrics against brute force, grouped folds that never share
-a group, the training set of every reconstruction with ground truth, a small synthetic
-training (deterministic, orientation-free, learns what it is shown), the held-out driver's
-contract, and the binomial thinning of the real captures."""
+"""The legibility judge's validation: its metrics against brute force, grouped folds that never
+share a group, the study's reconstructions with ground truth taken once each, and the
+binomial thinning of the real captures."""
 
 import json
 
@@ -9,28 +8,16 @@ import numpy as np
 import pytest
 
 from clnlos.io.files import read_capture
-from clnlos.study.classify import (
-    LegibilityClassifier,
-    augmented,
-    class_weights,
-    dihedral_view,
-    fit_legibility,
-    prior_log_odds,
-)
 from clnlos.study.heldout import (
     SPLITS,
     balanced_accuracy,
     best_threshold,
-    fold_plan,
     group_folds,
-    legibility_set,
     reliability,
     roc_auc,
-    validate_legibility,
 )
+from clnlos.study.judge_study import study_volume_rows
 from clnlos.study.thinning_real import THINNING_FRACTIONS, thinned_series, thinning_figure
-
-CONTRACT = {"balanced_accuracy", "auc", "ece", "majority", "baseline"}
 
 
 def test_metrics_against_brute_force():
@@ -77,12 +64,11 @@ def test_group_folds_keep_groups_whole():
     assert group_folds(np.array(["a", "a", "b"]), 5).max() == 1  # at most one per group
 
 
-def _result(mip, identified, iou, box, **extra):
-    return {"mip": mip, "identified": identified, "iou": iou, "iou_box_baseline": box,
-            "margin": 0.1, "q_nr_clarity": float(mip.std()), **extra}
+def _result(mip, identified, iou, box):
+    return {"mip": mip, "identified": identified, "iou": iou, "iou_box_baseline": box}
 
 
-def test_legibility_set_takes_every_reconstruction_with_ground_truth_once():
+def test_the_judges_volume_rows_take_every_reconstruction_with_ground_truth_once():
     img = np.zeros((8, 8), np.float32)
     img[2:6, 3] = 1
     s = {"text": "L", "material": "m1", "scan_width_m": 0.6, "height_m": 0.3,
@@ -92,89 +78,13 @@ def test_legibility_set_takes_every_reconstruction_with_ground_truth_once():
              ({**s, "method": "other"}, _result(img * 0.5, True, 0.5, 0.6)),  # another one
              ({**s, "text": "T", "slab_thickness_m": 0.0}, _result(img, False, 0.8, 0.6)),
              ({"object": "sphere"}, {"mip": img, "iou": 0.3})]  # no ground truth
-    d = legibility_set(pairs)
-    assert len(d) == 3
-    assert d.legible.tolist() == [True, False, False]  # identified and IoU above the box
-    assert d.iou_excess == pytest.approx([0.1, -0.1, 0.2])
-    assert set(d.groups) == set(SPLITS) and d.groups["glyph"].tolist() == ["L", "L", "T"]
-    assert d.groups["geometry"][0] == d.groups["geometry"][1] != d.groups["geometry"][2]
-    assert json.loads(d.groups["geometry"][2])[-1] == 0.0
-    assert set(d.features) == {"margin", "q_nr_clarity"}
-
-
-def _synthetic(n, size=16, seed=0):
-    """Bars (legible) and round blobs (not), at random places and sizes."""
-    rng = np.random.default_rng(seed)
-    c = np.arange(size) - (size - 1) / 2
-    Y, X = np.meshgrid(c, c, indexing="ij")
-    images, y = [], []
-    for k in range(n):
-        legible = k % 2 == 0
-        dx, dy = rng.uniform(-2, 2, 2)
-        if legible:
-            img = ((np.abs(X - dx) < 1.2) & (np.abs(Y - dy) < 5)) | (
-                (np.abs(Y - dy - 4) < 1.2) & (np.abs(X - dx) < 4))
-            img = img.astype(float)
-        else:
-            img = np.exp(-((X - dx) ** 2 + (Y - dy) ** 2) / (2 * rng.uniform(2, 4) ** 2))
-        images.append(img + rng.normal(0, 0.02, img.shape))
-        y.append(legible)
-    return np.clip(np.array(images, np.float32), 0, None), np.array(y)
-
-
-def test_legibility_network_learns_deterministically_and_ignores_orientation():
-    x, y = _synthetic(64)
-    clf, log = fit_legibility(x, y, np.where(y, 0.2, -0.2), epochs=12, seed=5)
-    again, _ = fit_legibility(x, y, np.where(y, 0.2, -0.2), epochs=12, seed=5)
-    xt, yt = _synthetic(40, seed=9)
-    p = clf.predict_proba(xt)
-    assert np.array_equal(p, again.predict_proba(xt))  # seeded: the same network
-    assert balanced_accuracy(yt, p >= 0.5) >= 0.9 and roc_auc(yt, p) >= 0.95
-    assert log["train_loss"][-1] < log["train_loss"][0] and log["n_train"] == 64
-    z = clf.logits(xt[:4])
-    for k in range(8):  # the logit is the mean over the eight symmetries: invariant
-        turned = np.stack([dihedral_view(v, k) for v in xt[:4]])
-        assert clf.logits(turned) == pytest.approx(z, abs=1e-5)
-    back = LegibilityClassifier.from_state(clf.state())
-    assert np.allclose(back.predict_proba(xt), p)
-    # the prior shift: P is the balanced posterior moved by the training log-odds
-    assert clf.log_odds == pytest.approx(prior_log_odds(y)) == pytest.approx(0.0)
-    w = class_weights(np.array([1, 0, 0, 0], bool))
-    assert w == pytest.approx([2.0, 2 / 3, 2 / 3, 2 / 3])
-
-
-def test_augmented_views_stay_images():
-    x, _ = _synthetic(6)
-    a = augmented(x, np.random.default_rng(0))
-    assert a.shape == x.shape and a.dtype == np.float32
-    assert np.allclose(a.reshape(6, -1).max(axis=1), 1.0) and a.min() >= 0
-
-
-def test_held_out_driver_returns_the_contract():
-    x, y = _synthetic(48, size=12, seed=3)
-    rng = np.random.default_rng(4)
-    pairs = []
-    for k, (img, leg) in enumerate(zip(x, y, strict=True)):
-        s = {"text": "EFHL"[k % 4], "material": f"m{k % 5}", "scan_width_m": 0.3 + 0.1 * (k % 3),
-             "height_m": 0.15, "stroke_m": 0.04, "depth_m": 0.5, "seed": k}
-        pairs.append((s, _result(img, bool(leg), 0.6 + (0.1 if leg else -0.1), 0.6,
-                                 q_otsu_separability=float(rng.random()))))
-    data = legibility_set(pairs)
-    plan = fold_plan(data)
-    for f in plan:  # no group of a fold's test samples is in its training samples
-        g = data.groups[f["split"]]
-        assert not set(g[f["test"]]) & set(g[~f["test"]])
-    done = []
-    ens, splits, details = validate_legibility(data, epochs=2, workers=1,
-                                               progress=lambda d, t: done.append((d, t)))
-    assert done[-1] == (len(plan), len(plan)) and len(ens.members) == len(plan)
-    assert set(splits) == set(SPLITS)
-    for name, s in splits.items():
-        assert set(s) == CONTRACT
-        assert all(0 <= v <= 1 for v in s.values())
-        assert sum(f["n_test"] for f in details[name]["folds"]) == len(data)
-    p = ens.predict_proba(x[:5])
-    assert p.shape == (5,) and np.all((p > 0) & (p < 1))
+    rows = study_volume_rows(pairs)
+    assert len(rows) == 3
+    assert [r["legible"] for r in rows] == [True, False, False]  # identified, IoU > box
+    assert [r["glyph"] for r in rows] == ["L", "L", "T"]
+    assert rows[0]["geometry"] == rows[1]["geometry"] != rows[2]["geometry"]
+    assert json.loads(rows[2]["geometry"])[-1] == 0.0
+    assert {r["material"] for r in rows} == {"m1"} and set(SPLITS) <= set(rows[0])
 
 
 def test_thinning_is_nested_binomial():

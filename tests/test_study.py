@@ -13,6 +13,7 @@ import numpy as np
 import pytest
 from scipy.ndimage import gaussian_filter
 
+import clnlos
 from clnlos.errors import ParameterError
 from clnlos.forward.geometry import letters_mask
 from clnlos.study.clarity import clarity_label, clarity_score, label_thresholds
@@ -140,7 +141,7 @@ TINY = StudyOptions(
     tilt_glyphs=("E", "T"), tilt_inversions=("lambertian", "known"),
     grid=replace(StudyGrid(), points=12, bin_width_s=64e-12, iterations=10,
                  density_per_m2=2e4),
-    label="tiny")
+    judge_twins=1, label="tiny")
 
 # the distributed runs: two materials, the Lambertian inversion, one point per sweep
 SMALL = replace(TINY, n_dataset=0, materials=TINY.materials[:2], inversions=("lambertian",),
@@ -229,15 +230,20 @@ def test_tiny_study_serial_and_dask_agree(tmp_path):
     _check_contract(res, TINY)
     # the legibility classifier: three held-out splits, the contract's keys, every glyph
     # reconstruction tested once per split; no real captures given: no thinning rows
-    assert set(res["classifier"]) == {"splits", "real_thinning"}
-    assert res["classifier"]["real_thinning"] == []
+    assert set(res["classifier"]) == {"splits", "volume_splits", "family", "real_thinning"}
+    assert res["classifier"]["real_thinning"] == [] and res["classifier"]["family"]["rows"] == []
     assert set(res["classifier"]["splits"]) == {"glyph", "geometry", "material"}
     for name, s in res["classifier"]["splits"].items():
         assert set(s) == {"balanced_accuracy", "auc", "ece", "majority", "baseline"}
         assert 0 <= s["balanced_accuracy"] <= 1 and 0 <= s["ece"] <= 1
-        folds = res["cnn"]["splits"][name]["folds"]
-        assert sum(f["n_test"] for f in folds) == res["cnn"]["n"] > 0
-    assert res["cnn"]["epochs"] == 3 and "cnn_seed_recipe" not in res
+        folds = res["judge"]["splits"][name]["folds"]
+        assert sum(f["n_test"] for f in folds) == res["judge"]["n"] > 0
+        vfolds = res["judge"]["volume_splits"][name]["folds"]
+        assert sum(f["n_test"] for f in vfolds) == res["judge"]["n_volume"] > res["judge"]["n"]
+    assert "cnn_seed_recipe" not in res
+    # the judge beside results.json answers for a volume of the study's own
+    judge = clnlos.legibility(np.stack([np.eye(12)] * 2), model=tmp_path / "serial")
+    assert 0 <= judge.p_legible <= 1 and judge.kind == "volume"
     assert res["labels"]["metric"] == "identification" and "fft_clarity" in res["metrics"]
     # resume: a rerun reads every sample from the cache; one file per distinct scene
     n_cached = len(sorted((tmp_path / "serial" / "cache").glob("*.npz")))

@@ -41,6 +41,8 @@ COMMANDS = {
     "brdf": ("clnlos.app.brdf_command", "brdf_arguments",
              "fit, tabulate and plot BRDF models"),
     "study": ("clnlos.app.study_command", "study_arguments", "the material study (main job)"),
+    "legibility": ("clnlos.app.legibility_command", "legibility_arguments",
+                   "P(legible) of captures or reconstructions by a study's trained judge"),
     "bench": ("clnlos.app.bench_command", "bench_arguments",
               "accuracy versus time of every kernel knob (bench.json, bench.html)"),
 }

@@ -24,7 +24,8 @@ def cmd_study(args) -> int:
         integer("--workers", args.workers, 1, MAX_WORKERS)
     if args.scheduler is not None:
         check_scheduler_address("--scheduler", args.scheduler)
-    require("torch", "clnlos study (its CNN)")
+    if args.labels != "legibility":
+        require("torch", f"clnlos study --labels {args.labels} (the seed recipe's CNN)")
     if args.scheduler is not None or (args.workers or 2) > 1:
         require("distributed", "clnlos study with worker processes")
 
@@ -49,7 +50,7 @@ def cmd_study(args) -> int:
                   f"{i['chance']:.3f}, n {i['n']}) IoU {m['iou']:.3f} (box "
                   f"{m['iou_box_baseline']:.3f}) label {m['label']} CNN {m['cnn_label']} "
                   f"seed {m['seed_label']}")
-    print(f"labels {res['labels']['source']}; legibility CNN on held-out splits: " + "; ".join(
+    print(f"labels {res['labels']['source']}; legibility judge on held-out splits: " + "; ".join(
         f"{k} balanced accuracy {v['balanced_accuracy']:.3f} (one-feature baseline "
         f"{v['baseline']:.3f}), AUC {v['auc']:.3f}, ECE {v['ece']:.3f}"
         for k, v in res["classifier"]["splits"].items()))

@@ -74,8 +74,7 @@ QUICK_GRID = StudyGrid(points=24, bin_width_s=64e-12)
 @dataclass
 class StudyOptions:
     n_dataset: int = 200                # extra random reconstructions (metric validation)
-    epochs: int | None = None           # the CNNs' (None: SEED_EPOCHS for the seed's recipe,
-    #                                     LEGIBILITY_EPOCHS for the legibility classifier)
+    epochs: int | None = None           # the seed recipe's CNN (None: SEED_EPOCHS)
     grid: StudyGrid = field(default_factory=StudyGrid)
     materials: list[str] | None = None  # default: the ten presets
     seeds: int = 2                      # noise realisations per material, glyph, geometry
@@ -105,6 +104,7 @@ class StudyOptions:
     tilt_materials: tuple[str, ...] = TILT_MATERIALS
     tilt_glyphs: tuple[str, ...] | None = None  # default: glyphs
     tilt_inversions: tuple[str, ...] = INVERSIONS
+    judge_twins: int = 16               # twin scenes per twin geometry (clnlos.study.twins)
 
     @classmethod
     def quick(cls) -> StudyOptions:
@@ -124,7 +124,7 @@ class StudyOptions:
                    geometry_sweep_materials=(SWEEP_MATERIALS[0], SWEEP_MATERIALS[-1]),
                    sweeps={"scan_width_m": (0.3, 0.6, 0.8), "depth_m": (0.3, 0.5, 0.7),
                            "slab_thickness_m": (0.0, 0.0254, 0.0508)}, label="quick",
-                   transport="confocal")
+                   transport="confocal", judge_twins=8)
 
     def validate(self) -> StudyOptions:
         if self.labels not in LABEL_METRICS:
@@ -133,6 +133,8 @@ class StudyOptions:
             raise ParameterError("--method", self.grid.method, ", ".join(method_names()))
         if self.grid.snr_rule not in SNR_RULES:  # every method it is valid for (StudyGrid)
             raise ParameterError("snr_rule", self.grid.snr_rule, ", ".join(SNR_RULES))
+        if self.judge_twins < 1:
+            raise ParameterError("judge_twins", self.judge_twins, ">= 1")
         if self.n_dataset < 0:
             raise ParameterError("--n-dataset", self.n_dataset, ">= 0")
         if self.seeds < 1:

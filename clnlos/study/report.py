@@ -127,7 +127,7 @@ def findings_html(results) -> str:
         f"{f['corr_nr_clarity_vs_identified']:+.2f}, the seed's FFT clarity "
         f"{f['corr_clarity_vs_identified']:+.2f}; against IoU: FFT clarity "
         f"{f['corr_clarity_vs_iou_dataset']:+.2f}.")
-    items.append("The legibility classifier held out by " + "; ".join(
+    items.append("The legibility judge held out by " + "; ".join(
         f"{k}: balanced accuracy {v['balanced_accuracy']:.2f} (one feature "
         f"{v['baseline']:.2f}), AUC {v['auc']:.2f}, ECE {v['ece']:.3f}"
         for k, v in results["classifier"]["splits"].items()) + ".")
@@ -438,8 +438,9 @@ def write_report(out_dir, results, plan, res, real=None) -> None:
                                            real["figure"])
                                    if real is not None and real.get("figure") is not None
                                    else [])]),
-        _section("The legibility classifier", classifier_section(
-            results, None if real is None else real.get("thinning"), _table, png_base64)),
+        _section("The legibility judge", classifier_section(
+            results, None if real is None else real.get("thinning"), _table, png_base64,
+            None if real is None else [r for r in real.get("family", ()) if "mip" in r])),
         _section("The material table under both transports",
                  _transport_section(results.get("transport_comparison"))),
         _section("Methods: resolution, metrics, BRDFs", [

@@ -21,13 +21,17 @@ The question is answered with legibility, not with how well a blob covers the ta
 5. Measured resolution (:mod:`clnlos.study.resolution`) and a real capture beside its
    simulation (:mod:`clnlos.study.real_capture`), when a folder of the real CDT captures
    is given (``real_data``, ``--real-data DIR``: its ``cdt/*.mat``).
-6. The legibility classifier (torch CNN, CPU, seeded; :mod:`clnlos.study.classify`,
-   :mod:`clnlos.study.heldout`) trained on every reconstruction with ground truth to give
-   P(legible) (identified and IoU above the box baseline), validated on held-out glyphs,
-   geometries and materials against the majority and a one-feature baseline, and applied to
-   the real captures thinned to fewer photons (:mod:`clnlos.study.thinning_real`);
-   ``--labels fft`` / ``nr`` add the seed's recipe (FFT clarity / no-reference terciles),
-   whose three classes label the materials.
+6. The legibility judge (:mod:`clnlos.study.judge_study`): a calibrated logistic model on
+   scale- and position-invariant measured features (:mod:`clnlos.study.judge_features`),
+   the agreement of two binomial photon halves' reconstructions among them, trained on
+   simulated twins of the real CDT and LCT capture families (:mod:`clnlos.study.twins`)
+   to give P(legible) (identified and IoU above the box baseline), validated on held-out
+   glyphs, geometries and materials against the majority and a one-feature baseline and by
+   family on every real capture's thinning ladder (:mod:`clnlos.study.judge_real`), saved
+   as judge.json (``clnlos legibility FILE... --model STUDY_DIR``) and applied to the real
+   captures thinned to fewer photons (:mod:`clnlos.study.thinning_real`);
+   ``--labels fft`` / ``nr`` add the seed's recipe (a torch CNN, :mod:`clnlos.study.classify`:
+   FFT clarity / no-reference terciles), whose three classes label the materials.
 7. With ``transport = "both"`` (``--transport both``): the materials at the legible geometry
    under the bistatic transport too (Eq. 8 in full, :mod:`clnlos.study.transport_compare`),
    their table and ranks under both and the rank correlation. Everything else is simulated
@@ -59,6 +63,7 @@ from clnlos.brdf.presets import preset_table
 from clnlos.errors import ParameterError
 from clnlos.io.files import atomic_path
 from clnlos.io.outputs import stamp
+from clnlos.io.progress import counter, progress_bar
 from clnlos.study.clarity import label_thresholds
 from clnlos.study.dataset import cpu_workers
 from clnlos.study.findings import (  # noqa: F401 (the names past make_findings: re-exported)
@@ -96,6 +101,7 @@ from clnlos.study.plan import (  # noqa: F401 (the plan's names: re-exported)
     noise_seed,
     study_plan,
 )
+from clnlos.study.judge_study import study_judge
 from clnlos.study.quality import METRICS, pearson, validate_metrics
 from clnlos.study.real_materials import RealPlan, real_capture_paths, real_materials
 from clnlos.study.report import write_report
@@ -117,7 +123,6 @@ from clnlos.study.sections import (  # noqa: F401 (re-exported)
     samples_labels,
     study_cost,
     train_cnn,
-    train_legibility,
     transport_comparison,
 )
 from clnlos.study.sweeps import (  # noqa: F401 (re-exported)
@@ -186,14 +191,18 @@ def run_study(out_dir: Path, opts: StudyOptions, *, workers: int | None = None,
                                           device=device)
         timings["transport_s"] = time.perf_counter() - t0
 
-    # -- CNN: the legibility classifier on every reconstruction with ground truth (each
-    #    rendered plan's) and, for --labels fft / nr, the seed's recipe, whose classes then
-    #    label the materials
+    # -- the legibility judge (simulated twins and every rendered reconstruction with ground
+    #    truth) and, for --labels fft / nr, the seed's recipe, whose classes then label the
+    #    materials
     t0 = time.perf_counter()
     rendered = [(plan, results)] + ([] if comparison is None else
                                     [(comparison["plan"], comparison["results"])])
-    legibility, classifier_splits, cnn = train_legibility(
-        [(s, r) for p, rs in rendered for (_, s), r in zip(p, rs, strict=True)], opts, nw)
+    with progress_bar(None, "legibility judge twins", "scene") as bar:
+        legibility, classifier, judge, family = study_judge(
+            [(s, r) for p, rs in rendered for (_, s), r in zip(p, rs, strict=True)], out_dir,
+            per_geometry=opts.judge_twins, seed=opts.seed, cache=cache,
+            real_root=opts.real_data, device=device, progress=counter(bar))
+    classifier_splits = classifier["splits"]
     predict, seed_cnn = legibility.predict_proba, None
     labels = samples_labels(results, cnn_samples(plan, label_metric), label_metric,
                              thresholds)
@@ -269,10 +278,10 @@ def run_study(out_dir: Path, opts: StudyOptions, *, workers: int | None = None,
         "real_capture": None if real is None else real["summary"],
         "real_captures_cnn": None if real is None else [
             {k: v for k, v in c.items() if k != "mip"} for c in real["cnn"]],
-        "classifier": {"splits": classifier_splits, "real_thinning": [] if real is None else [
+        "classifier": {**classifier, "real_thinning": [] if real is None else [
             {k: r[k] for k in ("capture", "fraction", "photons", "p_legible")}
             for r in real["thinning"]]},
-        "cnn": cnn, **({} if seed_cnn is None else {"cnn_seed_recipe": seed_cnn}),
+        "judge": judge, **({} if seed_cnn is None else {"cnn_seed_recipe": seed_cnn}),
         "labels": {"source": opts.labels, "metric": label_metric,
                    "corr_with_iou": validation[label_metric]["iou"]
                    if label_metric in validation else pearson(truth["identified"],
@@ -300,6 +309,8 @@ def run_study(out_dir: Path, opts: StudyOptions, *, workers: int | None = None,
             "geometry": LEGIBLE_GEOMETRY}
     t0 = time.perf_counter()
     results_json["cost"] = study_cost(plan, results, timings, comparison)
+    if real is not None:
+        real["family"] = family  # the family split's MIPs, for the report's figure
     write_report(out_dir, results_json, plan, results, real)
     timings["report_s"] = time.perf_counter() - t0
     results_json["cost"] = study_cost(plan, results, timings, comparison)

@@ -1,5 +1,5 @@
-"""The study's sections beyond its tables: the legibility classifier and the seed's CNN
-recipe (:func:`train_legibility`, :func:`train_cnn`), the real captures
+"""The study's sections beyond its tables: the seed's CNN recipe (:func:`train_cnn`; the
+legibility judge is :mod:`clnlos.study.judge_study`), the real captures
 (:func:`real_data_study`), the transport comparison (:func:`transport_comparison`) and where the
 time went (:func:`study_cost`)."""
 
@@ -13,15 +13,8 @@ from pathlib import Path
 import numpy as np
 
 from clnlos.io.progress import counter, progress_bar
-from clnlos.study.classify import LEGIBILITY_EPOCHS, SEED_EPOCHS, train_classifier
+from clnlos.study.classify import SEED_EPOCHS, train_classifier
 from clnlos.study.dataset import StudyGrid
-from clnlos.study.heldout import (
-    BASELINE_FEATURES,
-    SPLIT_FOLDS,
-    fold_plan,
-    legibility_set,
-    validate_legibility,
-)
 from clnlos.study.plan import HELD_OUT_GLYPHS, HELD_OUT_HEIGHT_M, StudyOptions, comparison_plan
 from clnlos.study.real_capture import (
     PUBLISHED_SCAN_WIDTH_M,
@@ -69,24 +62,6 @@ def train_cnn(plan, results, opts: StudyOptions, label_metric: str, thresholds):
                                            val_mask=held)
     report["held_out"] = {"glyphs": list(HELD_OUT_GLYPHS), "letter_height_m": HELD_OUT_HEIGHT_M}
     return predict, report, labels
-
-
-def train_legibility(pairs, opts: StudyOptions, workers: int = 1):
-    """The legibility classifier on every (sample, result) pair with ground truth (any plan:
-    pass every reconstruction the study made) and its held-out validation
-    (:func:`clnlos.study.heldout.validate_legibility`). Returns (the ensemble of the folds'
-    networks, results.json ``classifier.splits``, results.json ``cnn``: the details)."""
-    data = legibility_set(pairs)
-    epochs = opts.epochs or LEGIBILITY_EPOCHS
-    with progress_bar(len(fold_plan(data, opts.seed)), "study CNN", "network") as bar:
-        ensemble, splits, details = validate_legibility(
-            data, epochs=epochs, seed=opts.seed, workers=workers, progress=counter(bar))
-    report = {"label": "legible: identified by the template rule and IoU above the box "
-                       "baseline", "second_head": "IoU - box baseline IoU",
-              "epochs": epochs, "n": len(data), "legible": int(data.legible.sum()),
-              "split_folds": dict(SPLIT_FOLDS), "baseline_features": list(BASELINE_FEATURES),
-              "networks": len(ensemble.members), "splits": details}
-    return ensemble, splits, report
 
 
 def real_capture_dir(root: Path | None) -> Path | None:
