@@ -208,8 +208,9 @@ def _photons_panel(ax, results, real_rows) -> None:
     ax.set_yticklabels([r[0] for r in rows][::-1], fontsize=6.5)
     ax.set(xlim=(x_min, x_max), ylim=(-0.6, len(rows) - 0.4),
            xlabel="photons detected per capture",
-           title=f"photons needed for identification >= {LEGIBLE_ACCURACY:g}\n"
-                 "(bar: last short - first legible; arrow: beyond the sweep)")
+           title=f"photons needed for identification >= {LEGIBLE_ACCURACY:g} (simulated);\n"
+                 "real (*): to keep the full-photon image (bar: last short - first "
+                 "legible; arrow: beyond)")
     ax.title.set_fontsize(9)
 
 
@@ -273,7 +274,31 @@ def headline_findings(results) -> list[str]:
     if parts:
         out.append(f"Exposure per scan point needed for identification >= "
                    f"{LEGIBLE_ACCURACY:g} (best inversion): " + "; ".join(parts) + ".")
+    real = real_materials_finding(results)
+    if real:
+        out = [real, *out[:4]]
     return [html.escape(s) for s in out[:5]]
+
+
+def real_materials_finding(results) -> str | None:
+    """The real captures' answer (``results["real_materials"]``: the diffuse S against the
+    retroreflective S of the same rig, and what their simulated twins predict), one sentence."""
+    section = results.get("real_materials") or {}
+    rows = [h for h in section.get("headline", ()) if h.get("ratio") is not None]
+    if not rows:
+        return None
+    h = rows[0]
+    lo, hi = h["ratio_range"]
+    text = (f"On real captures of one rig (O'Toole et al. 2018), the diffuse S needs "
+            f"{h['ratio']:.0f}x [{lo:.0f}, {hi:.0f}] the photons of the retroreflective S to "
+            f"keep its image ({h['diffuse']['photons']:.2g} against "
+            f"{h['retroreflective']['photons']:.2g}, {h['inversion'].upper()})")
+    twins = [t for t in section.get("twin_headline", ()) if t.get("ratio") is not None]
+    if twins:
+        t = twins[0]
+        text += (f"; their simulated twins predict {t['ratio']:.0f}x "
+                 f"[{t['ratio_range'][0]:.0f}, {t['ratio_range'][1]:.0f}]")
+    return text + "."
 
 
 def headline_html(results, png, real_rows=None) -> str:

@@ -64,7 +64,7 @@ SERIES_SEED = 4700          # first seed of the thinning series
 CATALOG = {
     "data_diffuse_s": ("lct", "diffuse", "S"),
     "data_s_u": ("lct", "retroreflective", "S and U"),
-    "data_outdoor_s": ("lct", "retroreflective", "S, outdoors in sunlight"),
+    "data_outdoor_s": ("lct", "retroreflective", "S outdoors (sunlight)"),
     "data_resolution_chart_40cm": ("lct", "retroreflective", "resolution chart at 40 cm"),
     "data_dot_chart_40cm": ("lct", "retroreflective", "dot chart at 40 cm"),
     "letters_ut": ("cdt", "as captured (not stated)", "UT behind the slab"),
@@ -434,11 +434,12 @@ def headline_rows(section: dict) -> list[list]:
     for c in section["captures"]:
         r = _best_row(c)
         if r is None:
-            out.append([f"{c['target']} ({c['material']})", None, [c["photons"], None]])
+            out.append([f"{c['target'].split(',')[0]}, {c['material'].split(' (')[0]}", None,
+                        [c["photons"], None]])
             continue
         lo, hi = r["photons_needed_range"]
         floor = c["photons"] * min(c["fractions"])
-        out.append([f"{c['target']} ({c['material']}, {r['reflectance']})",
+        out.append([f"{c['target'].split(',')[0]}, {c['material'].split(' (')[0]}",
                     r["photons_needed"], [None if lo <= floor * 1.0001 else lo, hi]])
     return out
 
