@@ -471,6 +471,26 @@ def section_figure(section: dict):
     return fig
 
 
+def _blob_sentence(section: dict) -> str:
+    """Where the blob control reaches the keep level (the score cannot tell the image from
+    a blob there), said; else that it stays below on every capture."""
+    bad = [c["name"] for c in section["captures"] if not c["blob_fails"]]
+    if not bad:
+        return ", below the keep level on every capture."
+    return (", below the keep level except on " + ", ".join(bad) + " (there the score "
+            "cannot tell the image from a blob: read their rows as upper bounds).")
+
+
+def _twin_pairs(section: dict) -> list[str]:
+    """Per twin, the photons its best LCT variant needs, as text."""
+    out = []
+    for t in section.get("twins", ()):
+        r = _best_row(t)
+        out.append("not kept at full photons" if r is None else
+                   f"{r['photons_needed']:.3g} photons ({r['reflectance']})")
+    return out
+
+
 def section_html(section: dict, out_dir, png=None) -> str:
     """The report's real-materials section: the headline ratio, the photons-needed table,
     the chart resolutions, the figure (``png(fig)``: base64 PNG, when given)."""
@@ -479,8 +499,8 @@ def section_html(section: dict, out_dir, png=None) -> str:
            "(light-cone transform release and CDT captures)</summary>",
            f"<p>Score: {esc(section['score'])}; photons needed = where the score first "
            "falls below the keep level along nested binomial thinnings (median and range "
-           f"over {section['plan']['seeds']} series). A blurred blob of the reference scores "
-           "below it on every capture (blob column).</p>"]
+           f"over {section['plan']['seeds']} series). The blob column: the score of the "
+           "reference blurred to a blob" + _blob_sentence(section) + "</p>"]
     for h in section["headline"]:
         if h.get("ratio") is not None:
             lo, hi = h["ratio_range"]
@@ -506,15 +526,27 @@ def section_html(section: dict, out_dir, png=None) -> str:
     out.append("<div class='tab'><table><tr>" + "".join(f"<th>{esc(h)}</th>" for h in head)
                + "</tr>" + "".join("<tr>" + "".join(f"<td>{esc(str(v))}</td>" for v in r)
                                    + "</tr>" for r in rows) + "</table></div>")
+    for t, h in zip(section.get("twins", ()), _twin_pairs(section), strict=False):
+        out.append(f"<p>Simulated twin of {esc(t['name'])} ({esc(t['material'])}): "
+                   f"{t['twin']['photons']:.3g} photons (real {t['real']['photons']:.3g}), peak "
+                   f"{t['twin']['peak_time_s'] * 1e9:.2f} ns (real "
+                   f"{t['real']['peak_time_s'] * 1e9:.2f} ns), FWHM "
+                   f"{t['twin']['temporal_fwhm_s'] * 1e9:.2f} ns (real "
+                   f"{t['real']['temporal_fwhm_s'] * 1e9:.2f} ns); needs {h}.</p>")
+    for h in section.get("twin_headline", ()):
+        if h.get("ratio") is not None:
+            lo, hi = h["ratio_range"]
+            out.append(f"<p><b>The twins predict {h['ratio']:.3g}x</b> (range {lo:.3g}-"
+                       f"{hi:.3g}).</p>")
     for ch in section["charts"]:
         def cm(v):
             return "-" if v is None else f"{100 * v:.1f} cm"
         out.append(f"<p>{esc(ch['name'])} at {ch['chart_depth_m']:.3f} m: smallest resolved "
                    f"spacing {cm(ch['smallest_resolved_m'])}, smallest unresolved "
                    f"{cm(ch['smallest_unresolved_m'])}; O'Toole's lateral bound "
-                   f"{cm(ch['lateral_bound_m'])} (temporal FWHM "
+                   f"{cm(ch['lateral_bound_m'])} (the system's temporal FWHM "
                    f"{0 if ch['temporal_fwhm_s'] is None else ch['temporal_fwhm_s'] * 1e12:.0f}"
-                   f" ps at its brightest point; {esc(ch['criterion'])}).</p>")
+                   f" ps, measured on the direct reflection; {esc(ch['criterion'])}).</p>")
     if png is not None and section["captures"]:
         out.append("<img alt='real captures: reference front views and score against photons'"
                    f" src='data:image/png;base64,{png(section_figure(section))}'/>")
