@@ -19,21 +19,17 @@ grid and light-cone physics), :mod:`clnlos.diffusion` (the slab transmittance, s
 Array axis order everywhere: transients ``[t, y, x]``, volumes ``[z, y, x]``; SI units.
 """
 
-__version__ = "0.2.0"
+import importlib
 
-C0 = 299_792_458.0
-"""Speed of light in vacuum, m/s."""
-
-import importlib  # noqa: E402
-
-# the API after the constants its modules import from here
-from clnlos.api import (  # noqa: E402
+from clnlos.api import (
     plot_volume,
     read_capture,
     reconstruct,
     reconstruction_config,
     simulate,
 )
+from clnlos.physics.constants import C0  # the speed of light (m/s), stated there
+from clnlos.version import __version__  # stated there (pyproject reads it)
 
 __all__ = ["C0", "__version__", "plot_volume", "read_capture", "reconstruct",
            "reconstruction_config", "simulate", "study"]

@@ -10,6 +10,7 @@ from __future__ import annotations
 
 import os
 import time
+import warnings
 from collections.abc import Callable, Mapping
 from typing import TYPE_CHECKING, Any
 
@@ -18,26 +19,36 @@ import pyopencl as cl
 from numpy.typing import DTypeLike
 
 from clnlos.config import (
+    FIELD_NAMES,
     ReconstructionConfig,
     Slab,
     check_light_in_window,
+    drop_other_methods_settings,
     load_toml,
+    plausibility_warnings,
+    python_keywords,
     slab_from_table,
 )
-from clnlos.errors import InputFileError, ParameterError
+from clnlos.errors import InputFileError, MissingParameterError, ParameterError
 from clnlos.forward.model import ForwardModel
 from clnlos.forward.scene import Scene
 from clnlos.inverse.pipeline import Reconstruction, resolve_geometry, setup_slab
 from clnlos.inverse.pipeline import reconstruct as run_pipeline
-from clnlos.io.capture import Capture
+from clnlos.io.capture import Capture, without_direct
 from clnlos.io.figures import volume_axes
 from clnlos.io.files import read_capture as read_any
 from clnlos.io.files import read_volume
+from clnlos.io.formats.common import validate_transient
 from clnlos.io.outputs import provenance
 from clnlos.runtime.device import get_queue
 
 if TYPE_CHECKING:  # annotations only: matplotlib is imported when a figure is drawn
     from matplotlib.axes import Axes
+
+class PlausibilityWarning(UserWarning):
+    """A geometry value implausible for a lab NLOS capture (a unit slip?), or one the user
+    gave that contradicts the capture's (``clnlos.config.plausibility_warnings``)."""
+
 
 PathLike = str | os.PathLike
 Device = str | cl.CommandQueue | None  # a device spec ("cpu", "0:0", "pocl") or a queue
@@ -96,6 +107,7 @@ def simulate(scene: PathLike | Scene | Mapping[str, Any], *, dtype: DTypeLike = 
 def reconstruction_config(config: PathLike | Mapping[str, Any] | ReconstructionConfig | None
                           = None, *, method: str | None = None,
                           names: Mapping[str, str] | None = None,
+                          notes: list[str] | None = None,
                           **options: Any) -> ReconstructionConfig:
     """The validated reconstruction parameters: ``config`` (a TOML path, its parsed table or a
     ``clnlos.config.ReconstructionConfig``; default the built-in defaults), then
@@ -103,7 +115,9 @@ def reconstruction_config(config: PathLike | Mapping[str, Any] | ReconstructionC
     e.g. ``snr=1e5``, ``iterations=50``, ``slab={"thickness_m": 0.0254, ...}``) over it.
 
     A field the method does not read is refused, naming it as ``names`` says (the CLI passes
-    its flags) or as the option's name."""
+    its flags) or as the option's name; where ``method`` overrides the config's, the config's
+    settings for its own method are left unused instead, with a note appended to ``notes``
+    (``clnlos.config.drop_other_methods_settings``)."""
     unknown = sorted(set(options) - set(CONFIG_FIELDS))
     if unknown:
         raise ParameterError(unknown[0], options[unknown[0]],
@@ -129,16 +143,35 @@ def reconstruction_config(config: PathLike | Mapping[str, Any] | ReconstructionC
             changes.setdefault("n_dipoles", nd)
     given = {**ReconstructionConfig.given_fields(table),
              **{f: f for f in changes if f != "method"}, **(names or {})}
-    return cfg.replace(**changes).validate(given)
+    cfg = cfg.replace(**changes)
+    if method is not None or "method" in options:  # the file's other method's settings
+        said = (names or {}).get("method")
+        said = f"{said} {cfg.method}" if said else f"method={cfg.method!r}"
+        file_fields = {f: n for f, n in ReconstructionConfig.given_fields(table).items()
+                       if f not in changes}
+        cfg, unused, dropped = drop_other_methods_settings(cfg, file_fields, said)
+        given = {f: n for f, n in given.items() if f not in unused}
+        if notes is not None:
+            notes.extend(dropped)
+    return cfg.validate(given)
 
 
 def check_capture(capture: Capture, config: ReconstructionConfig, *,
                   names: Mapping[str, str] | None = None) -> None:
     """The checks a reconstruction runs on a capture before any work: its geometry and time
-    window (``clnlos.inverse.pipeline.resolve_geometry``), some signal, light inside the
-    kept window (``clnlos.config.check_light_in_window``)."""
+    window (``clnlos.inverse.pipeline.resolve_geometry``), a ``PlausibilityWarning`` per
+    implausible or contradicting geometry value (``clnlos.config.plausibility_warnings``),
+    some signal, light inside the kept window (``clnlos.config.check_light_in_window``)."""
     names = dict(names or {})
-    bw, start, _ = resolve_geometry(capture, config, names=names)
+    capture, _ = without_direct(capture, config.direct_cut_s)
+    bw, start, sw = resolve_geometry(capture, config, names=names)
+    given = {f: names.get(f, FIELD_NAMES[f]) for f in ("scan_width_m", "bin_width_s", "start_s")
+             if getattr(config, f) is not None}
+    for line in plausibility_warnings(
+            nt=capture.transient.shape[0], bin_width_s=bw, start_s=start, scan_width_m=sw,
+            recorded={"scan_width_m": capture.scan_width_m, "bin_width_s": capture.bin_width_s,
+                      "start_s": capture.start_s}, given=given):
+        warnings.warn(line, PlausibilityWarning, stacklevel=3)
     if not np.any(capture.transient):
         raise InputFileError(f"{capture.source or 'the capture'}: the capture holds no signal "
                              "(all zero): nothing to reconstruct")
@@ -168,7 +201,9 @@ def reconstruct(capture: Capture | PathLike, method: str | None = None, *,
                 **options: Any) -> Reconstruction:
     """Reconstruct the hidden albedo volume of a capture, as ``clnlos reconstruct`` does.
 
-    ``capture``: a ``clnlos.io.capture.Capture`` or a file path (``read_capture``).
+    ``capture``: a ``clnlos.io.capture.Capture``, a file path (``read_capture``) or a NumPy
+    array ``[t, y, x]`` of counts with ``bin_width_s=`` (s) and ``scan_width_m=`` (m) among the
+    options (its start: t = 0 at bin 0 unless ``start_s=``).
     ``method``: ``"lct"`` (light-cone transform), ``"fk"`` (f-k migration) or
     ``"iterative"`` (regularised inversion of the light-cone operator; default the config's,
     else ``"lct"``). ``config`` and ``options``: ``reconstruction_config``. Without a slab
@@ -179,10 +214,18 @@ def reconstruct(capture: Capture | PathLike, method: str | None = None, *,
     Returns a ``clnlos.inverse.pipeline.Reconstruction``: ``volume`` ``[z, y, x]``
     (albedo, a.u.; depth bin k spans [k, k + 1) c dt / 2 behind the scan plane), ``extents``
     (m), ``params`` (the SNRs and rules that ran), ``notes``, ``timings_s``."""
-    if not isinstance(capture, Capture):
-        capture = read_capture(capture)
-    cfg = reconstruction_config(config, method=method, names=names, **options)
-    check_capture(capture, cfg, names=names)
+    python = names is None  # a Python caller: its messages name keywords, not flags
+    capture = as_capture(capture)
+    config_notes: list[str] = []
+    cfg = reconstruction_config(config, method=method, names=names, notes=config_notes,
+                                **options)
+    try:
+        check_capture(capture, cfg, names={f: f for f in options} if python else names)
+    except MissingParameterError as exc:
+        if not python:
+            raise
+        raise MissingParameterError(python_keywords(exc.name),
+                                    python_keywords(exc.allowed)) from None
     cfg, note = with_slab(cfg, capture, no_slab=no_slab)
     if note and log is not None:
         log(note)
@@ -191,7 +234,30 @@ def reconstruct(capture: Capture | PathLike, method: str | None = None, *,
                        setup=setup)
     if note and log is None:
         rec.notes.insert(0, note)
+    rec.notes[:0] = config_notes
+    if cfg.method == "iterative" and cfg.iterations == 0:
+        rec.notes.append("--iterations 0: no iteration ran; the volume is the iterative "
+                         "method's warm start (its LCT reconstruction)")
+    if python:
+        rec.notes[:] = [python_keywords(n) for n in rec.notes]
     return rec
+
+
+def as_capture(capture: Any) -> Capture:
+    """``capture`` as a Capture: a Capture as it is, a path read (``read_capture``), a NumPy
+    array ``[t, y, x]`` wrapped without geometry (``reconstruct`` then needs
+    ``bin_width_s=`` and ``scan_width_m=``); anything else a TypeError naming the argument."""
+    if isinstance(capture, Capture):
+        return capture
+    if isinstance(capture, np.ndarray):
+        return Capture(validate_transient(capture, "the array"), None, 0.0, None,
+                       "the array", {"scan_width_unknown": "an array does not store the scan "
+                                                           "width"})
+    if isinstance(capture, str | os.PathLike):
+        return read_capture(capture)
+    raise TypeError(f"capture: expected a clnlos Capture (clnlos.simulate, "
+                    f"clnlos.read_capture), a capture file path, or a NumPy array [t, y, x] "
+                    f"with bin_width_s= and scan_width_m=; got {type(capture).__name__}")
 
 
 def plot_volume(volume: Reconstruction | np.ndarray | PathLike, ax: Axes | None = None, *,
@@ -209,7 +275,13 @@ def plot_volume(volume: Reconstruction | np.ndarray | PathLike, ax: Axes | None 
         vol, ext = volume.volume, volume.extents
     elif isinstance(volume, np.ndarray):
         vol, ext = volume, extents
-    else:
+    elif isinstance(volume, str | os.PathLike):
         vol, ext, _ = read_volume(volume)
+    else:
+        hint = (" (a capture: reconstruct it first, clnlos.reconstruct(capture))"
+                if isinstance(volume, Capture) else "")
+        raise TypeError(f"volume: expected a Reconstruction (clnlos.reconstruct), a volume "
+                        f"array [z, y, x] or a volume file path; got "
+                        f"{type(volume).__name__}{hint}")
     return volume_axes(np.asarray(vol), dict(ext) if ext else None, ax=ax, view=view,
                        gamma=gamma, log=log, colorbar=colorbar)

@@ -10,6 +10,7 @@ import difflib
 import math
 import numbers
 import os
+import tomllib
 from pathlib import Path
 from typing import Any
 
@@ -88,3 +89,39 @@ def input_file(path: str | os.PathLike, what: str = "") -> Path:
     if p.exists():
         raise InputFileError(f"{p}: not a regular {what}file")
     raise InputFileError(f"{p}: no such {what}file")
+
+
+# The one range table of the capture geometry (SI units): (low, high, low allowed). The flags,
+# the [capture] table and the values read from capture files are all checked against it.
+GEOMETRY_LIMITS: dict[str, tuple[float, float, bool]] = {
+    "scan_width_m": (0.0, 1e3, False),   # side of the scanned area along x (m), > 0
+    "bin_width_s": (0.0, 1e-6, False),   # histogram bin (s), > 0
+    "start_s": (-1e-3, 1e-3, True),      # start of bin 0, round trip (s)
+}
+
+
+def check_keys(section: str, table: dict, allowed) -> None:
+    """Unknown keys are an error that names the key and suggests the closest known one."""
+    allowed = sorted(allowed)
+    extra = sorted(set(table) - set(allowed))
+    if extra:
+        raise ParameterError(f"{section}.{extra[0]}" if section else extra[0], table[extra[0]],
+                             "one of the known keys: " + ", ".join(allowed)
+                             + did_you_mean(extra[0], allowed))
+
+
+def check_geometry(field: str, value, name: str | None = None) -> float:
+    """A capture geometry value (``field`` of :data:`GEOMETRY_LIMITS`) checked against the
+    one range table; the ParameterError names ``name`` (default: the field)."""
+    lo, hi, lo_allowed = GEOMETRY_LIMITS[field]
+    if lo_allowed:
+        return real(name or field, value, lo, hi)
+    return positive(name or field, value, upper=hi)
+
+
+def parse_toml(text: str) -> dict:
+    """TOML text to a dict; nesting too deep for the parser is a ValueError like bad syntax."""
+    try:
+        return tomllib.loads(text)
+    except RecursionError:
+        raise ValueError("nested too deeply") from None

@@ -7,6 +7,10 @@ optional and its default is the field default of :class:`ReconstructionConfig`::
     scan_width_m = 0.7           # side of the scanned area along x (pitch x columns)
     bin_width_s = 16e-12         # overrides the file
     start_s = 0.0                # time of the start of bin 0
+    direct_cut_s = 2.4e-9        # zero the window before this time (round trip, s): the
+                                 # direct reflection off the relay wall; default: what the
+                                 # capture records (the LCT release: the published 600 bins
+                                 # of 4 ps), 0 keeps everything
     [preprocess]
     max_path_m = 2.0             # keep round-trip path lengths c t below this
     bins = 128                   # rebin the kept window to this many bins (mass-conserving)
@@ -70,40 +74,137 @@ optional and its default is the field default of :class:`ReconstructionConfig`::
 
 A field that only some methods read (clnlos.inverse.methods.MethodEntry.reads: falloff for
 lct and fk, [inversion] snr for lct and iterative, iterations, l1_weight, tv_weight,
-depth_min_m, slab_model and brdf_terms for iterative) is refused when the user sets it
--- as a key of the TOML or as a flag -- for a method that does not read it.
+depth_min_m, slab_model and brdf_terms for iterative; brdf for iterative, and for lct and fk
+its "lambertian" and "retroreflective") is refused when the user sets it
+-- as a key of the TOML or as a flag -- for a method that does not read it; where a flag
+(``--method``) or keyword (``method=``) changes the method over a TOML written for another,
+the TOML's settings for its own method are left unused instead, with a note
+(:func:`drop_other_methods_settings`).
 """
 
 from __future__ import annotations
 
 import dataclasses
-import tomllib
+import math
+import re
 from dataclasses import asdict, dataclass
 
 import numpy as np
 
-from clnlos import C0
 from clnlos.brdf.catalog import LAMBERTIAN, check_brdf_spec
-from clnlos.checks import (
+from clnlos.checks import (  # noqa: F401 (the capture checks: read from here too)
+    GEOMETRY_LIMITS,
     auto_or_positive,
+    check_geometry,
+    check_keys,
     choice,
     did_you_mean,
     input_file,
     integer,
+    parse_toml,
     positive,
     real,
 )
 from clnlos.errors import InputFileError, ParameterError
-from clnlos.inverse.methods import (
-    auto_snr_rule,
-    CLOSED_FORM_BRDFS,
-    default_falloffs,
-    method_names,
-    methods_reading,
-    split_rule,
-)
+from clnlos.physics.constants import C0
 from clnlos.physics.lobe import MAX_TERMS
-from clnlos.physics.slab import Slab
+from clnlos.physics.slab import SLAB_KEYS, Slab, slab_from_table, slab_table  # noqa: F401
+
+
+# ------------------------------------------------------------------ the methods
+@dataclass(frozen=True)
+class MethodEntry:
+    """A registered method: where its class lives, its default radiometric falloff (the
+    power of 1/r applied per bin before the inversion; None: the method has its own model),
+    a one-line summary for the CLI help, the split search that can choose its SNRs on
+    photon counts its slab model fits exactly (``split_rule``): "thinning" (a forward model
+    scores held-out photons, :mod:`clnlos.inverse.thinning`) or "reproducibility" (the
+    halves' thresholded images must agree, :mod:`clnlos.inverse.reproducibility`), and
+    what ``snr_rule = "auto"`` stands for there (``auto_snr_rule``: that search, or "gcv"
+    where the search does not earn its cost: the iterative method, whose thinning search
+    costs 2-3 more reconstructions for +0.001 mean IoU on the oracle table,
+    :mod:`clnlos.inverse.thinning`)."""
+
+    module: str
+    cls: str
+    falloff: float | None
+    summary: str
+    split_rule: str = "reproducibility"  # a method without a forward model has only this
+    auto_snr_rule: str = "gcv"
+    # the config fields of the inversion that only some methods read which this one reads
+    # (a user who sets one for a method that does not read it is told so: clnlos.config)
+    reads: tuple[str, ...] = ()
+    # the most time bins the method inverts when ``bins`` is not set: a longer capture's bins
+    # are summed in pairs until it fits (clnlos.inverse.pipeline.bins_for); None: all of them
+    max_bins: int | None = None
+
+    def __post_init__(self):
+        if self.split_rule not in ("thinning", "reproducibility"):
+            raise ValueError(f"split_rule {self.split_rule!r}: \"thinning\" or "
+                             "\"reproducibility\"")
+        if self.auto_snr_rule not in ("gcv", self.split_rule):
+            raise ValueError(f"auto_snr_rule {self.auto_snr_rule!r}: \"gcv\" or "
+                             f"{self.split_rule!r}")
+
+
+# the iterative method's default time grid: at most 512 bins, the published LCT code's grid of
+# the 2048-bin captures of O'Toole et al. (4 ps bins summed to 16 ps); each iteration costs
+# light-cone FFTs on a grid twice the bins deep (a 64 x 64 x 2048 capture took minutes)
+ITERATIVE_MAX_BINS = 512
+
+METHODS: dict[str, MethodEntry] = {
+    "lct": MethodEntry("clnlos.inverse.lct", "LCTMethod", 4.0,
+                       "light-cone transform with a Wiener filter (O'Toole et al. 2018)",
+                       "reproducibility", "reproducibility",
+                       ("falloff", "inversion_snr", "brdf")),
+    "fk": MethodEntry("clnlos.inverse.fk", "FKMethod", 2.0,
+                      "f-k (Stolt) migration (Lindell et al. 2019)", "reproducibility",
+                      "reproducibility", ("falloff", "brdf")),
+    "iterative": MethodEntry("clnlos.inverse.iterative", "IterativeMethod", None,
+                             "FISTA on the light-cone transport, L1 + TV, warm-started by "
+                             "LCT", "thinning", "gcv",
+                             ("inversion_snr", "iterations", "l1_weight", "tv_weight",
+                              "depth_min_m", "slab_model", "brdf", "brdf_terms"),
+                             ITERATIVE_MAX_BINS),
+}
+
+# LCT's and f-k's retroreflective variant (O'Toole et al. 2018, cnlos_reconstruction.m
+# ``isdiffuse = 0``): the radiometric exponent of a retroreflector whose cone the scanned spot
+# holds (1/r^2; clnlos.physics.retroreflector); ``brdf = "retroreflective"`` asks for it
+RETROREFLECTIVE_FALLOFF = 2.0
+# the reflectances LCT and f-k take (``brdf``): their falloff is all they model of it
+CLOSED_FORM_BRDFS = ("lambertian", "retroreflective")
+
+
+def method_names() -> tuple[str, ...]:
+    return tuple(METHODS)
+
+
+def auto_snr_rule(name: str) -> str:
+    """The rule ``snr_rule = "auto"`` stands for with the registered method ``name`` (on
+    photon counts its slab model fits exactly; :class:`MethodEntry`)."""
+    return METHODS[name].auto_snr_rule
+
+
+def methods_reading(field: str) -> tuple[str, ...]:
+    """The registered methods that read the method-specific config ``field``
+    (:attr:`MethodEntry.reads`; every method when no method lists it: a common field)."""
+    listed = tuple(n for n, e in METHODS.items() if field in e.reads)
+    if not listed and not any(field in e.reads for e in METHODS.values()):
+        return tuple(METHODS)
+    return listed
+
+
+def split_rule(name: str) -> str:
+    """The split search valid for the registered method ``name`` (``snr_rule`` by name;
+    :class:`MethodEntry`)."""
+    return METHODS[name].split_rule
+
+
+def default_falloffs() -> dict[str, float]:
+    """The falloff of each method that has one (``--falloff`` default per method)."""
+    return {name: e.falloff for name, e in METHODS.items() if e.falloff is not None}
+
 
 # falloff = None: the method's own radiometric exponent p of (t/T)^p (its registry entry):
 # LCT's suits diffuse (Lambertian) surfaces; for f-k the square root of the weighted
@@ -117,6 +218,7 @@ DEPTH_GUARD_M = 0.15  # "auto" support: first-arrival depth minus this (slab del
 # how "auto" SNRs are chosen (clnlos.inverse.pipeline; "auto": the method's, MethodEntry)
 SNR_RULES = ("auto", "gcv", "thinning", "reproducibility")
 SLAB_MODELS = ("influence", "none")  # iterative: how the slab deconvolution enters the model
+DIRECT_CUT_RANGE = (0.0, 1e-6)  # direct_cut_s: the window zeroed before this time (s)
 MAX_BINS = 1 << 16    # time bins of a reconstructed volume at most (--bins and the window)
 
 def snr_rule_applies(rule: str, method: str) -> bool:
@@ -130,19 +232,102 @@ def snr_rule_applies(rule: str, method: str) -> bool:
     return rule == split_rule(method)
 
 
-# The one range table of the capture geometry (SI units): (low, high, low allowed). The flags,
-# the [capture] table and the values read from capture files are all checked against it.
-GEOMETRY_LIMITS: dict[str, tuple[float, float, bool]] = {
-    "scan_width_m": (0.0, 1e3, False),   # side of the scanned area along x (m), > 0
-    "bin_width_s": (0.0, 1e-6, False),   # histogram bin (s), > 0
-    "start_s": (-1e-3, 1e-3, True),      # start of bin 0, round trip (s)
-}
+# Plausible geometry of a lab NLOS capture: a value past these is more likely a unit slip (cm
+# for m, ns for ps) than a scene, and gets one warning line (:func:`plausibility_warnings`).
+PLAUSIBLE_SCAN_WIDTH_M = 10.0    # side of the scanned area (m)
+PLAUSIBLE_DEPTH_M = 100.0        # depth the time window reaches, c (start + n dt) / 2 (m)
+# a value the user gives that differs from the one the capture gives by more than this
+# (relative) is said to contradict it
+CONTRADICTION_RTOL = 1e-3
+
+# config field -> its ``clnlos reconstruct`` flag (the CLI's RECON_FLAGS derive from it)
+FIELD_FLAGS: dict[str, str] = {
+    "scan_width_m": "--scan-width", "bin_width_s": "--bin-width",
+    "direct_cut_s": "--direct-cut", "snr": "--snr",
+    "snr_rule": "--snr-rule", "inversion_snr": "--inversion-snr", "falloff": "--falloff",
+    "max_path_m": "--max-path", "bins": "--bins", "method": "--method",
+    "iterations": "--iterations", "tv_weight": "--tv-weight", "l1_weight": "--l1-weight",
+    "depth_min_m": "--depth-min", "slab_model": "--slab-model", "brdf": "--brdf",
+    "brdf_terms": "--brdf-terms"}
+# CLI words of the notes and their Python keyword (clnlos.reconstruct's) spelling
+FLAG_WORDS_PYTHON = {"--no-slab": "no_slab=True", "--slab-* flags": "slab={...}"}
+
+
+def python_keywords(text: str) -> str:
+    """A note written with CLI flags (``--max-path 2.26``) as a Python caller of
+    :func:`clnlos.reconstruct` spells it (``max_path_m=2.26``)."""
+    for word, keyword in FLAG_WORDS_PYTHON.items():
+        text = text.replace(word, keyword)
+    for field, flag in sorted(FIELD_FLAGS.items(), key=lambda kv: -len(kv[1])):
+        text = re.sub(re.escape(flag) + r"(?![\w-])(?: ([^\s,;:()]+))?",
+                      lambda m, f=field: f"{f}={m.group(1)}" if m.group(1) else f"{f}=", text)
+    return text
+
+
+def _seconds(v: float) -> str:
+    return f"{v * 1e12:.4g} ps" if abs(v) < 1e-9 else f"{v * 1e9:.4g} ns"
+
+
+def plausibility_warnings(*, nt: int, bin_width_s: float, start_s: float, scan_width_m: float,
+                          recorded: dict, given: dict[str, str]) -> list[str]:
+    """One line each for geometry values implausible for a lab NLOS capture (a scan wider than
+    PLAUSIBLE_SCAN_WIDTH_M, a time window of ``nt`` bins reaching deeper than
+    PLAUSIBLE_DEPTH_M) and for values the user gave (``given``: field -> how, a flag, a TOML
+    key or a keyword) that contradict the value the capture gives (``recorded``: field ->
+    value or None). Each names the value, how it was given and what the file gave."""
+    out = []
+    units = {"scan_width_m": lambda v: f"{v:g} m", "bin_width_s": _seconds,
+             "start_s": _seconds}
+
+    def said(field, value):
+        rec = recorded.get(field)
+        how = given.get(field)
+        head = spelled(how, value) if how else f"{field} = {value:g} (from the capture)"
+        tail = (f"; the capture gives {units[field](rec)}" if how and rec is not None
+                else "")
+        return head, tail
+
+    if scan_width_m > PLAUSIBLE_SCAN_WIDTH_M:
+        head, tail = said("scan_width_m", scan_width_m)
+        out.append(f"{head}: a scan {scan_width_m:g} m wide, more than the "
+                   f"{PLAUSIBLE_SCAN_WIDTH_M:g} m plausible for an NLOS capture (a length in "
+                   f"cm or mm?){tail}")
+    depth = C0 * (start_s + nt * bin_width_s) / 2
+    if depth > PLAUSIBLE_DEPTH_M:
+        field = "bin_width_s" if "bin_width_s" in given or "start_s" not in given \
+            else "start_s"
+        head, tail = said(field, bin_width_s if field == "bin_width_s" else start_s)
+        out.append(f"{head}: the time window ({nt} bins) reaches {depth:.4g} m deep, more "
+                   f"than the {PLAUSIBLE_DEPTH_M:g} m plausible for an NLOS capture (a time in "
+                   f"ns for ps?){tail}")
+    for field, value in (("scan_width_m", scan_width_m), ("bin_width_s", bin_width_s),
+                         ("start_s", start_s)):
+        rec, how = recorded.get(field), given.get(field)
+        if how is None or rec is None or any(line.startswith(spelled(how, value))
+                                             for line in out):
+            continue
+        if not math.isclose(value, rec, rel_tol=CONTRADICTION_RTOL,
+                            abs_tol=1e-15 if field == "start_s" else 0.0):
+            out.append(f"{spelled(how, value)} contradicts the {units[field](rec)} the "
+                       "capture gives (the value given is used)")
+    return out
+
+
+def spelled(how: str, value) -> str:
+    """A value as the user gave it: ``--scan-width 60`` (a flag), ``capture.scan_width_m =
+    60`` (a TOML key), ``scan_width_m=60`` (a Python keyword)."""
+    v = f"{value:g}" if isinstance(value, float | int) else repr(value)
+    if how.startswith("--"):
+        return f"{how} {v}"
+    return f"{how} = {v}" if "." in how else f"{how}={v}"
+
 
 # TOML (section, key) -> config field; the one table both directions use.
 TOML_FIELDS: dict[tuple[str, str], str] = {
     ("capture", "scan_width_m"): "scan_width_m",
     ("capture", "bin_width_s"): "bin_width_s",
     ("capture", "start_s"): "start_s",
+    ("capture", "direct_cut_s"): "direct_cut_s",
     ("preprocess", "max_path_m"): "max_path_m",
     ("preprocess", "bins"): "bins",
     ("preprocess", "normalize"): "normalize",
@@ -163,34 +348,6 @@ TOML_FIELDS: dict[tuple[str, str], str] = {
     ("inversion", "brdf_terms"): "brdf_terms",
 }
 FIELD_NAMES = {f: f"{sec}.{key}" for (sec, key), f in TOML_FIELDS.items()}
-SLAB_KEYS = ("thickness_m", "mu_a", "mu_s_prime", "n", "ze_m", "n_dipoles")
-
-
-def check_keys(section: str, table: dict, allowed) -> None:
-    """Unknown keys are an error that names the key and suggests the closest known one."""
-    allowed = sorted(allowed)
-    extra = sorted(set(table) - set(allowed))
-    if extra:
-        raise ParameterError(f"{section}.{extra[0]}" if section else extra[0], table[extra[0]],
-                             "one of the known keys: " + ", ".join(allowed)
-                             + did_you_mean(extra[0], allowed))
-
-
-def check_geometry(field: str, value, name: str | None = None) -> float:
-    """A capture geometry value (``field`` of :data:`GEOMETRY_LIMITS`) checked against the
-    one range table; the ParameterError names ``name`` (default: the field)."""
-    lo, hi, lo_allowed = GEOMETRY_LIMITS[field]
-    if lo_allowed:
-        return real(name or field, value, lo, hi)
-    return positive(name or field, value, upper=hi)
-
-
-def parse_toml(text: str) -> dict:
-    """TOML text to a dict; nesting too deep for the parser is a ValueError like bad syntax."""
-    try:
-        return tomllib.loads(text)
-    except RecursionError:
-        raise ValueError("nested too deeply") from None
 
 
 def load_toml(path) -> dict:
@@ -199,46 +356,6 @@ def load_toml(path) -> dict:
         return parse_toml(p.read_text(encoding="utf-8"))
     except (ValueError, UnicodeDecodeError) as exc:  # TOMLDecodeError is a ValueError
         raise InputFileError(f"{p}: invalid TOML ({exc})") from None
-
-
-def slab_from_table(t: dict, section: str = "slab", names: dict | None = None
-                    ) -> tuple[Slab, int | None]:
-    """(Slab, n_dipoles) from a [slab] table; ``names`` maps keys to how the user wrote
-    them (a CLI flag) for error messages."""
-    names = names or {}
-
-    def nm(k):
-        return names.get(k, f"{section}.{k}")
-
-    check_keys(section, t, SLAB_KEYS)
-    nd = t.get("n_dipoles")
-    if nd is not None:
-        nd = integer(nm("n_dipoles"), nd, 0, 10000)
-    for k in ("thickness_m", "mu_a", "mu_s_prime", "n", "ze_m"):
-        if k in t and t[k] is not None:
-            positive(nm(k), t[k], allow_zero=k in ("mu_a", "ze_m"))
-    needed = ("thickness_m", "mu_a", "mu_s_prime", "n")
-    missing = [k for k in needed if k not in t]
-    if missing:  # after the values given: a bad one is named before one left out
-        given = [nm(k) for k in needed if k in t]
-        raise ParameterError(nm(missing[0]), None, "a number: a slab needs all of "
-                             + ", ".join(nm(k) for k in needed)
-                             + (f" (given: {', '.join(given)})" if given else ""))
-    try:
-        slab = Slab(thickness_m=t["thickness_m"], mu_a=t["mu_a"], mu_s_prime=t["mu_s_prime"],
-                    n=t["n"], ze_m=t.get("ze_m"))
-    except ParameterError as exc:
-        raise ParameterError(nm(exc.name), exc.value, exc.allowed) from None
-    return slab, nd
-
-
-def slab_table(slab: Slab) -> dict:
-    """The [slab] table of a Slab (inverse of :func:`slab_from_table`)."""
-    d = {"thickness_m": slab.thickness_m, "mu_a": slab.mu_a, "mu_s_prime": slab.mu_s_prime,
-         "n": slab.n}
-    if slab.ze_m is not None:
-        d["ze_m"] = slab.ze_m
-    return d
 
 
 def check_window(nt_in: int, bin_width_s: float, start_s: float, config, *,
@@ -306,6 +423,35 @@ def check_light_in_window(transient, bin_width_s: float, start_s: float, config,
                              f"with light in the capture (bin {lit[0]})")
 
 
+def drop_other_methods_settings(config: ReconstructionConfig, file_fields: dict[str, str],
+                                method_said: str
+                                ) -> tuple[ReconstructionConfig, dict[str, str], list[str]]:
+    """(config, unused, notes) where a method given over a config file (``method_said``: how
+    the user set it, ``--method fk`` or ``method='fk'``) does not read some of the file's
+    settings (``file_fields``: field -> "section.key" the file set): those (``unused``) go
+    back to their defaults, with one note naming them, instead of the error
+    :meth:`ReconstructionConfig.validate` gives a setting the user asked for a method that
+    does not read it (the file was written for its own method). A ``snr_rule`` the new
+    method cannot use goes back to "auto" too."""
+    method = config.method
+    if method not in method_names():
+        return config, {}, []  # validate names the unknown method
+    unused = {f: sec for f, sec in file_fields.items() if method not in methods_reading(f)}
+    if "snr_rule" in file_fields and not snr_rule_applies(str(config.snr_rule), method):
+        unused["snr_rule"] = file_fields["snr_rule"]
+    if not unused:
+        return config, {}, []
+    defaults = ReconstructionConfig()
+
+    def shown(v):
+        return f"{v:g}" if isinstance(v, float) else repr(v)
+
+    said = ", ".join(f"{sec} = {shown(getattr(config, f))}" for f, sec in unused.items())
+    note = (f"{method_said}: the config's {said} left unused (set for another method; "
+            f"{method!r} does not read {'it' if len(unused) == 1 else 'them'})")
+    return config.replace(**{f: getattr(defaults, f) for f in unused}), unused, [note]
+
+
 @dataclass(frozen=True)
 class ReconstructionConfig:
     """Reconstruction parameters; the field defaults are the defaults (stated once here)."""
@@ -313,6 +459,7 @@ class ReconstructionConfig:
     scan_width_m: float | None = None
     bin_width_s: float | None = None
     start_s: float | None = None
+    direct_cut_s: float | None = None
     max_path_m: float | None = None
     bins: int | None = None
     normalize: str = "max"
@@ -333,6 +480,9 @@ class ReconstructionConfig:
     slab_model: str = "influence"
     brdf: str = LAMBERTIAN
     brdf_terms: int | str = "auto"
+    # the fields the user set (validate's ``names``; not a parameter: defaults that depend on
+    # the capture, clnlos.inverse.capture_defaults, leave these alone)
+    user_fields: frozenset = dataclasses.field(default=frozenset(), compare=False, repr=False)
 
     def validate(self, names: dict[str, str] | None = None) -> ReconstructionConfig:
         """A validated copy. ``names`` maps field names to how the user gave them (a CLI
@@ -346,6 +496,8 @@ class ReconstructionConfig:
         for f in GEOMETRY_LIMITS:
             if getattr(self, f) is not None:
                 v[f] = check_geometry(f, getattr(self, f), nm(f))
+        if self.direct_cut_s is not None:
+            v["direct_cut_s"] = real(nm("direct_cut_s"), self.direct_cut_s, *DIRECT_CUT_RANGE)
         if self.max_path_m is not None:
             v["max_path_m"] = positive(nm("max_path_m"), self.max_path_m, upper=1e4)
         if self.bins is not None:
@@ -402,7 +554,7 @@ class ReconstructionConfig:
                 raise ParameterError(nm(field), getattr(self, field), "only with method "
                                      + " or ".join(f"\"{m}\"" for m in readers)
                                      + f" (method \"{self.method}\" does not use it)")
-        return dataclasses.replace(self, **v)
+        return dataclasses.replace(self, **v, user_fields=self.user_fields | frozenset(names))
 
     def _rules_for_method(self) -> str:
         """The snr_rule values that apply with this config's method, quoted."""
@@ -466,6 +618,7 @@ class ReconstructionConfig:
 
     def as_attrs(self) -> dict:
         d = asdict(self)
+        d.pop("user_fields")
         d["slab"] = None if self.slab is None else {**asdict(self.slab), "ze_used_m":
                                                     self.slab.ze}
         return d

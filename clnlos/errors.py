@@ -35,6 +35,15 @@ class ParameterError(ClnlosError, ValueError):
                          f"allowed {allowed}")
 
 
+class MissingParameterError(ParameterError):
+    """A parameter the input does not give and the user did not set; the message names it
+    and says how to give it."""
+
+    def __init__(self, name: str, why: str):
+        self.name, self.value, self.allowed = name, None, why
+        ValueError.__init__(self, f"{name} is needed: {why}")
+
+
 class ShapeError(ClnlosError, ValueError):
     """An array has the wrong shape or dtype for the operator it is given to."""
 

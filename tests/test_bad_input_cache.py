@@ -10,6 +10,7 @@ import numpy as np
 import pytest
 from reference.scene_ref import points_transient
 
+from clnlos.io.formats.mat import lct_rect_data
 from clnlos.config import ReconstructionConfig
 from clnlos.inverse.pipeline import reconstruct
 from clnlos.io.capture import Capture
@@ -284,7 +285,7 @@ def _write_capture(path, kind):
     elif kind == "mat5-cdt":
         scipy.io.savemat(path, {"meas": tau[:, ::-1, :]})
     elif kind == "mat5-lct":
-        scipy.io.savemat(path, {"rect_data": np.transpose(tau, (1, 2, 0)), "width": 0.2,
+        scipy.io.savemat(path, {"rect_data": lct_rect_data(tau), "width": 0.2,
                                 "bin_resolution": DT})
     else:  # MATLAB v7.3, CDT layout
         with h5py.File(path, "w") as f:

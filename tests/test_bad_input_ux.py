@@ -10,7 +10,7 @@ import numpy as np
 import pytest
 from reference.scene_ref import points_transient
 
-from clnlos.app import progress as progress_mod
+from clnlos.io import progress as progress_mod
 from clnlos.app.cli import build_parser, main
 from clnlos.brdf.data import read_gonio_csv, read_pbrt_brdf
 from clnlos.brdf.fit import fit_analytic

@@ -12,6 +12,7 @@ import numpy as np
 import pytest
 import scipy.io
 
+from clnlos.io.formats.mat import lct_rect_data
 from clnlos import C0
 from clnlos.app.cli import main
 from clnlos.config import ReconstructionConfig
@@ -171,18 +172,18 @@ def test_tal_unsupported_layouts_are_errors(tmp_path, data, what, needle):
 
 
 def test_matlab_layouts(tmp_path, data):
-    """O'Toole's LCT layout (rect_data (y, x, t), width, bin_resolution) and Lindell's f-k
+    """O'Toole's LCT layout (rect_data in the published orientation, width, bin_resolution) and Lindell's f-k
     layout (meas (y, x, t) + tofgrid in ps) in MATLAB v5 via scipy.io.savemat, the CDT layout
     (meas (t, y down, x)) in v5 and in v7.3 (HDF5, axes reversed as MATLAB writes them)."""
-    rect = np.transpose(data, (1, 2, 0))
+    rect = lct_rect_data(data)
     scipy.io.savemat(tmp_path / "lct.mat", {"rect_data": rect, "width": 0.2,
                                              "bin_resolution": 16e-12})
     assert sniff(tmp_path / "lct.mat") == "mat5"
     _same(read_capture(tmp_path / "lct.mat"), data, width=0.4)
     tof = np.full((NY, NX), 64.0)  # 64 ps = 2 bins of 32 ps
     padded = np.concatenate([np.zeros((2, NY, NX), np.float32), data])
-    scipy.io.savemat(tmp_path / "fk.mat", {"meas": np.transpose(padded, (1, 2, 0)),
-                                            "tofgrid": tof})
+    scipy.io.savemat(tmp_path / "fk.mat", {"meas": np.transpose(padded, (1, 2, 0))[::-1],
+                                            "tofgrid": tof})  # rows running down
     cap = read_capture(tmp_path / "fk.mat")
     assert cap.bin_width_s == 32e-12 and cap.scan_width_m is None
     np.testing.assert_allclose(cap.transient[:NT], data, atol=1e-4)
@@ -203,7 +204,7 @@ def test_same_data_same_volume_across_formats(tmp_path, queue):
     tau = np.round(tau / tau.max() * 1000).astype(np.float32)
     write_capture(tmp_path / "a.h5", tau, bin_width_s=16e-12, start_s=0.0, scan_width_m=0.4)
     write_tal(tmp_path / "b.hdf5", tau, bin_width_s=16e-12, start_s=0.0, scan_width_m=0.4)
-    scipy.io.savemat(tmp_path / "c.mat", {"rect_data": np.transpose(tau, (1, 2, 0)),
+    scipy.io.savemat(tmp_path / "c.mat", {"rect_data": lct_rect_data(tau),
                                            "width": 0.2, "bin_resolution": 16e-12})
     cfg = ReconstructionConfig(method="lct").validate()
     vols = [reconstruct(read_capture(tmp_path / n), cfg, device=queue).volume
@@ -273,3 +274,21 @@ n = 1.12
     np.testing.assert_allclose(vols[0], vols[1], rtol=1e-5, atol=1e-6 * vols[0].max())
     with h5py.File(tmp_path / "tal.h5") as f:
         assert json.loads(f["scene_info"][()])["original_format"] == "clnlos"
+
+
+def test_fk_layout_rows_run_down_and_tofgrid_follows_them(tmp_path):
+    """f-k's meas (y, x, t): the published front view shows row 0 at the top, so clnlos's y
+    (up) is the reversed row; the tofgrid is moved with its rows (an arrival delayed by each
+    row's time of flight lands in one bin after alignment)."""
+    n, nt = 6, 64
+    meas = np.zeros((n, n, nt), np.float32)
+    tof = np.zeros((n, n))
+    for i in range(n):
+        tof[i] = 32.0 * i  # ps: i bins of 32 ps
+        meas[i, :, 10 + i] = 5.0
+    meas[0, 0, 10] = 50.0  # the top-left of the published view
+    scipy.io.savemat(tmp_path / "fk.mat", {"meas": meas, "tofgrid": tof})
+    cap = read_capture(tmp_path / "fk.mat")
+    assert np.all(cap.transient[10] > 0) and not cap.transient[11:].any()
+    t, y, x = np.unravel_index(np.argmax(cap.transient), cap.transient.shape)
+    assert (y, x) == (n - 1, 0)  # top (y up: the last row) on the left

@@ -22,6 +22,7 @@ import scipy.io
 from hypothesis import given, settings
 from hypothesis import strategies as st
 
+from clnlos.io.formats.mat import lct_rect_data
 from clnlos import C0
 from clnlos.app.cli import main
 from clnlos.app.simulate import simulate_to_file
@@ -292,7 +293,7 @@ def _crop_files(cap, d, y0, x0, n=12):
             g[..., 1] += cy
             f[k][...] = g
     out["y-tal"] = (d / f"t{tag}.h5", (cx, cy))
-    scipy.io.savemat(d / f"m{tag}.mat", {"rect_data": np.transpose(sub, (1, 2, 0)),
+    scipy.io.savemat(d / f"m{tag}.mat", {"rect_data": lct_rect_data(sub),
                                          "width": n * p / 2, "bin_resolution": 16e-12})
     out["mat"] = (d / f"m{tag}.mat", None)
     np.save(d / f"n{tag}.npy", sub)

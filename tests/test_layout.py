@@ -113,6 +113,71 @@ def test_no_import_cycles():
     assert not back, back
 
 
+def package_of(module: str) -> str:
+    """The package a module belongs to: ``clnlos.X`` for anything under ``clnlos/X/``, the
+    module itself at the top (``clnlos.config``)."""
+    return ".".join(module.split(".")[:2])
+
+
+def package_graph(graph: dict[str, set[str]]) -> dict[str, set[str]]:
+    """The import graph read at the level of packages (imports inside one package dropped)."""
+    out: dict[str, set[str]] = {}
+    for a, deps in graph.items():
+        pa = package_of(a)
+        out.setdefault(pa, set()).update(package_of(b) for b in deps if package_of(b) != pa)
+    return out
+
+
+def test_no_package_cycles():
+    """No two packages import each other, through any modules (the house has no arrow
+    back up: a lower layer never imports a higher one)."""
+    graph = import_graph()
+    found = cycles(package_graph(graph))
+    detail = [f"{a} -> {b}" for c in found for a in sorted(graph) for b in sorted(graph[a])
+              if package_of(a) in c and package_of(b) in c and package_of(a) != package_of(b)]
+    assert not found, "package cycles: " + "; ".join(" <-> ".join(c) for c in found) + \
+        " (" + ", ".join(detail) + ")"
+
+
+def face_imports() -> list[str]:
+    """Imports of the package's face (``clnlos/__init__.py``) from inside the package:
+    ``import clnlos`` or ``from clnlos import name`` where ``clnlos.name`` is no module (the
+    constants and the version have their own modules: clnlos.physics.constants,
+    clnlos.version)."""
+    mods = modules()
+    bad = []
+    for name, path in mods.items():
+        if name == "clnlos":
+            continue
+        for node in ast.walk(ast.parse(path.read_text(encoding="utf-8"))):
+            if isinstance(node, ast.Import):
+                bad += [f"{name}:{node.lineno} import clnlos" for a in node.names
+                        if a.name == "clnlos"]
+            elif isinstance(node, ast.ImportFrom):
+                base = node.module or ""
+                if node.level:  # relative: from . import x inside clnlos/ top modules
+                    parts = name.split(".")[:-node.level] if path.name != "__init__.py" \
+                        else name.split(".")[:len(name.split(".")) - node.level + 1]
+                    base = ".".join(parts + ([node.module] if node.module else []))
+                if base == "clnlos":
+                    bad += [f"{name}:{node.lineno} from clnlos import {a.name}"
+                            for a in node.names if f"clnlos.{a.name}" not in mods]
+    return bad
+
+
+def test_no_import_of_the_package_face_from_inside():
+    found = face_imports()
+    assert not found, found
+
+
+def test_package_cycle_finder_reads_packages():
+    graph = {"clnlos.study.run": {"clnlos.app.progress"},
+             "clnlos.app.commands": {"clnlos.study.run"}, "clnlos.config": {"clnlos.app.cli"}}
+    assert package_graph(graph) == {"clnlos.study": {"clnlos.app"},
+                                    "clnlos.app": {"clnlos.study"}, "clnlos.config": {"clnlos.app"}}
+    assert cycles(package_graph(graph)) == [["clnlos.app", "clnlos.study"]]
+
+
 def test_cycle_finder_finds_a_cycle():
     assert cycles({"a": {"b"}, "b": {"c"}, "c": {"a"}, "d": {"a"}}) == [["a", "b", "c"]]
     assert cycles({"a": {"b"}, "b": set()}) == []

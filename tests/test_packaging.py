@@ -1,4 +1,4 @@
-"""Release hygiene: one version (clnlos.__version__, read by pyproject, CITATION.cff and the
+"""Release hygiene: one version (clnlos.version.__version__, read by pyproject, CITATION.cff and the
 changelog agree), the licence, the no-root install route (the cpu extra: PoCL from PyPI), and
 a README a new user reads in five minutes whose test command is what CI runs."""
 
@@ -20,7 +20,7 @@ def pyproject() -> dict:
 def test_one_version():
     p = pyproject()
     assert "version" in p["project"]["dynamic"] and "version" not in p["project"]
-    assert p["tool"]["setuptools"]["dynamic"]["version"] == {"attr": "clnlos.__version__"}
+    assert p["tool"]["setuptools"]["dynamic"]["version"] == {"attr": "clnlos.version.__version__"}
     cff = (ROOT / "CITATION.cff").read_text(encoding="utf-8")
     assert re.search(rf"^version: {re.escape(clnlos.__version__)}$", cff, re.M)
     changelog = (ROOT / "CHANGELOG.md").read_text(encoding="utf-8")

@@ -12,6 +12,7 @@ import pyopencl.array as cla
 import pytest
 from reference.scene_ref import patch_points, points_transient
 
+from clnlos.api import reconstruct as reconstruct_api
 from clnlos.app.cli import main
 from clnlos.app.simulate import simulate_to_file
 from clnlos.config import ReconstructionConfig
@@ -19,7 +20,7 @@ from clnlos.diffusion import lateral_integral_profile
 from clnlos.forward.blur import blur_time_scales, slab_blur
 from clnlos.forward.scene import Scene
 from clnlos.inverse.pipeline import cut_level, reconstruct, window_end_level
-from clnlos.inverse.tail_fill import TailFilledDeconvolution
+from clnlos.inverse.tail_fill import TAIL_FILLED_SNR_MAX, TailFilledDeconvolution
 from clnlos.io.capture import Capture
 from clnlos.io.files import read_capture
 from clnlos.physics.slab import CDT_SLAB
@@ -57,8 +58,8 @@ def test_tail_fill_at_a_near_inverse_snr_does_not_diverge(queue, snr):
     """85 bins of 96 ps (8.2 ns), the 6 cm patch at 0.5 m: at the SNR cap of a noise-free
     capture the fill iteration with the near-inverse Wiener filter grew 49x per step (the
     patch reconstructed at 1.1 m); the fill at min(snr, TAIL_FILL_SNR) agrees with the
-    deconvolution of the whole decayed window (160 bins) on the arrivals the short window
-    determines, and the final filter keeps the capture's SNR."""
+    deconvolution of the whole decayed window (160 bins, at the final filter's SNR
+    min(snr, TAIL_FILLED_SNR_MAX)) on the arrivals the short window determines."""
     n, width, dt, nt = 16, 0.3, 96e-12, 85
     pts, w = patch_points((0.02, -0.01, 0.5), 0.06)
     tau = points_transient(pts, w, 160, n, width, dt)
@@ -66,8 +67,8 @@ def test_tail_fill_at_a_near_inverse_snr_does_not_diverge(queue, snr):
     best = _best(queue)
     tau = np.maximum(slab_blur(CDT_SLAB, tau.shape, dtype=best, bin_width_s=dt,
                                pitch_m=width / n, queue=queue)(tau.astype(best)), 0.0)
-    x_ref = slab_blur(CDT_SLAB, tau.shape, mode="wiener", snr=snr, **kw)(
-        tau.astype(np.float32))
+    x_ref = slab_blur(CDT_SLAB, tau.shape, mode="wiener", snr=min(snr, TAIL_FILLED_SNR_MAX),
+                      **kw)(tau.astype(np.float32))
     sc = blur_time_scales(CDT_SLAB, bin_width_s=dt, queue=queue)
     short = np.ascontiguousarray(tau[:nt], np.float32)
     fill = TailFilledDeconvolution(CDT_SLAB, short.shape, scales=sc, snr=snr, **kw)
@@ -190,6 +191,32 @@ def test_demo_short_window_true_depth(queue, demo_captures, bins, method):
     assert len(rec.notes) == 1 and "time window ends" in rec.notes[0]
     iou, _ = mip_iou(rec.volume, truth)
     assert iou > 0.4
+
+
+WINDOW_BINS = range(256, 513, 16)  # the demo's windows, to 0.61 m ... 1.23 m of depth
+
+
+@pytest.mark.slow
+def test_demo_every_window_length_puts_the_letters_at_their_depth(queue, demo_captures):
+    """The demo (letters at 0.5 m) cut to every 16th window length from 256 to 512 bins and
+    reconstructed with the LCT defaults: the brightest voxel within one voxel of 0.5 m at
+    each (issue 51 item 8: 272 bins gave 0.522 m and 288 bins 0.555 m, the final
+    near-inverse filter (noise-free SNR cap 1e10) turning the filled tail's mismatch into
+    voxels past the target; the filled window's final SNR is now at most
+    TAIL_FILLED_SNR_MAX). The windows are cut from the 512-bin simulation (one simulation;
+    the 272-bin cut and a 272-bin simulation both gave 0.522 m before the fix)."""
+    caps = demo_captures[0]
+    whole = caps[512]
+    depths = {}
+    for bins in WINDOW_BINS:
+        cap = Capture(np.ascontiguousarray(whole.transient[:bins]), whole.bin_width_s,
+                      whole.start_s, whole.scan_width_m, whole.source, whole.attrs)
+        rec = reconstruct_api(cap, device=queue)
+        dz = rec.extents["voxel_depth_m"]
+        depths[bins] = round(peak_depth_m(rec.volume, dz), 3)
+        if "tail_fill_bins" in rec.params:
+            assert rec.params["tail_filled_snr_applied"] <= TAIL_FILLED_SNR_MAX
+    assert all(abs(d - 0.5) <= 1.5 * dz for d in depths.values()), depths
 
 
 def test_demo_full_window_takes_the_plain_filter(queue, demo_captures):

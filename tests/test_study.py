@@ -220,7 +220,8 @@ def test_setup_line_names_the_snr_rule_each_method_ran():
 def test_tiny_study_serial_and_dask_agree(tmp_path):
     serial = run_study(tmp_path / "serial", TINY, workers=1)
     html = (tmp_path / "serial" / "report.html").read_text()
-    assert html.count("data:image/png;base64,") == 10 and "standard white plate" in html
+    assert html.count("data:image/png;base64,") == 11 and "standard white plate" in html
+    assert html.index("id='headline'") < html.index("<details")  # the answer first
     assert "Tilted glyphs" in html and "known BRDF" in html
     assert "dataset.overflow" in html and "max-width" in html and "box baseline" in html
     assert "SNRs by gcv)" in html  # the rule the study pins, named for every method
@@ -262,6 +263,10 @@ def test_tiny_study_serial_and_dask_agree(tmp_path):
                             str(tmp_path / "r.png")], capture_output=True, text=True,
                            timeout=300)
         assert r.returncode == 0, r.stdout + r.stderr
+        r = subprocess.run([sys.executable, str(tool), str(report), "--first-screen", "-o",
+                            str(tmp_path / "first.png")], capture_output=True, text=True,
+                           timeout=300)
+        assert r.returncode == 0, r.stdout + r.stderr  # the headline in the first screen
 
 
 @pytest.mark.slow

@@ -16,7 +16,7 @@ import json
 import sys
 from pathlib import Path
 
-from clnlos.app.progress import progress_bar
+from clnlos.io.progress import progress_bar
 from clnlos.bench.brdf_inversion import CHECK_MATERIALS, operator_check_rows
 from clnlos.bench.harness import print_table, write_rows
 from clnlos.io.files import atomic_path

@@ -19,6 +19,13 @@ Placeholders a page may hold:
 
 The figures of tools/results named in RESULT_FIGURES are served as ``figures/NAME`` (not
 copied into docs/: the result file is the one source).
+
+The executed examples' figures (docs/examples/figures, git-ignored) are made by the build
+when missing: each example of EXAMPLES without its figure runs at its small size
+(``--small``), all at once, before the pages are read, so ``mkdocs build --strict`` works
+from a clean clone after the set-up. An example that needs ../shared/data
+(``CLNLOS_DOCS_DATA`` overrides the folder) and finds none writes no figure; its page then
+says so in place of the image. ``python docs/examples/NAME.py`` remakes a figure full size.
 """
 
 from __future__ import annotations
@@ -26,13 +33,22 @@ from __future__ import annotations
 import csv
 import dataclasses
 import importlib
+import os
 import re
+import subprocess
+import sys
 import textwrap
 from pathlib import Path
 
 ROOT = Path(__file__).resolve().parents[1]
 PLACEHOLDER = re.compile(r"\{\{\s*(const|list|falloff|generated|source|oracle):([\w./\-]+)\s*\}\}")
-RESULT_FIGURES = ("slab_calibration.png", "real_cdt_defaults.png")
+RESULT_FIGURES = ("slab_calibration.png", "real_cdt_defaults.png", "lct_release_check.png",
+                  "real_materials.png")
+# executed example (docs/examples/NAME.py) -> whether it needs ../shared/data
+EXAMPLES = {"demo_round_trip": False, "ytal_round_trip": False, "real_cdt": True,
+            "brdf_texture": True}
+EXAMPLE_TIMEOUT_S = 600
+FIGURE_LINK = re.compile(r"!\[[^\]]*\]\(figures/(\w+)\.png\)")
 # the columns of an oracle summary a page shows: (CSV column, heading)
 ORACLE_COLUMNS = (("capture", "capture"), ("method", "method"), ("seeds", "seeds"),
                   ("auto_iou_mean", "default IoU"), ("gcv_rule_iou_mean", "GCV rule IoU"),
@@ -177,7 +193,51 @@ def replace(match: re.Match) -> str:
     return generated(arg)
 
 
+def shared_data() -> Path:
+    return Path(os.environ.get("CLNLOS_DOCS_DATA", ROOT.parent / "shared" / "data"))
+
+
+def make_missing_figures(docs_dir: Path) -> dict[str, str]:
+    """Run (concurrently, small) every example whose figure is missing from
+    ``docs_dir``/examples/figures; name -> its output, for those run. A failing example is
+    a RuntimeError (the build stops)."""
+    figures = Path(docs_dir) / "examples" / "figures"
+    procs = {}
+    for name, needs_data in EXAMPLES.items():
+        if (figures / f"{name}.png").is_file():
+            continue
+        args = [sys.executable, str(Path(docs_dir) / "examples" / f"{name}.py"), "--small",
+                "--out", str(figures)] + (["--data", str(shared_data())] if needs_data else [])
+        procs[name] = subprocess.Popen(args, stdout=subprocess.PIPE, stderr=subprocess.STDOUT,
+                                       text=True)
+    out = {}
+    for name, p in procs.items():
+        text, _ = p.communicate(timeout=EXAMPLE_TIMEOUT_S)
+        if p.returncode != 0:
+            raise RuntimeError(f"docs/examples/{name}.py --small failed:\n{text}")
+        out[name] = text
+    return out
+
+
+def on_pre_build(config, **kwargs) -> None:
+    make_missing_figures(Path(config["docs_dir"]))
+
+
+def figure_or_why(match: re.Match, docs_dir: Path) -> str:
+    """The image link, or where its figure could not be made (no ../shared/data) a sentence
+    saying so."""
+    name = match.group(1)
+    if name not in EXAMPLES or (docs_dir / "examples" / "figures" / f"{name}.png").is_file():
+        return match.group(0)
+    return (f"*(The figure is made by running `python docs/examples/{name}.py`; it needs "
+            f"`../shared/data`, absent when this site was built.)*")
+
+
 def on_page_markdown(markdown: str, **kwargs) -> str:
+    config = kwargs.get("config")
+    if config is not None:
+        docs_dir = Path(config["docs_dir"])
+        markdown = FIGURE_LINK.sub(lambda m: figure_or_why(m, docs_dir), markdown)
     return PLACEHOLDER.sub(replace, markdown)
 
 

@@ -2,7 +2,8 @@
 # Install everything clnlos needs on a fresh Debian machine (Python >= 3.11, root or sudo):
 #   Debian: PoCL (CPU OpenCL), opencl-headers and ocl-icd-opencl-dev (to build pyvkfft),
 #   oclgrind (the kernel memory-safety test), mesa-opencl-icd (rusticl on llvmpipe: the second
-#   driver stack the stage tests also run on, fp64-less like many GPUs);
+#   driver stack the stage tests also run on, fp64-less like many GPUs), chromium (optional:
+#   the report layout tests and tools/check_report.py look at the study report in it);
 #   a virtual environment .venv with the CPU torch wheel first (torch==2.13.0: an unpinned
 #   torch would pull a multi-GB CUDA build), pyvkfft built for OpenCL, then clnlos itself.
 # Idempotent: what is already there is kept.
@@ -25,6 +26,13 @@ if ! dpkg -s mesa-opencl-icd >/dev/null 2>&1; then
   { $SUDO apt-get update -q && DEBIAN_FRONTEND=noninteractive $SUDO apt-get install -y -q \
       --no-install-recommends mesa-opencl-icd; } \
     || echo "setup: warning: mesa-opencl-icd not installed; the rusticl test will skip"
+fi
+# optional: headless Chromium (tests/test_report_layout.py skips without it)
+if ! command -v chromium >/dev/null 2>&1 && ! dpkg -s chromium >/dev/null 2>&1; then
+  echo "setup: installing chromium (headless report checks, optional)"
+  { $SUDO apt-get update -q && DEBIAN_FRONTEND=noninteractive $SUDO apt-get install -y -q \
+      --no-install-recommends chromium; } \
+    || echo "setup: warning: chromium not installed; the report layout test will skip"
 fi
 
 PY="${PYTHON:-python3}"

@@ -15,7 +15,7 @@ import warnings
 
 import pyopencl as cl
 
-from clnlos import __version__
+from clnlos.version import __version__
 from clnlos.app import commands as cli_commands
 from clnlos.errors import ClnlosError
 from clnlos.io.outputs import Terminated, install_sigterm_cleanup, user_path

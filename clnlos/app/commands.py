@@ -6,6 +6,7 @@ from __future__ import annotations
 
 import argparse
 import importlib.util
+import json
 import math
 import sys
 from pathlib import Path
@@ -14,7 +15,7 @@ import numpy as np
 from tqdm import tqdm
 
 from clnlos.app.demo import demo_files, demo_inputs, run_demo
-from clnlos.app.progress import counter, progress_bar
+from clnlos.io.progress import counter, progress_bar
 from clnlos.app.reconstruct import reconstruct_to_files
 from clnlos.app.simulate import figure_path, simulate_to_file
 from clnlos.bench import ONLY_HELP, sections_of
@@ -38,11 +39,13 @@ from clnlos.brdf.texture import MAX_NODES, MIN_NODES, tabulate, write_texture
 from clnlos.checks import integer
 from clnlos.config import (
     DEPTH_GUARD_M,
+    FIELD_FLAGS,
     SLAB_MODELS,
     SNR_RULES,
     ReconstructionConfig,
     check_geometry,
     check_window,
+    drop_other_methods_settings,
     load_toml,
     slab_from_table,
     slab_table,
@@ -63,7 +66,7 @@ from clnlos.io.outputs import HDF5_SUFFIXES, check_outputs
 from clnlos.physics.lobe import LOBE_TOLERANCE
 from clnlos.runtime.device import get_queue
 from clnlos.runtime.limits import capture_use, check_memory
-from clnlos import study
+import clnlos.study as study  # the package (study.run: the function)
 from clnlos.study.dataset import MAX_WORKERS, StudyGrid, check_scheduler_address
 from clnlos.study.run import (
     LABEL_METRICS,
@@ -102,18 +105,7 @@ def _add_precision(p) -> None:
 
 # ------------------------------------------------------------------ reconstruct
 # CLI flag -> ReconstructionConfig field (error messages name the flag the user typed)
-RECON_FLAGS = {"scan_width": ("scan_width_m", "--scan-width"),
-               "bin_width": ("bin_width_s", "--bin-width"),
-               "snr": ("snr", "--snr"), "snr_rule": ("snr_rule", "--snr-rule"),
-               "inversion_snr": ("inversion_snr", "--inversion-snr"),
-               "falloff": ("falloff", "--falloff"), "max_path": ("max_path_m", "--max-path"),
-               "bins": ("bins", "--bins"), "method": ("method", "--method"),
-               "iterations": ("iterations", "--iterations"),
-               "tv_weight": ("tv_weight", "--tv-weight"),
-               "l1_weight": ("l1_weight", "--l1-weight"),
-               "depth_min": ("depth_min_m", "--depth-min"),
-               "slab_model": ("slab_model", "--slab-model"),
-               "brdf": ("brdf", "--brdf"), "brdf_terms": ("brdf_terms", "--brdf-terms")}
+RECON_FLAGS = {flag[2:].replace("-", "_"): (field, flag) for field, flag in FIELD_FLAGS.items()}
 
 
 def _decades(values) -> str:
@@ -171,7 +163,16 @@ def config_from_args(args) -> ReconstructionConfig:
         base.update(slab_given)
         changes["slab"], _ = slab_from_table(
             base, names={k: flag for k, flag in SLAB_FLAGS.values()})
-    return cfg.replace(**changes).validate(names)
+    cfg = cfg.replace(**changes)
+    if args.method is not None:  # the file's settings for its own method: unused, noted
+        file_fields = {f: n for f, n in ReconstructionConfig.given_fields(table).items()
+                       if f not in changes}
+        cfg, unused, notes = drop_other_methods_settings(cfg, file_fields,
+                                                         f"--method {args.method}")
+        names = {f: n for f, n in names.items() if f not in unused}
+        for note in notes:
+            print(f"clnlos: note: {note}", file=sys.stderr)
+    return cfg.validate(names)
 
 
 def _pipeline_fits(capture, cfg, queue, dtype, names=None):
@@ -244,6 +245,11 @@ def register_reconstruct(sub, add_device) -> None:
                    help="side of the scanned area along x (m; the pitch is this over the "
                         f"columns, the same along y) {from_file}")
     r.add_argument("--bin-width", type=float, help=f"histogram bin width (s) {from_file}")
+    r.add_argument("--direct-cut", type=float,
+                   help="zero the window before this round-trip time (s): the direct "
+                        "reflection off the relay wall; 0 keeps everything (default: what "
+                        "the capture records: the LCT release's first 2.4 ns, as the "
+                        "published code; none elsewhere)")
     r.add_argument("--snr", type=number_or_auto,
                    help="Wiener SNR of the slab deconvolution (dimensionless), or auto: chosen "
                         "from the capture by --snr-rule (generalised cross-validation, at most "
@@ -334,6 +340,16 @@ def register_reconstruct(sub, add_device) -> None:
 
 
 # ------------------------------------------------------------------ plot
+def plot_title(path, attrs) -> str:
+    """The figure title of a volume file: its name and the method that made it (its params,
+    as ``clnlos reconstruct`` titles its own figure)."""
+    try:
+        method = json.loads(attrs.get("params", "{}")).get("method")
+    except (TypeError, ValueError):
+        method = None
+    return f"{Path(path).name}" + (f" ({method})" if isinstance(method, str) else "")
+
+
 def cmd_plot(args) -> int:
     out = Path(args.output) if args.output else Path(args.volume).with_suffix(".png")
     check_outputs({"-o": out}, inputs=[args.volume], suffixes={"-o": (".png",)},
@@ -341,7 +357,7 @@ def cmd_plot(args) -> int:
     if args.gamma is not None and not (np.isfinite(args.gamma) and 0 < args.gamma <= 10):
         raise ParameterError("--gamma", args.gamma, "a number > 0 and <= 10")
     volume, extents, attrs = read_volume(args.volume)
-    save_figure(volume_figure(volume, extents, f"{Path(args.volume).name}",
+    save_figure(volume_figure(volume, extents, plot_title(args.volume, attrs),
                               gamma=args.gamma, log=args.log), out)
     print(f"wrote {out}")
     return 0

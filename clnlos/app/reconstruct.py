@@ -9,7 +9,7 @@ from pathlib import Path
 import numpy as np
 
 from clnlos.api import reconstruct
-from clnlos.app.progress import progress_bar, stage
+from clnlos.io.progress import progress_bar, stage
 from clnlos.config import ReconstructionConfig
 from clnlos.inverse.pipeline import Reconstruction
 from clnlos.io.capture import Capture

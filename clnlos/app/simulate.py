@@ -9,7 +9,7 @@ from pathlib import Path
 import numpy as np
 
 from clnlos.api import simulate
-from clnlos.app.progress import progress_bar, stage
+from clnlos.io.progress import progress_bar, stage
 from clnlos.errors import ParameterError
 from clnlos.io.figures import transient_figure
 from clnlos.io.files import capture_attrs, save_figure_file, write_h5_file

@@ -10,7 +10,7 @@ import warnings
 import numpy as np
 import scipy.sparse as sp
 
-from clnlos import C0
+from clnlos.physics.constants import C0
 from clnlos.forward.blur import confocal_psf
 from clnlos.forward.scene import Scene
 from clnlos.inverse.lct import lightcone_psf, t_to_v_matrix, u_to_z_matrix

@@ -25,7 +25,7 @@ import time
 
 import numpy as np
 
-from clnlos import C0
+from clnlos.physics.constants import C0
 from clnlos.bench.harness import timed_once
 from clnlos.brdf.lobes import AUTO, LAMBERTIAN, retro_lobe
 from clnlos.config import ReconstructionConfig

@@ -28,7 +28,7 @@ from pathlib import Path
 import numpy as np
 import pyopencl.array as cla
 
-from clnlos import C0
+from clnlos.physics.constants import C0
 from clnlos.bench.baselines import NumpyReconstruction, TorchReconstruction
 from clnlos.bench.harness import Bench
 from clnlos.forward.blur import slab_blur

@@ -18,7 +18,7 @@ import numpy as np
 import pyopencl as cl
 import pyopencl.array as cla
 
-from clnlos import C0
+from clnlos.physics.constants import C0
 from clnlos.bench.baselines import (
     NumpyReconstruction,
     TorchReconstruction,

@@ -32,7 +32,7 @@ import numpy as np
 from scipy.optimize import least_squares
 from scipy.sparse import lil_matrix
 
-from clnlos import C0
+from clnlos.physics.constants import C0
 from clnlos.diffusion import SlabTransmittance
 from clnlos.errors import InputFileError, ParameterError
 from clnlos.physics.slab import CDT_SLAB, Slab

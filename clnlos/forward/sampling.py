@@ -9,7 +9,7 @@ from dataclasses import dataclass
 
 import numpy as np
 
-from clnlos import C0
+from clnlos.physics.constants import C0
 from clnlos.brdf.presets import material_retro as preset_retro
 from clnlos.brdf.presets import retroreflector
 from clnlos.errors import ParameterError
@@ -169,8 +169,11 @@ def check_scene_geometry(scene: Scene, *, emit: bool = True) -> list[str]:
                             + front[:, 2] ** 2) / C0
         if t_near.min() >= t1 or t_far.max() < t0:
             raise ParameterError("time", f"[{t0:.3g}, {t1:.3g}) s",
-                                 f"a window that sees {name}: its light returns between "
-                                 f"{t_near.min():.3g} s and {t_far.max():.3g} s")
+                                 f"a window that sees {name}, {front[:, 2].min():.4g} m "
+                                 f"behind the relay plane: its light returns between "
+                                 f"{t_near.min():.4g} s and {t_far.max():.4g} s (round trip); "
+                                 "set [time] start_s before and start_s + bins * "
+                                 "bin_width_s after these")
         if t_far.max() >= t1 or t_near.min() < t0:
             notes.append(f"{name} returns light partly outside the time window "
                          f"[{t0:.3g}, {t1:.3g}) s")

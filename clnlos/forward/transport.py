@@ -49,7 +49,7 @@ import pyopencl.array as cla
 import scipy.fft as sfft
 import scipy.sparse as sp
 
-from clnlos import C0
+from clnlos.physics.constants import C0
 from clnlos.errors import ParameterError
 from clnlos.operators.base import LinearOperator
 from clnlos.operators.resample import AxisResample, overlap_matrix

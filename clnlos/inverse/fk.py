@@ -18,7 +18,7 @@ from __future__ import annotations
 import numpy as np
 import pyopencl.array as cla
 
-from clnlos import C0
+from clnlos.physics.constants import C0
 from clnlos.config import METHOD_FALLOFF
 from clnlos.inverse.lct import check_inversion_args
 from clnlos.inverse.methods import Inversion, InversionGrid

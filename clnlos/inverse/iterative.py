@@ -76,7 +76,7 @@ from dataclasses import dataclass, field
 import numpy as np
 import pyopencl.array as cla
 
-from clnlos import C0
+from clnlos.physics.constants import C0
 from clnlos.checks import integer, real
 from clnlos.config import DEPTH_GUARD_M, ITERATIONS_RANGE, WEIGHT_RANGE
 from clnlos.brdf.lobes import AUTO, retro_lobe

@@ -30,7 +30,7 @@ import numpy as np
 import pyopencl.array as cla
 import scipy.sparse as sp
 
-from clnlos import C0
+from clnlos.physics.constants import C0
 from clnlos.checks import real
 from clnlos.config import FALLOFF_RANGE, METHOD_FALLOFF
 from clnlos.errors import ParameterError, ShapeError

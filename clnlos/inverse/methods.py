@@ -28,9 +28,11 @@ Class attributes the pipeline reads: ``slab_snr_min``, ``slab_snr_toward_photons
 device; ``report()`` what the solver did (or None); ``used()`` parameters settled during
 the call (recorded in ``params``).
 
-The registry names each method's module and class, so this module (read by the config, the
-CLI flags, the study, the demo and the bench) imports no OpenCL code; :func:`method_class`
-imports the one asked for. Adding a method: one module with its class, one line here.
+The registry (:data:`METHODS`, :class:`MethodEntry` and the questions asked of it) is a
+table of the configuration, stated in :mod:`clnlos.config` (which checks a config's
+``method`` against it without importing this package) and re-exported here; it names each
+method's module and class, and :func:`method_class` imports the one asked for. Adding a
+method: one module with its class, one line in ``clnlos.config.METHODS``.
 """
 
 from __future__ import annotations
@@ -39,9 +41,26 @@ import importlib
 from dataclasses import dataclass
 from typing import TYPE_CHECKING
 
+from clnlos.config import (
+    CLOSED_FORM_BRDFS,
+    ITERATIVE_MAX_BINS,
+    METHODS,
+    RETROREFLECTIVE_FALLOFF,
+    MethodEntry,
+    auto_snr_rule,
+    default_falloffs,
+    method_names,
+    methods_reading,
+    split_rule,
+)
+
 if TYPE_CHECKING:  # annotations only: this module imports no OpenCL code
     import numpy as np
     import pyopencl.array as cla
+
+# the registry, stated in clnlos.config, read here by the pipeline, the CLI, the study, the bench
+__all__ = ["CLOSED_FORM_BRDFS", "ITERATIVE_MAX_BINS", "METHODS", "RETROREFLECTIVE_FALLOFF", "Inversion", "InversionGrid", "MethodEntry", "auto_snr_rule",
+           "default_falloffs", "method_class", "method_names", "methods_reading", "split_rule"]
 
 
 @dataclass(frozen=True)
@@ -51,101 +70,6 @@ class InversionGrid:
     shape: tuple[int, int, int]
     bin_width_s: float
     scan_width_m: float
-
-
-@dataclass(frozen=True)
-class MethodEntry:
-    """A registered method: where its class lives, its default radiometric falloff (the
-    power of 1/r applied per bin before the inversion; None: the method has its own model),
-    a one-line summary for the CLI help, the split search that can choose its SNRs on
-    photon counts its slab model fits exactly (``split_rule``): "thinning" (a forward model
-    scores held-out photons, :mod:`clnlos.inverse.thinning`) or "reproducibility" (the
-    halves' thresholded images must agree, :mod:`clnlos.inverse.reproducibility`), and
-    what ``snr_rule = "auto"`` stands for there (``auto_snr_rule``: that search, or "gcv"
-    where the search does not earn its cost: the iterative method, whose thinning search
-    costs 2-3 more reconstructions for +0.001 mean IoU on the oracle table,
-    :mod:`clnlos.inverse.thinning`)."""
-
-    module: str
-    cls: str
-    falloff: float | None
-    summary: str
-    split_rule: str = "reproducibility"  # a method without a forward model has only this
-    auto_snr_rule: str = "gcv"
-    # the config fields of the inversion that only some methods read which this one reads
-    # (a user who sets one for a method that does not read it is told so: clnlos.config)
-    reads: tuple[str, ...] = ()
-    # the most time bins the method inverts when ``bins`` is not set: a longer capture's bins
-    # are summed in pairs until it fits (clnlos.inverse.pipeline.bins_for); None: all of them
-    max_bins: int | None = None
-
-    def __post_init__(self):
-        if self.split_rule not in ("thinning", "reproducibility"):
-            raise ValueError(f"split_rule {self.split_rule!r}: \"thinning\" or "
-                             "\"reproducibility\"")
-        if self.auto_snr_rule not in ("gcv", self.split_rule):
-            raise ValueError(f"auto_snr_rule {self.auto_snr_rule!r}: \"gcv\" or "
-                             f"{self.split_rule!r}")
-
-
-# the iterative method's default time grid: at most 512 bins, the published LCT code's grid of
-# the 2048-bin captures of O'Toole et al. (4 ps bins summed to 16 ps); each iteration costs
-# light-cone FFTs on a grid twice the bins deep (a 64 x 64 x 2048 capture took minutes)
-ITERATIVE_MAX_BINS = 512
-
-METHODS: dict[str, MethodEntry] = {
-    "lct": MethodEntry("clnlos.inverse.lct", "LCTMethod", 4.0,
-                       "light-cone transform with a Wiener filter (O'Toole et al. 2018)",
-                       "reproducibility", "reproducibility",
-                       ("falloff", "inversion_snr", "brdf")),
-    "fk": MethodEntry("clnlos.inverse.fk", "FKMethod", 2.0,
-                      "f-k (Stolt) migration (Lindell et al. 2019)", "reproducibility",
-                      "reproducibility", ("falloff", "brdf")),
-    "iterative": MethodEntry("clnlos.inverse.iterative", "IterativeMethod", None,
-                             "FISTA on the light-cone transport, L1 + TV, warm-started by "
-                             "LCT", "thinning", "gcv",
-                             ("inversion_snr", "iterations", "l1_weight", "tv_weight",
-                              "depth_min_m", "slab_model", "brdf", "brdf_terms"),
-                             ITERATIVE_MAX_BINS),
-}
-
-
-# LCT's and f-k's retroreflective variant (O'Toole et al. 2018, cnlos_reconstruction.m
-# ``isdiffuse = 0``): the radiometric exponent of a retroreflector whose cone the scanned spot
-# holds (1/r^2; clnlos.physics.retroreflector); ``brdf = "retroreflective"`` asks for it
-RETROREFLECTIVE_FALLOFF = 2.0
-# the reflectances LCT and f-k take (``brdf``): their falloff is all they model of it
-CLOSED_FORM_BRDFS = ("lambertian", "retroreflective")
-
-
-def method_names() -> tuple[str, ...]:
-    return tuple(METHODS)
-
-
-def auto_snr_rule(name: str) -> str:
-    """The rule ``snr_rule = "auto"`` stands for with the registered method ``name`` (on
-    photon counts its slab model fits exactly; :class:`MethodEntry`)."""
-    return METHODS[name].auto_snr_rule
-
-
-def methods_reading(field: str) -> tuple[str, ...]:
-    """The registered methods that read the method-specific config ``field``
-    (:attr:`MethodEntry.reads`; every method when no method lists it: a common field)."""
-    listed = tuple(n for n, e in METHODS.items() if field in e.reads)
-    if not listed and not any(field in e.reads for e in METHODS.values()):
-        return tuple(METHODS)
-    return listed
-
-
-def split_rule(name: str) -> str:
-    """The split search valid for the registered method ``name`` (``snr_rule`` by name;
-    :class:`MethodEntry`)."""
-    return METHODS[name].split_rule
-
-
-def default_falloffs() -> dict[str, float]:
-    """The falloff of each method that has one (``--falloff`` default per method)."""
-    return {name: e.falloff for name, e in METHODS.items() if e.falloff is not None}
 
 
 def method_class(name: str) -> type:

@@ -41,10 +41,10 @@ from dataclasses import dataclass, field
 import numpy as np
 import pyopencl.array as cla
 
-from clnlos import C0
+from clnlos.physics.constants import C0
 from clnlos.brdf.lobes import AUTO, auto_challengers, auto_ladder
 from clnlos.config import ReconstructionConfig, check_window
-from clnlos.errors import InputFileError, ParameterError
+from clnlos.errors import InputFileError, MissingParameterError, ParameterError
 from clnlos.forward.blur import blur_time_scales, confocal_lag_energy, confocal_psf, slab_blur
 from clnlos.inverse.brdf_choice import (
     LOBE_NOT_SEARCHED,
@@ -54,6 +54,7 @@ from clnlos.inverse.brdf_choice import (
     choose_lobe,
     score_margin,
 )
+from clnlos.inverse.capture_defaults import format_defaults
 from clnlos.inverse.gcv import GcvBins, binned_power
 from clnlos.inverse.methods import METHODS, InversionGrid, method_class
 from clnlos.inverse.reproducibility import (
@@ -68,6 +69,7 @@ from clnlos.inverse.reproducibility import (
 from clnlos.inverse.snr import (
     ARRIVAL_SIGMAS,
     LEAD_FRACTION,
+    background_subtracted,
     MEASURED_MODEL_SNR,
     SNR_MAX,
     SNR_MIN,
@@ -93,7 +95,7 @@ from clnlos.inverse.thinning import (
     scaled_fit,
     thin_counts,
 )
-from clnlos.io.capture import Capture
+from clnlos.io.capture import Capture, without_direct
 from clnlos.operators.resample import AxisResample, overlap_matrix
 from clnlos.physics.grid import row_blocks
 from clnlos.physics.lobe import RetroLobe
@@ -500,7 +502,8 @@ class ReconstructionPipeline:
         """The capture preprocessed and normalised once (:class:`PreparedCapture`), for
         :meth:`_reconstruct` (every candidate of a split search reuses it)."""
         noise = self.raw_noise(transient) if noise is None else noise
-        x = cla.to_device(self.queue, np.ascontiguousarray(transient, self.dtype))
+        x = cla.to_device(self.queue, np.ascontiguousarray(
+            background_subtracted(transient, noise, self.dtype)))
         tau = self._timed({} if timings is None else timings, "preprocess", self.pre, x)
         profile, peak = self._profile_peak(tau)
         total = float(profile.sum())
@@ -626,6 +629,7 @@ class ReconstructionPipeline:
             if isinstance(deconv, TailFilledDeconvolution):
                 out = self._timed(timings, "deconvolve", deconv, prep.tau, prep.fills)
                 added["tail_fill_snr"] = deconv.fill_snr  # the fill's SNR (tail_fill)
+                added["tail_filled_snr_applied"] = deconv.applied_snr  # its final filter's
             else:
                 out = self._timed(timings, "deconvolve", deconv, prep.tau)
             if self.n_guard:
@@ -1061,13 +1065,13 @@ def resolve_geometry(capture: Capture, config: ReconstructionConfig, *,
     src = capture.source or "the capture"
     bw = config.bin_width_s if config.bin_width_s is not None else capture.bin_width_s
     if bw is None:
-        raise ParameterError("--bin-width", None, f"> 0: {src} does not store its bin "
-                             "width; give --bin-width or [capture] bin_width_s")
+        raise MissingParameterError("--bin-width", f"{src} does not store its bin width; "
+                                    "give --bin-width (s) or [capture] bin_width_s")
     sw = config.scan_width_m if config.scan_width_m is not None else capture.scan_width_m
     if sw is None:
         why = capture.attrs.get("scan_width_unknown", f"{src} does not store the scan width")
-        raise ParameterError("--scan-width", None, f"> 0: {why}; give --scan-width (the "
-                             "side along x, m) or [capture] scan_width_m")
+        raise MissingParameterError("--scan-width", f"{why}; give --scan-width (the side "
+                                    "along x, m) or [capture] scan_width_m")
     ny, nx = capture.transient.shape[1:]
     if config.scan_width_m is None and capture.scan_height_m is not None and not math.isclose(
             capture.scan_height_m / ny, sw / nx, rel_tol=1e-6):
@@ -1090,6 +1094,14 @@ def reconstruct(capture: Capture, config: ReconstructionConfig, *, dtype=np.floa
     ``progress(k, n)`` follows the iterative method's iterations and ``setup(step)`` names
     each set-up step (pipeline, operator, step size, warm start) as it starts.
     """
+    capture, reader_notes = without_direct(capture, config.direct_cut_s)
+    if capture.bin_width_s is not None or config.bin_width_s is not None:
+        bw = config.bin_width_s or capture.bin_width_s
+        start = config.start_s if config.start_s is not None else capture.start_s
+        kept, _ = preprocess_bins(capture.transient.shape[0], bw, start,
+                                  config.max_path_m, None)
+        config, notes = format_defaults(capture.attrs, config, bins_kept=kept, bin_width_s=bw)
+        reader_notes += notes
     bw, start, sw = resolve_geometry(capture, config)
     queue = get_queue(device)
     key = (capture.transient.shape, bw, start, sw, json.dumps(config.as_attrs(), sort_keys=True),
@@ -1103,6 +1115,7 @@ def reconstruct(capture: Capture, config: ReconstructionConfig, *, dtype=np.floa
     note = aligned_window_note(capture)
     if note:
         rec.notes.insert(0, note)
+    rec.notes[:0] = reader_notes
     rec.extents = centred_extents(rec.extents, capture.scan_center_m)
     return rec
 

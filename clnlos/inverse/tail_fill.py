@@ -17,6 +17,7 @@ TAIL_FILL_ITERATIONS = 12    # at most this many fills of the unseen tail
 TAIL_FILL_RTOL = 1e-3        # ... stopping when the fill changes by less than this (rel. L2)
 TAIL_FILL_SNR = 1e4          # the fill's Wiener SNR at most (see TailFilledDeconvolution)
 TAIL_FILL_SNR_MIN = 1e2      # ... lowered 10x at a time while the fill diverges, to this
+TAIL_FILLED_SNR_MAX = 1e8    # the final deconvolution of a filled window's SNR at most
 
 
 class TailFilledDeconvolution:
@@ -41,10 +42,14 @@ class TailFilledDeconvolution:
     brightest voxels of the volume.
 
     The fill's W runs at min(snr, TAIL_FILL_SNR); only the final x_K = W y_K takes the
-    deconvolution's own SNR. The fill is H P x_k, blurred again by H, so it needs only what
-    a moderate SNR already restores; a near-inverse W (SNR 1e8-1e10: noise-free captures,
-    1e12 photons) makes the fixed-point iteration diverge instead (85 bins of 96 ps, a
-    5.1 ns tail: the fill grows 49x per step, a target at 0.5 m reconstructed at 1.1 m).
+    deconvolution's own SNR, at most TAIL_FILLED_SNR_MAX (``applied_snr``): the filled tail
+    agrees with the true one only to the fill's accuracy, and a near-inverse final filter
+    (the noise-free cap, 1e10) turns that mismatch at the window's end into voxels past the
+    target (docs/validation/parameter-rules.md). The fill is H P x_k, blurred again by H,
+    so it needs only what a moderate SNR already restores; a near-inverse W (SNR
+    1e8-1e10: noise-free captures, 1e12 photons) makes the fixed-point iteration diverge
+    instead (85 bins of 96 ps, a 5.1 ns tail: the fill grows 49x per step, a target at
+    0.5 m reconstructed at 1.1 m).
     Measured there, the fill's error against the true tail is 0.6% at SNR 1e4, 1.3% at 1e5,
     1.4% at 1e6; from 1e7 it diverges. Should the fill still diverge (a change larger than
     its first), its SNR is lowered tenfold and the fill restarted, down to
@@ -76,6 +81,12 @@ class TailFilledDeconvolution:
     def set_snr(self, snr: float) -> None:
         self.snr = float(snr)
 
+    @property
+    def applied_snr(self) -> float:
+        """The SNR of the final deconvolution: min(snr, TAIL_FILLED_SNR_MAX) (the filled
+        tail is a model prediction, not data a near-inverse filter may trust)."""
+        return min(self.snr, TAIL_FILLED_SNR_MAX)
+
     def __call__(self, tau_g: cla.Array, memo: dict | None = None) -> cla.Array:
         """The deconvolution of ``tau_g`` at the set SNR; ``memo`` (a dict kept by the
         caller for this one input): the fills by fill SNR, computed once (the fill depends
@@ -97,7 +108,7 @@ class TailFilledDeconvolution:
                 break
             fill_snr = max(fill_snr / 10.0, TAIL_FILL_SNR_MIN)
         self.fill_snr = fill_snr
-        self.W.set_snr(self.snr)
+        self.W.set_snr(self.applied_snr)
         x = self.W(y)
         # arrivals past n - peak are seen only by the rise of their response: not determined
         fill_zero(self.queue, x, offset_bytes=self.n_known * plane * item)

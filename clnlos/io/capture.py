@@ -5,13 +5,17 @@ records its scene and slab there)."""
 
 from __future__ import annotations
 
+import dataclasses
 import json
+import math
 from dataclasses import dataclass, field
 
 import numpy as np
 
-from clnlos.config import check_geometry, parse_toml, slab_from_table
+from clnlos.checks import check_geometry, parse_toml
 from clnlos.errors import ClnlosError, InputFileError, ParameterError
+from clnlos.physics.constants import C0
+from clnlos.physics.slab import slab_from_table
 
 CAPTURE_FORMAT = "clnlos-capture-1"  # the format attribute of the clnlos capture files
 
@@ -105,6 +109,39 @@ class Capture:
             return slab_from_table(table, section="slab")
         except ClnlosError as exc:
             raise InputFileError(f"{src}: {where}: {exc}") from None
+
+
+def without_direct(capture: Capture, cut_s: float | None = None
+                   ) -> tuple[Capture, list[str]]:
+    """(capture, notes): the capture with its window zeroed before ``cut_s`` (round trip, s;
+    None: the direct reflection the reader recorded, attribute ``direct_end_s``; 0: nothing),
+    the bins the direct reflection off the relay wall fills, and one note line per thing a
+    reader supplied (the cut, a bin width the file does not store). Bins are zeroed, not
+    dropped: the time axis (and t = 0 at the wall) stays."""
+    notes = []
+    src = capture.attrs.get("bin_width_source")
+    if src and capture.bin_width_s is not None:
+        notes.append(f"bin width {capture.bin_width_s * 1e12:g} ps: {src} (override with "
+                     "--bin-width / bin_width_s)")
+    recorded = capture.attrs.get("direct_end_s")
+    cut = float(recorded or 0.0) if cut_s is None else float(cut_s)
+    bw = capture.bin_width_s
+    if not cut > 0 or bw is None:
+        return capture, notes
+    k = int(min(capture.transient.shape[0], max(0, math.ceil((cut - capture.start_s) / bw
+                                                               - 1e-9))))
+    if k == 0:
+        return capture, notes
+    t = np.array(capture.transient, copy=True)
+    removed = float(np.sum(t[:k], dtype=np.float64))
+    t[:k] = 0
+    kept = float(np.sum(t, dtype=np.float64))
+    why = ("the direct reflection off the wall, as the published code" if cut_s is None
+           else "as asked")
+    notes.append(f"the first {k} bins ({cut * 1e9:.3g} ns, paths below {C0 * cut:.3g} m) "
+                 f"zeroed: {why} ({removed:.4g} of {removed + kept:.4g} counts; change with "
+                 "--direct-cut / direct_cut_s, 0 keeps them)")
+    return dataclasses.replace(capture, transient=t), notes
 
 
 NO_SLAB_ATTRS = ("", "none")  # a ``slab`` attribute that records "no slab" (None is written so)

@@ -31,8 +31,9 @@ from pathlib import Path
 
 import h5py
 
-from clnlos import __version__
 from clnlos.errors import OutputFileError
+from clnlos.runtime.filemode import file_mode
+from clnlos.version import __version__
 
 HDF5_SUFFIXES = (".h5", ".hdf5", ".he5")
 
@@ -41,17 +42,6 @@ PNG_SOFTWARE = "clnlos"        # PNG tEXt "Software" of every figure clnlos save
 VERSION_KEY = "clnlos_version"  # HDF5 attribute / first JSON key of every clnlos output
 HTML_GENERATOR = "<meta name='generator' content='clnlos'>"  # in the <head> of its reports
 MARKER_BYTES = 4096  # the head of a file searched for the marker (bytes)
-
-
-def _umask() -> int:
-    mask = os.umask(0)
-    os.umask(mask)
-    return mask
-
-
-def file_mode() -> int:
-    """Mode of a new regular file under the current umask."""
-    return 0o666 & ~_umask()
 
 
 def _existing_parent(p: Path) -> Path:

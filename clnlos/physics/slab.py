@@ -12,8 +12,8 @@ from functools import lru_cache
 
 import numpy as np
 
-from clnlos import C0
-from clnlos.checks import positive
+from clnlos.physics.constants import C0
+from clnlos.checks import check_keys, integer, positive
 from clnlos.errors import ParameterError
 
 FRESNEL_NODES = 64  # Gauss-Legendre nodes of the R_eff integrals (exact to ~1e-13)
@@ -125,3 +125,47 @@ class Slab:
 CDT_SLAB = Slab(thickness_m=0.0254, mu_a=0.53, mu_s_prime=262.0, n=1.12)
 """The 1-inch slab of the published CDT captures (Lindell & Wetzstein 2020, seed Table 1);
 the published reconstructions override ze with ``ze_m = 0.0036`` (examples/cdt_*.toml)."""
+
+
+# the keys of a [slab] table (scene TOML, reconstruction TOML, capture files)
+SLAB_KEYS = ("thickness_m", "mu_a", "mu_s_prime", "n", "ze_m", "n_dipoles")
+
+
+def slab_from_table(t: dict, section: str = "slab", names: dict | None = None
+                    ) -> tuple[Slab, int | None]:
+    """(Slab, n_dipoles) from a [slab] table; ``names`` maps keys to how the user wrote
+    them (a CLI flag) for error messages."""
+    names = names or {}
+
+    def nm(k):
+        return names.get(k, f"{section}.{k}")
+
+    check_keys(section, t, SLAB_KEYS)
+    nd = t.get("n_dipoles")
+    if nd is not None:
+        nd = integer(nm("n_dipoles"), nd, 0, 10000)
+    for k in ("thickness_m", "mu_a", "mu_s_prime", "n", "ze_m"):
+        if k in t and t[k] is not None:
+            positive(nm(k), t[k], allow_zero=k in ("mu_a", "ze_m"))
+    needed = ("thickness_m", "mu_a", "mu_s_prime", "n")
+    missing = [k for k in needed if k not in t]
+    if missing:  # after the values given: a bad one is named before one left out
+        given = [nm(k) for k in needed if k in t]
+        raise ParameterError(nm(missing[0]), None, "a number: a slab needs all of "
+                             + ", ".join(nm(k) for k in needed)
+                             + (f" (given: {', '.join(given)})" if given else ""))
+    try:
+        slab = Slab(thickness_m=t["thickness_m"], mu_a=t["mu_a"], mu_s_prime=t["mu_s_prime"],
+                    n=t["n"], ze_m=t.get("ze_m"))
+    except ParameterError as exc:
+        raise ParameterError(nm(exc.name), exc.value, exc.allowed) from None
+    return slab, nd
+
+
+def slab_table(slab: Slab) -> dict:
+    """The [slab] table of a Slab (inverse of :func:`slab_from_table`)."""
+    d = {"thickness_m": slab.thickness_m, "mu_a": slab.mu_a, "mu_s_prime": slab.mu_s_prime,
+         "n": slab.n}
+    if slab.ze_m is not None:
+        d["ze_m"] = slab.ze_m
+    return d

@@ -13,7 +13,8 @@ import numpy as np
 import pyopencl as cl
 from pyopencl import _find_pyopencl_include_path  # pyopencl's own header folder
 
-from clnlos import C0, __version__
+from clnlos.physics.constants import C0
+from clnlos.version import __version__
 from clnlos.errors import KernelBuildError
 from clnlos.runtime.caches import CACHES
 

@@ -9,7 +9,7 @@ sources and Python modules that compute it, and the clnlos version -- and a late
 with the same geometry reads it instead of recomputing it. Off by default (it spends disk);
 the folder is kept under ``CLNLOS_SPECTRUM_CACHE_MB`` (default 4096 MiB) by deleting the
 least recently used files. Files are written atomically, with the mode the umask gives a
-new file (:func:`clnlos.io.outputs.file_mode`).
+new file (:func:`clnlos.runtime.filemode.file_mode`).
 
 Each entry is a header -- ``MAGIC``, its key, the payload's size in bytes and its checksum
 (:func:`payload_checksum`) -- then the spectrum's raw bytes. A read verifies all four; an
@@ -31,8 +31,8 @@ from pathlib import Path
 import numpy as np
 
 from clnlos.errors import ParameterError
-from clnlos.io.outputs import file_mode
 from clnlos.runtime.buffers import host_view
+from clnlos.runtime.filemode import file_mode
 from clnlos.runtime.programs import code_digest
 from clnlos.settings import ENV_SPECTRUM_CACHE, Settings, current, resolve
 

@@ -82,7 +82,7 @@ def classifier_section(results, thinning, table, png) -> list[str]:
     captures), ``table(header, rows)`` and ``png(fig)`` the report's own helpers."""
     cnn = results["cnn"]
     title = "The legibility classifier: held-out splits, calibration, thinned real captures"
-    out = [f"<h2>{html.escape(title)}</h2>", (
+    out = [f"<h3>{html.escape(title)}</h3>", (
         f"<p>What it predicts: P(legible), legible meaning {html.escape(cnn['label'])} (a fact "
         f"of the ground truth; {cnn['legible']} of {cnn['n']} reconstructions). A CNN "
         f"(four stride-2 conv blocks, a second head for the IoU over the box baseline, "

@@ -10,7 +10,7 @@ split, the confusion matrix, per-epoch loss and accuracy.
 
 The legibility classifier (:func:`fit_legibility`): MIP -> P(legible), legible meaning the
 template rule identified the glyph *and* its IoU beats the box baseline
-(:func:`clnlos.study.run.legibility_label` class 1: read, and more shape than a blob). Four
+(:func:`clnlos.study.samples.legibility_label` class 1: read, and more shape than a blob). Four
 conv blocks (3x3, stride 2, batch norm, ReLU; 8-16-32-64 channels), a 2 x 2 average pool, a
 hidden layer of 32 and two heads: the logit z of "legible" and the IoU over the box baseline
 (a regression that shares the features). Loss: class-balanced binary cross-entropy (each

@@ -36,7 +36,8 @@ from pathlib import Path
 import numpy as np
 from tqdm import tqdm
 
-from clnlos import C0, __version__
+from clnlos.physics.constants import C0
+from clnlos.version import __version__
 from clnlos.brdf.lobes import LAMBERTIAN, lobe_by_name
 from clnlos.config import ReconstructionConfig, snr_rule_applies
 from clnlos.errors import ParameterError

@@ -42,7 +42,7 @@ import numpy as np
 from scipy.ndimage import map_coordinates, maximum_filter
 from scipy.optimize import brentq
 
-from clnlos import C0
+from clnlos.physics.constants import C0
 from clnlos.config import ReconstructionConfig, slab_table, snr_rule_applies
 from clnlos.forward.geometry import sample_letters
 from clnlos.forward.model import ForwardModel

@@ -13,7 +13,7 @@ photon counts under each transport, the rank of each material under each (by acc
 ties broken by the margin), and Spearman's and Kendall's rank correlations between the
 two (of the accuracies and of the margins). A material "moves" when its rank changes.
 
-Samples go through :func:`clnlos.study.run.render_plan` and the study's cache: the
+Samples go through :func:`clnlos.study.samples.render_plan` and the study's cache: the
 confocal side is the study's own main samples (same cache entries); a bistatic sample is
 the same sample dict with a ``transport`` table (its own cache key).
 
@@ -100,7 +100,7 @@ def _corr(a, b) -> dict:
 
 
 def comparison_table(materials, plan, results, chance: float, table=None) -> dict:
-    """The comparison from identified results (:func:`clnlos.study.run.identification_of`
+    """The comparison from identified results (:func:`clnlos.study.samples.identification_of`
     run on ``plan``): ``rows`` per material, ``correlation``, ``moved`` and ``statement``."""
     rows = []
     for m in materials:

@@ -6,12 +6,23 @@ Layouts, told apart by their variables (MATLAB index order (i, j, k) = numpy ord
 * CDT (Lindell & Wetzstein 2020): ``meas`` of MATLAB size (T, N, N) = (t, y running down,
   x), 16 ps bins (``CDT_MAT_BIN_WIDTH_S``), bin 0 at t = 0; the scan width is not stored.
   Checked on the published letters: they read "UT", U on the left.
-* LCT (O'Toole, Lindell & Wetzstein 2018): ``rect_data`` of size (N, N, T) = (y, x, t), both
-  increasing with index (the axes the published code labels), ``width`` = half the scan width
-  (m), ``bin_resolution`` (s).
+* LCT (O'Toole, Lindell & Wetzstein 2018): ``rect_data`` of size (N, N, T) and ``width`` =
+  half the scan width (m), as released with the paper; ``bin_resolution`` (s) where a file
+  has it, else the published code's 4 ps (``LCT_MAT_BIN_WIDTH_S``). Orientation as the
+  published code (``cnlos_reconstruction.m``) displays it: it permutes the data to (t, j, i),
+  reverses i, and shows the front view with j running down the image. So index j runs down
+  (-y) and index i runs right to left (-x): [t, y, x] = rect_data[::-1, ::-1, :] transposed
+  to (t, j, i); the letters of the released captures then read left to right, seen from the
+  wall. The window starts at the direct reflection off the wall ("pre-rectified"); its
+  first ``LCT_DIRECT_END_S`` (the 600 bins of 4 ps the published code zeroes) are recorded
+  as the direct reflection (attribute ``direct_end_s``), which a reconstruction removes
+  (:func:`clnlos.io.capture.without_direct`).
 * f-k (Lindell, Wetzstein & O'Toole 2019): ``meas`` of size (N, N, T) = (y, x, t) and
   ``tofgrid`` (N, N), the time of flight (ps) from the laser and detector to each scan
-  point, which is removed (each column moved earlier by it, fractionally, counts
+  point. The published code (``cnlos_reconstruction.m`` of nlos-fk) shows the front view as
+  ``meas``'s first index running down the image and its second to the right (it reverses
+  both and labels both axes from +w to -w, which ``imagesc`` draws back the same way), so
+  row i is y = -i: [t, y, x] = meas[::-1, :, :] transposed. The time of flight is removed (each column moved earlier by it, fractionally, counts
   conserved); 32 ps bins (the published code's ``bin_resolution``), scan width not stored.
   A ``meas`` of size (N, N, T) without ``tofgrid`` is read the same way, already aligned.
 """
@@ -31,6 +42,12 @@ from clnlos.runtime.limits import declared_capture
 
 CDT_MAT_BIN_WIDTH_S = 16e-12  # the CDT capture format's histogram bin
 FK_MAT_BIN_WIDTH_S = 32e-12   # bin_resolution of the f-k data files
+LCT_MAT_BIN_WIDTH_S = 4e-12   # the LCT release's SPAD bin (cnlos_reconstruction.m)
+LCT_DIRECT_END_S = 600 * LCT_MAT_BIN_WIDTH_S  # the direct reflection the published code zeroes
+LCT_RELEASE_BIN_WIDTH_S = 16e-12  # ... and its time bin (4 ps summed in fours, K = 2)
+LCT_RELEASE_REFLECTANCE = "retroreflective"  # its published default: (t/T)^2
+DIRECT_PEAK_FRACTION = 0.02   # a direct reflection peaks within this fraction of the window
+DIRECT_PEAK_OVER_MEDIAN = 10.0  # ... this many times above the window's median
 
 
 def _scalar(v, name, path) -> float:
@@ -50,20 +67,54 @@ def _time_last(meas, path, name) -> bool:
 
 
 def from_lct(rect_data, width, bin_resolution, path) -> Capture:
+    """The LCT layout (module docstring): ``bin_resolution`` None takes the published 4 ps,
+    recorded in the attributes (``bin_width_source``) for the reconstruction's note."""
     if rect_data.ndim != 3:
         raise InputFileError(f"{path}: 'rect_data' must be 3D (N, N, T), got {rect_data.shape}")
-    arr = validate_transient(np.transpose(rect_data, (2, 0, 1)), path)
-    return Capture(arr, _scalar(bin_resolution, "bin_resolution", path), 0.0,
-                   2.0 * _scalar(width, "width", path), str(path), {"format": "lct-mat"})
+    arr = validate_transient(np.transpose(rect_data[::-1, ::-1, :], (2, 1, 0)), path)
+    attrs = {"format": "lct-mat", "reflectance_default": LCT_RELEASE_REFLECTANCE,
+             "reflectance_source": "the published code's default for this release (isdiffuse"
+                                   " = 0: retroreflective targets, 1/r^2)",
+             "bin_width_default_s": LCT_RELEASE_BIN_WIDTH_S,
+             "bin_width_default_source": "the published code sums the 4 ps bins in fours"}
+    if starts_with_direct_reflection(arr):
+        attrs["direct_end_s"] = LCT_DIRECT_END_S
+    if bin_resolution is None:
+        bin_width = LCT_MAT_BIN_WIDTH_S
+        attrs["bin_width_source"] = ("the published code's 4 ps (cnlos_reconstruction.m); "
+                                     "the file does not store it")
+    else:
+        bin_width = _scalar(bin_resolution, "bin_resolution", path)
+    return Capture(arr, bin_width, 0.0, 2.0 * _scalar(width, "width", path), str(path), attrs)
+
+
+def starts_with_direct_reflection(transient: np.ndarray) -> bool:
+    """Whether the window starts at a direct reflection ("pre-rectified", as the LCT
+    release): the scan's summed histogram peaks in the first DIRECT_PEAK_FRACTION of the
+    bins, above DIRECT_PEAK_OVER_MEDIAN times its median."""
+    h = np.asarray(transient, np.float64).reshape(transient.shape[0], -1).sum(axis=1)
+    k = int(np.argmax(h))
+    return (k < max(2, DIRECT_PEAK_FRACTION * h.size)
+            and h[k] > DIRECT_PEAK_OVER_MEDIAN * max(float(np.median(h)), 0.0))
+
+
+def lct_rect_data(transient: np.ndarray) -> np.ndarray:
+    """[t, y, x] -> the LCT layout's ``rect_data`` (N, N, T): the inverse of
+    :func:`from_lct`'s orientation (for writing test files and exchanging data)."""
+    return np.transpose(np.asarray(transient), (2, 1, 0))[::-1, ::-1, :]
 
 
 def from_fk(meas, tofgrid, path) -> Capture:
-    arr = validate_transient(np.transpose(meas, (2, 0, 1)), path)
+    """The f-k layout (module docstring): rows run down the published front view."""
+    meas = np.asarray(meas)
+    if meas.ndim != 3:
+        raise InputFileError(f"{path}: 'meas' must be 3D (N, N, T), got {meas.shape}")
+    arr = validate_transient(np.transpose(meas[::-1], (2, 0, 1)), path)
     attrs = {"format": "fk-mat"}
     shifts = None
     if tofgrid is not None:
         try:
-            tof = np.asarray(tofgrid, np.float64)
+            tof = np.asarray(tofgrid, np.float64)[::-1]  # rows as the transient's
         except (TypeError, ValueError):
             raise InputFileError(f"{path}: 'tofgrid' must be numbers (ps)") from None
         if tof.shape != arr.shape[1:]:
@@ -107,8 +158,8 @@ def read_mat73(f, path) -> Capture:
     _declared_mat73(f, path)
     try:
         if "rect_data" in f:
-            return from_lct(np.transpose(f["rect_data"][()]), f["width"][()],
-                            f["bin_resolution"][()], path)
+            bin_res = f["bin_resolution"][()] if "bin_resolution" in f else None
+            return from_lct(np.transpose(f["rect_data"][()]), f["width"][()], bin_res, path)
         meas = np.transpose(f["meas"][()])  # back to MATLAB's order
     except KeyError as exc:
         raise InputFileError(f"{path}: missing variable {exc}") from None
@@ -136,9 +187,12 @@ def _declared_mat5(path) -> None:
         return
     shape, cls = info[name]
     t_last = name == "rect_data" or "tofgrid" in info or shape[2] > max(shape[0], shape[1])
-    bin_width = (None if name == "rect_data" else FK_MAT_BIN_WIDTH_S if t_last
+    lct_bin = None if "bin_resolution" in info else LCT_MAT_BIN_WIDTH_S  # read with the data
+    bin_width = (lct_bin if name == "rect_data" else FK_MAT_BIN_WIDTH_S if t_last
                  else CDT_MAT_BIN_WIDTH_S)
-    declared_capture(path, (shape[2], shape[0], shape[1]) if t_last else shape,
+    tyx = ((shape[2], shape[1], shape[0]) if name == "rect_data"  # from_lct's transpose
+           else (shape[2], shape[0], shape[1]) if t_last else shape)
+    declared_capture(path, tyx,
                      MAT_CLASS_BYTES.get(cls, 8), bin_width_s=bin_width)
 
 
@@ -151,10 +205,10 @@ def read_mat5(path) -> Capture:
         # a corrupt or truncated file ends in any of these inside scipy's parser
         raise InputFileError(f"{path}: not a readable MATLAB v5/v7 file ({exc})") from None
     if "rect_data" in d:
-        missing = [k for k in ("width", "bin_resolution") if k not in d]
-        if missing:
-            raise InputFileError(f"{path}: LCT layout ('rect_data') without {missing[0]!r}")
-        return from_lct(d["rect_data"], d["width"], d["bin_resolution"], path)
+        if "width" not in d:
+            raise InputFileError(f"{path}: LCT layout ('rect_data') without 'width' (half the "
+                                 "scan width, m)")
+        return from_lct(d["rect_data"], d["width"], d.get("bin_resolution"), path)
     if "meas" in d:
         meas = np.asarray(d["meas"])
         if "tofgrid" in d or _time_last(meas, path, "meas"):

@@ -30,7 +30,7 @@ import json
 import h5py
 import numpy as np
 
-from clnlos import C0
+from clnlos.physics.constants import C0
 from clnlos.errors import InputFileError
 from clnlos.io.capture import Capture
 from clnlos.io.formats.common import align_columns, declared_dataset, validate_transient
