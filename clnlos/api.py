@@ -53,7 +53,7 @@ class PlausibilityWarning(UserWarning):
 
 PathLike = str | os.PathLike
 Device = str | cl.CommandQueue | None  # a device spec ("cpu", "0:0", "pocl") or a queue
-CONFIG_FIELDS = tuple(ReconstructionConfig.__dataclass_fields__)
+CONFIG_FIELDS = tuple(f for f in ReconstructionConfig.__dataclass_fields__ if f != "user_fields")
 
 
 def read_capture(path: PathLike) -> Capture:
@@ -164,7 +164,8 @@ def check_capture(capture: Capture, config: ReconstructionConfig, *,
     implausible or contradicting geometry value (``clnlos.config.plausibility_warnings``),
     some signal, light inside the kept window (``clnlos.config.check_light_in_window``)."""
     names = dict(names or {})
-    capture, _ = without_direct(capture, config.direct_cut_s)
+    capture, _ = without_direct(capture, config.direct_cut_s, bin_width_s=config.bin_width_s,
+                                start_s=config.start_s)
     bw, start, sw = resolve_geometry(capture, config, names=names)
     given = {f: names.get(f, FIELD_NAMES[f]) for f in ("scan_width_m", "bin_width_s", "start_s")
              if getattr(config, f) is not None}

@@ -135,7 +135,7 @@ class MethodEntry:
     # (a user who sets one for a method that does not read it is told so: clnlos.config)
     reads: tuple[str, ...] = ()
     # the most time bins the method inverts when ``bins`` is not set: a longer capture's bins
-    # are summed in pairs until it fits (clnlos.inverse.pipeline.bins_for); None: all of them
+    # are summed in pairs until it fits (clnlos.inverse.preprocessing.bins_for); None: all of them
     max_bins: int | None = None
 
     def __post_init__(self):
@@ -595,7 +595,8 @@ class ReconstructionConfig:
                 kw[TOML_FIELDS[(sec, key)]] = value
         if "slab" in d:
             kw["slab"], kw["n_dipoles"] = slab_from_table(d["slab"])
-        return cls(**kw).validate()
+        cfg = cls(**kw).validate()  # the fields the file set: user_fields (not checked
+        return dataclasses.replace(cfg, user_fields=frozenset(cls.given_fields(d)))  # here)
 
     @property
     def thinning(self) -> bool:

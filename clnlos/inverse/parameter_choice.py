@@ -37,6 +37,7 @@ from clnlos.inverse.snr import (
     MEASURED_MODEL_SNR,
     SNR_MAX,
     NoiseEstimate,
+    background_subtracted,
     combined_snr,
     is_counts,
     lightcone_snr,
@@ -371,11 +372,12 @@ class ParameterSearches:
         :meth:`_noise_like`): preprocessed, divided by its peak (the score fits the scale)
         and deconvolved at the SNR GCV picks for it (:meth:`slab_gcv_snr`), tail-filled where
         the window needs it."""
-        tau = self.pre(cla.to_device(self.queue, np.ascontiguousarray(y2, self.dtype)))
+        noise = self.raw_noise(y2)
+        tau = self.pre(cla.to_device(self.queue, np.ascontiguousarray(
+            background_subtracted(y2, noise, self.dtype))))
         profile, peak = self._profile_peak(tau)
         if peak > 0:
             self._scale_inplace(tau, 1.0 / peak)
-        noise = self.raw_noise(y2)
         snr = self.slab_gcv_snr(tau)
         deconv = self._deconvolution_for(profile, noise, snr, {}, [])
         deconv.set_snr(snr)

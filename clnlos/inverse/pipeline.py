@@ -549,8 +549,8 @@ class ReconstructionPipeline(ParameterSearches):
         their response only."""
         scales = self.blur_scales
         n_scan = self.shape[1] * self.shape[2]
-        background = noise.background_per_bin * n_scan * self.bin_width_s / self.raw_bin_width_s
-        level = window_end_level(profile, background=background, end_bins=scales.peak_lags,
+        # the profile was taken after background_subtracted (prepare, _held_out): no floor left
+        level = window_end_level(profile, background=0.0, end_bins=scales.peak_lags,
                                  photon_counts=noise.photon_counts, sigma=noise.sigma,
                                  n_scan=n_scan)
         params["window_end_level"] = level
@@ -586,7 +586,9 @@ def reconstruct(capture: Capture, config: ReconstructionConfig, *, dtype=np.floa
     each set-up step (pipeline, operator, step size, warm start) as it starts. A pipeline
     built for this call records its set-up as the stage "plan" of the timings.
     """
-    capture, reader_notes = without_direct(capture, config.direct_cut_s)
+    capture, reader_notes = without_direct(capture, config.direct_cut_s,
+                                           bin_width_s=config.bin_width_s,
+                                           start_s=config.start_s)
     if capture.bin_width_s is not None or config.bin_width_s is not None:
         bw = config.bin_width_s or capture.bin_width_s
         start = config.start_s if config.start_s is not None else capture.start_s

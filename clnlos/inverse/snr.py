@@ -171,7 +171,7 @@ def estimate_noise(y: np.ndarray, bin_width_s: float, start_s: float = 0.0) -> N
     background = min(float(np.median(profile[k0:k0 + lead])),
                      float(np.median(profile[k0:]))) / n_scan
     total = float(profile.sum())
-    signal = max(0.0, total - background * n_scan * nt)
+    signal = max(0.0, total - background * n_scan * (nt - k0))  # the floor where recorded
     if counts:
         sigma = math.sqrt(max(total / a.size, 1e-300))
         n_eq = signal

@@ -111,25 +111,28 @@ class Capture:
             raise InputFileError(f"{src}: {where}: {exc}") from None
 
 
-def without_direct(capture: Capture, cut_s: float | None = None
+def without_direct(capture: Capture, cut_s: float | None = None, *,
+                   bin_width_s: float | None = None, start_s: float | None = None
                    ) -> tuple[Capture, list[str]]:
     """(capture, notes): the capture with its window zeroed before ``cut_s`` (round trip, s;
     None: the direct reflection the reader recorded, attribute ``direct_end_s``; 0: nothing),
     the bins the direct reflection off the relay wall fills, and one note line per thing a
-    reader supplied (the cut, a bin width the file does not store). Bins are zeroed, not
-    dropped: the time axis (and t = 0 at the wall) stays."""
+    reader supplied (the cut, a bin width the file does not store). ``bin_width_s`` and
+    ``start_s``: the time axis the reconstruction uses where the user overrides the file's
+    (default: the capture's). Bins are zeroed, not dropped: the time axis (and t = 0 at the
+    wall) stays."""
     notes = []
     src = capture.attrs.get("bin_width_source")
-    if src and capture.bin_width_s is not None:
+    if src and capture.bin_width_s is not None and bin_width_s is None:
         notes.append(f"bin width {capture.bin_width_s * 1e12:g} ps: {src} (override with "
                      "--bin-width / bin_width_s)")
     recorded = capture.attrs.get("direct_end_s")
     cut = float(recorded or 0.0) if cut_s is None else float(cut_s)
-    bw = capture.bin_width_s
+    bw = capture.bin_width_s if bin_width_s is None else float(bin_width_s)
+    start = capture.start_s if start_s is None else float(start_s)
     if not cut > 0 or bw is None:
         return capture, notes
-    k = int(min(capture.transient.shape[0], max(0, math.ceil((cut - capture.start_s) / bw
-                                                               - 1e-9))))
+    k = int(min(capture.transient.shape[0], max(0, math.ceil((cut - start) / bw - 1e-9))))
     if k == 0:
         return capture, notes
     t = np.array(capture.transient, copy=True)

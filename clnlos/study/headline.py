@@ -292,7 +292,9 @@ def real_materials_finding(results) -> str | None:
     text = (f"On real captures of one rig (O'Toole et al. 2018), the diffuse S needs "
             f"{h['ratio']:.0f}x [{lo:.0f}, {hi:.0f}] the photons of the retroreflective S to "
             f"keep its image ({h['diffuse']['photons']:.2g} against "
-            f"{h['retroreflective']['photons']:.2g}, {h['inversion'].upper()})")
+            f"{h['retroreflective']['photons']:.2g}, {h['inversion'].upper()}; "
+            f"{h.get('signal_ratio', float('nan')):.0f}x counting only the photons above "
+            "the floor of dark counts and ambient light)")
     twins = [t for t in section.get("twin_headline", ()) if t.get("ratio") is not None]
     if twins:
         t = twins[0]

@@ -71,7 +71,7 @@ CATALOG = {
     "letter_s": ("cdt", "as captured (not stated)", "S behind the slab"),
     "resolution_70": ("cdt", "as captured (not stated)", "resolution chart behind the slab"),
 }
-REFLECTANCE_FALLOFF = {"lambertian": 4.0, "retroreflective": 2.0}  # LCT and f-k's (t/T)^p
+REFLECTANCES = ("lambertian", "retroreflective")  # LCT's and f-k's brdf (their falloff)
 HEADLINE = ("data_diffuse_s", "data_s_u")  # the diffuse S against the retroreflective S
 TWIN_MATERIALS = {"data_diffuse_s": "lambertian", "data_s_u": "retroreflective"}
 TWIN_SLAB_M = 0.15       # the twin's letter: the reconstruction within this depth of its peak
@@ -102,7 +102,7 @@ class RealPlan:
 
 def variants(inversions) -> list[tuple[str, str]]:
     """(inversion, assumed reflectance) pairs a capture is reconstructed with."""
-    return [(inv, r) for inv in inversions for r in REFLECTANCE_FALLOFF]
+    return [(inv, r) for inv in inversions for r in REFLECTANCES]
 
 
 def real_capture_paths(data_dir: Path) -> list[Path]:
@@ -144,8 +144,10 @@ def prepared_capture(path: Path, plan: RealPlan) -> tuple[Capture, Reconstructio
 
 def variant_config(base: ReconstructionConfig, inversion: str, reflectance: str
                    ) -> ReconstructionConfig:
-    """The base config with the inversion and the falloff of the assumed reflectance."""
-    return base.replace(method=inversion, falloff=REFLECTANCE_FALLOFF[reflectance]).validate()
+    """The base config with the inversion and the assumed reflectance (its ``brdf``: LCT's
+    falloff 4 or 2; f-k's 2 for both, its own default being the retroreflective one)."""
+    return base.replace(method=inversion, brdf=reflectance, falloff=None).validate(
+        {"brdf": "brdf"})  # named: the capture format's default reflectance stays out
 
 
 def front_view(volume: np.ndarray) -> np.ndarray:
@@ -222,6 +224,7 @@ def ladder_rows(cap: Capture, base: ReconstructionConfig, plan: RealPlan, invers
     over the series) of a capture of photon counts."""
     counts = np.rint(cap.transient).astype(np.float32)
     photons = float(counts.sum(dtype=np.float64))
+    signal = signal_photons(counts, cap.bin_width_s, cap.start_s)
     var = variants(inversions)
     cfgs = {v: variant_config(base, *v) for v in var}
     half = thinned_series(counts, (1.0, 0.5), seed=HALVES_SEED)[1]
@@ -255,9 +258,11 @@ def ladder_rows(cap: Capture, base: ReconstructionConfig, plan: RealPlan, invers
                      "photons_needed_range": [min(got), max(got)] if got else None,
                      "fraction_needed": (float(np.median(got)) / photons
                                          if len(got) == len(needed) else None),
+                     "signal_photons_needed": (float(np.median(got)) * signal / photons
+                                               if len(got) == len(needed) else None),
                      "at_most": bool(got and max(s[-1] for s in scores) >= KEEP_LEVEL)})
     blob = blob_control(ref)
-    return {"photons": photons, "fractions": list(plan.ladder),
+    return {"photons": photons, "signal_photons": signal, "fractions": list(plan.ladder),
             "reference": {"inversion": best[0], "reflectance": best[1]}, "blob_ncc": blob,
             "blob_fails": bool(blob < KEEP_LEVEL), "rows": rows,
             "arrays": {"reference": ref.astype(np.float32)}}
@@ -325,6 +330,18 @@ def letter_twin(path: Path, plan: RealPlan, material: str, queue, progress=None)
             **rows}
 
 
+def signal_photons(counts: np.ndarray, bin_width_s: float, start_s: float) -> float:
+    """The photons above the floor of dark counts and ambient light (the noise estimate's
+    background per bin and scan point, over the recorded bins): thinning scales them with
+    the total, so a photons-needed count converts by their share."""
+    noise = estimate_noise(counts, bin_width_s, start_s)
+    nt = counts.shape[0]
+    first = first_recorded_bin(counts.reshape(nt, -1).sum(axis=1, dtype=np.float64))
+    n_scan = counts.shape[1] * counts.shape[2]
+    return max(0.0, float(counts.sum(dtype=np.float64))
+               - noise.background_per_bin * n_scan * (nt - first))
+
+
 def headline_ratios(captures: list[dict]) -> list[dict]:
     """Per inversion: photons the diffuse S needs over those the retroreflective S needs,
     each with its best-reading reflectance (the fewest photons needed), with the range
@@ -341,11 +358,14 @@ def headline_ratios(captures: list[dict]) -> list[dict]:
             best[n] = min(cand, key=lambda r: r["photons_needed"]) if cand else None
         d, r = best[HEADLINE[0]], best[HEADLINE[1]]
         row = {"inversion": inv, "diffuse": None if d is None else
-               {"reflectance": d["reflectance"], "photons": d["photons_needed"]},
+               {"reflectance": d["reflectance"], "photons": d["photons_needed"],
+                "signal_photons": d["signal_photons_needed"]},
                "retroreflective": None if r is None else
-               {"reflectance": r["reflectance"], "photons": r["photons_needed"]}}
+               {"reflectance": r["reflectance"], "photons": r["photons_needed"],
+                "signal_photons": r["signal_photons_needed"]}}
         if d is not None and r is not None:
             row["ratio"] = d["photons_needed"] / r["photons_needed"]
+            row["signal_ratio"] = d["signal_photons_needed"] / r["signal_photons_needed"]
             row["ratio_range"] = [d["photons_needed_range"][0] / r["photons_needed_range"][1],
                                   d["photons_needed_range"][1] / r["photons_needed_range"][0]]
         elif d is None and r is not None:
@@ -507,7 +527,11 @@ def section_html(section: dict, out_dir, png=None) -> str:
             out.append(f"<p><b>{esc(h['inversion'].upper())}: the diffuse S needs "
                        f"{h['ratio']:.3g}x the photons of the retroreflective S</b> (range "
                        f"{lo:.3g}-{hi:.3g}; {h['diffuse']['photons']:.3g} against "
-                       f"{h['retroreflective']['photons']:.3g}).</p>")
+                       f"{h['retroreflective']['photons']:.3g}); counted above the floor of "
+                       f"dark counts and ambient light, {h['signal_ratio']:.3g}x "
+                       f"({h['diffuse']['signal_photons']:.3g} against "
+                       f"{h['retroreflective']['signal_photons']:.3g}): the rest is the "
+                       "diffuse capture's larger floor.</p>")
         elif h.get("note"):
             out.append(f"<p><b>{esc(h['inversion'].upper())}:</b> {esc(h['note'])}</p>")
     head = ["capture", "material", "photons", "reference", "blob", "inversion", "reflectance",

@@ -81,8 +81,8 @@ TWIN_GEOMETRIES = (
     TwinGeometry("lct_70", "lct", 0.7, 0.6, 0.36, 0.09, 0.0),
     TwinGeometry("lct_100", "lct", 1.0, 1.2, 0.5, 0.13, 0.0),
 )
-# a diffuse, a mixed and a specular-leaning preset (the retroreflective material is
-# another helper's; until it lands these three span the study's reflectances)
+# a diffuse, a mixed and a specular-leaning preset (the retroreflective material,
+# clnlos.physics.retroreflector, is not among the twins yet: a known gap of the judge)
 TWIN_MATERIALS = ("standard white plate", "fuchsia lacquer board", "aluminium alloy sample")
 TWIN_FRACTIONS = (1.0, 0.1, 0.01, 1e-3, 1e-4, 1e-5, 1e-6)
 TWIN_PHOTONS_PER_POINT = 1e6   # signal photons per scan point at the top of the ladder
