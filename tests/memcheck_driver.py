@@ -10,7 +10,8 @@ import numpy as np
 import pyopencl.array as cla
 
 from clnlos.brdf.models import BRDFModel
-from clnlos.brdf.texture import TextureLookup, tabulate
+from clnlos.brdf.texture import tabulate
+from clnlos.brdf.texture_lookup import TextureLookup
 from clnlos.diffusion import SlabTransmittance, diffusion_psf
 from clnlos.forward.blur import slab_blur
 from clnlos.forward.geometry import Elements

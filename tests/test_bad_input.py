@@ -379,7 +379,8 @@ def test_nan_angles_are_rejected_before_the_kernel(queue):
     import pytest
 
     from clnlos.brdf.models import BRDFModel
-    from clnlos.brdf.texture import TextureLookup, tabulate
+    from clnlos.brdf.texture import tabulate
+    from clnlos.brdf.texture_lookup import TextureLookup
     from clnlos.errors import ParameterError
 
     lk = TextureLookup(tabulate(BRDFModel("phong", {}), 4, 4, 4), path="buffer", queue=queue)

@@ -18,7 +18,8 @@ from clnlos.brdf.fit import fit_analytic
 from clnlos.brdf.mlp import MLPConfig, train_mlp
 from clnlos.brdf.models import BRDFModel, retro_slice
 from clnlos.brdf.store import load_model
-from clnlos.brdf.texture import TextureLookup, lookup_numpy, read_texture, tabulate, write_texture
+from clnlos.brdf.texture import lookup_numpy, read_texture, tabulate, write_texture
+from clnlos.brdf.texture_lookup import TextureLookup
 from clnlos.errors import InputFileError, ParameterError
 
 HEADER = "theta_i_deg,phi_i_deg,theta_s_deg,phi_s_deg,brdf\n"

@@ -305,3 +305,12 @@ def test_the_cli_starts_light():
     assert "clnlos.inverse.pipeline" in recon  # the check can see what it checks
     assert not {m for m in recon if m.startswith(HEAVY)}, sorted(
         m for m in recon if m.startswith(HEAVY))
+
+
+def test_parsing_modules_need_no_opencl():
+    """The typed configs and the scene parser (pure parameters and text) load no OpenCL stack:
+    a scene or a reconstruction TOML checks on a machine without a driver."""
+    mods = loaded_modules("import clnlos.config, clnlos.forward.scene, clnlos.checks")
+    assert "clnlos.forward.scene" in mods  # the check can see what it checks
+    assert not {m for m in mods if m.startswith("pyopencl")}, sorted(
+        m for m in mods if m.startswith(("pyopencl", "clnlos.runtime")))

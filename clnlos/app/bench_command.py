@@ -39,8 +39,9 @@ def bench_arguments(b, add_device) -> None:
                    help="folder of measured BRDFs (*_gonio.csv) for the brdf_measured section "
                         "(default: none, those rows skipped with a note)")
     b.add_argument("--real-data", default=None, metavar="DIR",
-                   help="folder holding the released LCT capture lct/data_s_u.mat (e.g. "
-                        "../shared/data) for auto_params_cost's rows on real counts "
+                   help="folder holding the released LCT capture lct/data_s_u.mat (the "
+                        "data folder the study's --real-data takes) for auto_params_cost's "
+                        "rows on real counts "
                         "(default: none, those rows skipped with a note)")
     add_force(b)
     add_device(b)

@@ -42,7 +42,8 @@ from clnlos.brdf.data import BRDFSamples, agreement, read_gonio_csv, relative_er
 from clnlos.brdf.fit import fit_analytic
 from clnlos.brdf.mlp import MLPConfig, train_mlp
 from clnlos.brdf.models import BRDFModel
-from clnlos.brdf.texture import TextureLookup, tabulate
+from clnlos.brdf.texture import tabulate
+from clnlos.brdf.texture_lookup import TextureLookup
 from clnlos.config import ReconstructionConfig, slab_table
 from clnlos.diffusion import SlabTransmittance
 from clnlos.forward.bistatic import BistaticTransport, scene_textures

@@ -18,7 +18,7 @@ from concurrent.futures import Future, ThreadPoolExecutor
 
 import numpy as np
 
-from clnlos.runtime.device import host_threads
+from clnlos.settings import current as current_settings
 
 GZIP_LEVEL = 1  # fast; with the shuffle filter smaller than level 4 without it on volumes
 CHUNK_BYTES = 1 << 20  # chunks of about 1 MB along the first axis
@@ -60,7 +60,7 @@ class DeflatedArray:
         self.compressed = len(probe) <= RAW_ABOVE_RATIO * rows * (a.nbytes // a.shape[0])
         self._parts = []
         if self.compressed:
-            pool = ThreadPoolExecutor(max_workers=threads or host_threads())
+            pool = ThreadPoolExecutor(max_workers=threads or current_settings().host_threads())
             done = Future()
             done.set_result(probe)
             self._parts = [(r0, done if r0 == probe_at else pool.submit(self._chunk, r0, rows))

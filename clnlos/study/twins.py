@@ -1,6 +1,6 @@
 """Simulated twins of the real capture families: the legibility judge's training data.
 
-Two families of real captures with known content exist (``../shared/data``): ``cdt``
+Two families of real captures with known content exist (the study's ``--real-data``): ``cdt``
 (Lindell & Wetzstein 2020: letters filling a 0.6-0.7 m scan, 0.4-0.6 m behind a 2.54 cm
 scattering slab) and ``lct`` (O'Toole et al. 2018: no slab, targets 0.4-1.2 m around a corner,
 0.4-1.0 m scans, diffuse and retroreflective). Their twins (:data:`TWIN_GEOMETRIES`, five
