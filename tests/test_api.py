@@ -12,29 +12,10 @@ import clnlos
 from clnlos.app.cli import main
 from clnlos.errors import ParameterError
 from clnlos.io.files import read_volume
+from helpers import SMALL_SCENE as SCENE
 
 matplotlib.use("Agg")
 
-SCENE = """seed = 3
-[scan]
-width_m = 0.3
-points = 8
-[time]
-bin_width_s = 2e-11
-bins = 160
-[[objects]]
-shape = "rectangle"
-size_m = [0.12, 0.08]
-translate_m = [0.03, 0.0, 0.3]
-[slab]
-thickness_m = 0.0254
-mu_a = 0.53
-mu_s_prime = 262.0
-n = 1.12
-[detector]
-power_w = 0.4
-exposure_s = 0.5
-"""
 
 
 @pytest.fixture(scope="module")

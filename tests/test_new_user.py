@@ -25,29 +25,10 @@ from clnlos.config import (
     python_keywords,
 )
 from clnlos.errors import InputFileError, MissingParameterError
+from helpers import SMALL_SCENE as SCENE
 
 matplotlib.use("Agg")
 
-SCENE = """seed = 3
-[scan]
-width_m = 0.3
-points = 8
-[time]
-bin_width_s = 2e-11
-bins = 160
-[[objects]]
-shape = "rectangle"
-size_m = [0.12, 0.08]
-translate_m = [0.03, 0.0, 0.3]
-[slab]
-thickness_m = 0.0254
-mu_a = 0.53
-mu_s_prime = 262.0
-n = 1.12
-[detector]
-power_w = 0.4
-exposure_s = 0.5
-"""
 LCT_CONFIG = """[deconvolution]
 snr = 1e4
 [inversion]
