@@ -311,3 +311,28 @@ def test_brdf_auto_takes_a_lobe_for_a_mirror_and_keeps_lambertian_for_paint(queu
     rec = reconstruct(smooth, cfg, device=queue)
     assert rec.params["brdf_rule_used"] == "lambertian (not searched)"
     assert any("brdf auto" in n for n in rec.notes)
+
+
+def test_held_out_half_is_compared_without_its_floor(queue):
+    """``brdf = "auto"`` without a slab scores predictions of the floor-free reconstructed
+    half against the held-out half: the held-out half loses its floor of dark counts and
+    ambient light too (a constant floor added to the counts leaves the target unchanged),
+    as the reconstructed half does (:func:`clnlos.inverse.snr.background_subtracted`)."""
+    from clnlos.inverse.pipeline import ReconstructionPipeline
+    from clnlos.inverse.preprocessing import resolve_geometry
+    from clnlos.io.capture import Capture
+
+    rng = np.random.default_rng(5)
+    nt, n, floor = 96, 8, 4
+    lam = np.zeros((nt, n, n))
+    lam[40:46, 2:6, 3:7] = 60.0                       # a target's return
+    signal = rng.poisson(lam).astype(np.float32)
+    cap = Capture(signal, 32e-12, 0.0, 0.4, "test")
+    cfg = ReconstructionConfig(method="iterative", iterations=5, brdf="auto").validate()
+    bw, start, sw = resolve_geometry(cap, cfg)
+    pipe = ReconstructionPipeline(cap.transient.shape, bin_width_s=bw, start_s=start,
+                                  scan_width_m=sw, config=cfg, queue=queue)
+    held, phi, _ = pipe._held_out_prediction_target(signal)
+    with_floor, _, _ = pipe._held_out_prediction_target(signal + np.float32(floor))
+    assert phi is None and np.abs(held).max() > 0
+    np.testing.assert_allclose(with_floor, held, atol=1e-4 * np.abs(held).max())

@@ -210,12 +210,14 @@ class ParameterSearches:
     def _held_out_prediction_target(self, y2: np.ndarray):
         """(the held-out half as the inversion sees it, host; the slab's influence Phi2 that a
         prediction goes through, or None without a slab; realisations of its noise): with a
-        slab, :meth:`_held_out` (deconvolved at its own GCV SNR); without, preprocessed and
+        slab, :meth:`_held_out` (deconvolved at its own GCV SNR); without, less its
+        background floor (as the reconstructed half, :meth:`prepare`), preprocessed and
         divided by its peak."""
         if self.deconv is not None:
             held, snr, noise_runs = self._held_out(y2)
             return held, self._slab_influence(snr), noise_runs
-        tau = self.pre(cla.to_device(self.queue, np.ascontiguousarray(y2, self.dtype)))
+        tau = self.pre(cla.to_device(self.queue, np.ascontiguousarray(
+            background_subtracted(y2, self.raw_noise(y2), self.dtype))))
         _, peak = self._profile_peak(tau)
         scale = 1.0 / peak if peak > 0 else 1.0
         if peak > 0:
