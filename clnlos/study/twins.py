@@ -7,14 +7,15 @@ scattering slab) and ``lct`` (O'Toole et al. 2018: no slab, targets 0.4-1.2 m ar
 geometries) hold the patterns of :mod:`clnlos.study.patterns` (capital letters of the
 stroke font, bar groups and dot grids: what real targets are) in a diffuse, a mixed, a
 specular-leaning and the retroreflective material, each scaled and moved at random within
-the scan (pattern height x [1 - TWIN_ZOOM, 1 + TWIN_ZOOM], centre within TWIN_SHIFT of the
-scan width), simulated once noise free
+the scan (pattern height x U[TWIN_ZOOM], up to TWIN_MAX_FILL of the scan width: real
+targets fill most of the scan; centre within TWIN_SHIFT of the scan width and inside the
+scan), simulated once noise free
 (the confocal light cone, the scene's slab) and then
 
     y ~ Poisson(N mu / sum(mu) + b N / (T P)),
 
 N the signal photons (TWIN_PHOTONS_PER_POINT per scan point, P points, T bins) and b a
-uniform background floor drawn in TWIN_BACKGROUND (what the real captures' late floor
+uniform background floor over the signal, drawn log-uniformly in TWIN_BACKGROUND (what the real captures' late floor
 shows), then binomially thinned (nested, :func:`clnlos.study.thinning_real.thinned_series`)
 to TWIN_FRACTIONS: a ladder from clear to noise per scene, the real captures' thinning ladders'
 span of photons per scan point. Each rung is also seen under a smooth lateral gain
@@ -52,7 +53,13 @@ from clnlos.study.legibility import (
     identify,
 )
 from clnlos.study.metrics import iou
-from clnlos.study.patterns import TWIN_PATTERNS, pattern_mask, pattern_objects
+from clnlos.study.patterns import (
+    CHART_SCALE,
+    TWIN_PATTERNS,
+    is_chart,
+    pattern_mask,
+    pattern_objects,
+)
 from clnlos.study.resolution import otoole_lateral_bound_m
 from clnlos.study.thinning_real import thinned_series
 
@@ -89,8 +96,10 @@ TWIN_MATERIALS = ("standard white plate", "fuchsia lacquer board", "aluminium al
                   "retroreflective")
 TWIN_FRACTIONS = (1.0, 0.1, 0.01, 1e-3, 1e-4, 1e-5, 1e-6)
 TWIN_PHOTONS_PER_POINT = 1e6   # signal photons per scan point at the top of the ladder
-TWIN_BACKGROUND = (0.0, 0.5)   # the floor's photons over the signal's, drawn uniformly
-TWIN_ZOOM = 0.25               # letter height x U[1 - z, 1 + z]
+TWIN_BACKGROUND = (0.03, 3.0)  # the floor's photons over the signal's, log-uniform (the LCT
+#                                release's late floor: 0.2-2.5 times its signal after the direct cut)
+TWIN_ZOOM = (0.75, 1.75)       # pattern height x U[a, b] (the geometry's height: b = 1 ...
+TWIN_MAX_FILL = 0.9            # ... up to this share of the scan width for the pattern's side)
 TWIN_SHIFT = 0.1               # centre within +-this share of the scan width
 TWIN_GAIN = 4.0                # each rung also seen under a lateral gain of up to this ratio
 GAIN_KINDS = ("ramp",)        # ... smooth (a step, gain_field's "step", carves blobs into
@@ -159,12 +168,21 @@ def twin_plan(geometries=TWIN_GEOMETRIES, glyphs=TWIN_PATTERNS, materials=TWIN_M
             plan.append({
                 "geometry": geo.name, "family": geo.family, "glyph": glyph,
                 "material": materials[(k + g) % len(materials)],
-                "height_m": geo.height_m * float(rng.uniform(1 - TWIN_ZOOM, 1 + TWIN_ZOOM)),
-                "offset_m": [float(v) for v in rng.uniform(-TWIN_SHIFT, TWIN_SHIFT, 2)
-                             * geo.scan_width_m],
-                "background": float(rng.uniform(*TWIN_BACKGROUND)),
+                **twin_placement(geo, glyph, rng),
+                "background": float(np.exp(rng.uniform(*np.log(TWIN_BACKGROUND)))),
                 "seed": int(rng.integers(2**31))})
     return plan
+
+
+def twin_placement(geo: TwinGeometry, pattern: str, rng: np.random.Generator) -> dict:
+    """A random height (the geometry's x U[TWIN_ZOOM], the pattern's side at most
+    TWIN_MAX_FILL of the scan) and centre offset (within TWIN_SHIFT of the scan width, the
+    pattern inside the scan) of ``pattern`` in ``geo``."""
+    side = CHART_SCALE if is_chart(pattern) else 1.0   # the pattern's side per height
+    height = geo.height_m * float(rng.uniform(*TWIN_ZOOM))
+    height = min(height, TWIN_MAX_FILL * geo.scan_width_m / side)
+    room = max(0.0, min(TWIN_SHIFT * geo.scan_width_m, (geo.scan_width_m - side * height) / 2))
+    return {"height_m": height, "offset_m": [float(v) for v in rng.uniform(-room, room, 2)]}
 
 
 def render_twin(entry: dict, grid: TwinGrid = TwinGrid(), fractions=TWIN_FRACTIONS,
@@ -248,6 +266,6 @@ def twin_settings(grid: TwinGrid = TwinGrid(), fractions=TWIN_FRACTIONS) -> dict
             "geometries": [asdict(g) for g in TWIN_GEOMETRIES],
             "materials": list(TWIN_MATERIALS), "patterns": list(TWIN_PATTERNS),
             "photons_per_point": TWIN_PHOTONS_PER_POINT, "background": list(TWIN_BACKGROUND),
-            "zoom": TWIN_ZOOM, "shift": TWIN_SHIFT, "gain": TWIN_GAIN, "method": JUDGE_METHOD,
+            "zoom": list(TWIN_ZOOM), "max_fill": TWIN_MAX_FILL, "shift": TWIN_SHIFT, "gain": TWIN_GAIN, "method": JUDGE_METHOD,
             "snr_rule": JUDGE_SNR_RULE, "max_bins": JUDGE_MAX_BINS,
             "max_points": JUDGE_MAX_POINTS}
