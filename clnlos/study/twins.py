@@ -90,9 +90,10 @@ TWIN_GEOMETRIES = (
     TwinGeometry("lct_70", "lct", 0.7, 0.6, 0.36, 0.09, 0.0),
     TwinGeometry("lct_100", "lct", 1.0, 1.2, 0.5, 0.13, 0.0),
 )
-# a diffuse, a mixed, a specular-leaning preset and the retroreflective material
-# (clnlos.physics.retroreflector: the LCT release's charts and letters)
-TWIN_MATERIALS = ("standard white plate", "fuchsia lacquer board", "aluminium alloy sample",
+# the real rigs' targets: two diffuse presets, a mixed one and the retroreflective material
+# (clnlos.physics.retroreflector: the LCT release's charts and letters); no specular one
+# (a mirror-like target's confocal image is its glint: not what the judge is for)
+TWIN_MATERIALS = ("standard white plate", "cement board", "fuchsia lacquer board",
                   "retroreflective")
 TWIN_FRACTIONS = (1.0, 0.1, 0.01, 1e-3, 1e-4, 1e-5, 1e-6)
 TWIN_PHOTONS_PER_POINT = 1e6   # signal photons per scan point at the top of the ladder
