@@ -5,29 +5,31 @@ Two families of real captures with known content exist (the study's ``--real-dat
 scattering slab) and ``lct`` (O'Toole et al. 2018: no slab, targets 0.4-1.2 m around a corner,
 0.4-1.0 m scans, diffuse and retroreflective). Their twins (:data:`TWIN_GEOMETRIES`, five
 geometries) hold the patterns of :mod:`clnlos.study.patterns` (capital letters of the
-stroke font, bar groups and dot grids: what real targets are) in a diffuse, a mixed, a
-specular-leaning and the retroreflective material, each scaled and moved at random within
-the scan (pattern height x U[TWIN_ZOOM], up to TWIN_MAX_FILL of the scan width: real
-targets fill most of the scan; centre within TWIN_SHIFT of the scan width and inside the
-scan), simulated once noise free
+stroke font, bar groups and dot grids: what real targets are) in the real rigs' kinds of
+material (TWIN_MATERIALS: two diffuse, a mixed and the retroreflective), each scaled and
+moved at random within the scan (pattern height x U[TWIN_ZOOM], its side at most
+TWIN_MAX_FILL of the scan width: real targets fill most of the scan; centre within
+TWIN_SHIFT of the scan width and the pattern inside the scan), simulated once noise free
 (the confocal light cone, the scene's slab) and then
 
     y ~ Poisson(N mu / sum(mu) + b N / (T P)),
 
 N the signal photons (TWIN_PHOTONS_PER_POINT per scan point, P points, T bins) and b a
-uniform background floor over the signal, drawn log-uniformly in TWIN_BACKGROUND (what the real captures' late floor
-shows), then binomially thinned (nested, :func:`clnlos.study.thinning_real.thinned_series`)
-to TWIN_FRACTIONS: a ladder from clear to noise per scene, the real captures' thinning ladders'
-span of photons per scan point. Each rung is also seen under a smooth lateral gain
-(:func:`gain_field`, up to TWIN_GAIN across the scan; the label unchanged): real targets are
-unevenly bright. Each rung is split into two binomial halves
-(:func:`clnlos.inverse.thinning.thin_counts`) and the rung and both halves reconstructed with
-the judge's recipe (:data:`JUDGE_METHOD`, the SNR rule JUDGE_SNR_RULE).
+uniform background floor over the signal, drawn log-uniformly in TWIN_BACKGROUND (what the
+real captures' late floor shows), then binomially thinned (nested,
+:func:`clnlos.study.thinning_real.thinned_series`) to TWIN_FRACTIONS: a ladder from clear to
+noise per scene, the real captures' thinning ladders' span of photons per scan point. Each
+rung is also seen under a smooth lateral gain (:func:`gain_field`, up to TWIN_GAIN across
+the scan; the label unchanged): real targets are unevenly bright. Each rung is split into
+two binomial halves (:func:`clnlos.inverse.thinning.thin_counts`) and the rung and both
+halves reconstructed with the judge's recipe (:data:`JUDGE_METHOD`, the SNR rule
+JUDGE_SNR_RULE).
 
 The label of a rung (simulations only): legible when the template rule identifies its
 pattern among all the twins' patterns (:func:`clnlos.study.legibility.identify`, templates
-blurred to O'Toole's lateral bound with the pulse and bin widths) *and* the IoU of its Otsu mask with the true mask beats the filled
-box's (:func:`clnlos.study.legibility.box_baseline_iou`): the study's label.
+blurred to O'Toole's lateral bound with the pulse and bin widths) *and* the IoU of its Otsu
+mask with the true mask beats the filled box's
+(:func:`clnlos.study.legibility.box_baseline_iou`): the study's label.
 """
 
 from __future__ import annotations
