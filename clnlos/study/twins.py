@@ -99,8 +99,8 @@ TWIN_MATERIALS = ("standard white plate", "cement board", "fuchsia lacquer board
                   "retroreflective")
 TWIN_FRACTIONS = (1.0, 0.1, 0.01, 1e-3, 1e-4, 1e-5, 1e-6)
 TWIN_PHOTONS_PER_POINT = 1e6   # signal photons per scan point at the top of the ladder
-TWIN_BACKGROUND = (0.03, 3.0)  # the floor's photons over the signal's, log-uniform (the LCT
-#                                release's late floor: 0.2-2.5 times its signal after the direct cut)
+TWIN_BACKGROUND = (0.03, 3.0)  # the floor's photons over the signal's, log-uniform (what
+#                                the LCT release shows: docs/validation/legibility-judge.md)
 TWIN_ZOOM = (0.75, 1.75)       # pattern height x U[a, b] (the geometry's height: b = 1 ...
 TWIN_MAX_FILL = 0.9            # ... up to this share of the scan width for the pattern's side)
 TWIN_SHIFT = 0.1               # centre within +-this share of the scan width
@@ -269,6 +269,6 @@ def twin_settings(grid: TwinGrid = TwinGrid(), fractions=TWIN_FRACTIONS) -> dict
             "geometries": [asdict(g) for g in TWIN_GEOMETRIES],
             "materials": list(TWIN_MATERIALS), "patterns": list(TWIN_PATTERNS),
             "photons_per_point": TWIN_PHOTONS_PER_POINT, "background": list(TWIN_BACKGROUND),
-            "zoom": list(TWIN_ZOOM), "max_fill": TWIN_MAX_FILL, "shift": TWIN_SHIFT, "gain": TWIN_GAIN, "method": JUDGE_METHOD,
-            "snr_rule": JUDGE_SNR_RULE, "max_bins": JUDGE_MAX_BINS,
-            "max_points": JUDGE_MAX_POINTS}
+            "zoom": list(TWIN_ZOOM), "max_fill": TWIN_MAX_FILL, "shift": TWIN_SHIFT,
+            "gain": TWIN_GAIN, "method": JUDGE_METHOD, "snr_rule": JUDGE_SNR_RULE,
+            "max_bins": JUDGE_MAX_BINS, "max_points": JUDGE_MAX_POINTS}
