@@ -157,3 +157,39 @@ def replace_white(entry):
     """A twin entry in the diffuse white preset (the ladder test's target)."""
     return {**entry, "material": "standard white plate", "background": 0.1}
 
+
+
+def test_charts_mask_what_the_scene_holds_and_stay_inside_the_scan():
+    """A chart's true mask is the union of the rectangles its scene objects hold; twins of
+    every pattern lie inside the scan at most TWIN_MAX_FILL wide."""
+    from clnlos.study.patterns import TWIN_PATTERNS, pattern_mask, pattern_objects
+    from clnlos.study.twins import TWIN_MAX_FILL, twin_placement
+    rng = np.random.default_rng(3)
+    pts = rng.uniform(-0.3, 0.3, (4000, 2))
+    for name in ("bars_v", "bars_h", "dots_3x3", "dots_2x2"):
+        objs = pattern_objects(name, 0.3, 0.08, (0.02, -0.01, 0.5), "retroreflective")
+        assert all(o["shape"] == "rectangle" and o["material"] == "retroreflective"
+                   for o in objs)
+        inside = np.zeros(len(pts), bool)
+        for o in objs:
+            (w, h), (x, y, _) = o["size_m"], o["translate_m"]
+            inside |= (np.abs(pts[:, 0] - x) <= w / 2) & (np.abs(pts[:, 1] - y) <= h / 2)
+        assert np.array_equal(inside, pattern_mask(name, 0.3, 0.08, pts - [0.02, -0.01]))
+        assert 0.2 < inside.mean() * 0.36 / (0.3 * 1.4) ** 2 < 0.7  # neither empty nor full
+    assert pattern_objects("S", 0.3, 0.08, (0, 0, 0.5), "lambertian")[0]["text"] == "S"
+    for geo in TWIN_GEOMETRIES:
+        for name in TWIN_PATTERNS:
+            p = twin_placement(geo, name, rng)
+            side = p["height_m"] * (1.4 if name.startswith(("bars", "dots")) else 1.0)
+            assert side <= TWIN_MAX_FILL * geo.scan_width_m + 1e-12
+            assert max(abs(v) for v in p["offset_m"]) + side / 2 <= geo.scan_width_m / 2 + 1e-9
+
+
+def test_blob_fit_tells_a_blob_from_a_glyph():
+    blob = _glyph_image(48, 0.4, (0.05, 0.0), blur=8.0, noise=0.0)
+    y, x = np.mgrid[:48, :48]
+    gauss = np.exp(-((x - 20) ** 2 + (y - 27) ** 2 / 2.0) / 30.0)
+    glyphs = [mip_features(_glyph_image(48, 0.4, (0.0, 0.0), glyph=g, blur=0.5,
+                                        noise=0.0))["blob_fit"] for g in "HLTUX"]
+    assert mip_features(gauss)["blob_fit"] > 0.9  # the fit sees its foreground only
+    assert mip_features(blob)["blob_fit"] > max(glyphs)

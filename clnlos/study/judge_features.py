@@ -17,7 +17,11 @@ at 0, over its maximum), split by its Otsu threshold into foreground F and backg
 * ``solidity``: the foreground's cells over the area of their convex hull (a blob, a
   specular glint: near 1; strokes: less; noise scattered over the scan: little);
 * ``peak_share``: the share of the foreground's intensity in its brightest 1/8 of cells (a
-  specular glint: most of it; a glyph: about 1/8 or a little more).
+  specular glint: most of it; a glyph: about 1/8 or a little more);
+* ``blob_fit``: the Pearson r over the scan cells of m with the Gaussian blob of m's own
+  centre and spread, g(p) = exp(-(p - c)^T S^-1 (p - c) / 2), c and S the mean and
+  covariance of the foreground's cell positions p weighted by m - mean_B (a glint or an
+  unresolved target: near 1; letters, bars, dots: less).
 
 From the MIPs m1, m2 of the reconstructions of two binomial halves of the photons
 (:func:`clnlos.inverse.thinning.thin_counts`, independent Poisson captures of half the
@@ -37,7 +41,7 @@ from scipy.spatial import ConvexHull
 from clnlos.inverse.reproducibility import otsu_threshold
 
 MIP_FEATURES = ("contrast", "foreground_cv", "background_level", "major_parts", "solidity",
-                "peak_share")
+                "peak_share", "blob_fit")
 HALF_FEATURES = ("half_agreement", "half_overlap")
 CAPTURE_FEATURES = MIP_FEATURES + HALF_FEATURES
 PEAK_SHARE_CELLS = 1 / 8  # the brightest share of the foreground's cells in peak_share
@@ -68,7 +72,7 @@ def mip_features(mip) -> dict[str, float]:
     fg = foreground(m)
     if not fg.any() or fg.all():
         return {"contrast": 0.0, "foreground_cv": 0.0, "background_level": 1.0,
-                "major_parts": 0.0, "solidity": 0.0, "peak_share": 1.0}
+                "major_parts": 0.0, "solidity": 0.0, "peak_share": 1.0, "blob_fit": 0.0}
     f, b = m[fg], m[~fg]
     mf, mb = float(f.mean()), float(b.mean())
     labels, n = ndimage.label(fg, structure=EIGHT_CONNECTED)
@@ -82,7 +86,26 @@ def mip_features(mip) -> dict[str, float]:
             "background_level": mb / mf,
             "major_parts": float(mass[cells >= MAJOR_PART * f.size].sum() / f.sum()),
             "solidity": solidity(fg),
-            "peak_share": float(top.sum() / f.sum())}
+            "peak_share": float(top.sum() / f.sum()),
+            "blob_fit": blob_fit(m, fg, mb)}
+
+
+def blob_fit(mip: np.ndarray, fg: np.ndarray, floor: float) -> float:
+    """Pearson r of a MIP with the Gaussian of its own centre and spread (the weights
+    m - floor over the foreground ``fg``; module docstring); 0 without weight."""
+    m = np.asarray(mip, np.float64)
+    w = np.where(fg, np.clip(m - floor, 0.0, None), 0.0)
+    total = float(w.sum())
+    if total <= 0:
+        return 0.0
+    yy, xx = np.mgrid[:m.shape[0], :m.shape[1]].astype(np.float64)
+    cy, cx = float((w * yy).sum()) / total, float((w * xx).sum()) / total
+    dy, dx = yy - cy, xx - cx
+    cov = np.array([[(w * dx * dx).sum(), (w * dx * dy).sum()],
+                    [(w * dx * dy).sum(), (w * dy * dy).sum()]]) / total
+    inv = np.linalg.inv(cov + 1e-6 * np.eye(2))
+    g = np.exp(-0.5 * (inv[0, 0] * dx * dx + 2 * inv[0, 1] * dx * dy + inv[1, 1] * dy * dy))
+    return pearson_r(m, g)
 
 
 def solidity(mask: np.ndarray) -> float:

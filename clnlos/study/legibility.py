@@ -42,9 +42,11 @@ LEGIBLE_ACCURACY = 0.9    # "legible": identification accuracy at least this
 
 
 def glyph_coverage(glyph: str, height_m: float, stroke_m: float, centre_xy,
-                   scan_centres: np.ndarray) -> np.ndarray:
+                   scan_centres: np.ndarray, mask=letters_mask) -> np.ndarray:
     """Covered fraction [y, x] of each scan cell (centres ``scan_centres``, m) by the glyph,
-    letters of ``height_m`` with strokes of ``stroke_m`` centred at ``centre_xy`` (m)."""
+    letters of ``height_m`` with strokes of ``stroke_m`` centred at ``centre_xy`` (m);
+    ``mask(glyph, height_m, stroke_m, xy)`` says which local points it covers (another
+    pattern set: :func:`clnlos.study.patterns.pattern_mask`)."""
     c = np.asarray(scan_centres, float)
     pitch = float(c[1] - c[0]) if c.size > 1 else 1.0
     s = COVERAGE_SUBSAMPLES
@@ -52,17 +54,18 @@ def glyph_coverage(glyph: str, height_m: float, stroke_m: float, centre_xy,
     fine = (c[:, None] + sub[None, :]).ravel()
     Y, X = np.meshgrid(fine, fine, indexing="ij")
     pts = np.stack([X.ravel() - centre_xy[0], Y.ravel() - centre_xy[1]], axis=1)
-    inside = letters_mask(glyph, height_m, stroke_m, pts).reshape(c.size * s, c.size * s)
+    inside = mask(glyph, height_m, stroke_m, pts).reshape(c.size * s, c.size * s)
     return inside.reshape(c.size, s, c.size, s).mean(axis=(1, 3))
 
 
 def glyph_templates(height_m: float, stroke_m: float, centre_xy, scan_centres: np.ndarray,
-                    lateral_fwhm_m: float, glyphs=GLYPHS) -> dict[str, np.ndarray]:
+                    lateral_fwhm_m: float, glyphs=GLYPHS,
+                    mask=letters_mask) -> dict[str, np.ndarray]:
     """Template g_k [y, x] of every glyph: its coverage blurred to the lateral resolution."""
     c = np.asarray(scan_centres, float)
     pitch = float(c[1] - c[0])
     sigma_cells = max(float(lateral_fwhm_m), 0.0) / FWHM_PER_SIGMA / pitch
-    return {g: gaussian_filter(glyph_coverage(g, height_m, stroke_m, centre_xy, c),
+    return {g: gaussian_filter(glyph_coverage(g, height_m, stroke_m, centre_xy, c, mask),
                                sigma_cells, mode="constant")
             for g in glyphs}
 

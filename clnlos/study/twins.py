@@ -4,27 +4,32 @@ Two families of real captures with known content exist (the study's ``--real-dat
 (Lindell & Wetzstein 2020: letters filling a 0.6-0.7 m scan, 0.4-0.6 m behind a 2.54 cm
 scattering slab) and ``lct`` (O'Toole et al. 2018: no slab, targets 0.4-1.2 m around a corner,
 0.4-1.0 m scans, diffuse and retroreflective). Their twins (:data:`TWIN_GEOMETRIES`, five
-geometries) hold the K glyphs of :mod:`clnlos.study.legibility` in the study's materials,
-each scaled and moved at random within the scan (letter height x [1 - TWIN_ZOOM, 1 +
-TWIN_ZOOM], centre within TWIN_SHIFT of the scan width), simulated once noise free
+geometries) hold the patterns of :mod:`clnlos.study.patterns` (capital letters of the
+stroke font, bar groups and dot grids: what real targets are) in the real rigs' kinds of
+material (TWIN_MATERIALS: two diffuse, a mixed and the retroreflective), each scaled and
+moved at random within the scan (pattern height x U[TWIN_ZOOM], its side at most
+TWIN_MAX_FILL of the scan width: real targets fill most of the scan; centre within
+TWIN_SHIFT of the scan width and the pattern inside the scan), simulated once noise free
 (the confocal light cone, the scene's slab) and then
 
     y ~ Poisson(N mu / sum(mu) + b N / (T P)),
 
 N the signal photons (TWIN_PHOTONS_PER_POINT per scan point, P points, T bins) and b a
-uniform background floor drawn in TWIN_BACKGROUND (what the real captures' late floor
-shows), then binomially thinned (nested, :func:`clnlos.study.thinning_real.thinned_series`)
-to TWIN_FRACTIONS: a ladder from clear to noise per scene, the real captures' thinning ladders'
-span of photons per scan point. Each rung is also seen under a smooth lateral gain
-(:func:`gain_field`, up to TWIN_GAIN across the scan; the label unchanged): real targets are
-unevenly bright. Each rung is split into two binomial halves
-(:func:`clnlos.inverse.thinning.thin_counts`) and the rung and both halves reconstructed with
-the judge's recipe (:data:`JUDGE_METHOD`, the SNR rule JUDGE_SNR_RULE).
+uniform background floor over the signal, drawn log-uniformly in TWIN_BACKGROUND (what the
+real captures' late floor shows), then binomially thinned (nested,
+:func:`clnlos.study.thinning_real.thinned_series`) to TWIN_FRACTIONS: a ladder from clear to
+noise per scene, the real captures' thinning ladders' span of photons per scan point. Each
+rung is also seen under a smooth lateral gain (:func:`gain_field`, up to TWIN_GAIN across
+the scan; the label unchanged): real targets are unevenly bright. Each rung is split into
+two binomial halves (:func:`clnlos.inverse.thinning.thin_counts`) and the rung and both
+halves reconstructed with the judge's recipe (:data:`JUDGE_METHOD`, the SNR rule
+JUDGE_SNR_RULE).
 
-The label of a rung (simulations only): legible when the template rule identifies its glyph
-(:func:`clnlos.study.legibility.identify`, templates blurred to O'Toole's lateral bound with
-the pulse and bin widths) *and* the IoU of its Otsu mask with the true mask beats the filled
-box's (:func:`clnlos.study.legibility.box_baseline_iou`): the study's label.
+The label of a rung (simulations only): legible when the template rule identifies its
+pattern among all the twins' patterns (:func:`clnlos.study.legibility.identify`, templates
+blurred to O'Toole's lateral bound with the pulse and bin widths) *and* the IoU of its Otsu
+mask with the true mask beats the filled box's
+(:func:`clnlos.study.legibility.box_baseline_iou`): the study's label.
 """
 
 from __future__ import annotations
@@ -44,13 +49,19 @@ from clnlos.physics.slab import CDT_SLAB
 from clnlos.runtime.device import get_queue
 from clnlos.study.judge_features import capture_features, foreground, mip_of
 from clnlos.study.legibility import (
-    GLYPHS,
     box_baseline_iou,
     glyph_coverage,
     glyph_templates,
     identify,
 )
 from clnlos.study.metrics import iou
+from clnlos.study.patterns import (
+    CHART_SCALE,
+    TWIN_PATTERNS,
+    is_chart,
+    pattern_mask,
+    pattern_objects,
+)
 from clnlos.study.resolution import otoole_lateral_bound_m
 from clnlos.study.thinning_real import thinned_series
 
@@ -81,13 +92,17 @@ TWIN_GEOMETRIES = (
     TwinGeometry("lct_70", "lct", 0.7, 0.6, 0.36, 0.09, 0.0),
     TwinGeometry("lct_100", "lct", 1.0, 1.2, 0.5, 0.13, 0.0),
 )
-# a diffuse, a mixed and a specular-leaning preset (the retroreflective material,
-# clnlos.physics.retroreflector, is not among the twins yet: a known gap of the judge)
-TWIN_MATERIALS = ("standard white plate", "fuchsia lacquer board", "aluminium alloy sample")
+# the real rigs' targets: two diffuse presets, a mixed one and the retroreflective material
+# (clnlos.physics.retroreflector: the LCT release's charts and letters); no specular one
+# (a mirror-like target's confocal image is its glint: not what the judge is for)
+TWIN_MATERIALS = ("standard white plate", "cement board", "fuchsia lacquer board",
+                  "retroreflective")
 TWIN_FRACTIONS = (1.0, 0.1, 0.01, 1e-3, 1e-4, 1e-5, 1e-6)
 TWIN_PHOTONS_PER_POINT = 1e6   # signal photons per scan point at the top of the ladder
-TWIN_BACKGROUND = (0.0, 0.5)   # the floor's photons over the signal's, drawn uniformly
-TWIN_ZOOM = 0.25               # letter height x U[1 - z, 1 + z]
+TWIN_BACKGROUND = (0.03, 3.0)  # the floor's photons over the signal's, log-uniform (what
+#                                the LCT release shows: docs/validation/legibility-judge.md)
+TWIN_ZOOM = (0.75, 1.75)       # pattern height x U[a, b] (the geometry's height: b = 1 ...
+TWIN_MAX_FILL = 0.9            # ... up to this share of the scan width for the pattern's side)
 TWIN_SHIFT = 0.1               # centre within +-this share of the scan width
 TWIN_GAIN = 4.0                # each rung also seen under a lateral gain of up to this ratio
 GAIN_KINDS = ("ramp",)        # ... smooth (a step, gain_field's "step", carves blobs into
@@ -114,10 +129,8 @@ def twin_scene(geo: TwinGeometry, glyph: str, material: str, height_m: float,
     bins = int(math.ceil(1.3 * window_path_m(geo.depth_m) / (C0 * grid.bin_width_s)))
     d = {"seed": int(seed), "scan": {"width_m": geo.scan_width_m, "points": grid.points},
          "time": {"bin_width_s": grid.bin_width_s, "bins": bins, "start_s": 0.0},
-         "objects": [{"shape": "letters", "text": glyph, "height_m": height_m,
-                      "stroke_m": geo.stroke_m * height_m / geo.height_m,
-                      "translate_m": [float(offset_m[0]), float(offset_m[1]), geo.depth_m],
-                      "material": material, "albedo": 1.0}],
+         "objects": pattern_objects(glyph, height_m, geo.stroke_m * height_m / geo.height_m,
+                                    (offset_m[0], offset_m[1], geo.depth_m), material),
          "laser": {"pulse_width_s": TWIN_PULSE_S},
          "sampling": {"density_per_m2": 4e4, "splat_order": 1}}
     if geo.slab_thickness_m > 0:
@@ -145,7 +158,7 @@ def twin_label(mip: np.ndarray, glyph: str, templates: dict, truth: np.ndarray) 
             "legible": bool(best == glyph and i > base), "margin": margin}
 
 
-def twin_plan(geometries=TWIN_GEOMETRIES, glyphs=GLYPHS, materials=TWIN_MATERIALS,
+def twin_plan(geometries=TWIN_GEOMETRIES, glyphs=TWIN_PATTERNS, materials=TWIN_MATERIALS,
               seed: int = 0, per_geometry: int | None = None) -> list[dict]:
     """Every twin scene: each geometry with each glyph (or ``per_geometry`` of them, in
     turn), its material cycling through ``materials``, a random zoom, shift, floor and seed."""
@@ -158,12 +171,21 @@ def twin_plan(geometries=TWIN_GEOMETRIES, glyphs=GLYPHS, materials=TWIN_MATERIAL
             plan.append({
                 "geometry": geo.name, "family": geo.family, "glyph": glyph,
                 "material": materials[(k + g) % len(materials)],
-                "height_m": geo.height_m * float(rng.uniform(1 - TWIN_ZOOM, 1 + TWIN_ZOOM)),
-                "offset_m": [float(v) for v in rng.uniform(-TWIN_SHIFT, TWIN_SHIFT, 2)
-                             * geo.scan_width_m],
-                "background": float(rng.uniform(*TWIN_BACKGROUND)),
+                **twin_placement(geo, glyph, rng),
+                "background": float(np.exp(rng.uniform(*np.log(TWIN_BACKGROUND)))),
                 "seed": int(rng.integers(2**31))})
     return plan
+
+
+def twin_placement(geo: TwinGeometry, pattern: str, rng: np.random.Generator) -> dict:
+    """A random height (the geometry's x U[TWIN_ZOOM], the pattern's side at most
+    TWIN_MAX_FILL of the scan) and centre offset (within TWIN_SHIFT of the scan width, the
+    pattern inside the scan) of ``pattern`` in ``geo``."""
+    side = CHART_SCALE if is_chart(pattern) else 1.0   # the pattern's side per height
+    height = geo.height_m * float(rng.uniform(*TWIN_ZOOM))
+    height = min(height, TWIN_MAX_FILL * geo.scan_width_m / side)
+    room = max(0.0, min(TWIN_SHIFT * geo.scan_width_m, (geo.scan_width_m - side * height) / 2))
+    return {"height_m": height, "offset_m": [float(v) for v in rng.uniform(-room, room, 2)]}
 
 
 def render_twin(entry: dict, grid: TwinGrid = TwinGrid(), fractions=TWIN_FRACTIONS,
@@ -187,10 +209,12 @@ def render_twin(entry: dict, grid: TwinGrid = TwinGrid(), fractions=TWIN_FRACTIO
     centres = scene.scan_centres()
     height = entry["height_m"]
     stroke = geo.stroke_m * height / geo.height_m
-    truth = glyph_coverage(entry["glyph"], height, stroke, entry["offset_m"], centres) >= 0.5
+    truth = glyph_coverage(entry["glyph"], height, stroke, entry["offset_m"], centres,
+                           pattern_mask) >= 0.5
     fwhm = otoole_lateral_bound_m(geo.scan_width_m, geo.depth_m,
                                   math.hypot(TWIN_PULSE_S, grid.bin_width_s))
-    templates = glyph_templates(height, stroke, entry["offset_m"], centres, fwhm)
+    templates = glyph_templates(height, stroke, entry["offset_m"], centres, fwhm,
+                                TWIN_PATTERNS, pattern_mask)
     rows = []
     for f, counts in zip(fractions, thinned_series(top, fractions, entry["seed"] % 997),
                          strict=True):
@@ -243,8 +267,8 @@ def twin_settings(grid: TwinGrid = TwinGrid(), fractions=TWIN_FRACTIONS) -> dict
     """What the twins were made with (recorded beside the judge)."""
     return {"grid": asdict(grid), "fractions": list(fractions),
             "geometries": [asdict(g) for g in TWIN_GEOMETRIES],
-            "materials": list(TWIN_MATERIALS),
+            "materials": list(TWIN_MATERIALS), "patterns": list(TWIN_PATTERNS),
             "photons_per_point": TWIN_PHOTONS_PER_POINT, "background": list(TWIN_BACKGROUND),
-            "zoom": TWIN_ZOOM, "shift": TWIN_SHIFT, "gain": TWIN_GAIN, "method": JUDGE_METHOD,
-            "snr_rule": JUDGE_SNR_RULE, "max_bins": JUDGE_MAX_BINS,
-            "max_points": JUDGE_MAX_POINTS}
+            "zoom": list(TWIN_ZOOM), "max_fill": TWIN_MAX_FILL, "shift": TWIN_SHIFT,
+            "gain": TWIN_GAIN, "method": JUDGE_METHOD, "snr_rule": JUDGE_SNR_RULE,
+            "max_bins": JUDGE_MAX_BINS, "max_points": JUDGE_MAX_POINTS}
