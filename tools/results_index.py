@@ -27,9 +27,11 @@ ENTRIES: tuple[tuple[str, str, str, str], ...] = (
      "slab-calibration.md)"),
     ("hidden_face_kernel.json", "python tools/hidden_face_kernel.py", "current",
      "CDT's kernel against Eq. 8's midpoint placement (docs/validation/hidden-face-kernel.md)"),
-    ("lct_release_check.*", "python tools/lct_release_check.py", "current",
+    ("lct_release_check.*", "python tools/lct_release_check.py --methods lct iterative", "current",
      "the LCT release read as released: defaults against the published pipeline "
      "(docs/validation/lct-release.md)"),
+    ("retro_identifiability.*", "python tools/retro_identifiability.py", "current",
+     "held-out scores of each reflectance model on the LCT release (docs/brdf.md)"),
     ("real_materials.*", "python tools/real_materials.py --quick", "current",
      "photons a real target needs per inversion x reflectance, the twins, the charts "
      "(docs/real-materials.md)"),
