@@ -237,7 +237,8 @@ class LCT:
     def _bins(self):
         if self._gcv_bins is None:
             f = self.inverse_filter
-            self._gcv_bins = GcvBins.from_blocks(f.gain_rows, f.fft.spec_shape, f.pad_shape[2])
+            self._gcv_bins = GcvBins.from_blocks(f.stored_gain_rows, f.fft.spec_shape,
+                                                 f.pad_shape[2], folded=f.folded)
         return self._gcv_bins
 
     def power(self, tau: cla.Array) -> np.ndarray:
@@ -245,7 +246,7 @@ class LCT:
         summed per bin of :meth:`_bins` (block by block)."""
         bins = self._bins()
         return binned_power(bins, self.inverse_filter.power_blocks(
-            row_blocks(bins.index.shape),
+            row_blocks(bins.spectrum_shape),
             write_input=lambda buf: self._to_v_padded.apply_into(tau, buf), source=tau))
 
     @property

@@ -231,11 +231,11 @@ class ReconstructionPipeline(ParameterSearches):
         (:mod:`clnlos.inverse.gcv`) picks for the preprocessed transient ``tau`` (device, guard
         bins included): V on the deconvolution's padded grid, padded as it pads."""
         if self._gcv_slab is None:
-            self._gcv_slab = GcvBins.from_blocks(self.deconv.gain_rows,
-                                                 self.deconv.fft.spec_shape,
-                                                 self.deconv.pad_shape[2])
+            d = self.deconv
+            self._gcv_slab = GcvBins.from_blocks(d.stored_gain_rows, d.fft.spec_shape,
+                                                 d.pad_shape[2], folded=d.folded)
         bins = self._gcv_slab
-        sums = binned_power(bins, self.deconv.power_blocks(row_blocks(bins.index.shape), tau))
+        sums = binned_power(bins, self.deconv.power_blocks(row_blocks(bins.spectrum_shape), tau))
         return bins.snr_of(sums, SNR_MIN, SNR_MAX)
 
     def _timed(self, timings, name, fn, *a, **kw):
