@@ -394,6 +394,7 @@ class ReconstructionPipeline(ParameterSearches):
         params.update(self.invert.configure(
             tau, noise, inv_snr, lambda name, fn, *a: self._timed(timings, name, fn, *a),
             probe, influence, **({} if inv_rule is None else {"rule": inv_rule})))
+        del probe, influence  # the noise realisation freed before the volume is made
         vol = self._timed(timings, f"invert:{method}", self.invert, tau, progress=progress,
                           setup=setup)
         solve = self.invert.report()
