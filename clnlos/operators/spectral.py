@@ -194,7 +194,7 @@ class SpectralFilter(LinearOperator):
             if psf_g.dtype != self.dtype:
                 psf_g = psf_g.astype(self.dtype)
             self.H = self.fft.forward(psf_g, nonzero=psf_support)
-        self.dc_gain = float(self.H[0, 0, 0].get().real) if self.H.size else 0.0
+        self.dc_gain = float(download(self.H[0, 0, 0:1])[0].real) if self.H.size else 0.0
         self.h_scale = 1.0  # the kernels multiply by h_scale * H
         if normalize:
             if not self.dc_gain > 0:
