@@ -316,6 +316,50 @@ def bench_end_to_end(b: Bench):
               error_kind="relative depth error")
         _cold_warm_rows(b, Capture(fm.run(), scene.bin_width_s, 0.0, scene.width_m), cfg, err,
                         f"{n}x{n}x{nt}")
+        _photon_cold_rows(b, fm.run(), scene, cfg, f"{n}x{n}x{nt}")
+
+
+# photons in the end-to-end capture made photon counts (issue 49's cold 128 x 128 x 512 case)
+END_TO_END_PHOTONS = 1e9
+
+
+def _photon_cold_rows(b: Bench, tau: np.ndarray, scene, cfg, grid: str) -> None:
+    """The end-to-end capture as photon counts (END_TO_END_PHOTONS in all, Poisson, seed 0;
+    no slab recorded: the default rules, GCV's slab SNR and the light cone's UPRE with its
+    noise probe), reconstructed cold (plans built) by LCT and f-k, each in this process
+    beside one r2c + c2r FFT pair of the padded grid timed in the same run (its buffers
+    freed first): the time in FFT pairs, the process's CPU seconds, and the peak resident
+    memory during the run (VmHWM reset before it: on PoCL it includes the device buffers)
+    and above its start. Error: the relative depth error of the volume's peak."""
+    rng = np.random.default_rng(0)
+    lam = np.maximum(tau.astype(np.float64), 0) * (END_TO_END_PHOTONS / float(tau.sum()))
+    cap = Capture(rng.poisson(lam).astype(np.float32), scene.bin_width_s, 0.0, scene.width_m)
+    del lam
+    nt, ny, nx = cap.transient.shape
+    pad = (2 * cfg.bins, 2 * ny, 2 * nx)
+    fft = RealFFT3(pad, np.float32, b.q)
+    xg = cla.zeros(b.q, pad, np.float32)
+    pair = timeit(lambda: fft.inverse(fft.forward(xg)), b.q, repeat=b.repeat)["median_s"]
+    del xg, fft
+    for method in ("lct", "fk"):
+        mcfg = cfg.replace(method=method).validate()
+        PIPELINES.clear()
+        start = reset_peak_rss()
+        cpu0 = time.process_time()
+        rec, timing = timed_once(lambda mcfg=mcfg: reconstruct(cap, mcfg, device=b.q), b.q)
+        cpu = time.process_time() - cpu0
+        peak = peak_rss_bytes()
+        err = abs(peak_depth_m(rec.volume, 2.0 / nt / 2) - 0.5) / 0.5
+        p = rec.params
+        r = b.record("end_to_end", f"reconstruct@cold,photons,{method}", grid, np.float32,
+                     timing, err, error_kind="relative depth error", fft_pair_s=pair,
+                     fft_pairs=timing["median_s"] / pair, cpu_s=cpu, method=method,
+                     photons=END_TO_END_PHOTONS, stages_s=dict(rec.timings_s),
+                     snr_used=p.get("snr_used"), snr_rule_used=p.get("snr_rule_used"),
+                     inversion_snr_used=p.get("inversion_snr_used"),
+                     inversion_snr_rule=p.get("inversion_snr_rule"),
+                     peak_above_start_bytes=max(0, peak - start))
+        r["peak_mem_bytes"] = peak
 
 
 def _device_spec(device) -> str:
