@@ -68,6 +68,7 @@ from dataclasses import dataclass
 import numpy as np
 
 from clnlos.physics.constants import C0
+from clnlos.physics.grid import BLOCK_VALUES
 
 K_SNR = 100.0
 MEASURED_MODEL_SNR = 1e4  # accuracy of the slab model on measured captures (see docstring)
@@ -141,7 +142,11 @@ def is_counts(y: np.ndarray) -> bool:
     probe = flat[:: max(1, flat.size // 4096)]  # fast rejection of non-count data
     if not np.array_equal(probe, np.rint(probe)):
         return False
-    return bool(np.array_equal(flat, np.rint(flat)) and flat.min() >= 0)
+    for s in range(0, flat.size, BLOCK_VALUES):  # block by block: no capture-sized temporary
+        b = flat[s:s + BLOCK_VALUES]
+        if not (np.array_equal(b, np.rint(b)) and b.min() >= 0):
+            return False
+    return True
 
 
 def _mad_sigma(y: np.ndarray) -> float:
