@@ -10,7 +10,8 @@ process, peak resident memory (on PoCL it includes the device buffers), and the 
 sampled during each stage the volume's timings name (``plan and set-up`` before the first,
 ``after X`` between X and the next).
 
-    python tools/cold_memory.py [--grid 128 512] [--methods lct,fk] [--code DIR] [-o FILE]
+    python tools/cold_memory.py [--grid 128 512] [--methods lct,fk] [--noise-free]
+                                [--code DIR [--code-label TEXT]] [-o FILE]
 
 ``--code DIR`` runs the reconstructions with the package in DIR (an export of another
 commit: a before/after comparison on the same capture); the capture is simulated once.
@@ -104,6 +105,10 @@ def main(argv=None) -> int:
     ap.add_argument("--grid", type=int, nargs=2, default=(128, 512), metavar=("N", "NT"))
     ap.add_argument("--methods", default="lct,fk")
     ap.add_argument("--code", help="the package's folder for the reconstructions")
+    ap.add_argument("--code-label", help="what --code holds (recorded: e.g. 'git archive "
+                    "236ca5d')")
+    ap.add_argument("--noise-free", action="store_true",
+                    help="the expected transient itself, not photon counts")
     ap.add_argument("-o", "--output", help="JSON file of the rows (default: print them)")
     ap.add_argument("--worker", nargs=4, help=argparse.SUPPRESS)
     a = ap.parse_args(argv)
@@ -120,11 +125,14 @@ def main(argv=None) -> int:
         photon_capture,
     )
     from clnlos.forward.model import ForwardModel
+    from clnlos.io.capture import Capture
     from clnlos.io.outputs import provenance
 
     n, nt = a.grid
     scene = end_to_end_scene(n, nt)
-    cap = photon_capture(ForwardModel(scene).run(), scene, END_TO_END_PHOTONS)
+    tau = ForwardModel(scene).run()
+    cap = (Capture(tau, scene.bin_width_s, 0.0, scene.width_m) if a.noise_free
+           else photon_capture(tau, scene, END_TO_END_PHOTONS))
     env = dict(os.environ)
     if a.code:
         env["PYTHONPATH"] = os.pathsep.join([a.code] + [p for p in [env.get("PYTHONPATH")] if p])
@@ -143,7 +151,8 @@ def main(argv=None) -> int:
     if a.output:
         doc = {"provenance": {**provenance(), "command": "python tools/cold_memory.py "
                               + " ".join(argv if argv is not None else sys.argv[1:])},
-               "grid": [n, n, nt], "photons": END_TO_END_PHOTONS, "code": a.code, "rows": rows}
+               "grid": [n, n, nt], "photons": None if a.noise_free else END_TO_END_PHOTONS,
+               "code": a.code_label or a.code or "this checkout", "rows": rows}
         tmp = Path(a.output).with_suffix(".tmp")
         tmp.write_text(json.dumps(doc, indent=1))
         tmp.replace(a.output)
