@@ -397,6 +397,7 @@ def _cold_warm_rows(b: Bench, cap, cfg, err, grid: str):
     xg = cla.zeros(b.q, pad, np.float32)
     pair = timeit(lambda xg=xg: fft.inverse(fft.forward(xg)), b.q,
                   repeat=b.repeat)["median_s"]
+    del xg, fft  # the pair's buffers are not the reconstruction's
 
     def cold():
         PIPELINES.clear()
