@@ -26,6 +26,7 @@ from clnlos.bench.baselines import (
     numpy_transmittance,
     ut_scene,
 )
+from clnlos.bench.cold_process import cold_rows
 from clnlos.bench.harness import Bench, timed_once, timeit
 from clnlos.bench.harness import rel_error as _rel
 from clnlos.bench.isolated import IMPLS as PROCESS_IMPLS
@@ -300,12 +301,13 @@ def end_to_end_scene(n: int, nt: int) -> Scene:
         "sampling": {"density_per_m2": 4e4}})
 
 
-def end_to_end_config(nt: int, method: str = "lct") -> ReconstructionConfig:
+def end_to_end_config(nt: int) -> ReconstructionConfig:
     """The end-to-end rows' configuration: the defaults a user gets (SNRs "auto", as the
-    CLI row) with the slab given, 2 m of path in nt bins. (A fixed SNR of 1e6 on 64 ps bins
-    made LCT ring the peak to 0.68 m; the auto SNR, 1e4 there, does not.)"""
-    return ReconstructionConfig(max_path_m=2.0, bins=nt, slab=CDT_SLAB,
-                                method=method).validate()
+    CLI row) with the slab given, 2 m of path in nt bins (the photon-count rows' worker,
+    :func:`clnlos.bench.cold_process.cold_run`, takes the same with each method). (A fixed
+    SNR of 1e6 on 64 ps bins made LCT ring the peak to 0.68 m; the auto SNR, 1e4 there, does
+    not.)"""
+    return ReconstructionConfig(max_path_m=2.0, bins=nt, slab=CDT_SLAB).validate()
 
 
 def photon_capture(tau: np.ndarray, scene: Scene, photons: float) -> Capture:
@@ -345,37 +347,23 @@ END_TO_END_PHOTONS = 1e9
 def _photon_cold_rows(b: Bench, tau: np.ndarray, scene, cfg, grid: str) -> None:
     """The end-to-end capture as photon counts (END_TO_END_PHOTONS in all, Poisson, seed 0;
     no slab recorded: the default rules, GCV's slab SNR and the light cone's UPRE with its
-    noise probe), reconstructed cold (plans built) by LCT and f-k, each in this process
-    beside one r2c + c2r FFT pair of the padded grid timed in the same run (its buffers
-    freed first): the time in FFT pairs, the process's CPU seconds, and the peak resident
-    memory during the run (VmHWM reset before it: on PoCL it includes the device buffers)
-    and above its start. Error: the relative depth error of the volume's peak."""
+    noise probe), reconstructed cold by LCT and f-k, each in a fresh process
+    (:mod:`clnlos.bench.cold_process`) beside one r2c + c2r FFT pair of the padded grid
+    timed in the same run: the time in FFT pairs, the process's CPU seconds, its peak
+    resident memory during the run (VmHWM reset before it: on PoCL it includes the device
+    buffers; ``peak_mem_bytes``, with the interpreter and the capture) and the peak per
+    stage. Error: the relative depth error of the volume's peak."""
     cap = photon_capture(tau, scene, END_TO_END_PHOTONS)
-    nt, ny, nx = cap.transient.shape
-    pad = (2 * cfg.bins, 2 * ny, 2 * nx)
-    fft = RealFFT3(pad, np.float32, b.q)
-    xg = cla.zeros(b.q, pad, np.float32)
-    pair = timeit(lambda: fft.inverse(fft.forward(xg)), b.q, repeat=b.repeat)["median_s"]
-    del xg, fft
-    for method in ("lct", "fk"):
-        mcfg = end_to_end_config(cfg.bins, method)
-        PIPELINES.clear()
-        start = reset_peak_rss()
-        cpu0 = time.process_time()
-        rec, timing = timed_once(lambda mcfg=mcfg: reconstruct(cap, mcfg, device=b.q), b.q)
-        cpu = time.process_time() - cpu0
-        peak = peak_rss_bytes()
-        err = abs(peak_depth_m(rec.volume, 2.0 / nt / 2) - 0.5) / 0.5
-        p = rec.params
-        r = b.record("end_to_end", f"reconstruct@cold,photons,{method}", grid, np.float32,
-                     timing, err, error_kind="relative depth error", fft_pair_s=pair,
-                     fft_pairs=timing["median_s"] / pair, cpu_s=cpu, method=method,
-                     photons=END_TO_END_PHOTONS, stages_s=dict(rec.timings_s),
-                     snr_used=p.get("snr_used"), snr_rule_used=p.get("snr_rule_used"),
-                     inversion_snr_used=p.get("inversion_snr_used"),
-                     inversion_snr_rule=p.get("inversion_snr_rule"),
-                     peak_above_start_bytes=max(0, peak - start))
-        r["peak_mem_bytes"] = peak
+    for row in cold_rows(cap, ("lct", "fk"), cfg.max_path_m, cfg.bins,
+                         device=_device_spec(b.q.device)):
+        wall = row["wall_s"]
+        timing = {"median_s": wall, "min_s": wall, "max_s": wall, "repeats": 1}
+        err = abs(row["peak_depth_m"] - 0.5) / 0.5
+        r = b.record("end_to_end", f"reconstruct@cold,photons,{row['method']}", grid,
+                     np.float32, timing, err, error_kind="relative depth error",
+                     impl="process", photons=END_TO_END_PHOTONS,
+                     **{k: v for k, v in row.items() if k not in ("wall_s", "peak_depth_m")})
+        r["peak_mem_bytes"] = row["peak_rss_bytes"]
 
 
 def _device_spec(device) -> str:
