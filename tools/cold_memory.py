@@ -21,6 +21,7 @@ from __future__ import annotations
 
 import argparse
 import json
+import os
 import sys
 from pathlib import Path
 
@@ -53,7 +54,12 @@ def main(argv=None) -> int:
     cap = (Capture(tau, scene.bin_width_s, 0.0, scene.width_m) if a.noise_free
            else photon_capture(tau, scene, END_TO_END_PHOTONS))
     cfg = end_to_end_config(nt)
-    rows = cold_rows(cap, a.methods.split(","), cfg.max_path_m, cfg.bins, code=a.code)
+    env = dict(os.environ)
+    if a.code:  # the other version first on the workers' path
+        env["PYTHONPATH"] = os.pathsep.join([a.code] + [p for p in [env.get("PYTHONPATH")]
+                                                        if p])
+    rows = cold_rows(cap, a.methods.split(","), cfg.max_path_m, cfg.bins, code=a.code,
+                     env=env)
     for row in rows:
         print(json.dumps(row), flush=True)
     if a.output:

@@ -21,13 +21,25 @@ from __future__ import annotations
 
 import argparse
 import json
-import os
 import subprocess
 import sys
 import tempfile
 import threading
 import time
 from pathlib import Path
+
+import numpy as np
+import pyopencl.array as cla
+
+from clnlos.bench.harness import timeit
+from clnlos.config import ReconstructionConfig
+from clnlos.inverse.pipeline import ReconstructionPipeline, reconstruct
+from clnlos.io.capture import Capture
+from clnlos.physics.slab import CDT_SLAB
+from clnlos.runtime.caches import PIPELINES
+from clnlos.runtime.device import get_queue
+from clnlos.runtime.fft import RealFFT3
+from clnlos.study.metrics import peak_depth_m
 
 SAMPLE_S = 0.005  # VmRSS sampling period (s)
 WORKER = "import sys; from clnlos.bench.cold_process import main; main(sys.argv[1:])"
@@ -45,18 +57,6 @@ def cold_run(method: str, capture_path: str, max_path_m: float, bins: int,
     """The row of one cold reconstruction in this process (module docstring): the FFT pair
     (s), wall and CPU seconds of the run, FFT pairs, peak and start RSS (bytes), the peak
     VmRSS per stage, the stage times and the SNRs chosen."""
-    import numpy as np
-    import pyopencl.array as cla
-
-    import clnlos.inverse.pipeline as pipeline
-    from clnlos.bench.harness import timeit
-    from clnlos.config import ReconstructionConfig
-    from clnlos.io.capture import Capture
-    from clnlos.physics.slab import CDT_SLAB
-    from clnlos.runtime.caches import PIPELINES
-    from clnlos.runtime.device import get_queue
-    from clnlos.runtime.fft import RealFFT3
-
     z = np.load(capture_path)
     cap = Capture(z["transient"], float(z["bin_width_s"]), 0.0, float(z["scan_width_m"]))
     cfg = ReconstructionConfig(max_path_m=max_path_m, bins=bins, slab=CDT_SLAB,
@@ -69,31 +69,27 @@ def cold_run(method: str, capture_path: str, max_path_m: float, bins: int,
     del xg, fft
 
     label, peaks, running = ["plan and set-up"], {}, [True]
-    timed = pipeline.ReconstructionPipeline._timed
 
-    def labelled(self, timings, name, fn, *a, **kw):
-        label[0] = name
-        try:
-            return timed(self, timings, name, fn, *a, **kw)
-        finally:
-            label[0] = f"after {name}"
+    def stage(name: str, started: bool) -> None:
+        label[0] = name if started else f"after {name}"
 
     def sample():
         while running[0]:
             peaks[label[0]] = max(peaks.get(label[0], 0), _status_bytes("VmRSS"))
             time.sleep(SAMPLE_S)
 
-    pipeline.ReconstructionPipeline._timed = labelled
+    ReconstructionPipeline.stage_hook = stage  # (a version without the hook: no labels)
     PIPELINES.clear()
     Path("/proc/self/clear_refs").write_text("5")  # VmHWM <- VmRSS
     start = _status_bytes("VmRSS")
     thread = threading.Thread(target=sample, daemon=True)
     thread.start()
     cpu0, t0 = time.process_time(), time.perf_counter()
-    rec = pipeline.reconstruct(cap, cfg, device=q)
+    rec = reconstruct(cap, cfg, device=q)
     wall, cpu = time.perf_counter() - t0, time.process_time() - cpu0
     running[0] = False
     thread.join()
+    ReconstructionPipeline.stage_hook = None
     p = rec.params
     return {"method": method, "fft_pair_s": pair, "wall_s": wall, "fft_pairs": wall / pair,
             "cpu_s": cpu, "peak_rss_bytes": _status_bytes("VmHWM"), "start_rss_bytes": start,
@@ -105,17 +101,13 @@ def cold_run(method: str, capture_path: str, max_path_m: float, bins: int,
 
 
 def cold_rows(cap, methods, max_path_m: float, bins: int, *, device: str | None = None,
-              code: str | None = None) -> list[dict]:
+              code: str | None = None, env: dict | None = None) -> list[dict]:
     """:func:`cold_run` of the capture ``cap`` for each method, each in a fresh process;
     ``code``: a folder holding another version of the package, run in its place (this
-    module's file then runs as the worker: it needs nothing of this version). Rows with
+    module's file then runs as the worker: it needs nothing of this version; ``env``, the
+    workers' environment, then puts it first on PYTHONPATH). Rows with
     ``volume_sum`` (float64) and ``peak_depth_m`` (the brightest depth slice's, m) in place
     of the volume."""
-    import numpy as np
-
-    env = dict(os.environ)
-    if code:
-        env["PYTHONPATH"] = os.pathsep.join([code] + [p for p in [env.get("PYTHONPATH")] if p])
     head = [sys.executable, __file__] if code else [sys.executable, "-c", WORKER]
     rows = []
     with tempfile.TemporaryDirectory() as d:
@@ -140,10 +132,6 @@ def main(argv=None) -> None:
     ap.add_argument("bins", type=int)
     ap.add_argument("--device")
     a = ap.parse_args(argv)
-    import numpy as np
-
-    from clnlos.study.metrics import peak_depth_m
-
     row = cold_run(a.method, a.capture, a.max_path_m, a.bins, a.device)
     vol = row.pop("volume")
     row["volume_sum"] = float(np.sum(vol, dtype=np.float64))

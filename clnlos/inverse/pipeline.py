@@ -238,12 +238,21 @@ class ReconstructionPipeline(ParameterSearches):
         sums = binned_power(bins, self.deconv.power_blocks(row_blocks(bins.spectrum_shape), tau))
         return bins.snr_of(sums, SNR_MIN, SNR_MAX)
 
+    # set on the class: called as stage_hook(name, True) when a timed stage starts and
+    # (name, False) when it has ended (a profiler's labels: clnlos.bench.cold_process)
+    stage_hook = None
+
     def _timed(self, timings, name, fn, *a, **kw):
         self.queue.finish()
+        hook = type(self).stage_hook  # a plain function (not bound to the pipeline)
+        if hook is not None:
+            hook(name, True)
         t0 = time.perf_counter()
         out = fn(*a, **kw)
         self.queue.finish()
         timings[name] = timings.get(name, 0.0) + time.perf_counter() - t0
+        if hook is not None:
+            hook(name, False)
         return out
 
     def run(self, transient: np.ndarray, *, keep_transient: bool = False,
