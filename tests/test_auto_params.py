@@ -531,6 +531,30 @@ def test_gcv_bins_block_by_block_equal_one_pass(monkeypatch):
         assert whole.snr(p, 1.0, 1e8) == blocks.snr(p, 1.0, 1e8)
 
 
+def test_gcv_bins_of_a_folded_spectrum_equal_the_whole():
+    """A filter's spectrum stored folded (even in y; the slab's, the light cone's) is binned
+    on its quarter: the same bins of every frequency, counts, gains, per-bin power, row
+    counts and picks as the whole half spectrum's; odd and even first two axes."""
+    rng = np.random.default_rng(5)
+    for n0, n1, n_last in ((10, 8, 14), (9, 7, 13)):
+        f0, f1, n2h = n0 // 2 + 1, n1 // 2 + 1, n_last // 2 + 1
+        quarter = np.exp(-rng.random((f0, f1, n2h)) * 30)
+        w, ky = np.arange(n0), np.arange(n1)
+        g = quarter[np.minimum(w, n0 - w)][:, np.minimum(ky, n1 - ky)]
+        whole = GcvBins.from_gain(g, n_last)
+        folded = GcvBins.from_blocks(lambda r0, r1: quarter[r0:r1], g.shape, n_last,
+                                     folded=True)
+        assert folded.index.size == quarter.size and folded.spectrum_shape == g.shape
+        np.testing.assert_array_equal(folded.rows(0, n0), whole.index)
+        np.testing.assert_allclose(folded.count, whole.count)
+        np.testing.assert_allclose(folded.gain, whole.gain)
+        p = rng.random(g.shape) * 1e3
+        np.testing.assert_allclose(binned_power(folded, [(0, p[:3]), (3, p[3:])]),
+                                   binned_power(whole, [(0, p)]))
+        np.testing.assert_allclose(row_counts(folded), row_counts(whole))
+        assert folded.snr(p, 1.0, 1e8) == whole.snr(p, 1.0, 1e8)
+
+
 def test_lightcone_noise_power_from_its_law(queue):
     """Without a slab the light-cone UPRE takes the noise's power spectrum from its law
     (LCT.column_noise_power, no realisation): Parseval's total exactly, and the mean power

@@ -238,6 +238,31 @@ def test_host_copies_respect_offsets_and_keep_no_events(queue):
         upload_into(a, np.zeros((3, 6)))
 
 
+@pytest.mark.parametrize("shape", [(16, 6, 8), (12, 5, 7)])
+def test_inverse_of_low_rows_pads_them_itself(queue, monkeypatch, shape):
+    """ComplexFFT3.inverse_low_rows (the f-k Stolt spectrum, zero past its low rows, never
+    stored whole): the low-corner block of numpy's ifftn of the zero-padded grid, also
+    where the pass along t takes several blocks of columns."""
+    import pyopencl.array as cla
+
+    from clnlos.runtime.buffers import download
+
+    monkeypatch.setattr(fft, "LOW_ROWS_BLOCK", 40)  # several column blocks along t
+    rng = np.random.default_rng(2)
+    m, needed = shape[0] // 2, (shape[0] // 2, 3, 4)
+    low = (rng.standard_normal((m,) + shape[1:])
+           + 1j * rng.standard_normal((m,) + shape[1:])).astype(np.complex64)
+    whole = np.zeros(shape, np.complex64)
+    whole[:m] = low
+    want = np.fft.ifftn(whole)[:needed[0], :needed[1], :needed[2]]
+    plan = fft.ComplexFFT3(shape, np.float32, queue)
+    if not plan.low_rows:
+        pytest.skip("VkFFT plan: the whole grid is stored")
+    got = download(plan.inverse_low_rows(cla.to_device(queue, low), needed=needed))
+    np.testing.assert_allclose(got[:needed[0], :needed[1], :needed[2]], want,
+                               atol=1e-5 * np.abs(want).max())
+
+
 def test_plan_cache_budget_clear_and_threads(queue, monkeypatch):
     """Plans are reused per key and thread, evicted least-recently-used past the byte budget,
     and freed by clear()."""

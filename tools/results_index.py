@@ -22,6 +22,17 @@ ENTRIES: tuple[tuple[str, str, str, str], ...] = (
      "every kernel knob against its cost (docs/benchmarks.md)"),
     ("bench.html", "clnlos bench --quick -o tools/results", "current",
      "its Pareto plots and recommended settings"),
+    ("cold_memory.json", "python tools/cold_memory.py -o tools/results/cold_memory.json",
+     "current", "the cold 128 x 128 x 512 photon-count LCT and f-k: FFT pairs, CPU s, peak "
+     "RSS per stage (docs/performance.md)"),
+    ("cold_memory_before.json", "python tools/cold_memory.py --code DIR --code-label ... "
+     "(DIR: git archive 236ca5d)", "superseded",
+     "the same before issue 49's memory cuts (docs/performance.md)"),
+    ("cold_memory_noise_free.json", "python tools/cold_memory.py --noise-free -o ...",
+     "current", "the same capture noise-free"),
+    ("cold_memory_noise_free_before.json", "python tools/cold_memory.py --noise-free --code "
+     "DIR ... (DIR: git archive 236ca5d)", "superseded",
+     "the same before issue 49's memory cuts"),
     ("slab_calibration.*", "python tools/slab_calibration.py", "current",
      "diffusion model fitted to the CDT calibration captures (docs/validation/"
      "slab-calibration.md)"),

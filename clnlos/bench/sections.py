@@ -26,6 +26,7 @@ from clnlos.bench.baselines import (
     numpy_transmittance,
     ut_scene,
 )
+from clnlos.bench.cold_process import cold_rows
 from clnlos.bench.harness import Bench, timed_once, timeit
 from clnlos.bench.harness import rel_error as _rel
 from clnlos.bench.isolated import IMPLS as PROCESS_IMPLS
@@ -288,21 +289,41 @@ def _bandwidth_rows(b: Bench, ops, xg, grid: str) -> None:
     r["bytes_moved"] = 2 * xg.nbytes + lct.to_v.matrix.nnz * 8  # columns read, rows written
 
 
+def end_to_end_scene(n: int, nt: int) -> Scene:
+    """The end-to-end capture's scene: "UT" (0.3 m) 0.5 m behind the CDT slab, an n x n scan
+    of 0.6 m, nt bins over 2.46 m of path."""
+    return Scene.from_dict({
+        "scan": {"width_m": 0.6, "points": n},
+        "time": {"bin_width_s": 2.46 / (C0 * nt), "bins": nt, "start_s": 0.0},
+        "objects": [{"shape": "letters", "text": "UT", "height_m": 0.3, "stroke_m": 0.06,
+                     "translate_m": [0.0, 0.0, 0.5]}],
+        "slab": slab_table(CDT_SLAB),
+        "sampling": {"density_per_m2": 4e4}})
+
+
+def end_to_end_config(nt: int) -> ReconstructionConfig:
+    """The end-to-end rows' configuration: the defaults a user gets (SNRs "auto", as the
+    CLI row) with the slab given, 2 m of path in nt bins (the photon-count rows' worker,
+    :func:`clnlos.bench.cold_process.cold_run`, takes the same with each method). (A fixed
+    SNR of 1e6 on 64 ps bins made LCT ring the peak to 0.68 m; the auto SNR, 1e4 there, does
+    not.)"""
+    return ReconstructionConfig(max_path_m=2.0, bins=nt, slab=CDT_SLAB).validate()
+
+
+def photon_capture(tau: np.ndarray, scene: Scene, photons: float) -> Capture:
+    """``tau`` as Poisson counts of ``photons`` in all (seed 0), no slab recorded."""
+    rng = np.random.default_rng(0)
+    lam = np.maximum(tau.astype(np.float64), 0) * (photons / float(tau.sum(dtype=np.float64)))
+    return Capture(rng.poisson(lam).astype(np.float32), scene.bin_width_s, 0.0, scene.width_m)
+
+
 def bench_end_to_end(b: Bench):
     grids = {"tiny": [(16, 64)], "quick": [(32, 128), (64, 256)],
              "full": [(32, 128), (64, 256), (128, 512)]}[b.size]
     for n, nt in grids:
-        d = {"scan": {"width_m": 0.6, "points": n},
-             "time": {"bin_width_s": 2.46 / (C0 * nt), "bins": nt, "start_s": 0.0},
-             "objects": [{"shape": "letters", "text": "UT", "height_m": 0.3, "stroke_m": 0.06,
-                          "translate_m": [0.0, 0.0, 0.5]}],
-             "slab": slab_table(CDT_SLAB),
-             "sampling": {"density_per_m2": 4e4}}
-        scene = Scene.from_dict(d)
+        scene = end_to_end_scene(n, nt)
         fm = ForwardModel(scene, queue=b.q)
-        # the defaults a user gets (SNRs "auto", as the CLI row below): a fixed SNR of 1e6
-        # on 64 ps bins made LCT ring the peak to 0.68 m (the auto SNR, 1e4 here, does not)
-        cfg = ReconstructionConfig(max_path_m=2.0, bins=nt, slab=CDT_SLAB).validate()
+        cfg = end_to_end_config(nt)
 
         def run(fm=fm, cfg=cfg, scene=scene):
             tau = fm.run()
@@ -316,6 +337,33 @@ def bench_end_to_end(b: Bench):
               error_kind="relative depth error")
         _cold_warm_rows(b, Capture(fm.run(), scene.bin_width_s, 0.0, scene.width_m), cfg, err,
                         f"{n}x{n}x{nt}")
+        _photon_cold_rows(b, fm.run(), scene, cfg, f"{n}x{n}x{nt}")
+
+
+# photons in the end-to-end capture made photon counts (issue 49's cold 128 x 128 x 512 case)
+END_TO_END_PHOTONS = 1e9
+
+
+def _photon_cold_rows(b: Bench, tau: np.ndarray, scene, cfg, grid: str) -> None:
+    """The end-to-end capture as photon counts (END_TO_END_PHOTONS in all, Poisson, seed 0;
+    no slab recorded: the default rules, GCV's slab SNR and the light cone's UPRE with its
+    noise probe), reconstructed cold by LCT and f-k, each in a fresh process
+    (:mod:`clnlos.bench.cold_process`) beside one r2c + c2r FFT pair of the padded grid
+    timed in the same run: the time in FFT pairs, the process's CPU seconds, its peak
+    resident memory during the run (VmHWM reset before it: on PoCL it includes the device
+    buffers; ``peak_mem_bytes``, with the interpreter and the capture) and the peak per
+    stage. Error: the relative depth error of the volume's peak."""
+    cap = photon_capture(tau, scene, END_TO_END_PHOTONS)
+    for row in cold_rows(cap, ("lct", "fk"), cfg.max_path_m, cfg.bins,
+                         device=_device_spec(b.q.device)):
+        wall = row["wall_s"]
+        timing = {"median_s": wall, "min_s": wall, "max_s": wall, "repeats": 1}
+        err = abs(row["peak_depth_m"] - 0.5) / 0.5
+        r = b.record("end_to_end", f"reconstruct@cold,photons,{row['method']}", grid,
+                     np.float32, timing, err, error_kind="relative depth error",
+                     impl="process", photons=END_TO_END_PHOTONS,
+                     **{k: v for k, v in row.items() if k not in ("wall_s", "peak_depth_m")})
+        r["peak_mem_bytes"] = row["peak_rss_bytes"]
 
 
 def _device_spec(device) -> str:
@@ -337,6 +385,7 @@ def _cold_warm_rows(b: Bench, cap, cfg, err, grid: str):
     xg = cla.zeros(b.q, pad, np.float32)
     pair = timeit(lambda xg=xg: fft.inverse(fft.forward(xg)), b.q,
                   repeat=b.repeat)["median_s"]
+    del xg, fft  # the pair's buffers are not the reconstruction's
 
     def cold():
         PIPELINES.clear()

@@ -7,7 +7,8 @@ dispersion relation is k_t^2 = k_x^2 + k_y^2 + k_z^2. Steps (``kernels/fk.cl``):
 1. psi = sqrt((t/T)^p tau), zero padded to (2M, 2Ny, 2Nx) (p = ``falloff``, default 2);
 2. 3D FFT (real to half spectrum: psi is real); Stolt interpolation
    PSI'(k_z) = PSI(sqrt(k_z^2 + k_x^2 + k_y^2)) k_z / k_t for k_z > 0 (linear along k_t);
-3. inverse FFT, volume = |psi'|^2 on the unpadded block.
+3. inverse FFT (of the rows k_z <= M - 1 alone, the rest being zero: the host FFT pads
+   them along t itself), volume = |psi'|^2 on the unpadded block.
 
 Same input/output contract as :class:`clnlos.inverse.lct.LCT`. Left out: BRDF, occlusions; the
 square root assumes non-negative measurements (negative values are clipped to 0).
@@ -49,10 +50,17 @@ class FKMigration:
         self._k = get_kernels(self.queue, "fk", real_defines(self.dtype))
         w = ((np.arange(nt) + 0.5) / nt) ** falloff
         self._w = cla.to_device(self.queue, w.astype(self.dtype))
+        # the Stolt-mapped spectrum is zero outside the rows kz = 1..kmax (kmax = nt - 1):
+        # with the host FFT only rows 0..kmax are stored (the inverse pads them along t
+        # itself: ComplexFFT3.inverse_low_rows), half the padded grid's complex size
+        # (268 MB in place of 537 MB at 128 x 128 x 512); VkFFT takes the whole grid
+        self.kmax = self.pad_shape[0] // 2 - 1
+        self.mapped_shape = ((self.kmax + 1,) if self.fft.low_rows
+                             else self.pad_shape[:1]) + self.pad_shape[1:]
         # scratch slot "a": the padded real wavefield, then (no longer needed) its
-        # Stolt-mapped full spectrum; slot "b": the half spectrum of the wavefield
+        # Stolt-mapped spectrum; slot "b": the half spectrum of the wavefield
         self.scratch = Scratch(self.queue) if scratch is None else scratch
-        self.scratch.reserve("a", self.pad_shape, self.fft.cdtype)
+        self.scratch.reserve("a", self.mapped_shape, self.fft.cdtype)
         self.scratch.reserve("b", self.rfft.spec_shape, self.fft.cdtype)
 
     def __call__(self, tau):
@@ -69,8 +77,8 @@ class FKMigration:
                            kernel_int(nx))
         self.rfft.forward(psi, half, nonzero=self.shape)
         del psi  # slot "a" now holds the Stolt-mapped spectrum
-        out = self.scratch.array("a", self.pad_shape, self.fft.cdtype)
-        kmax = pt // 2 - 1  # rows kz = 1..kmax are mapped, the rest are 0
+        out = self.scratch.array("a", self.mapped_shape, self.fft.cdtype)
+        kmax = self.kmax  # rows kz = 1..kmax are mapped, the rest are 0
         row = py * px * out.dtype.itemsize
         fill_zero(q, out, 0, row)
         fill_zero(q, out, (kmax + 1) * row)
@@ -82,7 +90,7 @@ class FKMigration:
                               out.data, kernel_int(pt), kernel_int(py), kernel_int(px),
                               r(self.alpha_y), r(self.alpha_x), kernel_int(x0),
                               np.int32(mirrored))
-        self.fft.inverse(out, needed=self.shape)  # fk_finish reads only that block
+        self.fft.inverse_low_rows(out, needed=self.shape)  # fk_finish reads only that block
         vol = cla.empty(q, self.shape, self.dtype)
         self._k.fk_finish(q, (round_up(nx, 8), round_up(ny, 8), nt), None, out.data,
                           vol.data, kernel_int(nt), kernel_int(ny), kernel_int(nx))

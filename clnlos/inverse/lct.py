@@ -44,7 +44,7 @@ from clnlos.inverse.snr import (
 )
 from clnlos.operators.base import LinearOperator
 from clnlos.operators.resample import AxisResample, overlap_matrix
-from clnlos.operators.spectral import SpectralFilter
+from clnlos.operators.spectral import SpectralFilter, fold_spectrum, folded_shape
 from clnlos.physics.grid import grid_offsets, row_blocks
 from clnlos.physics.lightcone import lightcone_psf_grid
 from clnlos.runtime.buffers import Scratch, fill_zero, kernel_int, round_up
@@ -160,24 +160,31 @@ class LCT:
         self._row_counts = None  # clnlos.inverse.gcv.row_counts of the bins, on first use
 
     def _cone_filter(self, pitch: float, scratch: Scratch, cache) -> SpectralFilter:
-        """The light-cone convolution on the (2 nt, 2 ny, 2 nx) grid: its spectrum from the
-        on-disk cache, else from :func:`lightcone_psf_device` (stored when a cache is
-        given)."""
+        """The light-cone convolution on the (2 nt, 2 ny, 2 nx) grid, its spectrum stored
+        folded (:func:`clnlos.operators.spectral.fold_spectrum`: the cone is real and even
+        in y and x; a quarter of the whole, 68 MB in place of 270 MB at 128 x 128 x 512):
+        from the on-disk cache, else the FFT of :func:`lightcone_psf_device` (slot "a") into
+        the work spectrum (slot "b") folded from there (stored when a cache is given)."""
         nt, ny, nx = self.shape
         pad = (2 * nt, 2 * ny, 2 * nx)
-        kw = dict(mode="convolve", dtype=self.dtype, queue=self.queue, scratch=scratch)
+        kw = dict(mode="convolve", dtype=self.dtype, queue=self.queue, scratch=scratch,
+                  spectrum_folded=True)
+        fft = RealFFT3(pad, self.dtype, self.queue)
         key = None
         if cache is not None:
             key = cache.key("lightcone", shape=[nt, ny, nx], bin_width_s=self.bin_width_s,
-                            pitch_m=pitch, dtype=self.dtype.name)
-            spec = RealFFT3(pad, self.dtype, self.queue).empty_spectrum()
+                            pitch_m=pitch, dtype=self.dtype.name, folded=True)
+            spec = cla.empty(self.queue, folded_shape(fft.spec_shape), fft.cdtype)
             if cache.load(key, spec):
                 return SpectralFilter(pad, self.shape, spectrum=spec, **kw)
         psf, rows = lightcone_psf_device(nt, ny, nx, bin_width_s=self.bin_width_s,
                                          pitch_m=pitch, dtype=self.dtype, queue=self.queue,
                                          out_g=scratch.array("a", pad, self.dtype))
-        cone = SpectralFilter(psf, self.shape, psf_support=(rows,) + pad[1:], **kw)
-        del psf  # slot "a" is the filter's work buffer from now on
+        whole = fft.forward(psf, scratch.array("b", fft.spec_shape, fft.cdtype),
+                            nonzero=(rows,) + pad[1:])
+        spec = fold_spectrum(whole)
+        del psf, whole  # slots "a" and "b" are the filter's work buffers from now on
+        cone = SpectralFilter(pad, self.shape, spectrum=spec, **kw)
         if cache is not None:
             cache.store(key, cone.H)
         return cone
@@ -230,7 +237,8 @@ class LCT:
     def _bins(self):
         if self._gcv_bins is None:
             f = self.inverse_filter
-            self._gcv_bins = GcvBins.from_blocks(f.gain_rows, f.fft.spec_shape, f.pad_shape[2])
+            self._gcv_bins = GcvBins.from_blocks(f.stored_gain_rows, f.fft.spec_shape,
+                                                 f.pad_shape[2], folded=f.folded)
         return self._gcv_bins
 
     def power(self, tau: cla.Array) -> np.ndarray:
@@ -238,7 +246,7 @@ class LCT:
         summed per bin of :meth:`_bins` (block by block)."""
         bins = self._bins()
         return binned_power(bins, self.inverse_filter.power_blocks(
-            row_blocks(bins.index.shape),
+            row_blocks(bins.spectrum_shape),
             write_input=lambda buf: self._to_v_padded.apply_into(tau, buf), source=tau))
 
     @property

@@ -231,19 +231,28 @@ class ReconstructionPipeline(ParameterSearches):
         (:mod:`clnlos.inverse.gcv`) picks for the preprocessed transient ``tau`` (device, guard
         bins included): V on the deconvolution's padded grid, padded as it pads."""
         if self._gcv_slab is None:
-            self._gcv_slab = GcvBins.from_blocks(self.deconv.gain_rows,
-                                                 self.deconv.fft.spec_shape,
-                                                 self.deconv.pad_shape[2])
+            d = self.deconv
+            self._gcv_slab = GcvBins.from_blocks(d.stored_gain_rows, d.fft.spec_shape,
+                                                 d.pad_shape[2], folded=d.folded)
         bins = self._gcv_slab
-        sums = binned_power(bins, self.deconv.power_blocks(row_blocks(bins.index.shape), tau))
+        sums = binned_power(bins, self.deconv.power_blocks(row_blocks(bins.spectrum_shape), tau))
         return bins.snr_of(sums, SNR_MIN, SNR_MAX)
+
+    # set on the class: called as stage_hook(name, True) when a timed stage starts and
+    # (name, False) when it has ended (a profiler's labels: clnlos.bench.cold_process)
+    stage_hook = None
 
     def _timed(self, timings, name, fn, *a, **kw):
         self.queue.finish()
+        hook = type(self).stage_hook  # a plain function (not bound to the pipeline)
+        if hook is not None:
+            hook(name, True)
         t0 = time.perf_counter()
         out = fn(*a, **kw)
         self.queue.finish()
         timings[name] = timings.get(name, 0.0) + time.perf_counter() - t0
+        if hook is not None:
+            hook(name, False)
         return out
 
     def run(self, transient: np.ndarray, *, keep_transient: bool = False,
@@ -394,6 +403,7 @@ class ReconstructionPipeline(ParameterSearches):
         params.update(self.invert.configure(
             tau, noise, inv_snr, lambda name, fn, *a: self._timed(timings, name, fn, *a),
             probe, influence, **({} if inv_rule is None else {"rule": inv_rule})))
+        del probe, influence  # the noise realisation freed before the volume is made
         vol = self._timed(timings, f"invert:{method}", self.invert, tau, progress=progress,
                           setup=setup)
         solve = self.invert.report()

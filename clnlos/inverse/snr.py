@@ -68,6 +68,7 @@ from dataclasses import dataclass
 import numpy as np
 
 from clnlos.physics.constants import C0
+from clnlos.physics.grid import BLOCK_VALUES
 
 K_SNR = 100.0
 MEASURED_MODEL_SNR = 1e4  # accuracy of the slab model on measured captures (see docstring)
@@ -141,16 +142,30 @@ def is_counts(y: np.ndarray) -> bool:
     probe = flat[:: max(1, flat.size // 4096)]  # fast rejection of non-count data
     if not np.array_equal(probe, np.rint(probe)):
         return False
-    return bool(np.array_equal(flat, np.rint(flat)) and flat.min() >= 0)
+    for s in range(0, flat.size, BLOCK_VALUES):  # block by block: no capture-sized temporary
+        b = flat[s:s + BLOCK_VALUES]
+        if not (np.array_equal(b, np.rint(b)) and b.min() >= 0):
+            return False
+    return True
 
 
 def _mad_sigma(y: np.ndarray) -> float:
     """Per-bin white-noise std from the second time difference (robust to smooth signal):
-    var(y[t+1] - 2 y[t] + y[t-1]) = 6 s^2 for white noise."""
-    if y.shape[0] < 3:
+    var(y[t+1] - 2 y[t] + y[t-1]) = 6 s^2 for white noise. ``y`` [t, columns], any float
+    dtype: the differences are taken in float64 block by block of columns into one array,
+    whose medians are taken in place (the median of a set does not depend on its order):
+    one float64 array of the capture's size, no further copies."""
+    nt, n = y.shape
+    if nt < 3:
         return 0.0
-    d2 = y[2:] - 2 * y[1:-1] + y[:-2]
-    mad = float(np.median(np.abs(d2 - np.median(d2))))
+    d2 = np.empty((nt - 2, n))
+    step = max(1, BLOCK_VALUES // nt)
+    for c0 in range(0, n, step):
+        b = np.asarray(y[:, c0:c0 + step], np.float64)
+        d2[:, c0:c0 + step] = b[2:] - 2 * b[1:-1] + b[:-2]
+    d2 -= np.median(d2, overwrite_input=True)
+    np.abs(d2, out=d2)
+    mad = float(np.median(d2, overwrite_input=True))
     return 1.4826 * mad / math.sqrt(6.0)
 
 
@@ -177,7 +192,7 @@ def estimate_noise(y: np.ndarray, bin_width_s: float, start_s: float = 0.0) -> N
         n_eq = signal
         prof_std = math.sqrt(max(background * n_scan, 1.0))
     else:
-        sigma = _mad_sigma(a.reshape(nt, -1).astype(np.float64))
+        sigma = _mad_sigma(a.reshape(nt, -1))
         n_eq = math.inf if sigma == 0 else total * total / (a.size * sigma * sigma)
         prof_std = sigma * math.sqrt(n_scan)
     snr = float(np.clip(n_eq / K_SNR, SNR_MIN, SNR_MAX)) if n_eq > 0 else SNR_MIN

@@ -20,6 +20,7 @@ from __future__ import annotations
 import weakref
 
 import numpy as np
+import pyopencl as cl
 import pyopencl.array as cla
 import scipy.sparse as sp
 
@@ -29,13 +30,15 @@ from clnlos.operators.resample import AxisResample
 from clnlos.physics.grid import fast_length, row_blocks
 from clnlos.runtime.buffers import (
     Scratch,
+    download,
     fill_zero,
     host_view,
     kernel_int,
     round_up,
+    upload_into,
     upload_rows,
 )
-from clnlos.runtime.device import get_queue, require_dtype
+from clnlos.runtime.device import get_queue, is_oclgrind, require_dtype
 from clnlos.runtime.fft import RealFFT3
 from clnlos.runtime.programs import get_kernels, real_defines
 
@@ -44,6 +47,26 @@ def folded_shape(spec_shape) -> tuple[int, int, int]:
     """Shape of a folded half spectrum (``kernels/wiener.cl``): w <= n0 / 2, ky <= n1 / 2."""
     n0, n1, n2h = (int(v) for v in spec_shape)
     return (n0 // 2 + 1, n1 // 2 + 1, n2h)
+
+
+def fold_spectrum(spec_g: cla.Array) -> cla.Array:
+    """The folded quarter (:func:`folded_shape`) of the half spectrum ``spec_g`` of a PSF
+    real and even in y: rows w <= n0 / 2, ky <= n1 / 2 copied into a new array on the device
+    (one rectangular buffer copy); the kernels of ``kernels/wiener.cl`` restore the rest
+    (H(w, -ky) = H(w, ky), H(-w) = conj(H(w))). A quarter of the memory of the whole."""
+    n0, n1, n2h = spec_g.shape
+    f0, f1, _ = folded_shape(spec_g.shape)
+    out = cla.empty(spec_g.queue, (f0, f1, n2h), spec_g.dtype)
+    if is_oclgrind(spec_g.queue.device):  # it marks no rectangular copy's bytes initialised
+        with host_view(spec_g) as h:
+            upload_into(out, h[:f0, :f1])
+        return out
+    row = n2h * spec_g.dtype.itemsize
+    cl.enqueue_copy(spec_g.queue, out.base_data, spec_g.base_data,
+                    src_origin=(spec_g.offset, 0, 0), dst_origin=(out.offset, 0, 0),
+                    region=(row, f1, f0), src_pitches=(row, n1 * row),
+                    dst_pitches=(row, f1 * row))
+    return out
 
 
 def multiply_spectrum(kernels, H: cla.Array, X: cla.Array, *, h_scale: float,
@@ -176,7 +199,7 @@ class SpectralFilter(LinearOperator):
             if psf_g.dtype != self.dtype:
                 psf_g = psf_g.astype(self.dtype)
             self.H = self.fft.forward(psf_g, nonzero=psf_support)
-        self.dc_gain = float(self.H[0, 0, 0].get().real) if self.H.size else 0.0
+        self.dc_gain = float(download(self.H[0, 0, 0:1])[0].real) if self.H.size else 0.0
         self.h_scale = 1.0  # the kernels multiply by h_scale * H
         if normalize:
             if not self.dc_gain > 0:
@@ -246,16 +269,27 @@ class SpectralFilter(LinearOperator):
         spectrum)."""
         n0, n1 = self.fft.spec_shape[:2]
         if not self.folded:
-            h = self.H[r0:r1].get()
-            return (h.real.astype(np.float64) ** 2 + h.imag.astype(np.float64) ** 2) \
-                * self.h_scale**2
+            return self.stored_gain_rows(r0, r1)
         w = np.arange(r0, r1)
         fw = np.minimum(w, n0 - w)
         lo, hi = int(fw.min()), int(fw.max()) + 1
-        h = self.H[lo:hi].get()
-        g = (h.real.astype(np.float64) ** 2 + h.imag.astype(np.float64) ** 2) * self.h_scale**2
+        g = self.stored_gain_rows(lo, hi)
         ky = np.arange(n1)
         return g[fw - lo][:, np.minimum(ky, n1 - ky)]
+
+    def stored_gain_rows(self, r0: int, r1: int) -> np.ndarray:
+        """|h_scale H|^2 of the stored rows r0:r1 of the spectrum (host, float64): the
+        whole half spectrum's rows, or the folded quarter's (:func:`folded_shape`) when
+        :attr:`folded`. Copied with :func:`clnlos.runtime.buffers.download` (``.get()``
+        would keep each block's host copy alive in the spectrum's event list)."""
+        h = download(self.H[r0:r1])
+        return (h.real.astype(np.float64) ** 2 + h.imag.astype(np.float64) ** 2) \
+            * self.h_scale**2
+
+    @property
+    def stored_shape(self) -> tuple[int, int, int]:
+        """The shape of the stored spectrum: the half spectrum, or its folded quarter."""
+        return tuple(int(v) for v in self.H.shape)
 
     def power_blocks(self, blocks, x_g: cla.Array | None = None, *, write_input=None,
                      nonzero=None, source=None):
@@ -277,7 +311,7 @@ class SpectralFilter(LinearOperator):
         self.kept = None if source is None else (weakref.ref(source),
                                                   self.scratch.requests["b"])
         for r0, r1 in blocks:
-            s = spec[r0:r1].get()
+            s = download(spec[r0:r1])  # not .get(): the blocks' copies are not kept alive
             yield r0, s.real * s.real + s.imag * s.imag
 
     def influence(self, in_shape=None, energy_tol: float | None = None) -> SpectralFilter:

@@ -155,6 +155,40 @@ def host_fftn_inplace(a: np.ndarray, forward: bool, block=None) -> None:
     _store(a, f(a, workers=_workers(), overwrite_x=True))
 
 
+LOW_ROWS_BLOCK = 1 << 22  # complex values per block of the zero-padded pass along t (32 MB)
+
+
+def _c2c_inverse(v: np.ndarray, axis: int) -> None:
+    """v <- ifft(v) along ``axis`` (divided by its length), in place where the binding allows."""
+    pp = _pocketfft()
+    if pp is not None:
+        try:
+            pp.c2c(v, (axis,), False, 2, v, _workers())
+            return
+        except TypeError:
+            pass
+    v[...] = sfft.ifft(v, axis=axis, workers=_workers())
+
+
+def host_ifftn_low_rows(a: np.ndarray, n0: int, needed) -> None:
+    """a[:t0, :t1, :t2] <- ifftn(S)[:t0, :t1, :t2] (divided by N) for the (n0, n1, n2)
+    spectrum S whose rows a.shape[0]..n0-1 are zero, ``a`` holding its rows 0..m-1 (m >= t0;
+    (t0, t1, t2) = ``needed``): along x on every row, along y on the kept columns, then along
+    t zero padded to n0 a block of columns at a time (a temporary of LOW_ROWS_BLOCK values),
+    so the spectrum's zero rows are never stored. ``a`` is overwritten."""
+    m, n1, n2 = a.shape
+    t0, t1, t2 = (min(int(b), int(s)) for b, s in zip(needed, (m, n1, n2), strict=True))
+    _c2c_inverse(a, 2)
+    _c2c_inverse(a[:, :, :t2], 1)
+    step = max(1, LOW_ROWS_BLOCK // max(1, n0 * t2))
+    for y0 in range(0, t1, step):
+        y1 = min(t1, y0 + step)
+        blk = np.zeros((n0, y1 - y0, t2), a.dtype)
+        blk[:m] = a[:, y0:y1, :t2]
+        _c2c_inverse(blk, 0)
+        a[:t0, y0:y1, :t2] = blk[:t0]
+
+
 def _store(a: np.ndarray, result: np.ndarray) -> None:
     """Put an in-place transform's result in ``a`` (pocketfft already did when it could)."""
     if not np.shares_memory(a, result):
@@ -221,6 +255,8 @@ class ComplexFFT3:
         self._app = None
         if self.backend == "vkfft":
             self._app = _vkfft_app(self.shape, self.cdtype, self.queue, False)
+        # :meth:`inverse_low_rows` takes the low rows alone (the host FFT pads them itself)
+        self.low_rows = self._app is None
 
     def forward(self, a_g: cla.Array, *, nonzero=None) -> cla.Array:
         """In-place FFT; ``nonzero`` as for :meth:`RealFFT3.forward`."""
@@ -239,6 +275,21 @@ class ComplexFFT3:
         else:
             with host_view(a_g, write=True) as a:
                 host_fftn_inplace(a, False, needed)
+        return a_g
+
+    def inverse_low_rows(self, a_g: cla.Array, *, needed) -> cla.Array:
+        """The inverse FFT (divided by N) of a spectrum of the plan's shape whose rows past
+        ``a_g.shape[0]`` are zero, ``a_g`` holding its low rows (the rest never stored):
+        afterwards ``a_g[:t0, :t1, :t2]`` holds the inverse's low-corner block ``needed`` =
+        (t0, t1, t2), t0 <= a_g.shape[0] (the rest of ``a_g`` is overwritten). With VkFFT
+        (:attr:`low_rows` False) ``a_g`` must hold every row: :meth:`inverse`."""
+        if tuple(a_g.shape) == self.shape:
+            return self.inverse(a_g, needed=needed)
+        if not self.low_rows:
+            raise ValueError(f"inverse_low_rows of {a_g.shape} rows on a VkFFT plan of "
+                             f"{self.shape}: VkFFT needs the whole grid")
+        with host_view(a_g, write=True) as a:
+            host_ifftn_low_rows(a, self.shape[0], needed)
         return a_g
 
 
