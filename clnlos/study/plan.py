@@ -124,7 +124,7 @@ class StudyOptions:
                    geometry_sweep_materials=(SWEEP_MATERIALS[0], SWEEP_MATERIALS[-1]),
                    sweeps={"scan_width_m": (0.3, 0.6, 0.8), "depth_m": (0.3, 0.5, 0.7),
                            "slab_thickness_m": (0.0, 0.0254, 0.0508)}, label="quick",
-                   transport="confocal", judge_twins=8)
+                   transport="confocal", judge_twins=14)
 
     def validate(self) -> StudyOptions:
         if self.labels not in LABEL_METRICS:
