@@ -193,3 +193,22 @@ def test_blob_fit_tells_a_blob_from_a_glyph():
                                         noise=0.0))["blob_fit"] for g in "HLTUX"]
     assert mip_features(gauss)["blob_fit"] > 0.9  # the fit sees its foreground only
     assert mip_features(blob)["blob_fit"] > max(glyphs)
+
+
+@pytest.mark.parametrize("per_geometry", [8, 14, 16])
+def test_twin_plan_crosses_every_pattern_with_every_material(per_geometry):
+    """No pattern is tied to a material (else held out by material also holds out patterns):
+    once the plan has a round of the patterns per material, every pair occurs, and the
+    patterns are dealt evenly (within one) and the materials within two."""
+    from collections import Counter
+
+    from clnlos.study.patterns import TWIN_PATTERNS
+    from clnlos.study.twins import TWIN_MATERIALS
+    plan = twin_plan(per_geometry=per_geometry, seed=0)
+    assert len(plan) == per_geometry * len(TWIN_GEOMETRIES)
+    pairs = Counter((e["glyph"], e["material"]) for e in plan)
+    if len(plan) >= len(TWIN_PATTERNS) * len(TWIN_MATERIALS):
+        assert len(pairs) == len(TWIN_PATTERNS) * len(TWIN_MATERIALS)
+    for key, spread in (("glyph", 1), ("material", 2)):
+        counts = Counter(e[key] for e in plan).values()
+        assert max(counts) - min(counts) <= spread, (key, counts)

@@ -104,7 +104,8 @@ class StudyOptions:
     tilt_materials: tuple[str, ...] = TILT_MATERIALS
     tilt_glyphs: tuple[str, ...] | None = None  # default: glyphs
     tilt_inversions: tuple[str, ...] = INVERSIONS
-    judge_twins: int = 16               # twin scenes per twin geometry (clnlos.study.twins)
+    judge_twins: int = 16               # twin scenes per twin geometry (clnlos.study.twins;
+    #                                     quick and full alike: docs/validation/legibility-judge.md)
 
     @classmethod
     def quick(cls) -> StudyOptions:
@@ -124,7 +125,7 @@ class StudyOptions:
                    geometry_sweep_materials=(SWEEP_MATERIALS[0], SWEEP_MATERIALS[-1]),
                    sweeps={"scan_width_m": (0.3, 0.6, 0.8), "depth_m": (0.3, 0.5, 0.7),
                            "slab_thickness_m": (0.0, 0.0254, 0.0508)}, label="quick",
-                   transport="confocal", judge_twins=8)
+                   transport="confocal")
 
     def validate(self) -> StudyOptions:
         if self.labels not in LABEL_METRICS:

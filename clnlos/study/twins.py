@@ -97,7 +97,8 @@ TWIN_GEOMETRIES = (
 # (a mirror-like target's confocal image is its glint: not what the judge is for)
 TWIN_MATERIALS = ("standard white plate", "cement board", "fuchsia lacquer board",
                   "retroreflective")
-TWIN_FRACTIONS = (1.0, 0.1, 0.01, 1e-3, 1e-4, 1e-5, 1e-6)
+TWIN_FRACTIONS = (0.1, 1e-3, 1e-4, 1e-5)   # of the photons: 1e5 ... 10 per point (the real
+#                                             ladders' span; why these four: the docs)
 TWIN_PHOTONS_PER_POINT = 1e6   # signal photons per scan point at the top of the ladder
 TWIN_BACKGROUND = (0.03, 3.0)  # the floor's photons over the signal's, log-uniform (what
 #                                the LCT release shows: docs/validation/legibility-judge.md)
@@ -160,17 +161,21 @@ def twin_label(mip: np.ndarray, glyph: str, templates: dict, truth: np.ndarray) 
 
 def twin_plan(geometries=TWIN_GEOMETRIES, glyphs=TWIN_PATTERNS, materials=TWIN_MATERIALS,
               seed: int = 0, per_geometry: int | None = None) -> list[dict]:
-    """Every twin scene: each geometry with each glyph (or ``per_geometry`` of them, in
-    turn), its material cycling through ``materials``, a random zoom, shift, floor and seed."""
+    """Every twin scene: each geometry with each glyph (or ``per_geometry`` of them), the
+    glyphs in turn over the whole plan (scene i: glyph i mod G) and the materials in turn
+    shifted by one per round of the glyphs (material (i + i // G) mod M: every glyph meets
+    every material, so that no split holds out one with the other), a random zoom, shift,
+    floor and seed."""
     rng = np.random.default_rng(seed)
     plan = []
+    n = len(glyphs) if per_geometry is None else per_geometry
     for g, geo in enumerate(geometries):
-        n = len(glyphs) if per_geometry is None else per_geometry
         for k in range(n):
-            glyph = glyphs[(k + g * (n % len(glyphs) or 1)) % len(glyphs)]
+            i = g * n + k
+            glyph = glyphs[i % len(glyphs)]
             plan.append({
                 "geometry": geo.name, "family": geo.family, "glyph": glyph,
-                "material": materials[(k + g) % len(materials)],
+                "material": materials[(i + i // len(glyphs)) % len(materials)],
                 **twin_placement(geo, glyph, rng),
                 "background": float(np.exp(rng.uniform(*np.log(TWIN_BACKGROUND)))),
                 "seed": int(rng.integers(2**31))})
