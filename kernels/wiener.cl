@@ -10,7 +10,7 @@
  * spectrum is never rescaled in a pass of its own (270 MB at 128 x 128 x 512).
  *
  * H is stored whole (folded = 0) or folded (folded = 1): for a PSF that is real and even in
- * y (the slab's), H(w, ky, kx) = H(w, -ky, kx) and H(-w, ky, kx) = conj(H(w, ky, kx)), so
+ * y and x (the slab's, the light cone's), H(w, ky, kx) = H(w, -ky, kx) and H(-w, ky, kx) = conj(H(w, ky, kx)), so
  * only w <= n0 / 2 and ky <= n1 / 2 are stored, (n0 / 2 + 1, n1 / 2 + 1, n2h): a quarter.
  *
  * 1/SNR is added to the real denominator |H|^2 only (the published CDT code also adds it

@@ -158,11 +158,16 @@ def replace_white(entry):
     return {**entry, "material": "standard white plate", "background": 0.1}
 
 
-
 def test_charts_mask_what_the_scene_holds_and_stay_inside_the_scan():
     """A chart's true mask is the union of the rectangles its scene objects hold; twins of
     every pattern lie inside the scan at most TWIN_MAX_FILL wide."""
-    from clnlos.study.patterns import TWIN_PATTERNS, pattern_mask, pattern_objects
+    from clnlos.study.patterns import (
+        CHART_SCALE,
+        TWIN_PATTERNS,
+        is_chart,
+        pattern_mask,
+        pattern_objects,
+    )
     from clnlos.study.twins import TWIN_MAX_FILL, twin_placement
     rng = np.random.default_rng(3)
     pts = rng.uniform(-0.3, 0.3, (4000, 2))
@@ -175,12 +180,13 @@ def test_charts_mask_what_the_scene_holds_and_stay_inside_the_scan():
             (w, h), (x, y, _) = o["size_m"], o["translate_m"]
             inside |= (np.abs(pts[:, 0] - x) <= w / 2) & (np.abs(pts[:, 1] - y) <= h / 2)
         assert np.array_equal(inside, pattern_mask(name, 0.3, 0.08, pts - [0.02, -0.01]))
-        assert 0.2 < inside.mean() * 0.36 / (0.3 * 1.4) ** 2 < 0.7  # neither empty nor full
+        share = inside.mean() * 0.36 / (0.3 * CHART_SCALE) ** 2
+        assert 0.2 < share < 0.7  # neither empty nor full
     assert pattern_objects("S", 0.3, 0.08, (0, 0, 0.5), "lambertian")[0]["text"] == "S"
     for geo in TWIN_GEOMETRIES:
         for name in TWIN_PATTERNS:
             p = twin_placement(geo, name, rng)
-            side = p["height_m"] * (1.4 if name.startswith(("bars", "dots")) else 1.0)
+            side = p["height_m"] * (CHART_SCALE if is_chart(name) else 1.0)
             assert side <= TWIN_MAX_FILL * geo.scan_width_m + 1e-12
             assert max(abs(v) for v in p["offset_m"]) + side / 2 <= geo.scan_width_m / 2 + 1e-9
 

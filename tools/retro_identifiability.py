@@ -16,8 +16,7 @@ many). Lobes: the Lambertian voxel (signal ~ z^-4 cos^8 theta at scan angle thet
 plane at depth z), the retroreflective preset (clnlos.physics.retroreflector: ~ z^-2
 cos^4 theta g(theta), g its entrance-angle profile reaching zero at 39.5 deg), the same
 sheeting with an acceptance of 85 deg (~ z^-2 cos^4 theta), and GGX lobes of the auto
-ladder. Writes tools/results/retro_identifiability.{csv,json}; docs/real-materials.md reads
-them.
+ladder. Writes tools/results/retro_identifiability.{csv,json}; docs/brdf.md reads them.
 
     .venv/bin/python tools/retro_identifiability.py [--shared ../shared/data]
 """
@@ -27,6 +26,7 @@ from __future__ import annotations
 import argparse
 import dataclasses
 import math
+import sys
 import time
 from pathlib import Path
 
@@ -65,12 +65,9 @@ def binned(capture):
 def scores(path: Path) -> list[dict]:
     """One row per lobe: its held-out score from the whole volume and from its brightest
     voxels (module docstring)."""
-    import pyopencl.array as cla
-
     from clnlos.config import ReconstructionConfig
     from clnlos.inverse.pipeline import ReconstructionPipeline
     from clnlos.inverse.preprocessing import resolve_geometry
-    from clnlos.inverse.snr import background_subtracted
     from clnlos.inverse.thinning import fitted_residual
     from clnlos.io.capture import without_direct
     from clnlos.io.files import read_capture
@@ -84,8 +81,7 @@ def scores(path: Path) -> list[dict]:
     pipe = ReconstructionPipeline(cap.transient.shape, bin_width_s=bw, start_s=start,
                                   scan_width_m=sw, config=cfg, queue=queue)
     train, test = pipe._split(cap.transient)
-    held = pipe.pre(cla.to_device(queue, np.ascontiguousarray(
-        background_subtracted(test, pipe.raw_noise(test), pipe.dtype)))).get()
+    held, _, _ = pipe._held_out_prediction_target(test)  # what brdf = "auto" scores
     rows = []
     for lobe in lobes():
         t0 = time.perf_counter()
@@ -111,9 +107,11 @@ def main(argv=None) -> int:
     args = ap.parse_args(argv)
     files = sorted(Path(args.shared, "lct").glob("*.mat"))
     if not files:
-        print(f"no captures in {args.shared}/lct")
+        print(f"clnlos: error: no captures in {args.shared}/lct", file=sys.stderr)
         return 2
     rows = [r for f in files for r in scores(f)]
+    for r in rows:  # the command that wrote them (write_rows adds the version and commit)
+        r["command"] = "python tools/retro_identifiability.py"
     write_rows(rows, RESULTS / "retro_identifiability")
     for name in dict.fromkeys(r["capture"] for r in rows):
         mine = [r for r in rows if r["capture"] == name]

@@ -7,8 +7,8 @@ buffers) is the reconstruction's with the interpreter and the capture, not the b
 (whose earlier rows leave simulations and allocator arenas behind: 0.8 GB at 128 x 128 x
 512). One r2c + c2r FFT pair of the padded grid is timed first (its buffers freed), then
 VmHWM is reset and one cold reconstruction runs (plans built; the default rules of
-``method`` with the CDT slab given: :func:`clnlos.bench.sections.end_to_end_config`'s); VmRSS is sampled during each stage the volume's timings
-name (``plan and set-up`` before the first, ``after X`` between X and the next). Prints one
+``method`` with the CDT slab given: :func:`clnlos.bench.sections.end_to_end_config`'s);
+VmRSS is sampled during each stage the volume's timings name (``plan and set-up`` before the first, ``after X`` between X and the next). Prints one
 JSON line:
 
     python -c "import sys; from clnlos.bench.cold_process import main; main(sys.argv[1:])" \\
@@ -85,11 +85,13 @@ def cold_run(method: str, capture_path: str, max_path_m: float, bins: int,
     thread = threading.Thread(target=sample, daemon=True)
     thread.start()
     cpu0, t0 = time.process_time(), time.perf_counter()
-    rec = reconstruct(cap, cfg, device=q)
-    wall, cpu = time.perf_counter() - t0, time.process_time() - cpu0
-    running[0] = False
-    thread.join()
-    ReconstructionPipeline.stage_hook = None
+    try:
+        rec = reconstruct(cap, cfg, device=q)
+        wall, cpu = time.perf_counter() - t0, time.process_time() - cpu0
+    finally:
+        running[0] = False
+        thread.join()
+        ReconstructionPipeline.stage_hook = None
     p = rec.params
     return {"method": method, "fft_pair_s": pair, "wall_s": wall, "fft_pairs": wall / pair,
             "cpu_s": cpu, "peak_rss_bytes": _status_bytes("VmHWM"), "start_rss_bytes": start,

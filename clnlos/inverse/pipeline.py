@@ -248,11 +248,13 @@ class ReconstructionPipeline(ParameterSearches):
         if hook is not None:
             hook(name, True)
         t0 = time.perf_counter()
-        out = fn(*a, **kw)
-        self.queue.finish()
+        try:
+            out = fn(*a, **kw)
+            self.queue.finish()
+        finally:
+            if hook is not None:
+                hook(name, False)
         timings[name] = timings.get(name, 0.0) + time.perf_counter() - t0
-        if hook is not None:
-            hook(name, False)
         return out
 
     def run(self, transient: np.ndarray, *, keep_transient: bool = False,

@@ -51,7 +51,7 @@ def folded_shape(spec_shape) -> tuple[int, int, int]:
 
 def fold_spectrum(spec_g: cla.Array) -> cla.Array:
     """The folded quarter (:func:`folded_shape`) of the half spectrum ``spec_g`` of a PSF
-    real and even in y: rows w <= n0 / 2, ky <= n1 / 2 copied into a new array on the device
+    real and even in y and x: rows w <= n0 / 2, ky <= n1 / 2 copied into a new array on the device
     (one rectangular buffer copy); the kernels of ``kernels/wiener.cl`` restore the rest
     (H(w, -ky) = H(w, ky), H(-w) = conj(H(w))). A quarter of the memory of the whole."""
     n0, n1, n2h = spec_g.shape
@@ -141,7 +141,7 @@ class SpectralFilter(LinearOperator):
         F[psf] already computed on this grid (half spectrum, complex); ``psf`` is then the
         padded shape (a tuple).
     spectrum_folded : bool
-        ``spectrum`` is stored folded (:func:`folded_shape`: a PSF real and even in y).
+        ``spectrum`` is stored folded (:func:`folded_shape`: a PSF real and even in y and x).
     lateral_pad : ``"zero"`` (default; the operator has an exact adjoint) or ``"mirror"``
         (even extension across the scan border, needs a (.., 2 ny, 2 nx) grid): for
         deconvolving data whose blur reached past the scanned area, where zero padding puts

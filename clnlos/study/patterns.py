@@ -36,7 +36,8 @@ def _grid(n: int) -> list[float]:
 
 
 def chart_rectangles(name: str) -> list[tuple[float, float, float, float]]:
-    """(x, y, width, height) of the chart's rectangles, in units of its height."""
+    """(x, y, width, height) of the chart's rectangles, in units of its side (CHART_SCALE
+    letter heights)."""
     if name in ("bars_v", "bars_h"):
         w = 1.0 / (2 * CHART_BARS - 1)
         bars = [(x, 0.0, w, 1.0) for x in _grid(CHART_BARS)]

@@ -102,7 +102,7 @@ TWIN_FRACTIONS = (0.1, 1e-3, 1e-4, 1e-5)   # of the photons: 1e5 ... 10 per poin
 TWIN_PHOTONS_PER_POINT = 1e6   # signal photons per scan point at the top of the ladder
 TWIN_BACKGROUND = (0.03, 3.0)  # the floor's photons over the signal's, log-uniform (what
 #                                the LCT release shows: docs/validation/legibility-judge.md)
-TWIN_ZOOM = (0.75, 1.75)       # pattern height x U[a, b] (the geometry's height: b = 1 ...
+TWIN_ZOOM = (0.75, 1.75)       # pattern height: the geometry's letter height x U[a, b] ...
 TWIN_MAX_FILL = 0.9            # ... up to this share of the scan width for the pattern's side)
 TWIN_SHIFT = 0.1               # centre within +-this share of the scan width
 TWIN_GAIN = 4.0                # each rung also seen under a lateral gain of up to this ratio
