@@ -37,6 +37,10 @@ def main(argv=None) -> int:
                     help="the expected transient itself, not photon counts")
     ap.add_argument("-o", "--output", help="JSON file of the rows (default: print them)")
     a = ap.parse_args(argv)
+    if a.code and not (Path(a.code) / "clnlos" / "__init__.py").is_file():
+        print(f"clnlos: error: --code {a.code}: not a folder holding the clnlos package "
+              "(clnlos/__init__.py)", file=sys.stderr)
+        return 2
     from clnlos.bench.cold_process import cold_rows
     from clnlos.bench.sections import (
         END_TO_END_PHOTONS,
