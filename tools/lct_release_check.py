@@ -23,12 +23,6 @@ RESULTS = ROOT / "tools" / "results"
 sys.path.insert(0, str(ROOT / "tests"))
 
 
-def ncc(a: np.ndarray, b: np.ndarray) -> float:
-    a = np.asarray(a, np.float64) - np.mean(a)
-    b = np.asarray(b, np.float64) - np.mean(b)
-    return float((a * b).sum() / np.sqrt((a * a).sum() * (b * b).sum()))
-
-
 def detail(img: np.ndarray) -> np.ndarray:
     from scipy.ndimage import gaussian_filter
 
@@ -43,6 +37,7 @@ def main(argv=None) -> int:
     import clnlos
     from clnlos.bench.oracle import write_rows
     from clnlos.io.files import save_figure_file
+    from clnlos.study.real_materials import ncc
     from reference.lct_published import PUBLISHED_Z_OFFSET, published_lct
 
     ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])

@@ -34,7 +34,7 @@ import numpy as np
 
 ROOT = Path(__file__).resolve().parents[1]
 RESULTS = ROOT / "tools" / "results"
-SCAN_POINTS = 32        # scan points per side after binning
+SCAN_POINTS = 32        # scan points per side at most after binning
 BIN_WIDTH_S = 32e-12    # bins after binning (s)
 SEARCH_ITERATIONS = 50  # iterations per half reconstruction (clnlos.inverse.brdf_choice)
 
@@ -51,17 +51,6 @@ def lobes():
             *ladder[1:3]]
 
 
-def binned(capture):
-    """The capture summed to SCAN_POINTS per side (its own bins kept: the pipeline sums
-    them to BIN_WIDTH_S)."""
-    t = np.asarray(capture.transient)
-    k = t.shape[1] // SCAN_POINTS
-    if k > 1:
-        nt, ny, nx = t.shape
-        t = t.reshape(nt, ny // k, k, nx // k, k).sum(axis=(2, 4))
-    return dataclasses.replace(capture, transient=t)
-
-
 def scores(path: Path) -> list[dict]:
     """One row per lobe: its held-out score from the whole volume and from its brightest
     voxels (module docstring)."""
@@ -72,8 +61,9 @@ def scores(path: Path) -> list[dict]:
     from clnlos.io.capture import without_direct
     from clnlos.io.files import read_capture
     from clnlos.runtime.device import get_queue
+    from clnlos.study.judge_real import binned_laterally
 
-    cap, _ = without_direct(binned(read_capture(path)))
+    cap, _ = without_direct(binned_laterally(read_capture(path), SCAN_POINTS))
     bins = round(cap.transient.shape[0] * cap.bin_width_s / BIN_WIDTH_S)
     cfg = ReconstructionConfig(method="iterative", bins=bins, brdf="auto").validate()
     bw, start, sw = resolve_geometry(cap, cfg)
