@@ -37,7 +37,6 @@ from clnlos.inverse.snr import (
     MEASURED_MODEL_SNR,
     SNR_MAX,
     NoiseEstimate,
-    background_subtracted,
     combined_snr,
     is_counts,
     lightcone_snr,
@@ -216,8 +215,7 @@ class ParameterSearches:
         if self.deconv is not None:
             held, snr, noise_runs = self._held_out(y2)
             return held, self._slab_influence(snr), noise_runs
-        tau = self.pre(cla.to_device(self.queue, np.ascontiguousarray(
-            background_subtracted(y2, self.raw_noise(y2), self.dtype))))
+        tau = self.pre(self.without_floor(y2))
         _, peak = self._profile_peak(tau)
         scale = 1.0 / peak if peak > 0 else 1.0
         if peak > 0:
@@ -375,8 +373,7 @@ class ParameterSearches:
         and deconvolved at the SNR GCV picks for it (:meth:`slab_gcv_snr`), tail-filled where
         the window needs it."""
         noise = self.raw_noise(y2)
-        tau = self.pre(cla.to_device(self.queue, np.ascontiguousarray(
-            background_subtracted(y2, noise, self.dtype))))
+        tau = self.pre(self.without_floor(y2, noise))
         profile, peak = self._profile_peak(tau)
         if peak > 0:
             self._scale_inplace(tau, 1.0 / peak)

@@ -304,13 +304,21 @@ class ReconstructionPipeline(ParameterSearches):
                                  resampled=resampled, time_shifts=time_shifts,
                                  lobe_params=lobe_params)
 
+    def without_floor(self, transient: np.ndarray, noise: NoiseEstimate | None = None
+                      ) -> cla.Array:
+        """The raw transient less its background floor (:func:`background_subtracted`;
+        ``noise`` its :meth:`raw_noise`, measured here when None), on the device: where the
+        preprocessing of a capture and of either half of its split starts."""
+        noise = self.raw_noise(transient) if noise is None else noise
+        return cla.to_device(self.queue, np.ascontiguousarray(
+            background_subtracted(transient, noise, self.dtype)))
+
     def prepare(self, transient: np.ndarray, noise: NoiseEstimate | None = None,
                 timings: dict | None = None) -> PreparedCapture:
         """The capture preprocessed and normalised once (:class:`PreparedCapture`), for
         :meth:`_reconstruct` (every candidate of a split search reuses it)."""
         noise = self.raw_noise(transient) if noise is None else noise
-        x = cla.to_device(self.queue, np.ascontiguousarray(
-            background_subtracted(transient, noise, self.dtype)))
+        x = self.without_floor(transient, noise)
         tau = self._timed({} if timings is None else timings, "preprocess", self.pre, x)
         profile, peak = self._profile_peak(tau)
         total = float(profile.sum())
