@@ -41,6 +41,10 @@ ENTRIES: tuple[tuple[str, str, str, str], ...] = (
     ("lct_release_check.*", "python tools/lct_release_check.py --methods lct iterative", "current",
      "the LCT release read as released: defaults against the published pipeline "
      "(docs/validation/lct-release.md)"),
+    ("lct_detail_study.*", "python tools/lct_detail_study.py", "current",
+     "the diffuse S's fine detail: the published pipeline's split halves, clnlos's LCT "
+     "stages morphed into the published ones, a point's registration "
+     "(docs/validation/lct-release.md)"),
     ("retro_identifiability.*", "python tools/retro_identifiability.py", "current",
      "held-out scores of each reflectance model on the LCT release (docs/brdf.md)"),
     ("real_materials.*", "python tools/real_materials.py --quick", "current",
