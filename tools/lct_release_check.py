@@ -4,9 +4,10 @@ independent float64 port of the published pipeline (tests/reference/lct_publishe
 published display orientation and depth crop: the NCC of the front views, of their fine
 detail (the image less a 3-pixel Gaussian blur of itself) and the depth of the brightest
 voxel. Writes tools/results/lct_release_check.{csv,json,png} (the front views, top row the
-published pipeline's).
+published pipeline's), or STEM.{csv,json,png} with --out STEM.
 
     .venv/bin/python tools/lct_release_check.py [--shared ../shared/data] [--methods lct iterative]
+        [--out tools/results/lct_release_check]
 """
 
 from __future__ import annotations
@@ -46,6 +47,8 @@ def main(argv=None) -> int:
     ap.add_argument("--brdf", nargs="+", default=["default"],
                     help="reflectance assumed by each method run: default (none given) or "
                          "a --brdf value (e.g. auto)")
+    ap.add_argument("--out", default=str(RESULTS / "lct_release_check"),
+                    help="stem of the result files (.csv, .json, .png)")
     args = ap.parse_args(argv)
     files = sorted(Path(args.shared, "lct").glob("*.mat"))
     if not files:
@@ -84,7 +87,8 @@ def main(argv=None) -> int:
                                for k, v in row.items()), flush=True)
                 col.append((f"{method} {brdf}", front))
         views.append((f.stem, col))
-    write_rows(rows, RESULTS / "lct_release_check")
+    stem = Path(args.out)
+    write_rows(rows, stem)
     n = len(views[0][1])
     fig = Figure(figsize=(2.2 * len(views), 2.3 * n), layout="constrained")
     ax = np.asarray(fig.subplots(n, len(views))).reshape(n, len(views))
@@ -93,7 +97,7 @@ def main(argv=None) -> int:
             ax[i, j].imshow(img, cmap="gray")
             ax[i, j].set_title(f"{name.replace('data_', '')}\n{label}", fontsize=7)
             ax[i, j].set_axis_off()
-    save_figure_file(fig, RESULTS / "lct_release_check.png")
+    save_figure_file(fig, stem.with_suffix(".png"))
     return 0
 
 

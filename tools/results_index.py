@@ -41,6 +41,10 @@ ENTRIES: tuple[tuple[str, str, str, str], ...] = (
     ("lct_release_check.*", "python tools/lct_release_check.py --methods lct iterative", "current",
      "the LCT release read as released: defaults against the published pipeline "
      "(docs/validation/lct-release.md)"),
+    ("lct_release_check_lct.*", "python tools/lct_release_check.py --brdf default lambertian "
+     "--out tools/results/lct_release_check_lct", "current",
+     "the same for LCT alone, with the reader's default and Lambertian reflectance "
+     "(docs/validation/lct-release.md)"),
     ("lct_detail_study.*", "python tools/lct_detail_study.py", "current",
      "the diffuse S's fine detail: the published pipeline's split halves, clnlos's LCT "
      "stages morphed into the published ones, a point's registration "
