@@ -26,6 +26,8 @@ pipeline for a deeper one than cross-validation's (CLOSED_FORM_SLAB_SNR_MIN,
 
 from __future__ import annotations
 
+import math
+
 import numpy as np
 import pyopencl.array as cla
 import scipy.sparse as sp
@@ -303,9 +305,23 @@ def lightcone_snr_params(snr: float, rule: str | None) -> dict:
     return ({} if rule is None else {"inversion_snr_rule": rule}) | {"inversion_snr_used": snr}
 
 
+def last_light_row(noise, nt: int, bin_width_s: float) -> int | None:
+    """The first depth row of a volume of ``nt`` rows (bins of ``bin_width_s``, row k at
+    depths [k, k+1) c dt / 2) that lies wholly behind the capture's last light
+    (:attr:`clnlos.inverse.snr.NoiseEstimate.farthest_depth_m`): no hidden point is there;
+    None where that is not measured or no row is behind it."""
+    far = noise.farthest_depth_m
+    if far is None:
+        return None
+    k = math.ceil(far / (C0 * bin_width_s / 2) - 1e-9)
+    return k if k < nt else None
+
+
 class LCTMethod(Inversion):
     """``method = "lct"`` (:class:`LCT` behind the inversion contract of
-    :mod:`clnlos.inverse.methods`)."""
+    :mod:`clnlos.inverse.methods`). The volume ends where the capture's light does: the
+    rows behind its last light (:func:`last_light_row`) are zeroed, the late bins' noise
+    that the weighting (t/T)^p lifts most and a front view (max over depth) would show."""
 
     name = "lct"
     slab_snr_min = CLOSED_FORM_SLAB_SNR_MIN  # Phi not modelled (clnlos.inverse.pipeline)
@@ -316,13 +332,20 @@ class LCTMethod(Inversion):
         super().__init__(grid, config, dtype=dtype, queue=queue, scratch=scratch, cache=cache)
         self.lct = LCT(grid.shape, snr=initial_inversion_snr(config), **self.falloff(),
                        **self.geometry(), cache=cache)
+        self.end_row: int | None = None  # the first row behind the last light, per capture
 
     def configure(self, tau_g, noise, rule_snr: float, timed, probe=None,
                   slab_influence=None, rule: str | None = None) -> dict:
         snr, rule = choose_lightcone_snr(self.lct, self.config, noise, tau_g, rule_snr, timed,
                                          probe, rule)
         self.lct.set_snr(snr)
-        return lightcone_snr_params(snr, rule)
+        self.end_row = last_light_row(noise, self.grid.shape[0], self.grid.bin_width_s)
+        ends = ({} if self.end_row is None else
+                {"depth_end_m": self.end_row * C0 * self.grid.bin_width_s / 2})
+        return lightcone_snr_params(snr, rule) | ends
 
     def __call__(self, tau_g, *, progress=None, setup=None):
-        return self.lct(tau_g)
+        vol = self.lct(tau_g)
+        if self.end_row is not None:
+            vol[self.end_row:].fill(0)
+        return vol

@@ -492,7 +492,8 @@ class ReconstructionPipeline(ParameterSearches):
         """One line each for a result that holds little or nothing, naming the cause: a
         volume of fewer than MIN_DEPTH_BINS depth bins, a kept window that ends before the
         capture's first arrival, a capture with no light above its background, a
-        configured depth_min_m behind the first arrival, an all-zero volume."""
+        configured depth_min_m behind the first arrival, a volume zeroed behind the last
+        light (LCT), an all-zero volume."""
         out = []
         n, dz = self.shape[0], C0 * self.bin_width_s / 2
         c = self.config
@@ -519,6 +520,11 @@ class ReconstructionPipeline(ParameterSearches):
             out.append("no bin of the capture rises above its background (the level of its "
                        f"first {100 * LEAD_FRACTION:g}% of bins) by {ARRIVAL_SIGMAS:g} noise "
                        "standard deviations: the volume shows noise, not a hidden scene")
+        end = params.get("depth_end_m")
+        if end is not None:
+            out.append(f"the volume is zeroed behind {end:.3g} m: no light rises above the "
+                       f"background after {2 * end:.3g} m of path, and a point deeper would "
+                       "send its light later (the late bins' noise left out)")
         if not np.any(volume):
             out.append("the volume is all zero: " + self._empty_cause(noise, params))
         return out

@@ -55,6 +55,15 @@ a ramp that the inversion puts at the far end of the volume (the diffuse S of th
 front-view NCC with the published pipeline 0.80 -> 0.96; its outdoor S in sunlight 0.87 ->
 0.97). The noise statistics stay those of the raw counts.
 
+Last light. A hidden point at depth z returns light at paths 2r >= 2z only (r >= z at every
+scan point), so where no bin of photon counts after t_last rises above the background by
+ARRIVAL_SIGMAS standard deviations, nothing lies deeper than c t_last / 2
+(:attr:`NoiseEstimate.farthest_depth_m`): LCT's voxels there hold only the noise of the late
+bins, which its radiometric weighting (t/T)^p lifts most (:class:`clnlos.inverse.lct.LCTMethod`
+zeroes them). The threshold is the noise's alone, not a fraction of the peak as for the first
+arrival: a direct reflection the user kept would otherwise hide faint late light. Data that
+are not counts have no such test (a noise-free simulation's late bins are exact).
+
 The light-cone Wiener filter of LCT (and of the iterative method's LCT warm start) acts on the
 deconvolved transient, whose noise the first filter has shaped: it takes
 sqrt(SNR), at most LIGHTCONE_SNR_MAX (:func:`lightcone_snr`).
@@ -97,6 +106,7 @@ class NoiseEstimate:
     equivalent_photons: float   # N of the module docstring
     snr: float                  # Wiener SNR of the slab deconvolution
     first_arrival_s: float | None  # earliest bin start with signal (s), None if none found
+    last_arrival_s: float | None = None  # photon counts: end of the last bin with light (s)
 
     def as_dict(self) -> dict:
         return {k: getattr(self, k) for k in self.__dataclass_fields__}
@@ -116,6 +126,13 @@ class NoiseEstimate:
     def nearest_depth_m(self) -> float | None:
         """Depth bound c t / 2 of the first arrival: no hidden point is nearer (r >= z)."""
         return None if self.first_arrival_s is None else C0 * self.first_arrival_s / 2
+
+    @property
+    def farthest_depth_m(self) -> float | None:
+        """Depth bound c t / 2 of the last arrival: no hidden point is farther (its light
+        would arrive later, r >= z); None where not measured (data that are not counts, no
+        light found)."""
+        return None if self.last_arrival_s is None else C0 * self.last_arrival_s / 2
 
 
 def combined_snr(photon_snr: float, model_snr: float) -> float:
@@ -200,7 +217,18 @@ def estimate_noise(y: np.ndarray, bin_width_s: float, start_s: float = 0.0) -> N
     thresh = max(ARRIVAL_SIGMAS * prof_std, ARRIVAL_FRACTION * float(excess.max(initial=0.0)))
     hits = np.nonzero(excess > thresh)[0]
     first = float(start_s + hits[0] * bin_width_s) if hits.size and excess.max() > 0 else None
-    return NoiseEstimate(counts, total, background, signal, sigma, n_eq, snr, first)
+    return NoiseEstimate(counts, total, background, signal, sigma, n_eq, snr, first,
+                         last_arrival(excess, prof_std, bin_width_s, start_s)
+                         if counts and first is not None else None)
+
+
+def last_arrival(excess: np.ndarray, profile_std: float, bin_width_s: float,
+                 start_s: float) -> float | None:
+    """End (s) of the last bin of the scan-summed ``excess`` over the background that rises
+    above it by ARRIVAL_SIGMAS times ``profile_std`` (the noise's std per bin of the
+    profile), None where none does (module docstring, "Last light")."""
+    hits = np.nonzero(excess > ARRIVAL_SIGMAS * profile_std)[0]
+    return float(start_s + (hits[-1] + 1) * bin_width_s) if hits.size else None
 
 
 def first_recorded_bin(profile: np.ndarray) -> int:
