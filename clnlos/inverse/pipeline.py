@@ -492,8 +492,8 @@ class ReconstructionPipeline(ParameterSearches):
         """One line each for a result that holds little or nothing, naming the cause: a
         volume of fewer than MIN_DEPTH_BINS depth bins, a kept window that ends before the
         capture's first arrival, a capture with no light above its background, a
-        configured depth_min_m behind the first arrival, a volume zeroed behind the last
-        light (LCT), an all-zero volume."""
+        configured depth_min_m behind the first arrival, a volume cut at the last light
+        (LCT), an all-zero volume."""
         out = []
         n, dz = self.shape[0], C0 * self.bin_width_s / 2
         c = self.config
@@ -522,7 +522,7 @@ class ReconstructionPipeline(ParameterSearches):
                        "standard deviations: the volume shows noise, not a hidden scene")
         end = params.get("depth_end_m")
         if end is not None:
-            out.append(f"the volume is zeroed behind {end:.3g} m: no light rises above the "
+            out.append(f"the volume ends at {end:.3g} m (0 behind it): no light rises above the "
                        f"background after {2 * end:.3g} m of path, and a point deeper would "
                        "send its light later (the late bins' noise left out)")
         if not np.any(volume):
