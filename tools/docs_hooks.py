@@ -43,6 +43,7 @@ from pathlib import Path
 ROOT = Path(__file__).resolve().parents[1]
 PLACEHOLDER = re.compile(r"\{\{\s*(const|list|falloff|generated|source|oracle):([\w./\-]+)\s*\}\}")
 RESULT_FIGURES = ("slab_calibration.png", "real_cdt_defaults.png", "lct_release_check.png",
+                  "lct_release_check_lct.png",
                   "real_materials.png")
 # executed example (docs/examples/NAME.py) -> whether it needs ../shared/data
 EXAMPLES = {"demo_round_trip": False, "ytal_round_trip": False, "real_cdt": True,

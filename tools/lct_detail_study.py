@@ -12,7 +12,9 @@ tools/lct_release_check.py scores it). Three measurements, one row each:
   ``clnlos.reconstruct``'s volume, with one published step swapped in at a time, and the
   published pipeline with one clnlos step swapped in at a time. Every cone is normalised to
   unit sum, so every SNR is in clnlos's units (the published 0.08 is 0.08 (2N)^2 there).
-  Scores over the whole depth (``full``) and in the published display's depth crop.
+  Scores over the whole depth (``full``) and in the published display's depth crop; the
+  copy leaves out clnlos's cut at the last light (clnlos.inverse.lct.LCTMethod) but where it
+  is checked against clnlos's volume.
 * ``registration``: a point scatterer in front of a scan point (16 x 16 scan, 128 bins),
   noise-free: the centroid of the front view around it, in pixels (display rows down,
   columns right), for clnlos's LCT and for the published pipeline.
@@ -187,7 +189,12 @@ def morph_rows(path: Path) -> list[dict]:
     rows = []
     for base, variant, steps, snr in cases:
         vol = stages(rect, width, snr=snr, **steps)
-        target = (rec.volume.max(axis=0)[::-1, :] if "against" in variant else front_ref)
+        target = front_ref
+        if "against" in variant:  # clnlos's volume ends at the capture's last light
+            target = rec.volume.max(axis=0)[::-1, :]
+            end = rec.params.get("depth_end_m")
+            if end is not None:
+                vol[round(end / (rec.bin_width_s * clnlos.C0 / 2)):] = 0
         full = scores(vol.max(axis=0), target)
         crop = scores(display_crop(vol, stem, width, nt).max(axis=0), front_ref)
         rows.append({"kind": "morph", "capture": stem, "base": base, "variant": variant,
