@@ -81,6 +81,7 @@ def main(argv=None) -> int:
                        "brdf_used": rec.params.get("brdf_used"),
                        "brdf_chosen": rec.params.get("brdf_chosen"),
                        "iterations_run": rec.params.get("iterations_run"),
+                       "depth_end_m": rec.params.get("depth_end_m"),  # LCT: the last light
                        "wall_s": wall, "stage_s": float(sum(rec.timings_s.values()))}
                 rows.append(row)
                 print(" ".join(f"{k}={v:.3f}" if isinstance(v, float) else f"{k}={v}"
