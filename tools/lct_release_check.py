@@ -4,7 +4,7 @@ independent float64 port of the published pipeline (tests/reference/lct_publishe
 published display orientation and depth crop: the NCC of the front views, of their fine
 detail (the image less a 3-pixel Gaussian blur of itself) and the depth of the brightest
 voxel. Writes tools/results/lct_release_check.{csv,json,png} (the front views, top row the
-published pipeline's).
+published pipeline's; ``--out STEM`` elsewhere).
 
     .venv/bin/python tools/lct_release_check.py [--shared ../shared/data] [--methods lct iterative]
 """
@@ -43,6 +43,8 @@ def main(argv=None) -> int:
     ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     ap.add_argument("--shared", default=str(ROOT.parent / "shared" / "data"))
     ap.add_argument("--methods", nargs="+", default=["lct"])
+    ap.add_argument("--out", default=str(RESULTS / "lct_release_check"),
+                    help="path stem of the .csv, .json and .png written")
     ap.add_argument("--brdf", nargs="+", default=["default"],
                     help="reflectance assumed by each method run: default (none given) or "
                          "a --brdf value (e.g. auto)")
@@ -77,14 +79,18 @@ def main(argv=None) -> int:
                        "depth_m": z, "published_depth_m": z_ref, "depth_error_m": z - z_ref,
                        "brdf_used": rec.params.get("brdf_used"),
                        "brdf_chosen": rec.params.get("brdf_chosen"),
-                       "iterations_run": rec.params.get("iterations_run"),
+                       "falloff_used": rec.params.get("falloff_used"),
+                       "iterations_stop": rec.params.get("iterations_stop"),
+                       "iterations_run": (rec.solver or {}).get("iterations"),
                        "wall_s": wall, "stage_s": float(sum(rec.timings_s.values()))}
                 rows.append(row)
                 print(" ".join(f"{k}={v:.3f}" if isinstance(v, float) else f"{k}={v}"
                                for k, v in row.items()), flush=True)
                 col.append((f"{method} {brdf}", front))
         views.append((f.stem, col))
-    write_rows(rows, RESULTS / "lct_release_check")
+    out = Path(args.out)
+    out.parent.mkdir(parents=True, exist_ok=True)
+    write_rows(rows, out)
     n = len(views[0][1])
     fig = Figure(figsize=(2.2 * len(views), 2.3 * n), layout="constrained")
     ax = np.asarray(fig.subplots(n, len(views))).reshape(n, len(views))
@@ -93,7 +99,7 @@ def main(argv=None) -> int:
             ax[i, j].imshow(img, cmap="gray")
             ax[i, j].set_title(f"{name.replace('data_', '')}\n{label}", fontsize=7)
             ax[i, j].set_axis_off()
-    save_figure_file(fig, RESULTS / "lct_release_check.png")
+    save_figure_file(fig, out.with_suffix(".png"))
     return 0
 
 

@@ -78,9 +78,9 @@ import pyopencl.array as cla
 
 from clnlos.physics.constants import C0
 from clnlos.checks import integer, real
-from clnlos.config import DEPTH_GUARD_M, ITERATIONS_RANGE, WEIGHT_RANGE
+from clnlos.config import DEPTH_GUARD_M, FALLOFF_RANGE, ITERATIONS_RANGE, WEIGHT_RANGE
 from clnlos.brdf.lobes import AUTO, retro_lobe
-from clnlos.forward.transport import LightConeTransport
+from clnlos.forward.transport import LAMBERTIAN_FALLOFF, LightConeTransport
 from clnlos.physics.lobe import RetroLobe
 from clnlos.inverse.lct import (
     DEFAULT_SNR,
@@ -140,7 +140,8 @@ class IterativeInversion:
                  iterations: int, l1_weight: float, tv_weight: float,
                  tv_depth_scale: float = 1.0, warm_snr: float = DEFAULT_SNR,
                  tol: float = DEFAULT_TOL, dtype=np.float32, queue=None, scratch=None,
-                 cache=None, lobe: RetroLobe | None = None, lobe_terms: int | None = None):
+                 cache=None, lobe: RetroLobe | None = None, lobe_terms: int | None = None,
+                 falloff: float = LAMBERTIAN_FALLOFF):
         self.queue = get_queue(queue)
         self.dtype = require_dtype(self.queue.device, dtype)
         self.shape = tuple(int(s) for s in shape)
@@ -159,10 +160,12 @@ class IterativeInversion:
         nt = self.shape[0]
         dz = C0 * self.bin_width_s / 2
         self.depth_m = (np.arange(nt) + 0.5) * dz
-        self.scale = (self.depth_m / (nt * dz)) ** 4  # rho = xi * scale
+        real("falloff", falloff, *FALLOFF_RANGE)
+        self.falloff = float(falloff)
+        self.scale = (self.depth_m / (nt * dz)) ** self.falloff  # rho = xi * scale
         self.scratch = Scratch(self.queue) if scratch is None else scratch
         self.warm = LCT(self.shape, bin_width_s=bin_width_s, scan_width_m=scan_width_m,
-                        snr=warm_snr, dtype=self.dtype, queue=self.queue,
+                        snr=warm_snr, falloff=self.falloff, dtype=self.dtype, queue=self.queue,
                         scratch=self.scratch, cache=cache)
         self._ops: dict[tuple, tuple[LightConeTransport, int, float]] = {}
         self.report: SolveReport | None = None
@@ -189,7 +192,7 @@ class IterativeInversion:
                                     depth_min_m=step * DEPTH_QUANTUM_M,
                                     depth_weight=self.scale, dtype=self.dtype,
                                     queue=self.queue, scratch=self.scratch, lobe=self.lobe,
-                                    lobe_terms=self.lobe_terms)
+                                    lobe_terms=self.lobe_terms, falloff=self.falloff)
             power = None if setup is None else (
                 lambda k, n: setup(f"step size (power iteration {k}/{n})"))
             hit = (lc, lc.k_min, lipschitz(lc, progress=power))
@@ -197,14 +200,16 @@ class IterativeInversion:
         return hit
 
     def __call__(self, tau, *, depth_min_m: float = 0.0, callback=None, setup=None,
-                 noise=None, slab_influence: LinearOperator | None = None):
+                 noise=None, slab_influence: LinearOperator | None = None,
+                 iterations: int | None = None):
         """Albedo volume rho [z, y, x] >= 0 from a transient [t, y, x] (device or numpy).
         ``callback(k, x)`` follows the solver's iterations (:func:`clnlos.inverse.solvers.fista`),
         ``setup(step)`` the steps before them (operator, step size, warm start); ``noise``
         (device, shape of ``tau``): a realisation of tau's noise, for ``l1_weight="auto"``
         (module docstring); ``slab_influence``: the slab deconvolution's influence Phi on
         tau's grid (:meth:`clnlos.operators.spectral.SpectralFilter.influence`), fitted as
-        Phi o L (module docstring), or None (L alone)."""
+        Phi o L (module docstring), or None (L alone); ``iterations``: at most this many
+        (default the plan's)."""
         on_device = isinstance(tau, cla.Array)
         q, dt = self.queue, self.dtype
         y = tau if on_device else cla.to_device(q, np.ascontiguousarray(tau, dt))
@@ -231,7 +236,8 @@ class IterativeInversion:
             self.l1_rule = "noise"
         tv = self.tv_weight * max(lam_max, 0.0)
         res = fista(op, y, x0_g, l1=l1, tv=tv, wz=self.tv_depth_scale, row_min=row_min,
-                    iterations=self.iterations, tol=self.tol, lipschitz_const=L,
+                    iterations=self.iterations if iterations is None
+                    else min(self.iterations, int(iterations)), tol=self.tol, lipschitz_const=L,
                     working_set=self.working_set,
                     callback=callback)
         self.report = SolveReport(res.iterations, res.restarts, L, l1, tv,
@@ -242,6 +248,18 @@ class IterativeInversion:
         vol *= cla.to_device(q, np.broadcast_to(self.scale[:, None, None],
                                                  self.shape).astype(dt))
         return vol if on_device else vol.get()
+
+
+def snr_matched_iterations(snr: float) -> int:
+    """Iterations of the solver that regularise as a Wiener filter of light-cone SNR ``snr``
+    does: ceil(sqrt(snr)) (module docstring, "Stopping")."""
+    return max(1, int(math.ceil(math.sqrt(max(float(snr), 1.0)))))
+
+
+def iterative_falloff(config) -> float:
+    """The voxels' radial falloff exponent p (1/r^p, :mod:`clnlos.forward.transport`): the
+    config's, else the Lambertian 4 (a ``brdf`` lobe carries its own r-dependence)."""
+    return LAMBERTIAN_FALLOFF if config.falloff is None else float(config.falloff)
 
 
 def configured_lobe(config) -> RetroLobe | None:
@@ -277,10 +295,12 @@ class IterativeMethod(Inversion):
                                          warm_snr=initial_inversion_snr(config), cache=cache,
                                          lobe=configured_lobe(config),
                                          lobe_terms=None if config.brdf_terms == "auto"
-                                         else int(config.brdf_terms), **self.geometry())
+                                         else int(config.brdf_terms),
+                                         falloff=iterative_falloff(config), **self.geometry())
         self.depth_min_m = 0.0
         self.noise_g = None
         self.slab_influence = None
+        self.stop_iterations: int | None = None  # the SNR-matched stop (snr_matched_iterations)
 
     def configure(self, tau_g, noise, rule_snr: float, timed, probe=None,
                   slab_influence=None, rule: str | None = None) -> dict:
@@ -292,14 +312,20 @@ class IterativeMethod(Inversion):
         self.noise_g = probe() if self.config.l1_weight == "auto" and probe else None
         use = self.config.slab_model == "influence" and slab_influence is not None
         self.slab_influence = slab_influence() if use else None
+        self.stop_iterations = (snr_matched_iterations(snr) if rule is not None
+                                and slab_influence is None
+                                and "iterations" not in self.config.user_fields else None)
         return {**lightcone_snr_params(snr, rule),
                 "slab_model_used": "influence" if use else "none"}
 
     def __call__(self, tau_g, *, progress=None, setup=None):
-        n = self.config.iterations
+        n = self.solver.iterations
+        if self.stop_iterations is not None:
+            n = min(n, self.stop_iterations)
         cb = None if progress is None else (lambda k, _x: progress(k + 1, n))
         return self.solver(tau_g, depth_min_m=self.depth_min_m, callback=cb, setup=setup,
-                           noise=self.noise_g, slab_influence=self.slab_influence)
+                           noise=self.noise_g, slab_influence=self.slab_influence,
+                           iterations=n)
 
     def report(self) -> dict | None:
         return self.solver.report.as_dict()
@@ -327,7 +353,10 @@ class IterativeMethod(Inversion):
 
     def used(self) -> dict:
         r = self.solver.report
-        return {"l1_rule": self.solver.l1_rule,
+        return {"iterations_rule": "snr" if self.stop_iterations is not None else "config",
+                "iterations_stop": self.stop_iterations,
+                "falloff_used": self.solver.falloff,
+                "l1_rule": self.solver.l1_rule,
                 "l1_weight_used": r.l1 / r.lam_max if r.lam_max > 0 else None,
                 "brdf_used": r.brdf, "brdf_terms_used": r.lobe_terms,
                 "brdf_terms_error": r.lobe_error}
