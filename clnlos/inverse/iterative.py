@@ -10,7 +10,8 @@ with L the light-cone transport of :mod:`clnlos.forward.transport` (the physics 
 FISTA with gradient restart and working-set steps, stopped where the objective stops
 falling (:mod:`clnlos.inverse.solvers`), warm-started from LCT. The solver's
 variable is xi = rho / (z / R)^4 (R the deepest depth), which gives every depth a column of
-similar norm; the volume returned is rho >= 0 on the reconstruction grid [z, y, x].
+similar norm (p = 4, ``falloff``, for Lambertian voxels: xi = rho / (z / R)^p); the volume
+returned is rho >= 0 on the reconstruction grid [z, y, x].
 
 Regularisation weights are relative: l1 = ``l1_weight`` * max(L^T I) and
 tv = ``tv_weight`` * max(L^T I) on the support (max(L^T I) is the smallest L1 weight for
@@ -34,6 +35,29 @@ constant was 0.1, and higher IoU on 6 of 7 captures. The discrepancy principle (
 weigh, where ||L rho - I||^2 reaches E||n||^2) was measured and does not apply: at l1 = 0
 and 200 iterations the residual is still twice the noise energy (1.3e4 of noise, 2.5e4 of
 residual on the seed geometry at 0.5 s) -- model error, not noise, sets its floor.
+
+Stopping (plain NLOS, photon counts, an "auto" light-cone SNR). The iteration count of a
+gradient method is itself a regularisation: k accelerated (FISTA) iterations pass the
+components of the normal operator with eigenvalue above about L / k^2 (L = ||L^T L||) and
+damp those below, as Tikhonov regularisation of weight alpha = L / k^2 does (Engl, Hanke &
+Neubauer, "Regularization of Inverse Problems", 1996, ch. 6: alpha ~ k^-2 for semi-
+iterative methods). The Wiener filter of the LCT warm start, conj(H) / (|H|^2 + 1 / SNR)
+with max |H| = 1, is Tikhonov with alpha = L / SNR. So where the data chose that SNR (UPRE
+on the capture's own noise, :func:`clnlos.inverse.lct.choose_lightcone_snr`), the solver
+stops after
+
+    k = ceil(sqrt(SNR))                                       (:func:`snr_matched_iterations`)
+
+iterations (``iterations`` stays the upper bound; a count the user sets is used as given):
+the iterations refine the warm start where the data carry signal and stop before they fit
+the photon noise (measured on the light-cone transform release:
+docs/validation/lct-release.md). Behind a slab the tolerance rule stays (the model is
+Phi L and the oracle table was measured with it).
+
+The voxels' radial falloff (``falloff``, :mod:`clnlos.forward.transport`): 1/r^4 for
+Lambertian voxels (the default); 2 for a retroreflector whose cone the scanned spot holds,
+the published (t/T)^2 model, which a capture format can suggest
+(:mod:`clnlos.inverse.capture_defaults`). The solver's variable is then xi = rho / (z / R)^p.
 
 The slab in the model (``slab_model = "influence"``, the default). Behind a slab, I is the
 Wiener deconvolution W tau of the capture tau = B I_true + n (:mod:`clnlos.forward.blur`),
@@ -115,6 +139,7 @@ class SolveReport:
     brdf: str = "lambertian"   # the retro lobe the model assumed
     lobe_terms: int = 1        # its separable terms K
     lobe_error: float = 0.0    # their weighted relative error (clnlos.physics.lobe)
+    falloff: float = LAMBERTIAN_FALLOFF  # the voxels' radial falloff 1/r^p the model took
 
     def as_dict(self) -> dict:
         return {k: getattr(self, k) for k in self.__dataclass_fields__}
@@ -162,7 +187,7 @@ class IterativeInversion:
         self.depth_m = (np.arange(nt) + 0.5) * dz
         real("falloff", falloff, *FALLOFF_RANGE)
         self.falloff = float(falloff)
-        self.scale = (self.depth_m / (nt * dz)) ** self.falloff  # rho = xi * scale
+        self.depth_ratio = self.depth_m / (nt * dz)  # z / R: rho = xi (z / R)^p
         self.scratch = Scratch(self.queue) if scratch is None else scratch
         self.warm = LCT(self.shape, bin_width_s=bin_width_s, scan_width_m=scan_width_m,
                         snr=warm_snr, falloff=self.falloff, dtype=self.dtype, queue=self.queue,
@@ -176,12 +201,23 @@ class IterativeInversion:
         """The retro lobe the next calls assume (operators kept per lobe and support)."""
         self.lobe = lobe
 
+    def lobe_falloff(self, lobe: RetroLobe) -> float:
+        """The radial falloff exponent the transport takes with ``lobe``: the plan's, but
+        the Lambertian 4 for a retroreflector's lobe, whose spot factor carries its own r
+        dependence (:mod:`clnlos.physics.lobe`)."""
+        return LAMBERTIAN_FALLOFF if lobe.cone is not None else self.falloff
+
+    @property
+    def scale(self) -> np.ndarray:
+        """(z / R)^p per depth bin for the current lobe's falloff p: rho = xi * scale."""
+        return self.depth_ratio ** self.lobe_falloff(self.lobe)
+
     def operator(self, depth_min_m: float, setup=None) -> tuple[LinearOperator, int, float]:
         """(model in xi, first support row, Lipschitz constant) for a support from
         ``depth_min_m``, built once per DEPTH_QUANTUM_M step; ``setup(step)`` names each
         step of a build as it starts."""
         step = int(math.floor(max(0.0, depth_min_m) / DEPTH_QUANTUM_M))
-        key = (step, self.lobe.name, self.lobe_terms)
+        key = (step, self.lobe.name, self.lobe_terms, self.lobe_falloff(self.lobe))
         hit = self._ops.get(key)
         if hit is None:
             if setup is not None:
@@ -192,7 +228,8 @@ class IterativeInversion:
                                     depth_min_m=step * DEPTH_QUANTUM_M,
                                     depth_weight=self.scale, dtype=self.dtype,
                                     queue=self.queue, scratch=self.scratch, lobe=self.lobe,
-                                    lobe_terms=self.lobe_terms, falloff=self.falloff)
+                                    lobe_terms=self.lobe_terms,
+                                    falloff=self.lobe_falloff(self.lobe))
             power = None if setup is None else (
                 lambda k, n: setup(f"step size (power iteration {k}/{n})"))
             hit = (lc, lc.k_min, lipschitz(lc, progress=power))
@@ -215,6 +252,7 @@ class IterativeInversion:
         y = tau if on_device else cla.to_device(q, np.ascontiguousarray(tau, dt))
         op, row_min, L = self.operator(depth_min_m, setup)
         lobe = op.lobe
+        scale = self.scale
         if slab_influence is not None:
             op = slab_influence @ op  # ||Phi|| < 1: L still bounds ||(Phi L)^T Phi L||
         if setup is not None:
@@ -222,7 +260,7 @@ class IterativeInversion:
         # warm start: LCT, rescaled to xi and to the best fit along its direction
         x0 = self.warm(y).get().astype(np.float64)
         x0[:row_min] = 0.0
-        x0 /= self.scale[:, None, None]
+        x0 /= scale[:, None, None]
         x0_g = cla.to_device(q, x0.astype(dt))
         ax = op.apply_device(x0_g)
         den = float(cla.dot(ax, ax).get())
@@ -243,9 +281,10 @@ class IterativeInversion:
         self.report = SolveReport(res.iterations, res.restarts, L, l1, tv,
                                   row_min * C0 * self.bin_width_s / 2, res.objective,
                                   res.change, max(lam_max, 0.0), res.rounds, lobe.name,
-                                  lobe.terms, lobe.errors[lobe.terms - 1])
+                                  lobe.terms, lobe.errors[lobe.terms - 1],
+                                  self.lobe_falloff(self.lobe))
         vol = res.x
-        vol *= cla.to_device(q, np.broadcast_to(self.scale[:, None, None],
+        vol *= cla.to_device(q, np.broadcast_to(scale[:, None, None],
                                                  self.shape).astype(dt))
         return vol if on_device else vol.get()
 
@@ -355,7 +394,7 @@ class IterativeMethod(Inversion):
         r = self.solver.report
         return {"iterations_rule": "snr" if self.stop_iterations is not None else "config",
                 "iterations_stop": self.stop_iterations,
-                "falloff_used": self.solver.falloff,
+                "falloff_used": r.falloff,
                 "l1_rule": self.solver.l1_rule,
                 "l1_weight_used": r.l1 / r.lam_max if r.lam_max > 0 else None,
                 "brdf_used": r.brdf, "brdf_terms_used": r.lobe_terms,
