@@ -5,16 +5,15 @@ A reader records what the published pipeline of its format does (attributes of
 reconstructed by its published code at 16 ps (its 4 ps bins summed in fours) with the
 radiometric weighting (t/T)^2 of retroreflective targets (``isdiffuse = 0``): LCT's and
 f-k's ``brdf = "retroreflective"``, and for the iterative method the same 1/r^2 falloff of
-its voxels (``falloff = 2``, :mod:`clnlos.forward.transport`), also under ``brdf = "auto"``
-(the lobe chosen is then the angular law of voxels that fall off as 1/r^2; the
-"retroreflective" lobe carries its own spot, :meth:`clnlos.inverse.iterative.
-IterativeInversion.lobe_falloff`). A flag or config
+its voxels (``falloff = 2``, :mod:`clnlos.forward.transport`), where it assumes the
+Lambertian lobe (not under an explicit ``brdf``, "auto" included: with the hint's falloff on
+its candidates the lobe search chose GGX 0.1 on the S + U capture, docs/validation/
+lct-release.md). A flag or config
 field the user sets always wins; each default taken is one note line.
 """
 
 from __future__ import annotations
 
-from clnlos.brdf.catalog import AUTO
 from clnlos.config import (
     CLOSED_FORM_BRDFS,
     RETROREFLECTIVE_FALLOFF,
@@ -44,9 +43,8 @@ def format_defaults(attrs: dict, config: ReconstructionConfig, *, bins_kept: int
         notes.append(f"brdf {hint}{falloff}: "
                      f"{attrs.get('reflectance_source', 'the format')} (--brdf lambertian / "
                      "brdf=\"lambertian\" for a diffuse target)")
-    lobe_free = config.brdf == "lambertian" and "brdf" not in config.user_fields
     if (hint == "retroreflective" and config.method == ITERATIVE and config.falloff is None
-            and "falloff" not in config.user_fields and (lobe_free or config.brdf == AUTO)):
+            and config.brdf == "lambertian" and not chosen):
         changes["falloff"] = RETROREFLECTIVE_FALLOFF
         notes.append(f"falloff {RETROREFLECTIVE_FALLOFF:g} (retroreflective voxels, 1/r^2): "
                      f"{attrs.get('reflectance_source', 'the format')} (--falloff 4 / "
