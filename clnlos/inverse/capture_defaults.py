@@ -6,10 +6,9 @@ reconstructed by its published code at 16 ps (its 4 ps bins summed in fours) wit
 radiometric weighting (t/T)^2 of retroreflective targets (``isdiffuse = 0``): LCT's and
 f-k's ``brdf = "retroreflective"``, and for the iterative method the same 1/r^2 falloff of
 its voxels (``falloff = 2``, :mod:`clnlos.forward.transport`), where it assumes the
-Lambertian lobe (not under an explicit ``brdf``, "auto" included: with the hint's falloff on
-its candidates the lobe search chose GGX 0.1 on the S + U capture, docs/validation/
-lct-release.md). A flag or config
-field the user sets always wins; each default taken is one note line.
+Lambertian lobe (not under an explicit ``brdf``, "auto" included: docs/validation/
+lct-release.md says why). A flag or config field the user sets always wins; each default
+taken is one note line.
 """
 
 from __future__ import annotations
