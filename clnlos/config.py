@@ -50,7 +50,8 @@ optional and its default is the field default of :class:`ReconstructionConfig`::
                                  # SNR where [deconvolution] snr_rule searches both (LCT),
                                  # else from the deconvolved transient by UPRE or cross-
                                  # validation (clnlos.inverse.gcv)
-    falloff = 4.0                # radiometric exponent p (default: LCT 4, f-k 2)
+    falloff = 4.0                # radiometric exponent p (default: LCT 4, f-k 2; iterative:
+                                 # its voxels' falloff 1/r^p, 4 Lambertian)
     iterations = 200             # iterative: FISTA iterations at most (the solver stops
                                  # earlier where the objective stops falling,
                                  # clnlos.inverse.solvers)
@@ -73,7 +74,7 @@ optional and its default is the field default of :class:`ReconstructionConfig`::
                                  # fewest within clnlos.physics.lobe.LOBE_TOLERANCE)
 
 A field that only some methods read (clnlos.inverse.methods.MethodEntry.reads: falloff for
-lct and fk, [inversion] snr for lct and iterative, iterations, l1_weight, tv_weight,
+lct, fk and iterative, [inversion] snr for lct and iterative, iterations, l1_weight, tv_weight,
 depth_min_m, slab_model and brdf_terms for iterative; brdf for iterative, and for lct and fk
 its "lambertian" and "retroreflective") is refused when the user sets it
 -- as a key of the TOML or as a flag -- for a method that does not read it; where a flag
@@ -164,7 +165,7 @@ METHODS: dict[str, MethodEntry] = {
                              "FISTA on the light-cone transport, L1 + TV, warm-started by "
                              "LCT", "thinning", "gcv",
                              ("inversion_snr", "iterations", "l1_weight", "tv_weight",
-                              "depth_min_m", "slab_model", "brdf", "brdf_terms"),
+                              "depth_min_m", "slab_model", "brdf", "brdf_terms", "falloff"),
                              ITERATIVE_MAX_BINS),
 }
 
@@ -208,7 +209,8 @@ def default_falloffs() -> dict[str, float]:
 
 # falloff = None: the method's own radiometric exponent p of (t/T)^p (its registry entry):
 # LCT's suits diffuse (Lambertian) surfaces; for f-k the square root of the weighted
-# measurement is the wave. The iterative method models the falloff itself.
+# measurement is the wave. The iterative method models the falloff itself: its Lambertian
+# voxels fall off as 1/r^4 unless ``falloff`` sets their exponent (clnlos.forward.transport).
 METHOD_FALLOFF = default_falloffs()
 # ranges of the inversion parameters: the config and the plans (clnlos.inverse) check these
 FALLOFF_RANGE = (0.0, 8.0)        # radiometric exponent p

@@ -60,7 +60,6 @@ def files(tmp_path_factory, queue):
 # ------------------------------------------------------------------ item 1
 @pytest.mark.parametrize("config,method,unused", [
     ("lct.toml", "fk", {"inversion_snr"}),
-    ("lct.toml", "iterative", {"falloff"}),
     ("it.toml", "lct", {"iterations", "brdf", "l1_weight", "snr_rule"}),
     ("it.toml", "fk", {"iterations", "brdf", "l1_weight", "snr_rule"}),
 ])

@@ -53,7 +53,7 @@ def point_capture(tmp_path_factory):
                                                 '"iterative"'),
     (["--method", "fk", "--l1-weight", "auto"], "--l1-weight"),
     (["--method", "fk", "--inversion-snr", "100"], 'only with method "lct" or "iterative"'),
-    (["--method", "iterative", "--falloff", "2"], 'only with method "lct" or "fk"'),
+    (["--method", "fk", "--iterations", "5"], 'only with method "iterative"'),
     (["--snr-rule", "thinning", "--method", "lct"], '"auto", "gcv" or "reproducibility"'),
 ])
 def test_a_flag_the_method_does_not_read_is_refused(tmp_path, point_capture, flags, needle):

@@ -167,12 +167,12 @@ def test_a_broken_model_changes_the_score(small_capture, queue):
     pipe = _pipeline(cap, cfg, queue)
     good = json.loads(pipe.run(cap.transient).params["thinning_tried"])[0][1]
     solver = pipe.invert.solver
-    saved = solver.scale.copy()
-    solver.scale[:] = 1.0
+    saved = solver.depth_ratio.copy()  # scale = depth_ratio^p: 1 everywhere
+    solver.depth_ratio[:] = 1.0
     try:
         bad = json.loads(pipe.run(cap.transient).params["thinning_tried"])[0][1]
     finally:
-        solver.scale[:] = saved
+        solver.depth_ratio[:] = saved
     assert abs(bad - good) > 1e-3 * good
 
 

@@ -44,11 +44,11 @@ def main(argv=None) -> int:
     ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     ap.add_argument("--shared", default=str(ROOT.parent / "shared" / "data"))
     ap.add_argument("--methods", nargs="+", default=["lct"])
+    ap.add_argument("--out", default=str(RESULTS / "lct_release_check"),
+                    help="path stem of the .csv, .json and .png written")
     ap.add_argument("--brdf", nargs="+", default=["default"],
                     help="reflectance assumed by each method run: default (none given) or "
                          "a --brdf value (e.g. auto)")
-    ap.add_argument("--out", default=str(RESULTS / "lct_release_check"),
-                    help="stem of the result files (.csv, .json, .png)")
     args = ap.parse_args(argv)
     files = sorted(Path(args.shared, "lct").glob("*.mat"))
     if not files:
@@ -80,7 +80,9 @@ def main(argv=None) -> int:
                        "depth_m": z, "published_depth_m": z_ref, "depth_error_m": z - z_ref,
                        "brdf_used": rec.params.get("brdf_used"),
                        "brdf_chosen": rec.params.get("brdf_chosen"),
-                       "iterations_run": rec.params.get("iterations_run"),
+                       "falloff_used": rec.params.get("falloff_used"),
+                       "iterations_stop": rec.params.get("iterations_stop"),
+                       "iterations_run": (rec.solver or {}).get("iterations"),
                        "depth_end_m": rec.params.get("depth_end_m"),  # LCT: the last light
                        "wall_s": wall, "stage_s": float(sum(rec.timings_s.values()))}
                 rows.append(row)
@@ -88,8 +90,9 @@ def main(argv=None) -> int:
                                for k, v in row.items()), flush=True)
                 col.append((f"{method} {brdf}", front))
         views.append((f.stem, col))
-    stem = Path(args.out)
-    write_rows(rows, stem)
+    out = Path(args.out)
+    out.parent.mkdir(parents=True, exist_ok=True)
+    write_rows(rows, out)
     n = len(views[0][1])
     fig = Figure(figsize=(2.2 * len(views), 2.3 * n), layout="constrained")
     ax = np.asarray(fig.subplots(n, len(views))).reshape(n, len(views))
@@ -98,7 +101,7 @@ def main(argv=None) -> int:
             ax[i, j].imshow(img, cmap="gray")
             ax[i, j].set_title(f"{name.replace('data_', '')}\n{label}", fontsize=7)
             ax[i, j].set_axis_off()
-    save_figure_file(fig, stem.with_suffix(".png"))
+    save_figure_file(fig, out.with_suffix(".png"))
     return 0
 
 

@@ -49,6 +49,12 @@ ENTRIES: tuple[tuple[str, str, str, str], ...] = (
      "the diffuse S's fine detail: the published pipeline's split halves, clnlos's LCT "
      "stages morphed into the published ones, a point's registration "
      "(docs/validation/lct-release.md)"),
+    ("experiments/lct_release_iterative/lct_release_iterative.*",
+     "python tools/lct_release_check.py --methods iterative --brdf default auto --out "
+     "tools/results/experiments/lct_release_iterative/lct_release_iterative", "current",
+     "the iterative method on the LCT release, defaults and brdf auto, after issue 47's "
+     "SNR-matched stop and falloff hint (docs/validation/lct-release.md; its iterative rows "
+     "supersede lct_release_check.*'s)"),
     ("retro_identifiability.*", "python tools/retro_identifiability.py", "current",
      "held-out scores of each reflectance model on the LCT release (docs/brdf.md)"),
     ("real_materials.*", "python tools/real_materials.py --quick", "current",

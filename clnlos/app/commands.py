@@ -227,7 +227,8 @@ def reconstruct_arguments(r, add_device) -> None:
                         "before the inversion (default: the method's own, " + ", ".join(
                             f"{m} {p:g}" for m, p in default_falloffs().items()) + "; "
                         + ", ".join(m for m in method_names() if m not in default_falloffs())
-                        + " models the falloff itself: not with it)")
+                        + ": its voxels' radial falloff 1/r^p in the model, default 4, "
+                        "Lambertian; 2 a retroreflector)")
     r.add_argument("--max-path", type=float,
                    help="keep round-trip path lengths c t below this (m) (default: the "
                         "capture's whole time window)")

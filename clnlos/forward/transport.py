@@ -15,7 +15,8 @@ delta(v - x^2 - y^2) (O'Toole et al. 2018), so the operator is
     I = W_t R_{v->t} (h * R_{z->u} W_z rho)
 
 with mass-conserving bin-overlap resamplings R (``kernels/resample.cl``), W_z = p^2 z^4 / pi
-(times an optional ``depth_weight``), W_t = r^-8 at the bin centres, and the convolution on a
+(times an optional ``depth_weight``), W_t = r^-8 at the bin centres (r^-(4 + p) for a
+voxel of radial falloff 1/r^p, ``falloff``; 4 Lambertian), and the convolution on a
 zero-padded FFT grid (``kernels/wiener.cl``; no wrap-around). The light cone is splatted
 linearly between v bins, each lateral offset carrying unit weight.
 
@@ -86,6 +87,7 @@ def lobe_offsets(pad_shape) -> tuple[int, int]:
     """Lateral offsets (|dy|, |dx| = 0 .. n - 1 cells) a padded grid's light cone reaches."""
     return pad_shape[1] // 2 + 1, pad_shape[2] // 2 + 1
 
+LAMBERTIAN_FALLOFF = 4.0  # the radial falloff 1/r^p of a Lambertian voxel (W_t = r^-8)
 LOBE_SLOT = "lobe"  # scratch slot of the summed spectrum (forward) or the data's (adjoint)
 
 
@@ -117,6 +119,11 @@ class LightConeTransport(LinearOperator):
         Separable terms K of the lobe (default: the fewest within
         :data:`clnlos.physics.lobe.LOBE_TOLERANCE`); ``self.lobe`` records them and their
         error.
+    falloff : float
+        Radiometric exponent p of the voxels' radial falloff: W_t = r^-(4 + p), the
+        Lambertian 1/r^4 at p = 4 (default); p = 2 a retroreflector whose returned cone the
+        scanned spot holds (:mod:`clnlos.physics.retroreflector` Eq. 3, S ~ r^2: the
+        published (t/T)^2 weighting of O'Toole et al. 2018), the cosines kept.
     """
 
     name = "lightcone_transport"
@@ -124,7 +131,8 @@ class LightConeTransport(LinearOperator):
     def __init__(self, shape, *, bin_width_s: float, scan_width_m: float, margin: int = 0,
                  depth_min_m: float = 0.0, depth_weight=None, dtype=np.float32, queue=None,
                  scratch: Scratch | None = None, lobe: RetroLobe | None = None,
-                 footprint_rms_m: float = 0.0, lobe_terms: int | None = None):
+                 footprint_rms_m: float = 0.0, lobe_terms: int | None = None,
+                 falloff: float = LAMBERTIAN_FALLOFF):
         self.queue = get_queue(queue)
         self.dtype = require_dtype(self.queue.device, dtype)
         nt, ny, nx = (int(v) for v in shape)
@@ -151,7 +159,8 @@ class LightConeTransport(LinearOperator):
         w_z[:k_min] = 0.0
         to_u = overlap_matrix(z_edges**2, v_edges**2)
         w_t = np.zeros(nt)
-        w_t[k_min:] = self.depth_m[k_min:] ** -8.0
+        self.falloff = float(falloff)
+        w_t[k_min:] = self.depth_m[k_min:] ** -(4.0 + self.falloff)
         to_t = (sp.diags(w_t) @ overlap_matrix(v_edges**2, z_edges**2)).tocsr()
         # grid: lateral offsets up to (n - 1 + m) either way; time up to the largest shift
         py = sfft.next_fast_len(2 * ny + 2 * m - 1, real=True)

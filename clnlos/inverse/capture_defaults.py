@@ -4,8 +4,11 @@ A reader records what the published pipeline of its format does (attributes of
 :class:`clnlos.io.capture.Capture`): the LCT release (:mod:`clnlos.io.formats.mat`) is
 reconstructed by its published code at 16 ps (its 4 ps bins summed in fours) with the
 radiometric weighting (t/T)^2 of retroreflective targets (``isdiffuse = 0``): LCT's and
-f-k's ``brdf = "retroreflective"``. A flag or config
-field the user sets always wins; each default taken is one note line.
+f-k's ``brdf = "retroreflective"``, and for the iterative method the same 1/r^2 falloff of
+its voxels (``falloff = 2``, :mod:`clnlos.forward.transport`), where it assumes the
+Lambertian lobe (not under an explicit ``brdf``, "auto" included: docs/validation/
+lct-release.md says why). A flag or config field the user sets always wins; each default
+taken is one note line.
 """
 
 from __future__ import annotations
@@ -17,6 +20,7 @@ from clnlos.config import (
 )
 
 CLOSED_FORM_METHODS = ("lct", "fk")  # the methods whose falloff is their reflectance
+ITERATIVE = "iterative"  # its voxels' falloff takes a retroreflective hint (falloff 2)
 
 
 def format_defaults(attrs: dict, config: ReconstructionConfig, *, bins_kept: int,
@@ -38,6 +42,12 @@ def format_defaults(attrs: dict, config: ReconstructionConfig, *, bins_kept: int
         notes.append(f"brdf {hint}{falloff}: "
                      f"{attrs.get('reflectance_source', 'the format')} (--brdf lambertian / "
                      "brdf=\"lambertian\" for a diffuse target)")
+    if (hint == "retroreflective" and config.method == ITERATIVE and config.falloff is None
+            and config.brdf == "lambertian" and not chosen):
+        changes["falloff"] = RETROREFLECTIVE_FALLOFF
+        notes.append(f"falloff {RETROREFLECTIVE_FALLOFF:g} (retroreflective voxels, 1/r^2): "
+                     f"{attrs.get('reflectance_source', 'the format')} (--falloff 4 / "
+                     "falloff=4 for a diffuse target)")
     target = attrs.get("bin_width_default_s")
     if (target and config.bins is None and "bins" not in config.user_fields
             and float(target) > bin_width_s):

@@ -10,7 +10,8 @@ with L the light-cone transport of :mod:`clnlos.forward.transport` (the physics 
 FISTA with gradient restart and working-set steps, stopped where the objective stops
 falling (:mod:`clnlos.inverse.solvers`), warm-started from LCT. The solver's
 variable is xi = rho / (z / R)^4 (R the deepest depth), which gives every depth a column of
-similar norm; the volume returned is rho >= 0 on the reconstruction grid [z, y, x].
+similar norm (p = 4, ``falloff``, for Lambertian voxels: xi = rho / (z / R)^p); the volume
+returned is rho >= 0 on the reconstruction grid [z, y, x].
 
 Regularisation weights are relative: l1 = ``l1_weight`` * max(L^T I) and
 tv = ``tv_weight`` * max(L^T I) on the support (max(L^T I) is the smallest L1 weight for
@@ -34,6 +35,29 @@ constant was 0.1, and higher IoU on 6 of 7 captures. The discrepancy principle (
 weigh, where ||L rho - I||^2 reaches E||n||^2) was measured and does not apply: at l1 = 0
 and 200 iterations the residual is still twice the noise energy (1.3e4 of noise, 2.5e4 of
 residual on the seed geometry at 0.5 s) -- model error, not noise, sets its floor.
+
+Stopping (plain NLOS, photon counts, an "auto" light-cone SNR). The iteration count of a
+gradient method is itself a regularisation: k accelerated (FISTA) iterations pass the
+components of the normal operator with eigenvalue above about L / k^2 (L = ||L^T L||) and
+damp those below, as Tikhonov regularisation of weight alpha = L / k^2 does (Engl, Hanke &
+Neubauer, "Regularization of Inverse Problems", 1996, ch. 6: alpha ~ k^-2 for semi-
+iterative methods). The Wiener filter of the LCT warm start, conj(H) / (|H|^2 + 1 / SNR)
+with max |H| = 1, is Tikhonov with alpha = L / SNR. So where the data chose that SNR (UPRE
+on the capture's own noise, :func:`clnlos.inverse.lct.choose_lightcone_snr`), the solver
+stops after
+
+    k = ceil(sqrt(SNR))                                       (:func:`snr_matched_iterations`)
+
+iterations (``iterations`` stays the upper bound; a count the user sets is used as given):
+the iterations refine the warm start where the data carry signal and stop before they fit
+the photon noise (measured on the light-cone transform release:
+docs/validation/lct-release.md). Behind a slab the tolerance rule stays (the model is
+Phi L and the oracle table was measured with it).
+
+The voxels' radial falloff (``falloff``, :mod:`clnlos.forward.transport`): 1/r^4 for
+Lambertian voxels (the default); 2 for a retroreflector whose cone the scanned spot holds,
+the published (t/T)^2 model, which a capture format can suggest
+(:mod:`clnlos.inverse.capture_defaults`). The solver's variable is then xi = rho / (z / R)^p.
 
 The slab in the model (``slab_model = "influence"``, the default). Behind a slab, I is the
 Wiener deconvolution W tau of the capture tau = B I_true + n (:mod:`clnlos.forward.blur`),
@@ -78,9 +102,9 @@ import pyopencl.array as cla
 
 from clnlos.physics.constants import C0
 from clnlos.checks import integer, real
-from clnlos.config import DEPTH_GUARD_M, ITERATIONS_RANGE, WEIGHT_RANGE
+from clnlos.config import DEPTH_GUARD_M, FALLOFF_RANGE, ITERATIONS_RANGE, WEIGHT_RANGE
 from clnlos.brdf.lobes import AUTO, retro_lobe
-from clnlos.forward.transport import LightConeTransport
+from clnlos.forward.transport import LAMBERTIAN_FALLOFF, LightConeTransport
 from clnlos.physics.lobe import RetroLobe
 from clnlos.inverse.lct import (
     DEFAULT_SNR,
@@ -115,6 +139,7 @@ class SolveReport:
     brdf: str = "lambertian"   # the retro lobe the model assumed
     lobe_terms: int = 1        # its separable terms K
     lobe_error: float = 0.0    # their weighted relative error (clnlos.physics.lobe)
+    falloff: float = LAMBERTIAN_FALLOFF  # the voxels' radial falloff 1/r^p the model took
 
     def as_dict(self) -> dict:
         return {k: getattr(self, k) for k in self.__dataclass_fields__}
@@ -140,7 +165,8 @@ class IterativeInversion:
                  iterations: int, l1_weight: float, tv_weight: float,
                  tv_depth_scale: float = 1.0, warm_snr: float = DEFAULT_SNR,
                  tol: float = DEFAULT_TOL, dtype=np.float32, queue=None, scratch=None,
-                 cache=None, lobe: RetroLobe | None = None, lobe_terms: int | None = None):
+                 cache=None, lobe: RetroLobe | None = None, lobe_terms: int | None = None,
+                 falloff: float = LAMBERTIAN_FALLOFF):
         self.queue = get_queue(queue)
         self.dtype = require_dtype(self.queue.device, dtype)
         self.shape = tuple(int(s) for s in shape)
@@ -159,10 +185,12 @@ class IterativeInversion:
         nt = self.shape[0]
         dz = C0 * self.bin_width_s / 2
         self.depth_m = (np.arange(nt) + 0.5) * dz
-        self.scale = (self.depth_m / (nt * dz)) ** 4  # rho = xi * scale
+        real("falloff", falloff, *FALLOFF_RANGE)
+        self.falloff = float(falloff)
+        self.depth_ratio = self.depth_m / (nt * dz)  # z / R: rho = xi (z / R)^p
         self.scratch = Scratch(self.queue) if scratch is None else scratch
         self.warm = LCT(self.shape, bin_width_s=bin_width_s, scan_width_m=scan_width_m,
-                        snr=warm_snr, dtype=self.dtype, queue=self.queue,
+                        snr=warm_snr, falloff=self.falloff, dtype=self.dtype, queue=self.queue,
                         scratch=self.scratch, cache=cache)
         self._ops: dict[tuple, tuple[LightConeTransport, int, float]] = {}
         self.report: SolveReport | None = None
@@ -173,12 +201,23 @@ class IterativeInversion:
         """The retro lobe the next calls assume (operators kept per lobe and support)."""
         self.lobe = lobe
 
+    def lobe_falloff(self, lobe: RetroLobe) -> float:
+        """The radial falloff exponent the transport takes with ``lobe``: the plan's, but
+        the Lambertian 4 for a retroreflector's lobe, whose spot factor carries its own r
+        dependence (:mod:`clnlos.physics.lobe`)."""
+        return LAMBERTIAN_FALLOFF if lobe.cone is not None else self.falloff
+
+    @property
+    def scale(self) -> np.ndarray:
+        """(z / R)^p per depth bin for the current lobe's falloff p: rho = xi * scale."""
+        return self.depth_ratio ** self.lobe_falloff(self.lobe)
+
     def operator(self, depth_min_m: float, setup=None) -> tuple[LinearOperator, int, float]:
         """(model in xi, first support row, Lipschitz constant) for a support from
         ``depth_min_m``, built once per DEPTH_QUANTUM_M step; ``setup(step)`` names each
         step of a build as it starts."""
         step = int(math.floor(max(0.0, depth_min_m) / DEPTH_QUANTUM_M))
-        key = (step, self.lobe.name, self.lobe_terms)
+        key = (step, self.lobe.name, self.lobe_terms, self.lobe_falloff(self.lobe))
         hit = self._ops.get(key)
         if hit is None:
             if setup is not None:
@@ -189,7 +228,8 @@ class IterativeInversion:
                                     depth_min_m=step * DEPTH_QUANTUM_M,
                                     depth_weight=self.scale, dtype=self.dtype,
                                     queue=self.queue, scratch=self.scratch, lobe=self.lobe,
-                                    lobe_terms=self.lobe_terms)
+                                    lobe_terms=self.lobe_terms,
+                                    falloff=self.lobe_falloff(self.lobe))
             power = None if setup is None else (
                 lambda k, n: setup(f"step size (power iteration {k}/{n})"))
             hit = (lc, lc.k_min, lipschitz(lc, progress=power))
@@ -197,19 +237,22 @@ class IterativeInversion:
         return hit
 
     def __call__(self, tau, *, depth_min_m: float = 0.0, callback=None, setup=None,
-                 noise=None, slab_influence: LinearOperator | None = None):
+                 noise=None, slab_influence: LinearOperator | None = None,
+                 iterations: int | None = None):
         """Albedo volume rho [z, y, x] >= 0 from a transient [t, y, x] (device or numpy).
         ``callback(k, x)`` follows the solver's iterations (:func:`clnlos.inverse.solvers.fista`),
         ``setup(step)`` the steps before them (operator, step size, warm start); ``noise``
         (device, shape of ``tau``): a realisation of tau's noise, for ``l1_weight="auto"``
         (module docstring); ``slab_influence``: the slab deconvolution's influence Phi on
         tau's grid (:meth:`clnlos.operators.spectral.SpectralFilter.influence`), fitted as
-        Phi o L (module docstring), or None (L alone)."""
+        Phi o L (module docstring), or None (L alone); ``iterations``: at most this many
+        (default the plan's)."""
         on_device = isinstance(tau, cla.Array)
         q, dt = self.queue, self.dtype
         y = tau if on_device else cla.to_device(q, np.ascontiguousarray(tau, dt))
         op, row_min, L = self.operator(depth_min_m, setup)
         lobe = op.lobe
+        scale = self.scale
         if slab_influence is not None:
             op = slab_influence @ op  # ||Phi|| < 1: L still bounds ||(Phi L)^T Phi L||
         if setup is not None:
@@ -217,7 +260,7 @@ class IterativeInversion:
         # warm start: LCT, rescaled to xi and to the best fit along its direction
         x0 = self.warm(y).get().astype(np.float64)
         x0[:row_min] = 0.0
-        x0 /= self.scale[:, None, None]
+        x0 /= scale[:, None, None]
         x0_g = cla.to_device(q, x0.astype(dt))
         ax = op.apply_device(x0_g)
         den = float(cla.dot(ax, ax).get())
@@ -231,17 +274,31 @@ class IterativeInversion:
             self.l1_rule = "noise"
         tv = self.tv_weight * max(lam_max, 0.0)
         res = fista(op, y, x0_g, l1=l1, tv=tv, wz=self.tv_depth_scale, row_min=row_min,
-                    iterations=self.iterations, tol=self.tol, lipschitz_const=L,
+                    iterations=self.iterations if iterations is None
+                    else min(self.iterations, int(iterations)), tol=self.tol, lipschitz_const=L,
                     working_set=self.working_set,
                     callback=callback)
         self.report = SolveReport(res.iterations, res.restarts, L, l1, tv,
                                   row_min * C0 * self.bin_width_s / 2, res.objective,
                                   res.change, max(lam_max, 0.0), res.rounds, lobe.name,
-                                  lobe.terms, lobe.errors[lobe.terms - 1])
+                                  lobe.terms, lobe.errors[lobe.terms - 1],
+                                  self.lobe_falloff(self.lobe))
         vol = res.x
-        vol *= cla.to_device(q, np.broadcast_to(self.scale[:, None, None],
+        vol *= cla.to_device(q, np.broadcast_to(scale[:, None, None],
                                                  self.shape).astype(dt))
         return vol if on_device else vol.get()
+
+
+def snr_matched_iterations(snr: float) -> int:
+    """Iterations of the solver that regularise as a Wiener filter of light-cone SNR ``snr``
+    does: ceil(sqrt(snr)) (module docstring, "Stopping")."""
+    return max(1, int(math.ceil(math.sqrt(max(float(snr), 1.0)))))
+
+
+def iterative_falloff(config) -> float:
+    """The voxels' radial falloff exponent p (1/r^p, :mod:`clnlos.forward.transport`): the
+    config's, else the Lambertian 4 (a ``brdf`` lobe carries its own r-dependence)."""
+    return LAMBERTIAN_FALLOFF if config.falloff is None else float(config.falloff)
 
 
 def configured_lobe(config) -> RetroLobe | None:
@@ -277,10 +334,12 @@ class IterativeMethod(Inversion):
                                          warm_snr=initial_inversion_snr(config), cache=cache,
                                          lobe=configured_lobe(config),
                                          lobe_terms=None if config.brdf_terms == "auto"
-                                         else int(config.brdf_terms), **self.geometry())
+                                         else int(config.brdf_terms),
+                                         falloff=iterative_falloff(config), **self.geometry())
         self.depth_min_m = 0.0
         self.noise_g = None
         self.slab_influence = None
+        self.stop_iterations: int | None = None  # the SNR-matched stop (snr_matched_iterations)
 
     def configure(self, tau_g, noise, rule_snr: float, timed, probe=None,
                   slab_influence=None, rule: str | None = None) -> dict:
@@ -292,14 +351,20 @@ class IterativeMethod(Inversion):
         self.noise_g = probe() if self.config.l1_weight == "auto" and probe else None
         use = self.config.slab_model == "influence" and slab_influence is not None
         self.slab_influence = slab_influence() if use else None
+        self.stop_iterations = (snr_matched_iterations(snr) if rule is not None
+                                and slab_influence is None
+                                and "iterations" not in self.config.user_fields else None)
         return {**lightcone_snr_params(snr, rule),
                 "slab_model_used": "influence" if use else "none"}
 
     def __call__(self, tau_g, *, progress=None, setup=None):
-        n = self.config.iterations
+        n = self.solver.iterations
+        if self.stop_iterations is not None:
+            n = min(n, self.stop_iterations)
         cb = None if progress is None else (lambda k, _x: progress(k + 1, n))
         return self.solver(tau_g, depth_min_m=self.depth_min_m, callback=cb, setup=setup,
-                           noise=self.noise_g, slab_influence=self.slab_influence)
+                           noise=self.noise_g, slab_influence=self.slab_influence,
+                           iterations=n)
 
     def report(self) -> dict | None:
         return self.solver.report.as_dict()
@@ -327,7 +392,10 @@ class IterativeMethod(Inversion):
 
     def used(self) -> dict:
         r = self.solver.report
-        return {"l1_rule": self.solver.l1_rule,
+        return {"iterations_rule": "snr" if self.stop_iterations is not None else "config",
+                "iterations_stop": self.stop_iterations,
+                "falloff_used": r.falloff,
+                "l1_rule": self.solver.l1_rule,
                 "l1_weight_used": r.l1 / r.lam_max if r.lam_max > 0 else None,
                 "brdf_used": r.brdf, "brdf_terms_used": r.lobe_terms,
                 "brdf_terms_error": r.lobe_error}
