@@ -21,7 +21,7 @@ from clnlos.forward.geometry import Elements
 from clnlos.forward.lightcone import LightCone
 from clnlos.forward.sampling import N_THETA, SurfaceSamples
 from clnlos.forward.transport import LightConeTransport
-from clnlos.inverse.brdf_choice import choose_lobe, score_margin
+from clnlos.inverse.brdf_choice import both_margins, choose_lobe, score_margin, surface_of
 from clnlos.operators.base import dot_test
 from clnlos.physics.lobe import (
     THETA_NODES,
@@ -336,3 +336,35 @@ def test_held_out_half_is_compared_without_its_floor(queue):
     with_floor, _, _ = pipe._held_out_prediction_target(signal + np.float32(floor))
     assert phi is None and np.abs(held).max() > 0
     np.testing.assert_allclose(with_floor, held, atol=1e-4 * np.abs(held).max())
+
+
+# ------------------------------------------------------------------ the surface criterion
+def test_surface_of_keeps_one_voxel_per_scan_point_and_zeroes_the_rest():
+    v = np.random.default_rng(3).random((20, 4, 5)).astype(np.float32)
+    s = surface_of(v)
+    assert s.dtype == v.dtype and s.shape == v.shape
+    assert np.count_nonzero(s) == 20  # as many as the 4 x 5 scan points
+    kept = np.sort(v.ravel())[-20:]
+    np.testing.assert_array_equal(np.sort(s[s > 0]), kept)
+    sparse = np.zeros_like(v)
+    sparse[3, 1, 2] = 1.0  # fewer bright voxels than scan points: kept as they are
+    np.testing.assert_array_equal(surface_of(sparse), sparse)
+
+
+def test_a_lobe_is_taken_only_where_its_surface_predicts_better_too():
+    """choose_lobe with the searches' margin: a sharp lobe that wins on the whole volume
+    (the unfocused data, a bowl per target point) but not on its surface is not taken."""
+    ladder = auto_ladder()[:3]
+    volume_scores = {ladder[0].name: 0.20, ladder[1].name: 0.15, ladder[2].name: 0.10}
+
+    def walk(surface_scores):
+        def margin(new, best):
+            gain = surface_scores[best.name] - surface_scores[new.name]
+            return both_margins(gain, 0.01, 0.01)
+        return choose_lobe(ladder, lambda c: volume_scores[c.name], margin)[0].name
+
+    focused = {ladder[0].name: 0.30, ladder[1].name: 0.25, ladder[2].name: 0.20}
+    bowl = {ladder[0].name: 0.30, ladder[1].name: 0.35, ladder[2].name: 0.45}
+    assert walk(focused) == ladder[2].name
+    assert walk(bowl) == ladder[0].name
+    assert both_margins(0.005, 0.01, 0.01) == float("inf")

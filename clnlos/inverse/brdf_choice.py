@@ -15,6 +15,14 @@ placing voxels in front of each scan point and predicts the second half worse. T
 walked from the Lambertian: a sharper lobe is taken where its score is lower than the best
 so far by more than CV_SIGNIFICANCE standard errors of the held-out noise's part in the
 difference (:func:`score_margin`), and the walk stops at the first lobe that is not.
+A wider lobe and a sharper one can explain the same photons with different volumes: a lobe a
+few degrees wide lets each voxel explain its own scan point's histogram (the volume becomes the
+unfocused data, a bowl of voxels per target point), which predicts the held-out half well where
+the photons are many. A hidden surface must explain the data from the voxels it holds, one per
+scan point: a lobe is therefore taken only where it also predicts the held-out half better
+from its surface, the volume's brightest voxels as many as scan points (:func:`surface_of`),
+by the same margin of the noise (:func:`both_margins`; docs/brdf.md, "Why the data do not
+tell the retroreflector from a diffuse surface").
 A lobe of another family (:func:`clnlos.brdf.lobes.auto_challengers`: the retroreflector,
 whose falloff in r differs, not only its width in theta) does not fit the order of the walk:
 each is scored after it against the lobe the walk chose and taken where its score is lower
@@ -52,6 +60,24 @@ def score_margin(fit_new: np.ndarray, fit_best: np.ndarray, held: np.ndarray,
     var = float(np.mean([(2.0 * float(np.asarray(r, np.float64).ravel() @ d) / energy) ** 2
                          for r in noise_runs]))
     return CV_SIGNIFICANCE * math.sqrt(var)
+
+
+def surface_of(volume: np.ndarray) -> np.ndarray:
+    """The volume [z, y, x] with only its brightest voxels kept, as many as its columns (scan
+    points): the surface it reconstructs, the rest zero (ties at the threshold kept)."""
+    v = np.asarray(volume)
+    k = v.shape[-2] * v.shape[-1]
+    if v.size <= k:
+        return v.copy()
+    threshold = np.partition(v.ravel(), -k)[-k]
+    return np.where(v >= threshold, v, 0).astype(v.dtype, copy=False)
+
+
+def both_margins(gain_surface: float, margin_volume: float, margin_surface: float) -> float:
+    """The margin a candidate's gain on the whole volume must pass: ``margin_volume`` where
+    its surface's score gains ``gain_surface`` > ``margin_surface`` too, else infinite (the
+    lobe is not taken: module docstring)."""
+    return margin_volume if gain_surface > margin_surface else math.inf
 
 
 def choose_lobe(ladder: Sequence[RetroLobe], score: Callable[[RetroLobe], float],

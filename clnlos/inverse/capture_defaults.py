@@ -6,13 +6,15 @@ reconstructed by its published code at 16 ps (its 4 ps bins summed in fours) wit
 radiometric weighting (t/T)^2 of retroreflective targets (``isdiffuse = 0``): LCT's and
 f-k's ``brdf = "retroreflective"``, and for the iterative method the same 1/r^2 falloff of
 its voxels (``falloff = 2``, :mod:`clnlos.forward.transport`), where it assumes the
-Lambertian lobe (not under an explicit ``brdf``, "auto" included: docs/validation/
-lct-release.md says why). A flag or config field the user sets always wins; each default
-taken is one note line.
+Lambertian lobe or lets the photons choose it (``brdf = "auto"``: the lobe chosen is then the
+angular law of voxels that fall off as 1/r^2; the "retroreflective" lobe carries its own
+spot, :meth:`clnlos.inverse.iterative.IterativeInversion.lobe_falloff`). A flag or config
+field the user sets always wins; each default taken is one note line.
 """
 
 from __future__ import annotations
 
+from clnlos.brdf.catalog import AUTO
 from clnlos.config import (
     CLOSED_FORM_BRDFS,
     RETROREFLECTIVE_FALLOFF,
@@ -42,8 +44,10 @@ def format_defaults(attrs: dict, config: ReconstructionConfig, *, bins_kept: int
         notes.append(f"brdf {hint}{falloff}: "
                      f"{attrs.get('reflectance_source', 'the format')} (--brdf lambertian / "
                      "brdf=\"lambertian\" for a diffuse target)")
+    lobe_left = ((config.brdf == "lambertian" and not chosen)
+                 or (config.brdf == AUTO and "falloff" not in config.user_fields))
     if (hint == "retroreflective" and config.method == ITERATIVE and config.falloff is None
-            and config.brdf == "lambertian" and not chosen):
+            and lobe_left):
         changes["falloff"] = RETROREFLECTIVE_FALLOFF
         notes.append(f"falloff {RETROREFLECTIVE_FALLOFF:g} (retroreflective voxels, 1/r^2): "
                      f"{attrs.get('reflectance_source', 'the format')} (--falloff 4 / "

@@ -20,9 +20,11 @@ from clnlos.config import ReconstructionConfig
 from clnlos.inverse.brdf_choice import (
     LOBE_NOT_SEARCHED,
     LOBE_SEARCH_ITERATIONS,
+    both_margins,
     challenge,
     choose_lobe,
     score_margin,
+    surface_of,
 )
 from clnlos.inverse.reproducibility import (
     LIGHTCONE_SNRS,
@@ -177,8 +179,8 @@ class ParameterSearches:
                   setup=None) -> tuple[RetroLobe, dict]:
         """(the retro lobe ``brdf = "auto"`` takes for this capture, the params recording the
         search): the lobe of :func:`clnlos.brdf.lobes.auto_ladder` whose reconstruction from
-        one half of a binomial split of the counts best predicts the other half
-        (:mod:`clnlos.inverse.brdf_choice`); the Lambertian lobe where the capture is not
+        one half of a binomial split of the counts best predicts the other half, from its
+        whole volume and from its surface (:mod:`clnlos.inverse.brdf_choice`); the Lambertian lobe where the capture is not
         counts or a half is empty (:data:`LOBE_NOT_SEARCHED`)."""
         halves = self._split(transient) if (noise.photon_counts and not noise.noise_free
                                             and is_counts(np.asarray(transient))) else None
@@ -187,24 +189,35 @@ class ParameterSearches:
         train, test = halves
         held, phi, noise_runs = self._held_out_prediction_target(test)
         fits: dict[str, np.ndarray] = {}
+        surface_fits: dict[str, np.ndarray] = {}
+
+        def predicted(volume: np.ndarray) -> np.ndarray:
+            pred = self.invert.predict(volume)
+            return scaled_fit((pred if phi is None else phi.apply_device(pred)).get(), held)
 
         def score(cand: RetroLobe) -> float:
             if setup is not None:
                 setup(f"BRDF lobe by thinning: {cand.name}")
             with self.invert.iteration_budget(LOBE_SEARCH_ITERATIONS):
                 rec = self.run(train, model_snr=model_snr, slab_snr_factor=1.0, lobe=cand)
-            pred = self.invert.predict(rec.volume)
-            pred = (pred if phi is None else phi.apply_device(pred)).get()
-            fits[cand.name] = scaled_fit(pred, held)
+            fits[cand.name] = predicted(rec.volume)
+            surface_fits[cand.name] = predicted(surface_of(rec.volume))
             return fitted_residual(fits[cand.name], held, scaled=True)
 
         def margin(new: RetroLobe, best: RetroLobe) -> float:
-            return score_margin(fits[new.name], fits[best.name], held, noise_runs)
+            a, b = surface_fits[new.name], surface_fits[best.name]
+            gain = (fitted_residual(b, held, scaled=True)
+                    - fitted_residual(a, held, scaled=True))
+            return both_margins(gain, score_margin(fits[new.name], fits[best.name], held,
+                                                   noise_runs),
+                                score_margin(a, b, held, noise_runs))
 
         chosen, tried = choose_lobe(auto_ladder(), score, margin)
         chosen, tried = challenge(chosen, tried, auto_challengers(), score, margin)
+        surface = {c: fitted_residual(q, held, scaled=True) for c, q in surface_fits.items()}
         return chosen, {"brdf_rule_used": "thinning", "brdf_chosen": chosen.name,
-                        "brdf_tried": json.dumps([[c, v] for c, v in tried])}
+                        "brdf_tried": json.dumps([[c, v] for c, v in tried]),
+                        "brdf_tried_surface": json.dumps([[c, surface[c]] for c, _ in tried])}
 
     def _held_out_prediction_target(self, y2: np.ndarray):
         """(the held-out half as the inversion sees it, host; the slab's influence Phi2 that a
