@@ -96,7 +96,6 @@ class RealPlan:
     @classmethod
     def quick(cls) -> RealPlan:
         return cls(ladder=(1.0, 0.1, 0.03, 0.01, 0.003, 0.001, 0.0003), seeds=2,
-                   inversions=("lct",),
                    points=32, bin_width_s=32e-12)
 
 
