@@ -56,10 +56,9 @@ def test_snr_matched_iterations():
     assert [snr_matched_iterations(s) for s in (10.0, 487.0, 1e4)] == [4, 23, 100]
 
 
-def test_low_count_release_capture_reads_with_the_iterative_defaults(shared_data, queue):
-    """The outdoor S (32 x 32, low counts in sunlight): the default iterative front view
-    correlates >= 0.85 with the published one (0.785 when it ran its 200 iterations into the
-    photon noise with Lambertian voxels), stopped where the data's Wiener SNR says."""
+def outdoor_s_published(shared_data):
+    """(path of the released outdoor S, the published pipeline's volume of it); skips where
+    the shared data are absent."""
     name = "data_outdoor_s"
     path = shared_data / "lct" / f"{name}.mat"
     if not path.exists():
@@ -67,6 +66,14 @@ def test_low_count_release_capture_reads_with_the_iterative_defaults(shared_data
     d = scipy.io.loadmat(path)
     ref, _, _ = published_lct(d["rect_data"], float(d["width"].ravel()[0]), diffuse=False,
                               z_offset=PUBLISHED_Z_OFFSET[name])
+    return path, ref
+
+
+def test_low_count_release_capture_reads_with_the_iterative_defaults(shared_data, queue):
+    """The outdoor S (32 x 32, low counts in sunlight): the default iterative front view
+    correlates >= 0.85 with the published one (0.785 when it ran its 200 iterations into the
+    photon noise with Lambertian voxels), stopped where the data's Wiener SNR says."""
+    path, ref = outdoor_s_published(shared_data)
     rec = clnlos.reconstruct(path, method="iterative", device=queue)
     p = rec.params
     assert p["falloff_used"] == RETROREFLECTIVE_FALLOFF and p["iterations_rule"] == "snr"
@@ -80,13 +87,7 @@ def test_brdf_auto_keeps_a_surface_on_a_release_capture(shared_data, queue):
     """``--brdf auto`` on the outdoor S: no sharp lobe is taken whose volume only beats the
     Lambertian one as the unfocused data (before the surface criterion it chose GGX 0.3, a
     smeared S of front-view NCC 0.78); the front view correlates >= 0.85 with the published."""
-    name = "data_outdoor_s"
-    path = shared_data / "lct" / f"{name}.mat"
-    if not path.exists():
-        pytest.skip(f"{path} not present")
-    d = scipy.io.loadmat(path)
-    ref, _, _ = published_lct(d["rect_data"], float(d["width"].ravel()[0]), diffuse=False,
-                              z_offset=PUBLISHED_Z_OFFSET[name])
+    path, ref = outdoor_s_published(shared_data)
     rec = clnlos.reconstruct(path, method="iterative", brdf="auto", device=queue)
     p = rec.params
     assert p["brdf_rule_used"] == "thinning" and not p["brdf_chosen"].startswith("ggx")

@@ -30,7 +30,6 @@ import sys
 import time
 from pathlib import Path
 
-import numpy as np
 
 ROOT = Path(__file__).resolve().parents[1]
 RESULTS = ROOT / "tools" / "results"
@@ -55,6 +54,7 @@ def scores(path: Path) -> list[dict]:
     """One row per lobe: its held-out score from the whole volume and from its brightest
     voxels (module docstring)."""
     from clnlos.config import ReconstructionConfig
+    from clnlos.inverse.brdf_choice import surface_of
     from clnlos.inverse.pipeline import ReconstructionPipeline
     from clnlos.inverse.preprocessing import resolve_geometry
     from clnlos.inverse.thinning import fitted_residual
@@ -79,7 +79,7 @@ def scores(path: Path) -> list[dict]:
             rec = pipe.run(train, model_snr=math.inf, slab_snr_factor=1.0, lobe=lobe)
         v = rec.volume
         k = v.shape[1] * v.shape[2]
-        top = np.where(v >= np.partition(v.ravel(), -k)[-k], v, 0)
+        top = surface_of(v)  # what brdf = "auto"'s surface score keeps
         rows.append({"capture": path.stem, "lobe": lobe.name,
                      "cv_volume": fitted_residual(pipe.invert.predict(v).get(), held),
                      "cv_brightest": fitted_residual(pipe.invert.predict(top).get(), held),
