@@ -30,7 +30,7 @@ from clnlos.version import __version__  # stated there (pyproject reads it)
 _LAZY = {"plot_volume": "clnlos.api", "read_capture": "clnlos.api",
          "reconstruct": "clnlos.api", "reconstruction_config": "clnlos.api",
          "simulate": "clnlos.api", "api": None, "study": None,
-         "legibility": "clnlos.study.judge_apply"}
+         "legibility": "clnlos.study.judge.apply"}
 
 __all__ = ["C0", "__version__", "legibility", "plot_volume", "read_capture", "reconstruct",
            "reconstruction_config", "simulate", "study"]

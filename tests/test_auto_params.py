@@ -41,7 +41,7 @@ from clnlos.inverse.snr import (
     NoiseEstimate,
     combined_snr,
 )
-from clnlos.study.metrics import mip_iou
+from clnlos.study.score.metrics import mip_iou
 
 # 'UT' 0.3 m tall 0.5 m behind the CDT slab, a 16 x 16 scan of 0.6 m, 128 bins of 64 ps
 # (8.2 ns: the return has decayed well before the window ends), ~6e8 photons: the photon

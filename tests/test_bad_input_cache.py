@@ -123,14 +123,14 @@ def test_spectrum_entries_follow_the_umask(queue, tmp_path, monkeypatch, umask):
 
 # ------------------------------------------------------------------ study cache
 def _grid():
-    from clnlos.study.dataset import StudyGrid
+    from clnlos.study.plan.scenes import StudyGrid
 
     return replace(StudyGrid(), points=8, bin_width_s=64e-12, iterations=5,
                    density_per_m2=1e4)
 
 
 def _sample(seed=0):
-    from clnlos.study.dataset import dataset_samples
+    from clnlos.study.plan.scenes import dataset_samples
 
     return {**dataset_samples(1, ["standard white plate"], seed)[0], "slab_thickness_m": 0.0}
 
@@ -138,7 +138,7 @@ def _sample(seed=0):
 @pytest.fixture()
 def study_entry(tmp_path, monkeypatch):
     """(cache folder, the entry of one tiny sample, its result, a counter of renders)."""
-    from clnlos.study import dataset
+    from clnlos.study.samples import render as dataset
 
     renders = []
     real = dataset.render_sample
@@ -156,7 +156,7 @@ def study_entry(tmp_path, monkeypatch):
 
 
 def _run_study_samples(cache, samples=None):
-    from clnlos.study.dataset import run_samples
+    from clnlos.study.samples.render import run_samples
 
     with warnings.catch_warnings(record=True) as caught:
         warnings.simplefilter("always")
@@ -205,7 +205,7 @@ def _npz_legacy(path):
                                     _npz_wrong_shape, _npz_wrong_dtype, _npz_changed_value,
                                     _npz_legacy])
 def test_bad_study_entry_is_deleted_recomputed_and_named_in_one_warning(study_entry, damage):
-    from clnlos.study.dataset import RESULT_TIMES
+    from clnlos.study.samples.render import RESULT_TIMES
 
     cache, entry, res, renders = study_entry
     damage(entry)
@@ -224,7 +224,7 @@ def test_bad_study_entry_is_deleted_recomputed_and_named_in_one_warning(study_en
 
 def test_study_entry_of_another_sample_is_not_used(study_entry):
     cache, entry, res, renders = study_entry
-    from clnlos.study.dataset import code_version, sample_key
+    from clnlos.study.samples.render import code_version, sample_key
 
     other = _sample(seed=1)
     target = cache / f"{sample_key(other, _grid(), code_version())}.npz"
@@ -235,7 +235,7 @@ def test_study_entry_of_another_sample_is_not_used(study_entry):
 
 
 def test_study_entry_follows_the_umask(tmp_path, monkeypatch):
-    from clnlos.study import dataset
+    from clnlos.study.samples import render as dataset
 
     monkeypatch.setattr(dataset, "render_sample",
                         lambda s, g, d: {k: np.zeros((8, 8), np.float32)
@@ -251,7 +251,7 @@ def test_study_entry_follows_the_umask(tmp_path, monkeypatch):
 
 
 def test_result_schema_is_what_render_sample_returns(study_entry):
-    from clnlos.study.dataset import RESULT_IMAGES, RESULT_NUMBERS, RESULT_SLICES
+    from clnlos.study.samples.render import RESULT_IMAGES, RESULT_NUMBERS, RESULT_SLICES
 
     _, _, res, _ = study_entry
     assert set(res) == set(RESULT_IMAGES) | set(RESULT_SLICES) | set(RESULT_NUMBERS)
@@ -405,7 +405,7 @@ def test_legitimate_large_sizes_pass_the_checks(queue):
     from clnlos.forward.sampling import check_scene_size
     from clnlos.forward.scene import Scene
     from clnlos.runtime.limits import declared_capture
-    from clnlos.study.dataset import StudyGrid, dataset_samples, scene_dict
+    from clnlos.study.plan.scenes import StudyGrid, dataset_samples, scene_dict
 
     declared_capture("c.h5", (512, 128, 128), 4)
     cfg = ReconstructionConfig(method="iterative").validate()

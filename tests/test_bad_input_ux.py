@@ -201,7 +201,7 @@ def test_progress_bar_waits_for_its_delay(capsys):
 # ------------------------------------------------------------------ progress: study CNN
 def test_cnn_training_drives_progress_per_batch():
     pytest.importorskip("torch")
-    from clnlos.study.classify import train_classifier
+    from clnlos.study.judge.cnn import train_classifier
 
     rng = np.random.default_rng(0)
     images = rng.random((10, 8, 8)).astype(np.float32)

@@ -8,7 +8,7 @@ import numpy as np
 import pytest
 
 from clnlos.io.files import read_capture
-from clnlos.study.heldout import (
+from clnlos.study.judge.heldout import (
     SPLITS,
     balanced_accuracy,
     best_threshold,
@@ -16,8 +16,8 @@ from clnlos.study.heldout import (
     reliability,
     roc_auc,
 )
-from clnlos.study.judge_study import study_volume_rows
-from clnlos.study.thinning_real import THINNING_FRACTIONS, thinned_series, thinning_figure
+from clnlos.study.judge.study import study_volume_rows
+from clnlos.study.real.thinning import THINNING_FRACTIONS, thinned_series, thinning_figure
 
 
 def test_metrics_against_brute_force():
@@ -121,7 +121,7 @@ def test_thinning_the_real_captures_and_the_figure(shared_data):
 
 
 def test_report_names_the_largest_rise_of_p_as_photons_fall():
-    from clnlos.study.classifier_report import _trend
+    from clnlos.study.report.classifier import _trend
 
     rows = [{"capture": "s", "photons": n, "p_legible": p}
             for n, p in ((1e7, 0.9), (1e6, 0.7), (1e5, 0.8), (1e4, 0.2))]
@@ -132,7 +132,7 @@ def test_report_names_the_largest_rise_of_p_as_photons_fall():
 def test_report_says_when_the_classifier_is_no_verdict():
     """The report's sentences: a split below its one-feature baseline is named; real captures
     with P < 0.5 at all photons or a P that rises as photons fall are 'not a verdict'."""
-    from clnlos.study.classifier_report import baseline_verdict, real_verdict
+    from clnlos.study.report.classifier import baseline_verdict, real_verdict
 
     good = {k: {"balanced_accuracy": 0.9, "baseline": 0.8} for k in ("glyph", "geometry",
                                                                       "material")}

@@ -1,16 +1,16 @@
 """The findings' wording where a number is a limit of what was tried or the intervals overlap
-(clnlos.study.findings_text; issue 51 item 5)."""
+(clnlos.study.findings.text; issue 51 item 5)."""
 
 import pytest
 
-from clnlos.study.findings_text import (
+from clnlos.study.findings.text import (
     any_separated,
     dominance_verdict,
     intervals_overlap,
     limit_text,
     verdict_text,
 )
-from clnlos.study.legibility import wilson_interval
+from clnlos.study.score.legibility import wilson_interval
 
 EXPOSURES = (0.001, 0.01, 0.1, 1.0)
 

@@ -27,7 +27,7 @@ from clnlos.forward.scene import Scene
 from clnlos.inverse.pipeline import reconstruct
 from clnlos.io.files import read_capture
 from clnlos.physics.slab import CDT_SLAB
-from clnlos.study.metrics import letters_truth_mask, mip_iou, peak_depth_m
+from clnlos.study.score.metrics import letters_truth_mask, mip_iou, peak_depth_m
 
 # float32: the sub-bin position r * 2/(c dt) ~ 300 bins carries ~2e-5 bins of rounding
 TOL = {np.float32: 1e-4, np.float64: 1e-12}

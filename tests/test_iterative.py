@@ -26,7 +26,7 @@ from clnlos.inverse.solvers import ProxKernels, fista, lipschitz
 from clnlos.operators.base import dot_test
 from clnlos.operators.resample import AxisResample
 from clnlos.physics.slab import CDT_SLAB
-from clnlos.study.metrics import mip_iou, truth_mask
+from clnlos.study.score.metrics import mip_iou, truth_mask
 
 TOL = {np.dtype(np.float32): 1e-6, np.dtype(np.float64): 1e-13}
 

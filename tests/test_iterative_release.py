@@ -19,7 +19,7 @@ from clnlos.forward.transport import LightConeTransport
 from clnlos.inverse.capture_defaults import format_defaults
 from clnlos.inverse.iterative import snr_matched_iterations
 from clnlos.io.formats.mat import LCT_RELEASE_REFLECTANCE
-from clnlos.study.real_materials import ncc
+from clnlos.study.real.materials import ncc
 from reference.lct_published import PUBLISHED_Z_OFFSET, published_lct
 
 HINT = {"reflectance_default": LCT_RELEASE_REFLECTANCE}

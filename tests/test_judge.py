@@ -14,16 +14,16 @@ from scipy import ndimage
 import clnlos
 from clnlos.app.cli import main
 from clnlos.io.files import write_h5
-from clnlos.study.judge import Judge, JudgeModel, load_judge, train_judge
-from clnlos.study.judge_features import (
+from clnlos.study.judge.model import Judge, JudgeModel, load_judge, train_judge
+from clnlos.study.judge.features import (
     CAPTURE_FEATURES,
     MIP_FEATURES,
     feature_matrix,
     half_features,
     mip_features,
 )
-from clnlos.study.legibility import glyph_coverage
-from clnlos.study.twins import TWIN_GEOMETRIES, TwinGrid, render_twin, twin_plan
+from clnlos.study.score.legibility import glyph_coverage
+from clnlos.study.judge.twins import TWIN_GEOMETRIES, TwinGrid, render_twin, twin_plan
 
 
 def _glyph_image(n, height, centre, glyph="E", blur=1.0, seed=0, noise=0.02):
@@ -161,14 +161,14 @@ def replace_white(entry):
 def test_charts_mask_what_the_scene_holds_and_stay_inside_the_scan():
     """A chart's true mask is the union of the rectangles its scene objects hold; twins of
     every pattern lie inside the scan at most TWIN_MAX_FILL wide."""
-    from clnlos.study.patterns import (
+    from clnlos.study.score.patterns import (
         CHART_SCALE,
         TWIN_PATTERNS,
         is_chart,
         pattern_mask,
         pattern_objects,
     )
-    from clnlos.study.twins import TWIN_MAX_FILL, twin_placement
+    from clnlos.study.judge.twins import TWIN_MAX_FILL, twin_placement
     rng = np.random.default_rng(3)
     pts = rng.uniform(-0.3, 0.3, (4000, 2))
     for name in ("bars_v", "bars_h", "dots_3x3", "dots_2x2"):
@@ -208,8 +208,8 @@ def test_twin_plan_crosses_every_pattern_with_every_material(per_geometry):
     patterns are dealt evenly (within one) and the materials within two."""
     from collections import Counter
 
-    from clnlos.study.patterns import TWIN_PATTERNS
-    from clnlos.study.twins import TWIN_MATERIALS
+    from clnlos.study.score.patterns import TWIN_PATTERNS
+    from clnlos.study.judge.twins import TWIN_MATERIALS
     plan = twin_plan(per_geometry=per_geometry, seed=0)
     assert len(plan) == per_geometry * len(TWIN_GEOMETRIES)
     pairs = Counter((e["glyph"], e["material"]) for e in plan)

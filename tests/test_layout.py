@@ -193,7 +193,7 @@ def test_at_most_ten_top_level_modules():
 # modules that touch os.environ for other processes only (never to read a setting):
 # the study pins the threads of the Dask workers it spawns and restores the variables
 # after; the bench copies the environment for a worker with another FFT backend
-ENVIRON_FOR_CHILDREN = {"study/dataset.py", "bench/sections.py"}
+ENVIRON_FOR_CHILDREN = {"study/samples/render.py", "bench/sections.py"}
 
 
 def test_environment_read_in_one_place():

@@ -6,7 +6,7 @@ import pytest
 from scipy.ndimage import gaussian_filter
 from scipy.stats import binomtest
 
-from clnlos.study.legibility import (
+from clnlos.study.score.legibility import (
     GLYPHS,
     box_baseline_iou,
     glyph_coverage,
@@ -15,7 +15,7 @@ from clnlos.study.legibility import (
     identify,
     wilson_interval,
 )
-from clnlos.study.metrics import iou, letters_truth_mask
+from clnlos.study.score.metrics import iou, letters_truth_mask
 
 
 def _centres(n, width):

@@ -250,7 +250,7 @@ def test_score_margin_is_the_noise_part_of_the_difference():
 def _glyph_capture(queue, material, *, points=16, exposure_s=0.1, glyph="E"):
     from clnlos.forward.model import ForwardModel
     from clnlos.forward.scene import Scene
-    from clnlos.study.dataset import StudyGrid, scene_dict
+    from clnlos.study.plan.scenes import StudyGrid, scene_dict
     from clnlos.study.run import glyph_sample
 
     grid = StudyGrid(points=points, bin_width_s=64e-12, iterations=30, density_per_m2=2e4)
@@ -262,7 +262,7 @@ def _glyph_capture(queue, material, *, points=16, exposure_s=0.1, glyph="E"):
 
 
 def _read(rec, scene, fm, glyph="E"):
-    from clnlos.study.legibility import GLYPHS, glyph_templates, identify
+    from clnlos.study.score.legibility import GLYPHS, glyph_templates, identify
 
     tpl = glyph_templates(0.3, 0.1, (0.0, 0.0), scene.scan_centres(), 0.05, GLYPHS)
     return identify(rec.volume.max(axis=0), tpl)[0] == glyph

@@ -132,7 +132,7 @@ def glossy_reads_as_the_readme_says(clone: Path) -> None:
     (a blob), assuming its material it is (the study's identification among its 8 glyphs)."""
     from clnlos.forward.scene import Scene
     from clnlos.io.files import read_volume
-    from clnlos.study.legibility import glyph_templates, identify
+    from clnlos.study.score.legibility import glyph_templates, identify
 
     scene = Scene.from_toml(clone / "examples" / "scene_glossy_e.toml")
     obj = scene.objects[0]

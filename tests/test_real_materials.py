@@ -1,4 +1,4 @@
-"""The material question on real captures (clnlos.study.real_materials): the score, the
+"""The material question on real captures (clnlos.study.real.materials): the score, the
 crossing of the keep level, and on the shared LCT release: a retroreflective S keeps its
 image with far fewer photons than the diffuse S."""
 
@@ -7,7 +7,7 @@ from __future__ import annotations
 import numpy as np
 import pytest
 
-from clnlos.study.real_materials import (
+from clnlos.study.real.materials import (
     KEEP_LEVEL,
     RealPlan,
     binned_scan,

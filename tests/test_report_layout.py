@@ -11,14 +11,14 @@ from pathlib import Path
 
 import pytest
 
-from clnlos.study.headline import (
+from clnlos.study.report.headline import (
     bracket_text,
     headline_findings,
     order_of,
     photons_needed_rows,
     sweep_bracket,
 )
-from clnlos.study.legibility import wilson_interval
+from clnlos.study.score.legibility import wilson_interval
 
 ROOT = Path(__file__).resolve().parents[1]
 CLASSES = {"standard white plate": "Lambertian", "cement board": "strong diffuse",
@@ -103,8 +103,8 @@ def test_headline_figure_lies_in_the_first_screen(tmp_path):
     first screen, and nothing is wider than the window."""
     pytest.importorskip("matplotlib")
     check_report = chromium_or_skip()
-    from clnlos.study.headline import headline_html
-    from clnlos.study.report import page_html, png_base64
+    from clnlos.study.report.headline import headline_html
+    from clnlos.study.report.page import page_html, png_base64
 
     real = [("letters_ut (real)", 2e3, (5e2, 2e3)), ("mannequin (real)", None, (8e3, None))]
     body = ["<h1>How the surface material of a hidden target changes what we can read</h1>",

@@ -29,7 +29,7 @@ from clnlos.inverse.reproducibility import (
 from clnlos.inverse.snr import MEASURED_MODEL_SNR
 from clnlos.inverse.tail_fill import TAIL_FILL_SNR, TailFilledDeconvolution
 from clnlos.inverse.thinning import thin_counts
-from clnlos.study.metrics import mip_iou
+from clnlos.study.score.metrics import mip_iou
 
 # 'UT' 0.3 m tall 0.5 m behind the CDT slab, 16 x 16 scan of 0.6 m, 128 bins of 64 ps,
 # ~1.2e8 photons

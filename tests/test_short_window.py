@@ -26,7 +26,7 @@ from clnlos.io.capture import Capture
 from clnlos.io.files import read_capture
 from clnlos.physics.slab import CDT_SLAB
 from clnlos.runtime.device import has_fp64
-from clnlos.study.metrics import letters_truth_mask, mip_iou, peak_depth_m
+from clnlos.study.score.metrics import letters_truth_mask, mip_iou, peak_depth_m
 
 DT = 16e-12
 

@@ -16,11 +16,11 @@ from scipy.ndimage import gaussian_filter
 import clnlos
 from clnlos.errors import ParameterError
 from clnlos.forward.geometry import letters_mask
-from clnlos.study.clarity import clarity_label, clarity_score, label_thresholds
-from clnlos.study.classify import dihedral
-from clnlos.study.dataset import StudyGrid, dataset_samples, scene_dict, window_m
-from clnlos.study.report import _reconstruction_detail
-from clnlos.study.quality import (
+from clnlos.study.score.clarity import clarity_label, clarity_score, label_thresholds
+from clnlos.study.judge.cnn import dihedral
+from clnlos.study.plan.scenes import StudyGrid, dataset_samples, scene_dict, window_m
+from clnlos.study.report.page import _reconstruction_detail
+from clnlos.study.score.quality import (
     central_energy,
     depth_coherence,
     otsu_separability,
@@ -324,7 +324,7 @@ def test_study_on_a_separately_started_dask_cluster(tmp_path):
 
 
 def test_findings_name_the_sweep_condition_in_words():
-    from clnlos.study.report import sweep_condition
+    from clnlos.study.report.page import sweep_condition
 
     assert sweep_condition("slab_thickness_m", 0.0) == "without the slab"
     assert sweep_condition("slab_thickness_m", 0.0254) == "behind a 2.54 cm slab"

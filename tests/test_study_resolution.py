@@ -1,5 +1,5 @@
-"""Measured resolution (clnlos.study.resolution) and the tie to a real capture
-(clnlos.study.real_capture)."""
+"""Measured resolution (clnlos.study.samples.resolution) and the tie to a real capture
+(clnlos.study.real.capture)."""
 
 import math
 from pathlib import Path
@@ -10,8 +10,8 @@ import pytest
 from clnlos import C0
 from clnlos.config import ReconstructionConfig
 from clnlos.errors import ParameterError
-from clnlos.study import real_capture as rc
-from clnlos.study import resolution as rs
+from clnlos.study.real import capture as rc
+from clnlos.study.samples import resolution as rs
 
 GAUSS_FWHM = 2 * math.sqrt(2 * math.log(2))  # FWHM / sigma
 
@@ -50,7 +50,7 @@ def test_otoole_bounds_against_hand_values():
 
 
 def test_geometry_takes_what_it_leaves_open_from_the_study_grid():
-    from clnlos.study.dataset import StudyGrid, window_m
+    from clnlos.study.plan.scenes import StudyGrid, window_m
 
     grid = StudyGrid()
     g = rs.ResolutionGeometry.from_study({"name": "wide", "scan_width_m": 0.6,

@@ -1,4 +1,4 @@
-"""The study's material table under both transports (clnlos.study.transport_compare): its
+"""The study's material table under both transports (clnlos.study.findings.transport): its
 structure, and the Lambertian preset the same under Eq. 8 and Eq. 9 (issue 27, item 7)."""
 
 from dataclasses import replace
@@ -6,10 +6,10 @@ from dataclasses import replace
 import numpy as np
 import pytest
 
-from clnlos.study.dataset import StudyGrid, scene_dict
-from clnlos.study.report import fig_transport
+from clnlos.study.plan.scenes import StudyGrid, scene_dict
+from clnlos.study.report.page import fig_transport
 from clnlos.study.run import Geometry, StudyOptions, comparison_plan, transport_comparison
-from clnlos.study.transport_compare import (
+from clnlos.study.findings.transport import (
     bistatic_table,
     csv_rows,
     kendall_tau_b,
@@ -72,7 +72,7 @@ def _row(material, acc_c, acc_b, margin_c, margin_b, counts=(1.0, 1.0)):
 def test_comparison_table_on_known_rows():
     """Three materials whose ranks are known: one swap between transports (by accuracy),
     the rank correlations and the statement follow."""
-    from clnlos.study.transport_compare import comparison_table
+    from clnlos.study.findings.transport import comparison_table
 
     rows = (_row("a", 1.0, 1.0, 0.08, 0.08) + _row("b", 0.5, 0.25, 0.01, -0.02)
             + _row("c", 0.25, 0.5, -0.03, 0.02, counts=(1.0, 1.5)))

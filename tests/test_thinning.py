@@ -22,7 +22,7 @@ from clnlos.inverse.thinning import (
     fitted_residual,
     thin_counts,
 )
-from clnlos.study.metrics import mip_iou
+from clnlos.study.score.metrics import mip_iou
 
 # 'UT' 0.3 m tall 0.5 m behind the CDT slab, 16 x 16 scan of 0.6 m, 128 bins of 64 ps,
 # ~1.2e7 photons

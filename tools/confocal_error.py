@@ -1,7 +1,7 @@
 """The error of the seed's confocal approximation (Eq. 9) against Eq. 8 per material preset.
 
 Writes tools/results/confocal_error.csv and .json (confocal_error_<N>pt.* with --points N)
-and prints the table (clnlos.study.confocal_error.confocal_error_table: the issue's 6 cm
+and prints the table (clnlos.study.findings.confocal_error.confocal_error_table: the issue's 6 cm
 patch tilted 5 degrees, 0.5 m behind the CDT slab, at the study's 0.3 m scan of 32 x 32 points and
 48 ps bins).
 
@@ -15,7 +15,7 @@ from pathlib import Path
 
 from clnlos.bench.harness import print_table, write_rows
 from clnlos.runtime.device import get_queue
-from clnlos.study.confocal_error import confocal_error_table
+from clnlos.study.findings.confocal_error import confocal_error_table
 
 OUT = Path(__file__).resolve().parent / "results"
 COLUMNS = ["material", "total_ratio", "worst_point_ratio", "rel_l2", "shape_error_peak",

@@ -133,7 +133,7 @@ def simulated(queue) -> dict:
 
 
 def _mip_metrics(mip: np.ndarray) -> dict:
-    from clnlos.study.metrics import otsu_threshold
+    from clnlos.study.score.metrics import otsu_threshold
 
     m = mip / max(float(mip.max()), 1e-30)
     th = otsu_threshold(m)

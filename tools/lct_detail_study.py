@@ -49,7 +49,7 @@ def detail(img: np.ndarray) -> np.ndarray:
 
 def scores(front: np.ndarray, ref: np.ndarray) -> tuple[float, float]:
     """(NCC of the front views, NCC of their fine detail)."""
-    from clnlos.study.real_materials import ncc
+    from clnlos.study.real.materials import ncc
 
     return ncc(front, ref), ncc(detail(front), detail(ref))
 

@@ -38,7 +38,7 @@ def main(argv=None) -> int:
     import clnlos
     from clnlos.bench.oracle import write_rows
     from clnlos.io.files import save_figure_file
-    from clnlos.study.real_materials import ncc
+    from clnlos.study.real.materials import ncc
     from reference.lct_published import PUBLISHED_Z_OFFSET, published_lct
 
     ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])

@@ -1,4 +1,4 @@
-"""The material question on the real captures (clnlos.study.real_materials) with the full or
+"""The material question on the real captures (clnlos.study.real.materials) with the full or
 the quick plan, outside the study: photons needed per capture x inversion x reflectance,
 the diffuse/retroreflective S ratio, the charts' resolution. Writes
 tools/results/real_materials.json (the section, with the command and commit) and
@@ -22,14 +22,14 @@ def main(argv=None) -> int:
 
     from clnlos.io.files import atomic_path, save_figure_file
     from clnlos.io.outputs import provenance, stamp
-    from clnlos.study.real_materials import (
+    from clnlos.study.real.materials import (
         RealPlan,
         real_capture_paths,
         real_materials,
         section_figure,
         variants,
     )
-    from clnlos.study.resolution import json_ready
+    from clnlos.study.samples.resolution import json_ready
 
     ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     ap.add_argument("--shared", default=str(ROOT.parent / "shared" / "data"))

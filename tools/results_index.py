@@ -71,9 +71,9 @@ ENTRIES: tuple[tuple[str, str, str, str], ...] = (
      "--stem study_transport_3x6 --materials ...", "current",
      "the closest materials at 3 x 6 face samples"),
     ("study_transport_faces.*", "python tools/study_transport_faces.py", "current",
-     "convergence of the bistatic face samples (clnlos/study/transport_compare.py)"),
+     "convergence of the bistatic face samples (clnlos/study/findings/transport.py)"),
     ("confocal_error.*", "python tools/confocal_error.py", "current",
-     "Eq. 9 against Eq. 8 per preset (clnlos/study/confocal_error.py)"),
+     "Eq. 9 against Eq. 8 per preset (clnlos/study/findings/confocal_error.py)"),
     ("confocal_error_16pt.*", "python tools/confocal_error.py --points 16", "current",
      "the same on a 16-point scan"),
     ("legibility_classifier.json", "clnlos study --quick --real-data ../shared/data (at "

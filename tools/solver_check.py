@@ -24,7 +24,7 @@ from clnlos.inverse.parameter_choice import model_snr_for
 from clnlos.inverse.pipeline import ReconstructionPipeline
 from clnlos.inverse.preprocessing import resolve_geometry
 from clnlos.inverse.solvers import DEFAULT_TOL
-from clnlos.study.metrics import mip_iou
+from clnlos.study.score.metrics import mip_iou
 
 RESULTS = Path(__file__).resolve().parent / "results" / "experiments" / "solver"
 PLAIN_ITERATIONS = 200  # the iterations of before (the config's default, all of them run)

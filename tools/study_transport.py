@@ -23,7 +23,7 @@ from clnlos.bench.harness import print_table, write_rows
 from clnlos.brdf.presets import preset_table
 from clnlos.study.run import StudyOptions, study_resolution, transport_comparison
 from clnlos.io.outputs import provenance, stamp
-from clnlos.study.transport_compare import csv_rows
+from clnlos.study.findings.transport import csv_rows
 
 OUT = Path(__file__).resolve().parent / "results"
 

@@ -21,7 +21,7 @@ from clnlos.bench.harness import print_table, write_rows
 from clnlos.forward.model import ForwardModel
 from clnlos.forward.scene import Scene
 from clnlos.runtime.device import get_queue
-from clnlos.study.dataset import StudyGrid, scene_dict
+from clnlos.study.plan.scenes import StudyGrid, scene_dict
 from clnlos.study.run import GEOMETRIES, LEGIBLE_GEOMETRY, glyph_sample
 
 OUT = Path(__file__).resolve().parent / "results"

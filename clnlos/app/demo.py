@@ -19,7 +19,7 @@ from clnlos.inverse.methods import method_names
 from clnlos.io.files import atomic_path, read_capture
 from clnlos.io.outputs import check_outputs, stamp
 from clnlos.runtime.device import get_queue
-from clnlos.study.metrics import letters_truth_mask, mip_iou, peak_depth_m
+from clnlos.study.score.metrics import letters_truth_mask, mip_iou, peak_depth_m
 
 
 def demo_files() -> tuple[str, ...]:

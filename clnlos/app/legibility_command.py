@@ -1,5 +1,5 @@
 """``clnlos legibility FILE... --model STUDY_DIR``: P(legible) of captures or reconstructions by
-a study's trained judge (:mod:`clnlos.study.judge_apply`)."""
+a study's trained judge (:mod:`clnlos.study.judge.apply`)."""
 
 from __future__ import annotations
 
@@ -7,7 +7,7 @@ import json
 from pathlib import Path
 
 from clnlos.errors import InputFileError
-from clnlos.study.judge_apply import judge_from, legibility
+from clnlos.study.judge.apply import judge_from, legibility
 
 
 def cmd_legibility(args) -> int:

@@ -12,7 +12,8 @@ from clnlos.checks import integer
 from clnlos.errors import InputFileError
 from clnlos.inverse.methods import method_names
 from clnlos.io.outputs import check_outputs
-from clnlos.study.dataset import MAX_WORKERS, StudyGrid, check_scheduler_address
+from clnlos.study.plan.scenes import StudyGrid
+from clnlos.study.samples.render import MAX_WORKERS, check_scheduler_address
 from clnlos.study.run import (
     LABEL_METRICS,
     TRANSPORT_CHOICES,

@@ -36,7 +36,7 @@ from clnlos.forward.scene import Scene
 from clnlos.forward.transport import LightConeTransport
 from clnlos.inverse.pipeline import reconstruct
 from clnlos.physics.slab import CDT_SLAB
-from clnlos.study.metrics import mip_iou, truth_mask
+from clnlos.study.score.metrics import mip_iou, truth_mask
 
 CHECK_MATERIALS = ("quartz glass", "aluminium alloy sample", "gold-plated polyester film",
                    "standard white plate", LAMBERTIAN)

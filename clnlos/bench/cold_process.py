@@ -39,7 +39,7 @@ from clnlos.physics.slab import CDT_SLAB
 from clnlos.runtime.caches import PIPELINES
 from clnlos.runtime.device import get_queue
 from clnlos.runtime.fft import RealFFT3
-from clnlos.study.metrics import peak_depth_m
+from clnlos.study.score.metrics import peak_depth_m
 
 SAMPLE_S = 0.005  # VmRSS sampling period (s)
 WORKER = "import sys; from clnlos.bench.cold_process import main; main(sys.argv[1:])"

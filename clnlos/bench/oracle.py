@@ -13,7 +13,7 @@ the auto and the grid runs, today's constant FIXED_L1_WEIGHT in the "today" run,
 also Wiener first (``slab_model = "none"``: the deconvolved transient fitted as the slab-free
 one; auto and the grid fit the slab filter's influence,
 :mod:`clnlos.inverse.iterative`). The oracle is the best IoU of the grid (Otsu-thresholded
-MIP against the true mask, :func:`clnlos.study.metrics.mip_iou`); the gap is oracle minus
+MIP against the true mask, :func:`clnlos.study.score.metrics.mip_iou`); the gap is oracle minus
 auto. Only the slab recorded in the capture is used, as ``clnlos reconstruct`` does with no
 slab flags.
 
@@ -47,7 +47,7 @@ from clnlos.inverse.reproducibility import SLAB_SNRS_SLAB_ONLY as REPRODUCIBILIT
 from clnlos.inverse.snr import combined_snr, lightcone_snr
 from clnlos.io.files import atomic_path
 from clnlos.physics.slab import CDT_SLAB
-from clnlos.study.metrics import mip_iou, truth_mask
+from clnlos.study.score.metrics import mip_iou, truth_mask
 
 SLAB_SNRS = (1e2, 1e3, 1e4, 1e5)  # the grid, the iterative method's
 # LCT and f-k: under the GCV rule slab SNRs of at least CLOSED_FORM_SLAB_SNR_MIN, by

@@ -65,8 +65,8 @@ from clnlos.physics.slab import CDT_SLAB
 from clnlos.runtime.caches import PIPELINES
 from clnlos.runtime.fft import RealFFT3
 from clnlos.settings import ENV_FFT
-from clnlos.study.confocal_error import study_patch_scene
-from clnlos.study.metrics import coverage_image, mip_iou, peak_depth_m
+from clnlos.study.findings.confocal_error import study_patch_scene
+from clnlos.study.score.metrics import coverage_image, mip_iou, peak_depth_m
 
 
 # ------------------------------------------------------------------ kernels
@@ -528,7 +528,7 @@ def bench_auto_params(b: Bench):
 
 def _bench_gcv_rule(b: Bench, case, cap, mask, cfg, row: dict) -> None:
     """A method with ``snr_rule = "gcv"`` (GCV's slab SNR: the study's rule,
-    :class:`clnlos.study.dataset.StudyGrid`) on one capture where the default searched a
+    :class:`clnlos.study.plan.scenes.StudyGrid`) on one capture where the default searched a
     split of the counts (reproducibility, :mod:`clnlos.inverse.reproducibility`): its time
     and its gap to the oracle of the default's ``row``."""
     cfg = cfg.replace(snr_rule="gcv").validate()

@@ -9,7 +9,7 @@ The question is answered with legibility, not with how well a blob covers the ta
    8 cm strokes at 0.5 m: the scale of the published CDT captures, where a Lambertian target
    reads at the default budget).
 2. Materials: the ten presets, each reconstructing each of the K = 8 glyphs of
-   :mod:`clnlos.study.legibility` (``seeds`` noise realisations each) at each geometry.
+   :mod:`clnlos.study.score.legibility` (``seeds`` noise realisations each) at each geometry.
    Per material: identification accuracy (closest of the K blurred glyph templates, Wilson
    95% interval, chance 1/K), IoU beside the IoU of the filled box of the true mask (what a
    blob scores) and the excess over it; the seed's Figure 9 grouping beside ours.
@@ -18,35 +18,35 @@ The question is answered with legibility, not with how well a blob covers the ta
    letter and the exposure each material needs (identification >= LEGIBLE_ACCURACY).
 4. The geometry sweeps (scan width, depth, slab thickness) at the seed's letter size,
    scored the same way.
-5. Measured resolution (:mod:`clnlos.study.resolution`) and a real capture beside its
-   simulation (:mod:`clnlos.study.real_capture`), when a folder of the real CDT captures
+5. Measured resolution (:mod:`clnlos.study.samples.resolution`) and a real capture beside its
+   simulation (:mod:`clnlos.study.real.capture`), when a folder of the real CDT captures
    is given (``real_data``, ``--real-data DIR``: its ``cdt/*.mat``).
-6. The legibility judge (:mod:`clnlos.study.judge_study`): a calibrated logistic model on
-   scale- and position-invariant measured features (:mod:`clnlos.study.judge_features`),
+6. The legibility judge (:mod:`clnlos.study.judge.study`): a calibrated logistic model on
+   scale- and position-invariant measured features (:mod:`clnlos.study.judge.features`),
    the agreement of two binomial photon halves' reconstructions among them, trained on
-   simulated twins of the real CDT and LCT capture families (:mod:`clnlos.study.twins`)
+   simulated twins of the real CDT and LCT capture families (:mod:`clnlos.study.judge.twins`)
    to give P(legible) (identified and IoU above the box baseline), validated on held-out
    glyphs, geometries and materials against the majority and a one-feature baseline and by
-   family on every real capture's thinning ladder (:mod:`clnlos.study.judge_real`), saved
+   family on every real capture's thinning ladder (:mod:`clnlos.study.judge.real`), saved
    as judge.json (``clnlos legibility FILE... --model STUDY_DIR``) and applied to the real
-   captures thinned to fewer photons (:mod:`clnlos.study.thinning_real`);
-   ``--labels fft`` / ``nr`` add the seed's recipe (a torch CNN, :mod:`clnlos.study.classify`:
+   captures thinned to fewer photons (:mod:`clnlos.study.real.thinning`);
+   ``--labels fft`` / ``nr`` add the seed's recipe (a torch CNN, :mod:`clnlos.study.judge.cnn`:
    FFT clarity / no-reference terciles), whose three classes label the materials.
 7. With ``transport = "both"`` (``--transport both``): the materials at the legible geometry
-   under the bistatic transport too (Eq. 8 in full, :mod:`clnlos.study.transport_compare`),
+   under the bistatic transport too (Eq. 8 in full, :mod:`clnlos.study.findings.transport`),
    their table and ranks under both and the rank correlation. Everything else is simulated
    with the confocal transport (the seed's Eq. 9).
 8. Report (report.html, with the seed's Figure 8 side by side) and results.json.
 
-Every sample is rendered (simulated, reconstructed, scored) by :mod:`clnlos.study.dataset`,
+Every sample is rendered (simulated, reconstructed, scored) by :mod:`clnlos.study.samples.render`,
 cached on disk and run through one pool of workers; identification is computed from the
 cached MIPs, so a change of the matching rule reuses every sample.
 
-The study's modules, in the order :func:`run_study` uses them: :mod:`clnlos.study.plan`
-(options, geometries, every sample), :mod:`clnlos.study.samples` (rendered, resolution,
-identification), :mod:`clnlos.study.sweeps` (the tables), :mod:`clnlos.study.sections`
-(classifier, real captures, transport comparison, cost), :mod:`clnlos.study.findings` (the
-answer), :mod:`clnlos.study.report`. Their public names are re-exported here
+The study's modules, in the order :func:`run_study` uses them: :mod:`clnlos.study.plan.entries`
+(options, geometries, every sample), :mod:`clnlos.study.samples.identify` (rendered, resolution,
+identification), :mod:`clnlos.study.findings.sweeps` (the tables), :mod:`clnlos.study.sections`
+(classifier, real captures, transport comparison, cost), :mod:`clnlos.study.findings.summary` (the
+answer), :mod:`clnlos.study.report.page`. Their public names are re-exported here
 (``from clnlos.study.run import StudyOptions`` keeps working).
 """
 
@@ -64,9 +64,9 @@ from clnlos.errors import ParameterError
 from clnlos.io.files import atomic_path
 from clnlos.io.outputs import stamp
 from clnlos.io.progress import counter, progress_bar
-from clnlos.study.clarity import label_thresholds
-from clnlos.study.dataset import cpu_workers
-from clnlos.study.findings import (  # noqa: F401 (the names past make_findings: re-exported)
+from clnlos.study.score.clarity import label_thresholds
+from clnlos.study.samples.render import cpu_workers
+from clnlos.study.findings.summary import (  # noqa: F401 (the names past make_findings: re-exported)
     GAP_CLOSED,
     geometry_sweep_effects,
     inversion_accuracy,
@@ -74,7 +74,7 @@ from clnlos.study.findings import (  # noqa: F401 (the names past make_findings:
     study_statement,
     tilt_findings,
 )
-from clnlos.study.plan import (  # noqa: F401 (the plan's names: re-exported)
+from clnlos.study.plan.entries import (  # noqa: F401 (the plan's names: re-exported)
     DEFAULT_EXPOSURE_S,
     GEOMETRIES,
     HELD_OUT_GLYPHS,
@@ -101,12 +101,12 @@ from clnlos.study.plan import (  # noqa: F401 (the plan's names: re-exported)
     noise_seed,
     study_plan,
 )
-from clnlos.study.judge_study import study_judge
-from clnlos.study.quality import METRICS, pearson, validate_metrics
-from clnlos.study.real_materials import RealPlan, real_capture_paths, real_materials
-from clnlos.study.report import write_report
-from clnlos.study.resolution import json_ready
-from clnlos.study.samples import (  # noqa: F401 (re-exported)
+from clnlos.study.judge.study import study_judge
+from clnlos.study.score.quality import METRICS, pearson, validate_metrics
+from clnlos.study.real.materials import RealPlan, real_capture_paths, real_materials
+from clnlos.study.report.page import write_report
+from clnlos.study.samples.resolution import json_ready
+from clnlos.study.samples.identify import (  # noqa: F401 (re-exported)
     identification_of,
     label_of,
     legibility_label,
@@ -125,7 +125,7 @@ from clnlos.study.sections import (  # noqa: F401 (re-exported)
     train_cnn,
     transport_comparison,
 )
-from clnlos.study.sweeps import (  # noqa: F401 (re-exported)
+from clnlos.study.findings.sweeps import (  # noqa: F401 (re-exported)
     SEED_FIGURE9,
     cnn_material_label,
     material_class,

@@ -1,5 +1,5 @@
 """The study's sections beyond its tables: the seed's CNN recipe (:func:`train_cnn`; the
-legibility judge is :mod:`clnlos.study.judge_study`), the real captures
+legibility judge is :mod:`clnlos.study.judge.study`), the real captures
 (:func:`real_data_study`), the transport comparison (:func:`transport_comparison`) and where the
 time went (:func:`study_cost`)."""
 
@@ -13,18 +13,18 @@ from pathlib import Path
 import numpy as np
 
 from clnlos.io.progress import counter, progress_bar
-from clnlos.study.classify import SEED_EPOCHS, train_classifier
-from clnlos.study.dataset import StudyGrid
-from clnlos.study.plan import HELD_OUT_GLYPHS, HELD_OUT_HEIGHT_M, StudyOptions, comparison_plan
-from clnlos.study.real_capture import (
+from clnlos.study.judge.cnn import SEED_EPOCHS, train_classifier
+from clnlos.study.plan.scenes import StudyGrid
+from clnlos.study.plan.entries import HELD_OUT_GLYPHS, HELD_OUT_HEIGHT_M, StudyOptions, comparison_plan
+from clnlos.study.real.capture import (
     PUBLISHED_SCAN_WIDTH_M,
     compare_real_capture,
     real_capture_figure,
     reconstruct_chart,
 )
-from clnlos.study.samples import identification_of, label_of, render_plan
-from clnlos.study.thinning_real import real_thinning
-from clnlos.study.transport_compare import comparison_table
+from clnlos.study.samples.identify import identification_of, label_of, render_plan
+from clnlos.study.real.thinning import real_thinning
+from clnlos.study.findings.transport import comparison_table
 
 
 def samples_labels(results, idx, label_metric, thresholds) -> np.ndarray:
@@ -80,7 +80,7 @@ def real_capture_dir(root: Path | None) -> Path | None:
 
 def real_captures_cnn(rows: list[dict], predict, label_metric: str) -> list[dict]:
     """The CNN's verdict on each real capture at all its photons (the fraction-1 rows of
-    :func:`clnlos.study.thinning_real.real_thinning`): the legibility classifier's
+    :func:`clnlos.study.real.thinning.real_thinning`): the legibility classifier's
     ``p_legible`` (label 1 legible at P >= 1/2, else 3), or the seed recipe's class."""
     out = []
     for r in rows:
@@ -99,7 +99,7 @@ def real_captures_cnn(rows: list[dict], predict, label_metric: str) -> list[dict
 def real_data_study(cdt: Path, predict, grid: StudyGrid, device=None, *, legibility,
                     label_metric: str = "identification", cache: Path | None = None) -> dict:
     """The real captures in ``cdt``: letters_ut beside a simulation of a comparable scene
-    (:func:`clnlos.study.real_capture.compare_real_capture`, its figure), the resolution
+    (:func:`clnlos.study.real.capture.compare_real_capture`, its figure), the resolution
     chart's resolved features, every capture thinned to THINNING_FRACTIONS of its photons
     with the ``legibility`` classifier's P(legible) (``thinning``) and the CNN's verdict at
     all its photons (``cnn``)."""
@@ -126,7 +126,7 @@ def real_data_study(cdt: Path, predict, grid: StudyGrid, device=None, *, legibil
 def transport_comparison(materials, opts: StudyOptions, cache: Path, resolution: dict,
                          lateral: dict[str, float], table=None, **kw) -> dict:
     """The materials at the legible geometry under the confocal and the bistatic transport
-    (:mod:`clnlos.study.transport_compare`): its table, with ``plan`` and ``results``."""
+    (:mod:`clnlos.study.findings.transport`): its table, with ``plan`` and ``results``."""
     plan = comparison_plan(materials, opts)
     results = render_plan(plan, opts.grid, cache, desc="transport comparison", **kw)
     identification_of(plan, results, opts, resolution["effective_temporal_fwhm_s"], lateral)

@@ -27,7 +27,7 @@ from clnlos.brdf.fit import fit_to_file  # noqa: E402
 from clnlos.brdf.plot import in_plane, read_samples  # noqa: E402
 from clnlos.brdf.store import load_model  # noqa: E402
 from clnlos.brdf.texture import tabulate, write_texture  # noqa: E402
-from clnlos.study.legibility import glyph_templates, identify  # noqa: E402
+from clnlos.study.score.legibility import glyph_templates, identify  # noqa: E402
 
 ROOT = Path(__file__).resolve().parents[2]
 parser = argparse.ArgumentParser()

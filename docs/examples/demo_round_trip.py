@@ -16,7 +16,7 @@ matplotlib.use("Agg")
 import matplotlib.pyplot as plt  # noqa: E402
 
 import clnlos  # noqa: E402
-from clnlos.study.metrics import letters_truth_mask, mip_iou  # noqa: E402
+from clnlos.study.score.metrics import letters_truth_mask, mip_iou  # noqa: E402
 
 parser = argparse.ArgumentParser()
 parser.add_argument("--small", action="store_true", help="16 x 16 scan points (the tests)")

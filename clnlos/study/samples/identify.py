@@ -10,16 +10,17 @@ import math
 from pathlib import Path
 
 from clnlos.forward.scene import Scene
-from clnlos.study.dataset import StudyGrid, run_samples, scene_dict, window_m
-from clnlos.study.legibility import best_shift, glyph_templates, identify
-from clnlos.study.plan import (
+from clnlos.study.plan.scenes import StudyGrid, scene_dict, window_m
+from clnlos.study.samples.render import run_samples
+from clnlos.study.score.legibility import best_shift, glyph_templates, identify
+from clnlos.study.plan.entries import (
     DEFAULT_EXPOSURE_S,
     SEED_GEOMETRY,
     TILT_MAX_SHIFT_M,
     Geometry,
     StudyOptions,
 )
-from clnlos.study.resolution import (
+from clnlos.study.samples.resolution import (
     ResolutionGeometry,
     json_ready,
     measure_resolution,
@@ -48,7 +49,7 @@ def legibility_label(identified: bool, iou: float, iou_box: float) -> int:
 
 
 def resolution_geometry(geo: Geometry, grid: StudyGrid) -> ResolutionGeometry:
-    """Where :func:`~clnlos.study.resolution.measure_resolution` measures a study geometry:
+    """Where :func:`~clnlos.study.samples.resolution.measure_resolution` measures a study geometry:
     its scan, depth, slab and letters on the study's grid (bins, pulse, window, iterations)."""
     return ResolutionGeometry(
         scan_width_m=geo.scan_width_m, points=grid.points, depth_m=geo.depth_m,

@@ -46,7 +46,7 @@ def glyph_coverage(glyph: str, height_m: float, stroke_m: float, centre_xy,
     """Covered fraction [y, x] of each scan cell (centres ``scan_centres``, m) by the glyph,
     letters of ``height_m`` with strokes of ``stroke_m`` centred at ``centre_xy`` (m);
     ``mask(glyph, height_m, stroke_m, xy)`` says which local points it covers (another
-    pattern set: :func:`clnlos.study.patterns.pattern_mask`)."""
+    pattern set: :func:`clnlos.study.score.patterns.pattern_mask`)."""
     c = np.asarray(scan_centres, float)
     pitch = float(c[1] - c[0]) if c.size > 1 else 1.0
     s = COVERAGE_SUBSAMPLES

@@ -51,10 +51,10 @@ from clnlos.io.figures import new_figure
 from clnlos.io.files import read_capture, save_figure
 from clnlos.physics.slab import CDT_SLAB
 from clnlos.runtime.device import get_queue
-from clnlos.study.dataset import StudyGrid
-from clnlos.study.metrics import iou, otsu_threshold
-from clnlos.study.quality import otsu_separability
-from clnlos.study.resolution import ResolutionGeometry, chart_features, fwhm_1d
+from clnlos.study.plan.scenes import StudyGrid
+from clnlos.study.score.metrics import iou, otsu_threshold
+from clnlos.study.score.quality import otsu_separability
+from clnlos.study.samples.resolution import ResolutionGeometry, chart_features, fwhm_1d
 
 # Published acquisition parameters of the real CDT captures (the data's cdt/README.md)
 PUBLISHED_SCAN_WIDTH_M = {"letters_ut": 0.7, "letter_s": 0.6, "resolution_70": 0.7}
@@ -100,7 +100,7 @@ def capture_config(name: str, method: str = "lct", *, published_snr: bool = Fals
 def measurement_summary(transient: np.ndarray, bin_width_s: float, name: str) -> dict:
     """Numbers of a capture [t, y, x]: ``photons`` (sum of counts), ``peak_time_s`` (centre
     of the brightest bin of the scan-summed profile), ``temporal_fwhm_s`` (its FWHM,
-    :func:`clnlos.study.resolution.fwhm_1d`), ``tail_level`` (mean of its last
+    :func:`clnlos.study.samples.resolution.fwhm_1d`), ``tail_level`` (mean of its last
     TAIL_FRACTION of bins over its peak), ``first_arrival_s`` (start of the first bin at
     ARRIVAL_LEVEL of the peak); and arrays: ``profile`` (counts per bin, summed
     over the scan) and ``xt`` (the x-t slice through the middle row)."""
@@ -327,7 +327,7 @@ def write_real_capture_figure(result: dict, out_png) -> Path:
 def reconstruct_chart(path, method: str = "lct", *, queue=None) -> dict:
     """Reconstruct the shared resolution chart (``resolution_70.mat``) with its published
     settings (:func:`capture_config`, SNR 1e4) and report its resolved features
-    (:func:`clnlos.study.resolution.chart_features`), with ``name`` and ``method``."""
+    (:func:`clnlos.study.samples.resolution.chart_features`), with ``name`` and ``method``."""
     name = capture_name(path)
     rec = reconstruct(read_capture(path), capture_config(name, method, published_snr=True),
                       device=get_queue(queue))

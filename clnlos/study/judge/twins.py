@@ -4,7 +4,7 @@ Two families of real captures with known content exist (the study's ``--real-dat
 (Lindell & Wetzstein 2020: letters filling a 0.6-0.7 m scan, 0.4-0.6 m behind a 2.54 cm
 scattering slab) and ``lct`` (O'Toole et al. 2018: no slab, targets 0.4-1.2 m around a corner,
 0.4-1.0 m scans, diffuse and retroreflective). Their twins (:data:`TWIN_GEOMETRIES`, five
-geometries) hold the patterns of :mod:`clnlos.study.patterns` (capital letters of the
+geometries) hold the patterns of :mod:`clnlos.study.score.patterns` (capital letters of the
 stroke font, bar groups and dot grids: what real targets are) in the real rigs' kinds of
 material (TWIN_MATERIALS: two diffuse, a mixed and the retroreflective), each scaled and
 moved at random within the scan (pattern height x U[TWIN_ZOOM], its side at most
@@ -17,7 +17,7 @@ TWIN_SHIFT of the scan width and the pattern inside the scan), simulated once no
 N the signal photons (TWIN_PHOTONS_PER_POINT per scan point, P points, T bins) and b a
 uniform background floor over the signal, drawn log-uniformly in TWIN_BACKGROUND (what the
 real captures' late floor shows), then binomially thinned (nested,
-:func:`clnlos.study.thinning_real.thinned_series`) to TWIN_FRACTIONS: a ladder from clear to
+:func:`clnlos.study.real.thinning.thinned_series`) to TWIN_FRACTIONS: a ladder from clear to
 noise per scene, the real captures' thinning ladders' span of photons per scan point. Each
 rung is also seen under a smooth lateral gain (:func:`gain_field`, up to TWIN_GAIN across
 the scan; the label unchanged): real targets are unevenly bright. Each rung is split into
@@ -26,10 +26,10 @@ halves reconstructed with the judge's recipe (:data:`JUDGE_METHOD`, the SNR rule
 JUDGE_SNR_RULE).
 
 The label of a rung (simulations only): legible when the template rule identifies its
-pattern among all the twins' patterns (:func:`clnlos.study.legibility.identify`, templates
+pattern among all the twins' patterns (:func:`clnlos.study.score.legibility.identify`, templates
 blurred to O'Toole's lateral bound with the pulse and bin widths) *and* the IoU of its Otsu
 mask with the true mask beats the filled box's
-(:func:`clnlos.study.legibility.box_baseline_iou`): the study's label.
+(:func:`clnlos.study.score.legibility.box_baseline_iou`): the study's label.
 """
 
 from __future__ import annotations
@@ -47,23 +47,23 @@ from clnlos.inverse.thinning import thin_counts
 from clnlos.physics.constants import C0
 from clnlos.physics.slab import CDT_SLAB
 from clnlos.runtime.device import get_queue
-from clnlos.study.judge_features import capture_features, foreground, mip_of
-from clnlos.study.legibility import (
+from clnlos.study.judge.features import capture_features, foreground, mip_of
+from clnlos.study.score.legibility import (
     box_baseline_iou,
     glyph_coverage,
     glyph_templates,
     identify,
 )
-from clnlos.study.metrics import iou
-from clnlos.study.patterns import (
+from clnlos.study.score.metrics import iou
+from clnlos.study.score.patterns import (
     CHART_SCALE,
     TWIN_PATTERNS,
     is_chart,
     pattern_mask,
     pattern_objects,
 )
-from clnlos.study.resolution import otoole_lateral_bound_m
-from clnlos.study.thinning_real import thinned_series
+from clnlos.study.samples.resolution import otoole_lateral_bound_m
+from clnlos.study.real.thinning import thinned_series
 
 JUDGE_METHOD = "lct"      # the judge reconstructs a capture (and its halves) this way: the
 JUDGE_SNR_RULE = "gcv"    # closed-form inversion, 3 per capture in well under a second
@@ -196,7 +196,7 @@ def twin_placement(geo: TwinGeometry, pattern: str, rng: np.random.Generator) ->
 def render_twin(entry: dict, grid: TwinGrid = TwinGrid(), fractions=TWIN_FRACTIONS,
                 device=None, keep_mips: bool = False) -> list[dict]:
     """The ladder of one twin (:func:`twin_plan` entry): per rung its fraction, photons,
-    features (:func:`clnlos.study.judge_features.capture_features`) and label."""
+    features (:func:`clnlos.study.judge.features.capture_features`) and label."""
     queue = get_queue(device)
     geo = next(g for g in TWIN_GEOMETRIES if g.name == entry["geometry"])
     scene = Scene.from_dict(twin_scene(geo, entry["glyph"], entry["material"],

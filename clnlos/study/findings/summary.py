@@ -6,9 +6,9 @@ from __future__ import annotations
 import numpy as np
 
 from clnlos.brdf.presets import preset_table
-from clnlos.study.legibility import LEGIBLE_ACCURACY
-from clnlos.study.plan import LEGIBLE_GEOMETRY, SEED_GEOMETRY, StudyOptions
-from clnlos.study.quality import pearson
+from clnlos.study.score.legibility import LEGIBLE_ACCURACY
+from clnlos.study.plan.entries import LEGIBLE_GEOMETRY, SEED_GEOMETRY, StudyOptions
+from clnlos.study.score.quality import pearson
 
 
 GAP_CLOSED = 1 / 8  # strong-specular identification within one glyph in eight of diffuse

@@ -20,7 +20,7 @@ every shared capture; a capture where it is not is flagged). Noise scores about 
 
 Photons needed. Each capture is thinned binomially to the fractions of ``LADDER`` (nested:
 every photon of a fainter capture is one of the brighter one's, the exact model of a
-shorter exposure; :func:`clnlos.study.thinning_real.thinned_series`), SEEDS series per
+shorter exposure; :func:`clnlos.study.real.thinning.thinned_series`), SEEDS series per
 capture; the photons needed by one series is where its score first falls below KEEP_LEVEL,
 interpolated in log photons between the two fractions around the crossing (the count at the
 smallest fraction where it never falls; None where the full capture already scores below).
@@ -50,9 +50,9 @@ from clnlos.inverse.snr import estimate_noise, first_recorded_bin
 from clnlos.io.capture import Capture, without_direct
 from clnlos.io.figures import new_figure
 from clnlos.io.files import read_capture
-from clnlos.study.real_capture import capture_config, estimate_letters, measurement_summary
-from clnlos.study.resolution import chart_features, fwhm_1d, json_ready, otoole_lateral_bound_m
-from clnlos.study.thinning_real import thinned_series
+from clnlos.study.real.capture import capture_config, estimate_letters, measurement_summary
+from clnlos.study.samples.resolution import chart_features, json_ready, otoole_lateral_bound_m
+from clnlos.study.real.thinning import thinned_series
 
 KEEP_LEVEL = 0.8            # NCC with the reference front view: the image is kept
 BLOB_SIGMA_FRACTION = 0.08  # the blob control: the reference blurred by this x the scan (rms)
@@ -269,7 +269,7 @@ def ladder_rows(cap: Capture, base: ReconstructionConfig, plan: RealPlan, invers
 
 def twin_scene(cap: Capture, letters: dict, material: str, pulse_fwhm_s: float) -> Scene:
     """The simulated twin of a real capture: its scan and time axis, the ``letters``
-    (:func:`clnlos.study.real_capture.estimate_letters`) in ``material`` (no slab), a laser
+    (:func:`clnlos.study.real.capture.estimate_letters`) in ``material`` (no slab), a laser
     pulse of the FWHM measured on the real capture."""
     nt, _, nx = cap.transient.shape
     objects = [{"shape": "letters", "text": L["text"], "height_m": L["height_m"],
@@ -446,7 +446,7 @@ def _best_row(capture: dict, inversion: str = "lct") -> dict | None:
 
 
 def headline_rows(section: dict) -> list[list]:
-    """The report's headline rows (:mod:`clnlos.study.headline`'s format): per capture, the
+    """The report's headline rows (:mod:`clnlos.study.report.headline`'s format): per capture, the
     photons its best LCT variant needs, with the series' range; an open upper end where the
     image is kept down to the smallest fraction tried."""
     out = []

@@ -1,7 +1,7 @@
 """The study's legibility judge: twins rendered (cached), the judge trained and validated
 (held out by glyph, geometry and material; by family on the real captures), written beside
-results.json as judge.json (:mod:`clnlos.study.judge`, :mod:`clnlos.study.twins`,
-:mod:`clnlos.study.judge_real`).
+results.json as judge.json (:mod:`clnlos.study.judge.model`, :mod:`clnlos.study.judge.twins`,
+:mod:`clnlos.study.judge.real`).
 
 The capture model's training set is the twins alone (its features need the photon halves);
 the volume model's adds every glyph reconstruction of the study with ground truth (every
@@ -18,12 +18,12 @@ from pathlib import Path
 
 from clnlos.io.files import atomic_path
 from clnlos.io.outputs import provenance, stamp
-from clnlos.study.dataset import code_version
-from clnlos.study.heldout import geometry_key
-from clnlos.study.judge import JUDGE_FILE, JUDGE_FOLDS, train_judge
-from clnlos.study.judge_features import MIP_FEATURES, mip_features
-from clnlos.study.judge_real import family_scores, family_split
-from clnlos.study.twins import TwinGrid, render_twin, twin_plan, twin_settings
+from clnlos.study.samples.render import code_version
+from clnlos.study.judge.heldout import geometry_key
+from clnlos.study.judge.model import JUDGE_FILE, JUDGE_FOLDS, train_judge
+from clnlos.study.judge.features import MIP_FEATURES, mip_features
+from clnlos.study.judge.real import family_scores, family_split
+from clnlos.study.judge.twins import TwinGrid, render_twin, twin_plan, twin_settings
 
 LABEL = ("legible: identified by the template rule and IoU above the box baseline "
          "(simulations); real captures: agreement with the full-photon MIP (reference, "
@@ -48,7 +48,7 @@ def study_volume_rows(pairs) -> list[dict]:
 
 def cached_twin(entry: dict, grid: TwinGrid, cache: Path | None, version: str,
                 device=None) -> list[dict]:
-    """:func:`clnlos.study.twins.render_twin` of ``entry``, read from / written to
+    """:func:`clnlos.study.judge.twins.render_twin` of ``entry``, read from / written to
     ``cache`` (JSON keyed by the entry, the grid, the twins' settings and the code)."""
     if cache is None:
         return render_twin(entry, grid, device=device)

@@ -5,7 +5,7 @@ A *volume* (a clnlos volume .h5 of any method, grid or size, a
 :class:`~clnlos.inverse.pipeline.Reconstruction`, or an array [z, y, x] / a MIP [y, x]) is
 judged by the MIP-only model. A *capture* (any file :func:`clnlos.io.files.read_capture`
 reads, or a :class:`~clnlos.io.capture.Capture`) is reconstructed with the judge's recipe
-(:func:`clnlos.study.judge_real.judge_config`) together with two binomial halves of its
+(:func:`clnlos.study.judge.real.judge_config`) together with two binomial halves of its
 photons and judged by the capture model (its counts are rounded to whole photons for the
 split).
 """
@@ -22,10 +22,10 @@ from clnlos.errors import InputFileError
 from clnlos.io.capture import Capture
 from clnlos.io.files import read_capture, read_volume
 from clnlos.runtime.device import get_queue
-from clnlos.study.judge import JUDGE_FILE, JUDGE_FORMAT, Judge, load_judge
-from clnlos.study.judge_features import capture_features, mip_features
-from clnlos.study.judge_real import binned_laterally, judge_config
-from clnlos.study.twins import JUDGE_MAX_POINTS, judge_reconstructions
+from clnlos.study.judge.model import JUDGE_FILE, JUDGE_FORMAT, Judge, load_judge
+from clnlos.study.judge.features import capture_features, mip_features
+from clnlos.study.judge.real import binned_laterally, judge_config
+from clnlos.study.judge.twins import JUDGE_MAX_POINTS, judge_reconstructions
 
 
 @dataclass
@@ -43,7 +43,7 @@ class Verdict:
 
 
 def judge_from(model) -> Judge:
-    """The judge of ``model``: a :class:`~clnlos.study.judge.Judge`, a study folder holding
+    """The judge of ``model``: a :class:`~clnlos.study.judge.model.Judge`, a study folder holding
     judge.json, or a judge.json file (an :class:`InputFileError` naming the path when it
     is none of these)."""
     if isinstance(model, Judge):
@@ -93,7 +93,7 @@ def judge_volume(volume, judge: Judge, source: str = "volume") -> Verdict:
 
 def legibility(source, model, *, device=None) -> Verdict:
     """P(legible) of ``source`` by the judge in ``model`` (a study folder, its judge.json or a
-    loaded :class:`~clnlos.study.judge.Judge`): ``source`` a capture or volume file, a
+    loaded :class:`~clnlos.study.judge.model.Judge`): ``source`` a capture or volume file, a
     :class:`~clnlos.io.capture.Capture`, a reconstruction (anything with a ``volume``) or an
     array. Returns a :class:`Verdict` (``.p_legible``)."""
     judge = judge_from(model)

@@ -13,11 +13,11 @@ capture is thinned from the one before it,
 so y_k is Binomial(y, f_k) and every photon of a fainter capture is one of the brighter
 capture's (a series, not independent draws); seeded (THINNING_SEED). Each capture is
 reconstructed as the study reconstructs the real captures
-(:func:`clnlos.study.real_capture.capture_config` with the study grid's method, iterations and
+(:func:`clnlos.study.real.capture.capture_config` with the study grid's method, iterations and
 SNR rule) and its maximum-intensity projection, resampled to the study grid's points and
 normalised to its maximum, is what the classifier sees. Reconstructions are cached in the
 study's sample cache, keyed by the capture file's SHA-256, the fraction, the seed, the grid
-and :func:`clnlos.study.dataset.code_version`.
+and :func:`clnlos.study.samples.render.code_version`.
 """
 
 from __future__ import annotations
@@ -33,8 +33,9 @@ from scipy.ndimage import zoom
 from clnlos.inverse.pipeline import reconstruct
 from clnlos.io.files import atomic_path, read_capture
 from clnlos.io.figures import new_figure
-from clnlos.study.dataset import NPZ_ERRORS, StudyGrid, code_version
-from clnlos.study.real_capture import PUBLISHED_SCAN_WIDTH_M, capture_config
+from clnlos.study.plan.scenes import StudyGrid
+from clnlos.study.samples.render import NPZ_ERRORS, code_version
+from clnlos.study.real.capture import PUBLISHED_SCAN_WIDTH_M, capture_config
 
 THINNING_FRACTIONS = (1.0, 0.3, 0.1, 0.03, 0.01, 0.003)
 THINNING_SEED = 40

@@ -1,8 +1,8 @@
 """The report's section on the legibility judge: its three held-out splits beside the
 majority and one-feature baselines, the reliability diagrams, the family split (every real
 capture's thinning ladder) and the real captures thinned to fewer photons
-(:mod:`clnlos.study.judge_study`, :mod:`clnlos.study.judge_real`,
-:mod:`clnlos.study.thinning_real`).
+(:mod:`clnlos.study.judge.study`, :mod:`clnlos.study.judge.real`,
+:mod:`clnlos.study.real.thinning`).
 """
 
 from __future__ import annotations
@@ -11,8 +11,8 @@ import html
 
 import numpy as np
 
-from clnlos.study.heldout import SPLITS
-from clnlos.study.thinning_real import thinning_figure
+from clnlos.study.judge.heldout import SPLITS
+from clnlos.study.real.thinning import thinning_figure
 
 TARGETS = {"balanced_accuracy": 0.85, "auc": 0.9, "ece": 0.08}  # the issue's bar, shown
 

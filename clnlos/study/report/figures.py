@@ -1,7 +1,7 @@
 """The study report's figures (matplotlib, imported where a figure is drawn): the seed's
 Figure 8 side by side, every glyph per material, identification and IoU, the sweeps, the tilt
 sweep, the metrics, the BRDFs, the CNN, the transport comparison. Each returns a figure;
-:mod:`clnlos.study.report` embeds them."""
+:mod:`clnlos.study.report.page` embeds them."""
 
 from __future__ import annotations
 
@@ -10,7 +10,7 @@ import numpy as np
 from clnlos.brdf.models import retro_slice
 from clnlos.brdf.presets import preset_model
 from clnlos.physics.constants import C0
-from clnlos.study.transport_compare import TRANSPORTS, fmt_r
+from clnlos.study.findings.transport import TRANSPORTS, fmt_r
 
 
 def short_name(name: str, n: int = 16) -> str:

@@ -1,7 +1,7 @@
 """The study report: one self-contained HTML page (PNG figures embedded) beside results.json.
 
 It opens with its answer: the first screen (1400 x 900 px) holds the headline figure and at
-most five one-sentence findings (:mod:`clnlos.study.headline`), then the seed's Figure 8
+most five one-sentence findings (:mod:`clnlos.study.report.headline`), then the seed's Figure 8
 side by side (each material's measurement and reconstruction, Lambertian beside its own
 BRDF), then the details -- tables, sweeps, the real captures, the classifier, methods, cost --
 each in a section the reader unfolds (``<details>``). Laid out for a 1280-1400 px window: a
@@ -24,11 +24,11 @@ from clnlos.config import snr_rule_applies
 from clnlos.inverse.methods import auto_snr_rule
 from clnlos.io.files import atomic_path
 from clnlos.io.outputs import HTML_GENERATOR
-from clnlos.study import real_materials
-from clnlos.study.classifier_report import classifier_section
-from clnlos.study.headline import headline_html, probe_script
-from clnlos.study.quality import METRICS
-from clnlos.study.report_figures import (
+from clnlos.study.real import materials as real_materials
+from clnlos.study.report.classifier import classifier_section
+from clnlos.study.report.headline import headline_html, probe_script
+from clnlos.study.score.quality import METRICS
+from clnlos.study.report.figures import (
     INVERSION_LABELS,
     SWEEP_AXES,
     fig_brdf,
@@ -43,7 +43,7 @@ from clnlos.study.report_figures import (
     fig_transport,
     short_name,
 )
-from clnlos.study.transport_compare import fmt_r
+from clnlos.study.findings.transport import fmt_r
 
 PAGE_WIDTH_PX = 1180
 DPI = 100
@@ -381,7 +381,7 @@ def _metrics_html(results) -> str:
 
 def real_materials_html(results, out_dir) -> list[str]:
     """The real materials' section (``results["real_materials"]``, built by
-    :mod:`clnlos.study.real_materials`) when the study made one."""
+    :mod:`clnlos.study.real.materials`) when the study made one."""
     section = results.get("real_materials")
     if section:
         return [real_materials.section_html(section, out_dir, png_base64)]
@@ -389,7 +389,7 @@ def real_materials_html(results, out_dir) -> list[str]:
 
 
 def real_headline_rows(results) -> list | None:
-    """The real captures' rows of the headline figure (:mod:`clnlos.study.headline`'s row
+    """The real captures' rows of the headline figure (:mod:`clnlos.study.report.headline`'s row
     format), where the real-materials section gives them (its ``headline_rows``)."""
     section = results.get("real_materials")
     return section.get("headline_rows") if isinstance(section, dict) else None

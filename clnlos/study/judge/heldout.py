@@ -1,5 +1,5 @@
 """Grouped held-out validation and its scores (pure numpy / scipy): the legibility judge's
-splits (:mod:`clnlos.study.judge`).
+splits (:mod:`clnlos.study.judge.model`).
 
 Each split is a grouped cross-validation: the reconstructions are grouped by glyph, by
 geometry (scan width, letter height and stroke, depth, slab thickness: :func:`geometry_key`)

@@ -54,7 +54,7 @@ from clnlos.io.capture import Capture
 from clnlos.io.figures import new_figure
 from clnlos.physics.slab import CDT_SLAB, Slab
 from clnlos.runtime.device import get_queue
-from clnlos.study.dataset import StudyGrid, window_m
+from clnlos.study.plan.scenes import StudyGrid, window_m
 
 CONTRAST_RESOLVED = 0.2   # dip between two maxima, as a fraction of the lower one
 PEAK_FLOOR = 0.25         # chart maxima below this fraction of the image maximum are ignored
@@ -71,10 +71,10 @@ class ResolutionGeometry:
     are the letters read at this geometry: their area sets the budget's photon count
     (``budget_area_m2`` None) and their stroke the ratio stroke / resolution.
 
-    Fields left None are the study grid's (:class:`clnlos.study.dataset.StudyGrid`, filled
+    Fields left None are the study grid's (:class:`clnlos.study.plan.scenes.StudyGrid`, filled
     by :meth:`resolve`): ``scan_width_m``, ``points``, ``bin_width_s``, ``pulse_width_s``,
     ``iterations``, ``snr_rule``, and ``max_path_m`` (the study's window for this depth,
-    :func:`clnlos.study.dataset.window_m`)."""
+    :func:`clnlos.study.plan.scenes.window_m`)."""
 
     depth_m: float = 0.5
     slab: Slab | None = CDT_SLAB
@@ -261,7 +261,7 @@ def patch_scene(geometry: ResolutionGeometry):
 
 def detector_table(grid, exposure_s: float) -> dict:
     """A scene's [detector] table from the study grid's photon budget
-    (:class:`clnlos.study.dataset.StudyGrid`) at ``exposure_s`` per scan point."""
+    (:class:`clnlos.study.plan.scenes.StudyGrid`) at ``exposure_s`` per scan point."""
     return {"power_w": grid.power_w, "rep_rate_hz": grid.rep_rate_hz, "exposure_s": exposure_s,
             "efficiency": grid.efficiency, "wavelength_m": grid.wavelength_m,
             "etendue_m2_sr": grid.etendue_m2_sr, "dark_count_rate_hz": grid.dark_count_rate_hz}
@@ -321,7 +321,7 @@ def measure_resolution(geometry: ResolutionGeometry = ResolutionGeometry(), *,
     capture's sum, 1/(m^2 sr) for noise-free), ``stroke_over_resolution`` {method: stroke /
     lateral FWHM}; and, when ``exposure_s`` is given (the study's budget, e.g. 0.1 s per
     scan point), ``budget``: the same keys at that exposure of the ``grid``'s photon budget
-    (default :class:`clnlos.study.dataset.StudyGrid`) with ``exposure_s`` and the patch's
+    (default :class:`clnlos.study.plan.scenes.StudyGrid`) with ``exposure_s`` and the patch's
     ``albedo``;
     ``geometry`` echoes the geometry resolved against the grid. A FWHM is None where the
     profile stays above half its peak across the volume. Each method's entry also holds

@@ -12,10 +12,10 @@ from clnlos.brdf.lobes import AUTO, retro_lobe
 from clnlos.config import SNR_RULES
 from clnlos.errors import ParameterError
 from clnlos.inverse.methods import method_names
-from clnlos.study.dataset import StudyGrid, dataset_samples
-from clnlos.study.legibility import GLYPHS
-from clnlos.study.quality import DEFAULT_LABEL_METRIC
-from clnlos.study.transport_compare import COMPARE_ANGLES, COMPARE_RINGS, bistatic_table
+from clnlos.study.plan.scenes import StudyGrid, dataset_samples
+from clnlos.study.score.legibility import GLYPHS
+from clnlos.study.score.quality import DEFAULT_LABEL_METRIC
+from clnlos.study.findings.transport import COMPARE_ANGLES, COMPARE_RINGS, bistatic_table
 
 
 LABEL_METRICS = {"legibility": "identification", "nr": DEFAULT_LABEL_METRIC,
@@ -104,7 +104,7 @@ class StudyOptions:
     tilt_materials: tuple[str, ...] = TILT_MATERIALS
     tilt_glyphs: tuple[str, ...] | None = None  # default: glyphs
     tilt_inversions: tuple[str, ...] = INVERSIONS
-    judge_twins: int = 16               # twin scenes per twin geometry (clnlos.study.twins;
+    judge_twins: int = 16               # twin scenes per twin geometry (clnlos.study.judge.twins;
     #                                     quick and full alike: docs/validation/legibility-judge.md)
 
     @classmethod
@@ -190,7 +190,7 @@ def glyph_sample(glyph: str, material: str, *, scan_width_m: float, height_m: fl
                  stroke_m: float, depth_m: float, exposure_s: float, seed: int,
                  slab_thickness_m: float | None = None, tilt_deg: float = 0.0,
                  inversion: str = "lambertian") -> dict:
-    """The sample (:mod:`clnlos.study.dataset`) of one glyph, centred on the scan, facing it
+    """The sample (:mod:`clnlos.study.samples.render`) of one glyph, centred on the scan, facing it
     (or tilted by ``tilt_deg`` about the y axis), reconstructed with ``inversion``
     (:func:`inversion_brdf`)."""
     s = {"object": "letters", "text": glyph, "height_m": round(height_m, 6),
@@ -204,7 +204,7 @@ def glyph_sample(glyph: str, material: str, *, scan_width_m: float, height_m: fl
 
 
 def inversion_brdf(inversion: str, material: str) -> dict:
-    """A sample's ``brdf`` (:mod:`clnlos.study.dataset`) for one of INVERSIONS: none for the
+    """A sample's ``brdf`` (:mod:`clnlos.study.samples.render`) for one of INVERSIONS: none for the
     Lambertian inversion and for a material whose lobe is flat (the same reconstruction up
     to the albedo, which the normalised MIP drops: one sample serves both); the material
     itself for "known"; "auto"."""

@@ -11,9 +11,9 @@ from scipy.special import stdtrit  # Student's t quantile (what scipy.stats.t.pp
 
 from clnlos.brdf.models import BRDFModel
 from clnlos.brdf.presets import preset_model
-from clnlos.study.legibility import LEGIBLE_ACCURACY, identification_summary, wilson_interval
-from clnlos.study.plan import Geometry, StudyOptions
-from clnlos.study.samples import label_of
+from clnlos.study.score.legibility import LEGIBLE_ACCURACY, identification_summary, wilson_interval
+from clnlos.study.plan.entries import Geometry, StudyOptions
+from clnlos.study.samples.identify import label_of
 
 
 # The seed's Figure 9 grouping of its ten materials (1 clear, 2 medium, 3 fuzzy).

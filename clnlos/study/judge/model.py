@@ -1,16 +1,16 @@
 """The legibility judge: P(legible) of a capture or a reconstruction from measured, scale- and
-position-invariant features (:mod:`clnlos.study.judge_features`), a calibrated logistic
+position-invariant features (:mod:`clnlos.study.judge.features`), a calibrated logistic
 regression trained on the simulated twins of the real capture families
-(:mod:`clnlos.study.twins`). Pure numpy: no torch to train it or to apply it.
+(:mod:`clnlos.study.judge.twins`). Pure numpy: no torch to train it or to apply it.
 
 Two models, one per input:
 
 * ``capture``: a photon-count capture, reconstructed with the judge's recipe (the method and
-  SNR rule it was trained with, :data:`clnlos.study.twins.JUDGE_METHOD`) together with two
-  binomial halves of its photons; features :data:`~clnlos.study.judge_features.
+  SNR rule it was trained with, :data:`clnlos.study.judge.twins.JUDGE_METHOD`) together with two
+  binomial halves of its photons; features :data:`~clnlos.study.judge.features.
   CAPTURE_FEATURES` (the MIP's and the halves' agreement);
 * ``volume``: a reconstruction of any method, grid or size: the MIP's features only
-  (:data:`~clnlos.study.judge_features.MIP_FEATURES`).
+  (:data:`~clnlos.study.judge.features.MIP_FEATURES`).
 
 The model. Features x standardised by the training set's mean and deviation, z, then
 
@@ -34,7 +34,7 @@ from pathlib import Path
 
 import numpy as np
 
-from clnlos.study.heldout import (
+from clnlos.study.judge.heldout import (
     SPLITS,
     apply_rule,
     balanced_accuracy,
@@ -43,7 +43,7 @@ from clnlos.study.heldout import (
     reliability,
     roc_auc,
 )
-from clnlos.study.judge_features import (
+from clnlos.study.judge.features import (
     CAPTURE_FEATURES,
     MIP_FEATURES,
     capture_features,
@@ -221,7 +221,7 @@ def grouped_validation(X: np.ndarray, y, groups: dict[str, np.ndarray], features
 
 
 def twin_arrays(rows: list[dict], features) -> tuple[np.ndarray, np.ndarray, dict]:
-    """(X, y, groups) of twin rows (:func:`clnlos.study.twins.render_twins`)."""
+    """(X, y, groups) of twin rows (:func:`clnlos.study.judge.twins.render_twins`)."""
     X = feature_matrix([r["features"] for r in rows], features)
     y = np.array([bool(r["legible"]) for r in rows], bool)
     groups = {k: np.array([r[k] for r in rows]) for k in ("glyph", "geometry", "material")}

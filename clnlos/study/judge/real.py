@@ -29,11 +29,11 @@ from clnlos.config import ReconstructionConfig
 from clnlos.inverse.preprocessing import setup_slab
 from clnlos.io.files import read_capture
 from clnlos.runtime.device import get_queue
-from clnlos.study.heldout import balanced_accuracy, roc_auc
-from clnlos.study.judge_features import capture_features, feature_matrix, mip_of, pearson_r
-from clnlos.study.real_capture import PUBLISHED_SCAN_WIDTH_M, capture_config
-from clnlos.study.thinning_real import thinned_series
-from clnlos.study.twins import JUDGE_MAX_BINS, JUDGE_MAX_POINTS, judge_reconstructions
+from clnlos.study.judge.heldout import balanced_accuracy, roc_auc
+from clnlos.study.judge.features import capture_features, feature_matrix, mip_of, pearson_r
+from clnlos.study.real.capture import PUBLISHED_SCAN_WIDTH_M, capture_config
+from clnlos.study.real.thinning import thinned_series
+from clnlos.study.judge.twins import JUDGE_MAX_BINS, JUDGE_MAX_POINTS, judge_reconstructions
 
 REAL_FRACTIONS = (1.0, 0.3, 0.1, 0.03, 0.01, 3e-3, 1e-3, 1e-4)
 REAL_SEED = 48

@@ -28,8 +28,8 @@ import html
 
 import numpy as np
 
-from clnlos.study.legibility import LEGIBLE_ACCURACY, wilson_interval
-from clnlos.study.report_figures import INVERSION_LABELS, short_name
+from clnlos.study.score.legibility import LEGIBLE_ACCURACY, wilson_interval
+from clnlos.study.report.figures import INVERSION_LABELS, short_name
 
 # the BRDF classes, most diffuse first (the order of the rows)
 CLASS_ORDER = ("Lambertian", "strong diffuse", "strong specular + diffuse", "strong specular")

@@ -1,5 +1,5 @@
 """The seed's CNN recipe (torch, CPU, seeded): the clarity classifier of ``--labels fft`` /
-``nr`` (the study's legibility judge is :mod:`clnlos.study.judge`).
+``nr`` (the study's legibility judge is :mod:`clnlos.study.judge.model`).
 
 The seed's recipe (seed Eq. 18-19, ``--labels fft`` / ``nr``): MIP -> label 1/2/3; two conv
 blocks (8 and 16 channels, 3x3, ReLU, 2x2 max-pool), a hidden layer of 32, three outputs with a

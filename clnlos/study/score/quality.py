@@ -4,7 +4,7 @@ validation against ground truth, and the three clarity labels.
 Metrics (higher = better; each of a max-intensity projection ``mip`` [y, x] normalised to
 its maximum, some also of the depth map of the brightest voxel per column):
 
-* ``fft_clarity`` (the seed's, :mod:`clnlos.study.clarity`): log10 of the variance of the
+* ``fft_clarity`` (the seed's, :mod:`clnlos.study.score.clarity`): log10 of the variance of the
   Hann-windowed high-frequency band 0.25 <= |k|/k_Nyquist <= 1.
 * ``otsu_separability``: Otsu's effectiveness eta = sigma_between^2 / sigma_total^2 of the
   MIP's histogram (0..1): 1 for a two-level image (an object on a clean background).
@@ -18,15 +18,15 @@ its maximum, some also of the depth map of the brightest voxel per column):
 * ``nr_clarity`` = otsu_separability x central_energy: the default label metric.
 
 Labels: 1 clear, 2 medium, 3 fuzzy, cut at the dataset quantiles that reproduce the seed's
-split of 193 / 514 / 293 in 1000 (:mod:`clnlos.study.clarity`).
+split of 193 / 514 / 293 in 1000 (:mod:`clnlos.study.score.clarity`).
 """
 
 from __future__ import annotations
 
 import numpy as np
 
-from clnlos.study.clarity import clarity_score
-from clnlos.study.metrics import otsu_threshold
+from clnlos.study.score.clarity import clarity_score
+from clnlos.study.score.metrics import otsu_threshold
 
 BORDER_CELLS = 3
 METRICS = ("nr_clarity", "otsu_separability", "central_energy", "depth_coherence",

@@ -15,7 +15,7 @@ from clnlos.forward.model import ForwardModel
 from clnlos.forward.sampling import material_retro
 from clnlos.forward.scene import Scene
 from clnlos.physics.slab import CDT_SLAB
-from clnlos.study.dataset import StudyGrid
+from clnlos.study.plan.scenes import StudyGrid
 from clnlos.study.run import MAIN_TARGET
 
 # ------------------------------------------------------------------ Eq. 9 against Eq. 8

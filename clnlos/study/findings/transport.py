@@ -13,7 +13,7 @@ photon counts under each transport, the rank of each material under each (by acc
 ties broken by the margin), and Spearman's and Kendall's rank correlations between the
 two (of the accuracies and of the margins). A material "moves" when its rank changes.
 
-Samples go through :func:`clnlos.study.samples.render_plan` and the study's cache: the
+Samples go through :func:`clnlos.study.samples.identify.render_plan` and the study's cache: the
 confocal side is the study's own main samples (same cache entries); a bistatic sample is
 the same sample dict with a ``transport`` table (its own cache key).
 
@@ -32,7 +32,7 @@ import math
 
 import numpy as np
 
-from clnlos.study.legibility import identification_summary
+from clnlos.study.score.legibility import identification_summary
 
 # face samples of the comparison (tools/results/study_transport_faces.csv)
 # against 4 x 8 (tools/results/study_transport_faces.csv): 2 x 4 is 4.9% off in relative L2
@@ -45,7 +45,7 @@ TRANSPORTS = ("confocal", "bistatic")
 
 
 def bistatic_table(rings: int = COMPARE_RINGS, angles: int = COMPARE_ANGLES) -> dict:
-    """The ``transport`` table of a bistatic study sample (:func:`clnlos.study.dataset.
+    """The ``transport`` table of a bistatic study sample (:func:`clnlos.study.samples.render.
     scene_dict` passes it to the scene)."""
     return {"model": "bistatic", "face_rings": int(rings), "face_angles": int(angles)}
 
@@ -100,7 +100,7 @@ def _corr(a, b) -> dict:
 
 
 def comparison_table(materials, plan, results, chance: float, table=None) -> dict:
-    """The comparison from identified results (:func:`clnlos.study.samples.identification_of`
+    """The comparison from identified results (:func:`clnlos.study.samples.identify.identification_of`
     run on ``plan``): ``rows`` per material, ``correlation``, ``moved`` and ``statement``."""
     rows = []
     for m in materials:
