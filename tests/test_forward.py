@@ -319,3 +319,51 @@ def test_pulse_blur_kernel_vs_numpy(queue, dtype):
     assert rel_l2(ref, out) < TOL[np.dtype(dtype).type]
     assert np.all(out[:, 0, 0] == 0)
     assert out.sum() == pytest.approx(ref.sum(), rel=1e-5)
+
+
+def test_mask_shape_is_the_shape_it_cuts_out(tmp_path, queue):
+    """A mask of a filled square is that square: the same elements and the same capture as a
+    rectangle of its size; a depth map moves each element along the normal; the image's top
+    row is the shape's top (+y); an all-dark mask, a wrong depth map and a mask without its
+    size are errors naming the file or the field."""
+    from PIL import Image
+
+    from clnlos.errors import InputFileError
+    from clnlos.forward.geometry import read_mask, sample_mask
+
+    square = np.zeros((40, 40), np.uint8)
+    square[10:30, 10:30] = 255
+    Image.fromarray(square).save(tmp_path / "sq.png")
+    m = read_mask(tmp_path / "sq.png")
+    assert m.sum() == 400
+    el = sample_mask(m, 0.4, 0.4, 1e4)            # the square is the middle half: 0.2 m
+    ref = sample_rectangle(0.2, 0.2, 1e4)
+    assert el.area.sum() == pytest.approx(ref.area.sum()) and len(el) == len(ref)
+    np.testing.assert_allclose(np.sort(el.pos, axis=0), np.sort(ref.pos, axis=0), atol=1e-12)
+    top = np.zeros((20, 20), bool)
+    top[:5] = True                                 # the image's top rows: y > 0
+    assert np.all(sample_mask(top, 1.0, 1.0, 1e3).pos[:, 1] > 0.2)
+    depth = np.where(np.arange(40)[None, :] < 20, 0.0, 0.1) * np.ones((40, 1))
+    np.save(tmp_path / "d.npy", depth)
+    moved = sample_mask(m, 0.4, 0.4, 1e4, depth)
+    assert set(np.round(moved.pos[:, 2], 9)) == {0.0, 0.1}
+    assert np.all((moved.pos[:, 2] > 0) == (moved.pos[:, 0] > 0))
+    base = {"scan": {"width_m": 0.4, "points": 8},
+            "time": {"bin_width_s": 20e-12, "bins": 256, "start_s": 2e-9},
+            "sampling": {"density_per_m2": 1e4}}  # 1 cm cells: both grids on one lattice
+    rect = {"shape": "rectangle", "size_m": [0.2, 0.2], "translate_m": [0.0, 0.0, 0.45]}
+    mask = {"shape": "mask", "path": "sq.png", "size_m": [0.4, 0.4],
+            "translate_m": [0.0, 0.0, 0.45]}
+    a = ForwardModel(Scene.from_dict({**base, "objects": [rect]}), queue=queue).run()
+    b = ForwardModel(Scene.from_dict({**base, "objects": [mask]}, base_dir=tmp_path),
+                     queue=queue).run()
+    assert rel_l2(b, a) < 1e-5
+    Image.fromarray(np.zeros((8, 8), np.uint8)).save(tmp_path / "dark.png")
+    with pytest.raises(InputFileError, match="dark.png: the mask holds no shape"):
+        read_mask(tmp_path / "dark.png")
+    np.save(tmp_path / "bad.npy", np.zeros((3, 3)))
+    with pytest.raises(InputFileError, match="bad.npy: a depth map of the mask's shape"):
+        ForwardModel(Scene.from_dict({**base, "objects": [{**mask, "depth_path": "bad.npy"}]},
+                                     base_dir=tmp_path), queue=queue)
+    with pytest.raises(ParameterError, match=r"objects\[0\].size_m"):
+        Scene.from_dict({**base, "objects": [{"shape": "mask", "path": "sq.png"}]})

@@ -16,6 +16,7 @@ import math
 from dataclasses import dataclass
 
 import numpy as np
+from PIL import Image
 
 from clnlos.checks import input_file
 from clnlos.errors import InputFileError, ParameterError
@@ -194,6 +195,77 @@ def sample_sphere(radius_m: float, density: float) -> Elements:
     r = np.sqrt(1 - z * z)
     nrm = np.column_stack([r * np.cos(phi), r * np.sin(phi), z])
     return Elements(nrm * radius_m, nrm, np.full(n, 4 * math.pi * radius_m**2 / n))
+
+
+MASK_FORMATS = (".png", ".npy")
+
+
+def read_mask(path) -> np.ndarray:
+    """A target mask [y, x] (row 0 at the top, as the image shows it) from a PNG (its
+    brightness, or its alpha where it has one) or a 2-D .npy: True where the value exceeds
+    half the maximum; an InputFileError where it cannot be read or holds no shape."""
+    p = input_file(path, "mask ")
+    if p.suffix.lower() not in MASK_FORMATS:
+        raise InputFileError(f"{p}: a mask is a PNG or a .npy, not {p.suffix or 'no suffix'}")
+    try:
+        if p.suffix.lower() == ".npy":
+            a = np.load(p, allow_pickle=False)
+        else:
+            with Image.open(p) as im:
+                a = np.asarray(im.getchannel("A") if "A" in im.getbands()
+                               else im.convert("L"), dtype=np.float64)
+    except (OSError, ValueError, SyntaxError) as exc:
+        raise InputFileError(f"{p}: unreadable as a mask ({type(exc).__name__}: "
+                             f"{' '.join(str(exc).split())})") from None
+    a = np.asarray(a, dtype=np.float64)
+    if a.ndim != 2 or min(a.shape) < 2 or not np.all(np.isfinite(a)):
+        raise InputFileError(f"{p}: a mask must be a 2-D image of finite values, got shape "
+                             f"{list(a.shape)}")
+    top = float(a.max())
+    m = a > top / 2 if top > 0 else np.zeros(a.shape, bool)
+    if not m.any() or m.all():
+        raise InputFileError(f"{p}: the mask holds no shape (every pixel "
+                             f"{'on' if m.all() else 'off'}); the target is its bright part")
+    return m
+
+
+def read_depth_map(path, shape: tuple[int, int]) -> np.ndarray:
+    """Per-pixel depth offsets [y, x] (m, along the object's normal; finite) of a mask, from a
+    .npy of the mask's shape."""
+    p = input_file(path, "depth map ")
+    try:
+        a = np.asarray(np.load(p, allow_pickle=False), dtype=np.float64)
+    except (OSError, ValueError) as exc:
+        raise InputFileError(f"{p}: unreadable as a depth map ({exc})") from None
+    if a.shape != tuple(shape) or not np.all(np.isfinite(a)):
+        raise InputFileError(f"{p}: a depth map of the mask's shape {list(shape)} with finite "
+                             f"values (m) expected, got shape {list(a.shape)}")
+    return a
+
+
+def mask_lookup(mask: np.ndarray, width_m: float, height_m: float, xy: np.ndarray
+                ) -> tuple[np.ndarray, np.ndarray]:
+    """(row, column) of the mask pixel under each local point xy (N, 2) (m, from the mask's
+    centre, y up; row 0 is the top of the image)."""
+    ny, nx = mask.shape
+    col = np.clip(((xy[:, 0] / width_m + 0.5) * nx).astype(int), 0, nx - 1)
+    row = np.clip(((0.5 - xy[:, 1] / height_m) * ny).astype(int), 0, ny - 1)
+    return row, col
+
+
+def sample_mask(mask: np.ndarray, width_m: float, height_m: float, density: float,
+                depth: np.ndarray | None = None) -> Elements:
+    """A flat shape cut out of a plane of ``width_m`` x ``height_m`` where ``mask`` is True,
+    each element moved along the normal by its pixel's ``depth`` offset (m) where given."""
+    def inside(xy):
+        r, c = mask_lookup(mask, width_m, height_m, xy)
+        return mask[r, c]
+
+    el = _planar_grid(width_m / 2, height_m / 2, density, inside)
+    if depth is not None and len(el):
+        r, c = mask_lookup(mask, width_m, height_m, el.pos[:, :2])
+        el.pos[:, 2] = depth[r, c]
+    return el
 
 
 def read_mesh(path) -> tuple[np.ndarray, np.ndarray]:

@@ -16,8 +16,11 @@ from clnlos.errors import ParameterError
 from clnlos.forward.geometry import (
     Elements,
     planar_cells,
+    read_depth_map,
+    read_mask,
     read_mesh,
     sample_letters,
+    sample_mask,
     sample_mesh,
     sample_rectangle,
     sample_sphere,
@@ -46,6 +49,11 @@ def sample_object(obj: SceneObject, density: float, base_dir) -> Elements:
         el = sample_rectangle(obj.size_m[0], obj.size_m[1], density)
     elif obj.shape == "sphere":
         el = sample_sphere(obj.radius_m, density)
+    elif obj.shape == "mask":
+        mask = read_mask(base_dir / obj.path)
+        depth = (None if obj.depth_path is None
+                 else read_depth_map(base_dir / obj.depth_path, mask.shape))
+        el = sample_mask(mask, obj.size_m[0], obj.size_m[1], density, depth)
     else:
         el = sample_mesh(*read_mesh(base_dir / obj.path), density)
     return transform(el, obj.rotate_deg, obj.translate_m)
@@ -60,7 +68,7 @@ def element_count(obj: SceneObject, density: float, base_dir) -> float:
     """The surface elements (cells of the covering grid, for planar shapes) that sampling
     ``obj`` at ``density`` allocates, from its declared size (no element built; a mesh's
     triangles are read)."""
-    if obj.shape in ("letters", "rectangle"):
+    if obj.shape in ("letters", "rectangle", "mask"):
         half = (text_extent_bound(obj.text, obj.height_m, obj.stroke_m)
                 if obj.shape == "letters" else (obj.size_m[0] / 2, obj.size_m[1] / 2))
         nx, ny = planar_cells(*half, density)

@@ -14,7 +14,10 @@ Every error names the field, its value and the allowed range; numbers must be TO
     start_s = 0.0           # start of bin 0 (round trip from the scan point); 0 with a slab
     [[objects]]             # one table per object; objects must lie at z > 0
     shape = "letters"       # "letters" (text, height_m, stroke_m), "rectangle" (size_m = [w, h]),
-                            # "sphere" (radius_m), "mesh" (path = ASCII PLY or OBJ)
+                            # "sphere" (radius_m), "mesh" (path = ASCII PLY or OBJ), "mask"
+                            # (path = PNG or 2-D .npy, its bright part cut out of a plane of
+                            # size_m = [w, h]; depth_path = .npy of per-pixel offsets along
+                            # the normal, m, optional)
     text = "UT"
     height_m = 0.15
     stroke_m = 0.04
@@ -32,7 +35,7 @@ Every error names the field, its value and the allowed range; numbers must be TO
     [detector]              # a photon budget -> Poisson noise
     power_w = 0.4
     rep_rate_hz = 10e6
-    exposure_s = 1.0
+    exposure_s = 1.0        # per scan point (s): a scan of N x N points takes N^2 times this
     efficiency = 0.3
     wavelength_m = 532e-9
     etendue_m2_sr = 1e-8
@@ -83,7 +86,7 @@ from clnlos.config import check_keys, load_toml, slab_from_table
 from clnlos.errors import InputFileError, ParameterError
 from clnlos.physics.slab import Slab
 
-SHAPES = ("letters", "rectangle", "sphere", "mesh")
+SHAPES = ("letters", "rectangle", "sphere", "mesh", "mask")
 # string sizes: the stroke font's cost grows with characters x covered cells; a file name
 # longer than Linux's PATH_MAX cannot be opened
 MAX_TEXT_CHARS = 256
@@ -159,6 +162,7 @@ class SceneObject:
     radius_m: float = 0.05
     path: str | None = None
     brdf_retro_csv: str | None = None
+    depth_path: str | None = None
 
 
 @dataclass
@@ -209,7 +213,8 @@ class Scene:
         against its folder: read by a simulation, so never its outputs."""
         out = []
         for o in self.objects:
-            out += [self.base_dir / p for p in (o.path, o.brdf_retro_csv) if p is not None]
+            out += [self.base_dir / p for p in (o.path, o.brdf_retro_csv, o.depth_path)
+                    if p is not None]
             if isinstance(o.material, str) and o.material.endswith((".h5", ".hdf5")):
                 out.append(self.base_dir / o.material)
         return out
@@ -318,7 +323,7 @@ def _object(i: int, o: dict) -> SceneObject:
             raise ParameterError(f"{sec}.size_m", s, "[width, height] in m")
         kw["size_m"] = (positive(f"{sec}.size_m", s[0], upper=100.0),
                         positive(f"{sec}.size_m", s[1], upper=100.0))
-    for k in ("path", "brdf_retro_csv"):
+    for k in ("path", "brdf_retro_csv", "depth_path"):
         if k in o:
             if not isinstance(o[k], str) or len(o[k]) > MAX_PATH_CHARS:
                 raise ParameterError(f"{sec}.{k}", o[k],
@@ -326,6 +331,13 @@ def _object(i: int, o: dict) -> SceneObject:
             kw[k] = o[k]
     if shape == "mesh" and "path" not in kw:
         raise ParameterError(f"{sec}.path", None, "an ASCII PLY or OBJ file for shape = mesh")
+    if shape == "mask":
+        for k, what in (("path", "a PNG or 2-D .npy mask"), ("size_m", "[width, height] in m")):
+            if k not in kw:
+                raise ParameterError(f"{sec}.{k}", None, f"{what} for shape = mask")
+    elif "depth_path" in kw:
+        raise ParameterError(f"{sec}.depth_path", kw["depth_path"], "no value but with "
+                             "shape = mask")
     obj = SceneObject(**kw)
     if shape == "letters" and not obj.stroke_m < obj.height_m:
         raise ParameterError(f"{sec}.stroke_m", obj.stroke_m, f"< height_m = {obj.height_m}")
