@@ -123,7 +123,7 @@ def test_spectrum_entries_follow_the_umask(queue, tmp_path, monkeypatch, umask):
 
 # ------------------------------------------------------------------ study cache
 def _grid():
-    from clnlos.study.plan.scenes import StudyGrid
+    from clnlos.study.file.spec import StudyGrid
 
     return replace(StudyGrid(), points=8, bin_width_s=64e-12, iterations=5,
                    density_per_m2=1e4)

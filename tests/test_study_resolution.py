@@ -50,7 +50,8 @@ def test_otoole_bounds_against_hand_values():
 
 
 def test_geometry_takes_what_it_leaves_open_from_the_study_grid():
-    from clnlos.study.plan.scenes import StudyGrid, window_m
+    from clnlos.study.file.spec import StudyGrid
+    from clnlos.study.plan.scenes import window_m
 
     grid = StudyGrid()
     g = rs.ResolutionGeometry.from_study({"name": "wide", "scan_width_m": 0.6,

@@ -156,6 +156,9 @@ def generated(name: str) -> str:
         return "```toml\n" + scene_doc()[0].rstrip() + "\n```"
     if name == "scene-materials":
         return scene_doc()[1]
+    if name == "study-template":
+        return importlib.import_module("clnlos.study.file.spec").builtin_text(
+            "template").rstrip()
     raise KeyError(name)
 
 

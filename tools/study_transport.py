@@ -2,8 +2,8 @@
 comparison stage of ``clnlos study --transport both`` on its own (clnlos.study.
 transport_compare), writing tools/results/study_transport.{csv,json}.
 
-It uses the quick study's options (every glyph, one noise realisation, the legible
-geometry), measures the lateral resolution as the study does (the glyph templates) and
+It uses the quick study file (every glyph, one noise realisation, its table's legible
+target), measures the lateral resolution as the study does (the glyph templates) and
 shares the study's sample cache (default out/study/cache: a later ``clnlos study
 --transport both -o out/study`` reads these samples from it, and this tool reads the
 study's).
@@ -19,11 +19,15 @@ import json
 import time
 from pathlib import Path
 
+from dataclasses import replace
+
 from clnlos.bench.harness import print_table, write_rows
-from clnlos.brdf.presets import preset_table
-from clnlos.study.run import StudyOptions, study_resolution, transport_comparison
 from clnlos.io.outputs import provenance, stamp
+from clnlos.study.file.spec import TransportComparison, load_study
 from clnlos.study.findings.transport import csv_rows
+from clnlos.study.samples.identify import study_resolution
+from clnlos.study.samples.materials import prepare_materials
+from clnlos.study.sections import transport_comparison
 
 OUT = Path(__file__).resolve().parent / "results"
 
@@ -40,31 +44,29 @@ def main(argv=None) -> dict:
                     "%(default)s)")
     ap.add_argument("--device", default=None)
     args = ap.parse_args(argv)
-    opts = StudyOptions.quick()
-    opts.transport = "both"
-    if args.glyphs:
-        opts.transport_glyphs = tuple(args.glyphs)
-    if args.rings:
-        opts.face_rings = args.rings
-    if args.angles:
-        opts.face_angles = args.angles
-    opts.validate()
-    table = preset_table()
-    materials = args.materials or list(table)
+    study = load_study("quick")
+    tc = TransportComparison()
+    tc = replace(tc, glyphs=tuple(args.glyphs) if args.glyphs else None,
+                 face_rings=args.rings or tc.face_rings,
+                 face_angles=args.angles or tc.face_angles)
+    keep = [m for m in study.materials if not args.materials or m.name in args.materials]
+    study = replace(study, transport=tc, materials=tuple(keep))
+    mats, _ = prepare_materials(study, args.cache.parent)
     t0 = time.perf_counter()
-    resolution, lateral = study_resolution(opts, args.device)
+    resolution, lateral = study_resolution(study, args.device)
     t_res = time.perf_counter() - t0
     t0 = time.perf_counter()
-    out = transport_comparison(materials, opts, args.cache, resolution, lateral, table,
+    out = transport_comparison(study, mats, args.cache, resolution, lateral,
                                workers=args.workers, device=args.device)
     seconds = time.perf_counter() - t0
     rows = csv_rows(out)
     summary = {k: v for k, v in out.items() if k not in ("plan", "results", "rows")}
-    meta = {"face_rings": opts.face_rings, "face_angles": opts.face_angles,
-            "glyphs": list(opts.transport_glyphs or opts.glyphs), "seeds": opts.seeds,
-            "geometry": "legible", "lateral_fwhm_m": lateral["legible"],
-            "seconds_resolution": t_res, "seconds_samples": seconds,
-            "samples": len(out["plan"])}
+    legible = study.table.legible_target
+    meta = {"face_rings": tc.face_rings, "face_angles": tc.face_angles,
+            "glyphs": list(tc.glyphs or study.target(legible).glyphs),
+            "seeds": study.table.realisations, "geometry": legible,
+            "lateral_fwhm_m": lateral[legible], "seconds_resolution": t_res,
+            "seconds_samples": seconds, "samples": len(out["plan"])}
     csv_path, json_path = write_rows(rows, OUT, args.stem)
     # the JSON holds the rows and the summary (correlations, moves, statement)
     json_path.write_text(json.dumps(stamp({"provenance": provenance(), "rows": out["rows"],

@@ -21,8 +21,9 @@ from clnlos.bench.harness import print_table, write_rows
 from clnlos.forward.model import ForwardModel
 from clnlos.forward.scene import Scene
 from clnlos.runtime.device import get_queue
-from clnlos.study.plan.scenes import StudyGrid, scene_dict
-from clnlos.study.run import GEOMETRIES, LEGIBLE_GEOMETRY, glyph_sample
+from clnlos.study.file.spec import StudyGrid, load_study
+from clnlos.study.plan.entries import MaterialKeys, target_sample
+from clnlos.study.plan.scenes import scene_dict
 
 OUT = Path(__file__).resolve().parent / "results"
 FACES = ((1, 4), (2, 4), (2, 8), (3, 6), (4, 8))
@@ -50,11 +51,12 @@ def main(argv=None) -> list[dict]:
     args = ap.parse_args(argv)
     q = get_queue(args.device)
     grid = StudyGrid()
-    geo = next(g for g in GEOMETRIES if g.name == LEGIBLE_GEOMETRY)
+    quick = load_study("quick")
+    target = quick.target(quick.table.legible_target)
     rows = []
     for m in args.materials:
-        s = glyph_sample("E", m, scan_width_m=geo.scan_width_m, height_m=geo.letter_height_m,
-                         stroke_m=geo.stroke_m, depth_m=geo.depth_m, exposure_s=0.1, seed=0)
+        s = target_sample(target, "E", MaterialKeys(m, {"material": m}, m), exposure_s=0.1,
+                          seed=0, method=grid.method, brdf={}, scan_width_m=grid.scan_width_m)
         conf, t_conf = noise_free(s, grid, q)
         runs = {}
         faces = [tuple(int(v) for v in f.split("x")) for f in args.faces] if args.faces \

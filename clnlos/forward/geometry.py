@@ -89,6 +89,22 @@ def _segments(text: str, height: float, stroke: float) -> np.ndarray:
     return s
 
 
+def glyph_boxes(text: str, height_m: float, stroke_m: float) -> list[tuple[float, float,
+                                                                            float, float]]:
+    """(x0, x1, y0, y1) of each character's box in the text's local frame (m, centred as
+    :func:`letters_mask` draws it): the glyph box of width GLYPH_WIDTH and height 1 in
+    letter units, with the strokes' caps."""
+    inner = height_m - stroke_m
+    n = len(text)
+    width = (n * (GLYPH_WIDTH + GLYPH_GAP) - GLYPH_GAP) * inner
+    out = []
+    for i in range(n):
+        x0 = i * (GLYPH_WIDTH + GLYPH_GAP) * inner - width / 2
+        out.append((x0 - stroke_m / 2, x0 + GLYPH_WIDTH * inner + stroke_m / 2,
+                    -height_m / 2, height_m / 2))
+    return out
+
+
 def _distance_to_segments(pts: np.ndarray, segs: np.ndarray) -> np.ndarray:
     d = np.full(len(pts), np.inf)
     for x1, y1, x2, y2 in segs:
@@ -266,6 +282,27 @@ def sample_mask(mask: np.ndarray, width_m: float, height_m: float, density: floa
         r, c = mask_lookup(mask, width_m, height_m, el.pos[:, :2])
         el.pos[:, 2] = depth[r, c]
     return el
+
+
+def mask_albedo(values: np.ndarray, width_m: float, height_m: float, el: Elements
+                ) -> np.ndarray:
+    """Each element's albedo factor: the pixel of ``values`` [y, x] under it (elements of
+    :func:`sample_mask` before they are moved into the scene)."""
+    r, c = mask_lookup(values, width_m, height_m, el.pos[:, :2])
+    return np.asarray(values, np.float64)[r, c]
+
+
+def read_albedo_map(path, shape: tuple[int, int]) -> np.ndarray:
+    """Per-pixel albedo factors [y, x] (finite, >= 0) of a mask, from a .npy of its shape."""
+    p = input_file(path, "albedo map ")
+    try:
+        a = np.asarray(np.load(p, allow_pickle=False), dtype=np.float64)
+    except (OSError, ValueError) as exc:
+        raise InputFileError(f"{p}: unreadable as an albedo map ({exc})") from None
+    if a.shape != tuple(shape) or not np.all(np.isfinite(a)) or np.any(a < 0):
+        raise InputFileError(f"{p}: an albedo map of the mask's shape {list(shape)} with "
+                             f"finite values >= 0 expected, got shape {list(a.shape)}")
+    return a
 
 
 def read_mesh(path) -> tuple[np.ndarray, np.ndarray]:

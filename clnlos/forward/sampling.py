@@ -16,6 +16,8 @@ from clnlos.errors import ParameterError
 from clnlos.forward.geometry import (
     Elements,
     planar_cells,
+    mask_albedo,
+    read_albedo_map,
     read_depth_map,
     read_mask,
     read_mesh,
@@ -40,6 +42,19 @@ def material_retro(obj: SceneObject, base_dir) -> np.ndarray | None:
         th, f = read_retro_csv(base_dir / obj.brdf_retro_csv)
         return np.interp(np.linspace(0, np.pi / 2, N_THETA), th, f)
     return preset_retro(obj.material, base_dir, N_THETA)
+
+
+def object_albedo(obj: SceneObject, density: float, base_dir) -> tuple[Elements, np.ndarray]:
+    """(the object's elements, each one's albedo): the object's ``albedo``, times a mask's
+    per-pixel ``albedo_path`` factors where it has them."""
+    el = sample_object(obj, density, base_dir)
+    albedo = np.full(len(el), float(obj.albedo))
+    if obj.shape == "mask" and obj.albedo_path is not None:
+        mask = read_mask(base_dir / obj.path)
+        local = sample_mask(mask, obj.size_m[0], obj.size_m[1], density)
+        albedo *= mask_albedo(read_albedo_map(base_dir / obj.albedo_path, mask.shape),
+                              obj.size_m[0], obj.size_m[1], local)
+    return el, albedo
 
 
 def sample_object(obj: SceneObject, density: float, base_dir) -> Elements:
@@ -126,9 +141,9 @@ def sample_scene(scene: Scene, density: float | None = None) -> SurfaceSamples:
     any_table = any(r is not None for r in retros)
     any_cone = any(c is not None for c in cones)
     for obj, retro in zip(scene.objects, retros, strict=True):
-        el = sample_object(obj, density, scene.base_dir)
+        el, albedo = object_albedo(obj, density, scene.base_dir)
         parts.append(el)
-        alb.append(np.full(len(el), obj.albedo))
+        alb.append(albedo)
         if any_table:
             tables.append(np.full(N_THETA, 1 / np.pi) if retro is None else retro)
             mats.append(np.full(len(el), len(tables) - 1, np.int32))

@@ -16,8 +16,9 @@ Every error names the field, its value and the allowed range; numbers must be TO
     shape = "letters"       # "letters" (text, height_m, stroke_m), "rectangle" (size_m = [w, h]),
                             # "sphere" (radius_m), "mesh" (path = ASCII PLY or OBJ), "mask"
                             # (path = PNG or 2-D .npy, its bright part cut out of a plane of
-                            # size_m = [w, h]; depth_path = .npy of per-pixel offsets along
-                            # the normal, m, optional)
+                            # size_m = [w, h]; optional: depth_path = .npy of per-pixel
+                            # offsets along the normal, m; albedo_path = .npy of per-pixel
+                            # albedo factors)
     text = "UT"
     height_m = 0.15
     stroke_m = 0.04
@@ -163,6 +164,7 @@ class SceneObject:
     path: str | None = None
     brdf_retro_csv: str | None = None
     depth_path: str | None = None
+    albedo_path: str | None = None
 
 
 @dataclass
@@ -213,8 +215,8 @@ class Scene:
         against its folder: read by a simulation, so never its outputs."""
         out = []
         for o in self.objects:
-            out += [self.base_dir / p for p in (o.path, o.brdf_retro_csv, o.depth_path)
-                    if p is not None]
+            out += [self.base_dir / p for p in (o.path, o.brdf_retro_csv, o.depth_path,
+                                                o.albedo_path) if p is not None]
             if isinstance(o.material, str) and o.material.endswith((".h5", ".hdf5")):
                 out.append(self.base_dir / o.material)
         return out
@@ -323,7 +325,7 @@ def _object(i: int, o: dict) -> SceneObject:
             raise ParameterError(f"{sec}.size_m", s, "[width, height] in m")
         kw["size_m"] = (positive(f"{sec}.size_m", s[0], upper=100.0),
                         positive(f"{sec}.size_m", s[1], upper=100.0))
-    for k in ("path", "brdf_retro_csv", "depth_path"):
+    for k in ("path", "brdf_retro_csv", "depth_path", "albedo_path"):
         if k in o:
             if not isinstance(o[k], str) or len(o[k]) > MAX_PATH_CHARS:
                 raise ParameterError(f"{sec}.{k}", o[k],
@@ -335,9 +337,10 @@ def _object(i: int, o: dict) -> SceneObject:
         for k, what in (("path", "a PNG or 2-D .npy mask"), ("size_m", "[width, height] in m")):
             if k not in kw:
                 raise ParameterError(f"{sec}.{k}", None, f"{what} for shape = mask")
-    elif "depth_path" in kw:
-        raise ParameterError(f"{sec}.depth_path", kw["depth_path"], "no value but with "
-                             "shape = mask")
+    else:
+        for k in ("depth_path", "albedo_path"):
+            if k in kw:
+                raise ParameterError(f"{sec}.{k}", kw[k], "no value but with shape = mask")
     obj = SceneObject(**kw)
     if shape == "letters" and not obj.stroke_m < obj.height_m:
         raise ParameterError(f"{sec}.stroke_m", obj.stroke_m, f"< height_m = {obj.height_m}")

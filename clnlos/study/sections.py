@@ -13,9 +13,9 @@ from pathlib import Path
 import numpy as np
 
 from clnlos.io.progress import counter, progress_bar
+from clnlos.study.file.spec import Study, StudyGrid
 from clnlos.study.judge.cnn import SEED_EPOCHS, train_classifier
-from clnlos.study.plan.scenes import StudyGrid
-from clnlos.study.plan.entries import HELD_OUT_GLYPHS, HELD_OUT_HEIGHT_M, StudyOptions, comparison_plan
+from clnlos.study.plan.entries import comparison_plan
 from clnlos.study.real.capture import (
     PUBLISHED_SCAN_WIDTH_M,
     compare_real_capture,
@@ -47,20 +47,22 @@ def cnn_samples(plan, label_metric: str) -> list[int]:
     return idx
 
 
-def train_cnn(plan, results, opts: StudyOptions, label_metric: str, thresholds):
+def train_cnn(plan, results, study: Study, label_metric: str, thresholds):
     """The seed's recipe (``--labels fft`` / ``nr``) on :func:`cnn_samples`: validation on
-    the held-out glyphs and letter size."""
+    the ``[classifier]``'s held-out glyphs and letter size."""
+    c = study.classifier
     idx = cnn_samples(plan, label_metric)
-    held = np.array([plan[i][0].get("glyph") in HELD_OUT_GLYPHS
+    held = np.array([plan[i][0].get("glyph") in c.held_out_glyphs
                      or (plan[i][0].get("variable") == "letter_height_m"
-                         and plan[i][0].get("value") == HELD_OUT_HEIGHT_M) for i in idx])
+                         and plan[i][0].get("value") == c.held_out_height_m) for i in idx])
     labels = samples_labels(results, idx, label_metric, thresholds)
     images = np.stack([results[i]["mip"] for i in idx])
     with progress_bar(None, "study CNN", "batch") as bar:
-        predict, report = train_classifier(images, labels, epochs=opts.epochs or SEED_EPOCHS,
-                                           seed=opts.seed, progress=counter(bar),
+        predict, report = train_classifier(images, labels, epochs=c.epochs or SEED_EPOCHS,
+                                           seed=study.seed, progress=counter(bar),
                                            val_mask=held)
-    report["held_out"] = {"glyphs": list(HELD_OUT_GLYPHS), "letter_height_m": HELD_OUT_HEIGHT_M}
+    report["held_out"] = {"glyphs": list(c.held_out_glyphs),
+                          "letter_height_m": c.held_out_height_m}
     return predict, report, labels
 
 
@@ -123,14 +125,18 @@ def real_data_study(cdt: Path, predict, grid: StudyGrid, device=None, *, legibil
     return out
 
 
-def transport_comparison(materials, opts: StudyOptions, cache: Path, resolution: dict,
-                         lateral: dict[str, float], table=None, **kw) -> dict:
-    """The materials at the legible geometry under the confocal and the bistatic transport
-    (:mod:`clnlos.study.findings.transport`): its table, with ``plan`` and ``results``."""
-    plan = comparison_plan(materials, opts)
-    results = render_plan(plan, opts.grid, cache, desc="transport comparison", **kw)
-    identification_of(plan, results, opts, resolution["effective_temporal_fwhm_s"], lateral)
-    out = comparison_table(materials, plan, results, 1.0 / len(opts.glyphs), table)
+def transport_comparison(study: Study, mats, cache: Path, resolution: dict,
+                         lateral: dict[str, float], **kw) -> dict:
+    """The materials at the table's legible target under the confocal and the bistatic
+    transport (:mod:`clnlos.study.findings.transport`): its table, with ``plan`` and
+    ``results``."""
+    plan = comparison_plan(study, mats)
+    results = render_plan(plan, study.grid, cache, desc="transport comparison", **kw)
+    identification_of(plan, results, study, resolution["effective_temporal_fwhm_s"], lateral)
+    target = study.target(study.table.legible_target)
+    out = comparison_table([m.name for m in study.materials], plan, results,
+                           1.0 / len(target.glyphs),
+                           {n: {"class": k.brdf_class} for n, k in mats.items()})
     return {**out, "plan": plan, "results": results}
 
 

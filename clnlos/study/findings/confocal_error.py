@@ -15,14 +15,14 @@ from clnlos.forward.model import ForwardModel
 from clnlos.forward.sampling import material_retro
 from clnlos.forward.scene import Scene
 from clnlos.physics.slab import CDT_SLAB
-from clnlos.study.plan.scenes import StudyGrid
-from clnlos.study.run import MAIN_TARGET
+from clnlos.study.file.spec import StudyGrid
 
 # ------------------------------------------------------------------ Eq. 9 against Eq. 8
 # The issue's specular test scene at the study geometry (clnlos.study: 0.3 m scan of 32 x 32
 # points, 48 ps bins, 4e4 elements/m^2, target 0.5 m behind the CDT slab): a 6 cm square
 # patch tilted 5 degrees about y, centred on the scan.
 ERROR_PATCH = {"shape": "rectangle", "size_m": [0.06, 0.06], "rotate_deg": [0.0, 5.0, 0.0]}
+ERROR_DEPTH_M = 0.5           # the seed's Table 1 depth
 
 
 ERROR_BINS = 160              # 7.7 ns at 48 ps: the return and the slab's tail
@@ -40,7 +40,7 @@ def study_patch_scene(material, model: str = "confocal", *, points: int | None =
     """:data:`ERROR_PATCH` of ``material`` at the study geometry (scan points, width and
     bin width overridable), ``[transport] model``."""
     g = StudyGrid()
-    obj = {**ERROR_PATCH, "translate_m": [0.0, 0.0, MAIN_TARGET["depth_m"]],
+    obj = {**ERROR_PATCH, "translate_m": [0.0, 0.0, ERROR_DEPTH_M],
            "material": material}
     return Scene.from_dict({
         "scan": {"width_m": width_m or g.scan_width_m, "points": points or g.points},

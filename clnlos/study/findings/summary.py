@@ -5,9 +5,7 @@ from __future__ import annotations
 
 import numpy as np
 
-from clnlos.brdf.presets import preset_table
-from clnlos.study.score.legibility import LEGIBLE_ACCURACY
-from clnlos.study.plan.entries import LEGIBLE_GEOMETRY, SEED_GEOMETRY, StudyOptions
+from clnlos.study.file.spec import REFLECTANCES, Study
 from clnlos.study.score.quality import pearson
 
 
@@ -28,8 +26,11 @@ def inversion_accuracy(m: dict, inversion: str) -> float | None:
 
 
 def make_findings(geometries, need, geometry_rows, validation, label_metric,
-                  classifier_splits, agreement, opts: StudyOptions, tilts=()) -> dict:
-    """The study's answer in numbers."""
+                  classifier_splits, agreement, study: Study, tilts=(), classes=None) -> dict:
+    """The study's answer in numbers, from its table (the roles its ``legible_target`` and
+    ``seed_target`` play) and sweeps; ``classes``: {material: BRDF class}."""
+    legible_name, seed_name = study.table.legible_target, study.table.seed_target
+    inversions = study.table.reflectance
     def acc(m):
         return m["identification"]["accuracy"]
 
@@ -65,11 +66,11 @@ def make_findings(geometries, need, geometry_rows, validation, label_metric,
                 "strong_specular": by_class(ms, ("strong specular",), inv),
                 "specular_plus_diffuse": by_class(ms, ("strong specular + diffuse",), inv),
                 "lambertian_and_diffuse": by_class(ms, ("Lambertian", "strong diffuse"), inv)}
-                for inv in opts.inversions}}
-    main = f["by_geometry"][LEGIBLE_GEOMETRY]
-    seed = f["by_geometry"].get(SEED_GEOMETRY)
+                for inv in inversions}}
+    main = f["by_geometry"][legible_name]
+    seed = f["by_geometry"].get(seed_name) if seed_name else None
     # keep today's keys, now about the legible geometry
-    legible_ms = next(g for g in geometries if g["name"] == LEGIBLE_GEOMETRY)["materials"]
+    legible_ms = next(g for g in geometries if g["name"] == legible_name)["materials"]
     ious = np.array([m["iou"] for m in legible_ms])
     spec = np.array([m["specular_fraction"] for m in legible_ms])
     f.update({
@@ -92,7 +93,7 @@ def make_findings(geometries, need, geometry_rows, validation, label_metric,
         "cnn_balanced_accuracy": {k: v["balanced_accuracy"]
                                   for k, v in classifier_splits.items()},
         "cnn_one_feature_baseline": {k: v["baseline"] for k, v in classifier_splits.items()},
-        "seed_figure9_agreement": agreement[LEGIBLE_GEOMETRY]})
+        "seed_figure9_agreement": agreement[legible_name]})
     # material cost in photons and size, per inversion and with the best for each
     f["smallest_legible"] = need
     f["sweeps"] = geometry_sweep_effects(geometry_rows)
@@ -105,13 +106,14 @@ def make_findings(geometries, need, geometry_rows, validation, label_metric,
                                         "identification_spread": best}
     ld, sp = main["identification_lambertian_and_diffuse"], main["identification_strong_specular"]
     f["seed_conclusion_holds"] = bool(ld is not None and sp is not None and ld > sp)
-    aware = [inv for inv in opts.inversions if inv != "lambertian"]
+    aware = [inv for inv in inversions if inv != "lambertian"]
     best_sp = max([v for v in (main["by_inversion"][inv]["strong_specular"] for inv in aware)
                    if v is not None], default=None)
     f["brdf_aware_closes_gap"] = bool(best_sp is not None and ld is not None
                                       and best_sp >= ld - GAP_CLOSED)
-    f["tilt"] = tilt_findings(tilts, opts.tilt_inversions)
-    f["statement"] = study_statement(main, seed, need, f, opts)
+    tilt_invs = [inv for inv in REFLECTANCES if any(inv in r for r in tilts)]
+    f["tilt"] = tilt_findings(tilts, tilt_invs, classes or {})
+    f["statement"] = study_statement(main, seed, need, f, study)
     return f
 
 
@@ -136,16 +138,15 @@ def geometry_sweep_effects(geometry_rows) -> dict:
     return effect
 
 
-def tilt_findings(tilts, inversions) -> dict:
+def tilt_findings(tilts, inversions, classes: dict) -> dict:
     """Per tilt: the mean identification (up to translation) of the strong-specular tilt
-    materials per inversion and of the measurement, and the worst gap of any (material, tilt)
-    cell's best inversion below the measurement."""
-    table = preset_table()
+    materials (``classes``: {material: BRDF class}) per inversion and of the measurement, and
+    the worst gap of any (material, tilt) cell's best inversion below the measurement."""
     out: dict = {"per_tilt": {}, "worst_gap_below_measurement": None}
     gaps = []
     for t in sorted({r["tilt_deg"] for r in tilts}):
         rows = [r for r in tilts if r["tilt_deg"] == t]
-        spec = [r for r in rows if table.get(r["material"], {}).get("class") == "strong specular"]
+        spec = [r for r in rows if classes.get(r["material"]) == "strong specular"]
         entry = {}
         for inv in (*inversions, "measurement"):
             vals = [r[inv]["identification"]["accuracy"] for r in spec if inv in r]
@@ -161,16 +162,21 @@ def tilt_findings(tilts, inversions) -> dict:
     return out
 
 
+def swept_values(study: Study, var: str) -> list[float]:
+    """Every value any of the study's sweeps gives ``var``."""
+    return sorted({v for s in study.sweeps for k, vals in s.values if k == var for v in vals})
+
+
 def study_statement(main: dict, seed: dict | None, need: list[dict], f: dict,
-                    opts: StudyOptions) -> str:
+                    study: Study) -> str:
     """The study's answer in words, every number naming the inversion it comes from."""
-    chance = 1.0 / len(opts.glyphs)
+    chance = 1.0 / len(study.target(study.table.legible_target).glyphs)
 
     def pct(v):
         return "n/a" if v is None else f"{100 * v:.0f}%"
 
     inv = main["by_inversion"]
-    aware = [i for i in opts.inversions if i != "lambertian"]
+    aware = [i for i in study.table.reflectance if i != "lambertian"]
     names = {"known": "with the material's own BRDF", "auto": "with the lobe chosen from the "
              "capture (brdf auto)"}
     aware_txt = "; ".join(
@@ -182,7 +188,7 @@ def study_statement(main: dict, seed: dict | None, need: list[dict], f: dict,
     def cost(n, var, unit):
         """The threshold in words, never beyond the sweep: at the smallest value tried it
         is an upper bound, where none reached it a lower one."""
-        swept = sorted(opts.legibility_sweeps.get(var, ()))
+        swept = swept_values(study, var)
         if n[var] is None:
             return (f"{n['material']}: > {swept[-1]:g} {unit} (the largest tried)" if swept
                     else f"{n['material']}: not within the swept values")
@@ -211,7 +217,7 @@ def study_statement(main: dict, seed: dict | None, need: list[dict], f: dict,
                        f"{pct(seed['by_inversion'][i]['strong_specular'])}" for i in aware
                        if seed["by_inversion"][i]["strong_specular"] is not None)
            + ". " if seed else "")
-        + f"Smallest legible letters (identification >= {LEGIBLE_ACCURACY:g}, the best "
+        + f"Smallest legible letters (identification >= {study.legible_fraction:g}, the best "
         f"inversion for each material): "
         + "; ".join(cost(n, "letter_height_m", "m") for n in best)
         + ". Exposure per scan point needed: "
@@ -228,3 +234,48 @@ def study_statement(main: dict, seed: dict | None, need: list[dict], f: dict,
            "a BRDF-aware inversion does not close the gap: the material itself costs "
            "legibility here."))
     return text
+
+
+def _duration(s: float) -> str:
+    """A time in the unit that reads best (s, ms, us)."""
+    if s >= 1:
+        return f"{s:.3g} s"
+    return f"{s * 1e3:.3g} ms" if s >= 1e-3 else f"{s * 1e6:.3g} us"
+
+
+def need_text(row: dict) -> str:
+    """One row of the plan in words: the exposure per scan point and the photons per
+    capture needed, never beyond the sweep."""
+    lo, hi = row["exposure_needed_interval_s"]
+    if row["status"] == "beyond the sweep":
+        return f"more than {_duration(row['bracket_s'][0])} per scan point (beyond the sweep)"
+    if row["status"] == "at most the smallest exposure":
+        return f"at most {_duration(hi)} per scan point (the smallest exposure tried)"
+    return (f"{_duration(row['exposure_needed_s'])} per scan point ({_duration(lo)} to "
+            f"{_duration(hi)}; {row['photons_needed']:.3g} photons per capture)")
+
+
+def plan_statement(rows: list[dict], study: Study, letters: list[dict]) -> str:
+    """The plan's answer in words: per target and material, the exposure each inversion
+    needs and which needs the least; the smallest legible letters."""
+    if not rows:
+        return "No exposure was swept: the study answers no exposure needed."
+    out = []
+    level = f"{100 * study.legible_fraction:.0f}%"
+    for target in dict.fromkeys(r["target"] for r in rows):
+        for material in dict.fromkeys(r["material"] for r in rows if r["target"] == target):
+            mine = [r for r in rows if r["target"] == target and r["material"] == material]
+            parts = [f"{r['method']} {r['reflectance']}: {need_text(r)}" for r in mine]
+            best = [r for r in mine if r.get("best")]
+            tail = (f"; best: {best[0]['method']} {best[0]['reflectance']}" if best
+                    else "; no inversion reads it within the sweep")
+            at = mine[0]["at"]
+            where = (" at " + ", ".join(f"{k} = {v:g}" for k, v in at.items())) if at else ""
+            out.append(f"{material}, {target}{where}: legible in {level} of realisations "
+                       f"from " + "; ".join(parts) + tail + ".")
+    for L in letters:
+        if L["letter_height_m"] is not None:
+            out.append(f"Smallest legible letter ({L['material']}, {L['method']} "
+                       f"{L['reflectance']}, {_duration(L['exposure_s'])} per scan point): "
+                       f"{100 * L['letter_height_m']:.3g} cm.")
+    return " ".join(out)

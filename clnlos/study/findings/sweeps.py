@@ -10,10 +10,9 @@ import numpy as np
 from scipy.special import stdtrit  # Student's t quantile (what scipy.stats.t.ppf calls)
 
 from clnlos.brdf.models import BRDFModel
-from clnlos.brdf.presets import preset_model
-from clnlos.study.score.legibility import LEGIBLE_ACCURACY, identification_summary, wilson_interval
-from clnlos.study.plan.entries import Geometry, StudyOptions
+from clnlos.brdf.presets import preset_model, preset_table
 from clnlos.study.samples.identify import label_of
+from clnlos.study.score.legibility import LEGIBLE_ACCURACY, identification_summary, wilson_interval
 
 
 # The seed's Figure 9 grouping of its ten materials (1 clear, 2 medium, 3 fuzzy).
@@ -70,18 +69,23 @@ def material_class(ident: dict) -> int:
     return 3 if ident["ci"][0] <= ident["chance"] else 2
 
 
-def material_entries(materials, plan, results, geo: Geometry, opts: StudyOptions, table,
-                     label_metric: str, thresholds, fft_thresholds, predict) -> list[dict]:
-    chance = 1.0 / len(opts.glyphs)
+def material_entries(study, mats, plan, results, target_name: str, label_metric: str,
+                     thresholds, fft_thresholds, predict) -> list[dict]:
+    """The table's row of every material at one target (a glyph set): identification per
+    reflectance assumed, IoU against its box baseline, the labels (the study's, the CNN's,
+    the seed's Figure 9 class), the measurement alone."""
+    chance = 1.0 / len(study.target(target_name).glyphs)
+    presets = preset_table()
     out = []
-    for m in materials:
+    for mat in study.materials:
+        m = mat.name
         by_inv: dict[str, list[dict]] = {}
         for (meta, _), r in zip(plan, results, strict=True):
-            if (meta["set"] == "main" and meta["geometry"] == geo.name
+            if (meta["set"] == "main" and meta["geometry"] == target_name
                     and meta["material"] == m):
                 by_inv.setdefault(meta["inversion"], []).append(r)
         rs = by_inv["lambertian"]
-        e = {"name": m, "geometry": geo.name, "brdf_class": table[m]["class"],
+        e = {"name": m, "geometry": target_name, "brdf_class": mats[m].brdf_class,
              **_summary(rs, chance), "iou_seeds": [float(r["iou"]) for r in rs],
              "inversions": {inv: {**_summary(v, chance),
                                   "lobe_halfwidth_deg": [float(r["lobe_halfwidth_deg"])
@@ -94,18 +98,19 @@ def material_entries(materials, plan, results, geo: Geometry, opts: StudyOptions
             value = float(np.mean([r[f"q_{label_metric}"] for r in rs]))
             label = label_of(value, thresholds)
         fft_mean = float(np.mean([r["q_fft_clarity"] for r in rs]))
-        cnn_label, p = cnn_material_label(predict, np.stack([r["mip"] for r in rs]),
-                                          label_metric, chance)
+        cnn_label, p = (None, np.array([])) if predict is None else cnn_material_label(
+            predict, np.stack([r["mip"] for r in rs]), label_metric, chance)
+        preset = mat.brdf if mat.brdf in presets else None
         e.update({
             "label": label, "label_metric_value": value,
             "cnn_label": cnn_label, "cnn_probabilities": [float(v) for v in p],
-            "seed_label": SEED_FIGURE9.get(m),
+            "seed_label": SEED_FIGURE9.get(preset) if mat.albedo == 1.0 else None,
             "clarity_score": fft_mean, "clarity_label": label_of(fft_mean, fft_thresholds),
             "depth_error_m": float(np.mean([r["depth_error_m"] for r in rs])),
             "psnr_db": float(np.mean([r["psnr_db"] for r in rs])),
             "photon_counts": float(np.mean([r["counts"] for r in rs])),
-            "specular_fraction": specular_fraction(preset_model(m)),
-            "provenance": table[m].get("provenance", "")})
+            "specular_fraction": specular_fraction(preset_model(preset)) if preset else None,
+            "provenance": presets[preset].get("provenance", "") if preset else mat.brdf})
         out.append(e)
     return out
 
@@ -127,32 +132,35 @@ def cnn_material_label(predict, mips: np.ndarray, label_metric: str,
     return int(np.argmax(p) + 1), p
 
 
-def sweep_rows(plan, results, which: str, chance: float) -> list[dict]:
-    """One row per (variable, value, material, inversion) of a sweep set."""
+def sweep_rows(plan, results, which: str, chance) -> list[dict]:
+    """One row per (variable, value, the other swept values, target, method, material,
+    inversion) of a sweep set (the refined exposures left to the plan's curves);
+    ``chance(target)`` the chance of reading that target."""
     groups: dict = {}
     for (meta, _), r in zip(plan, results, strict=True):
-        if meta["set"] == which:
-            groups.setdefault((meta["variable"], meta["value"], meta["material"],
-                               meta["inversion"]), []).append(r)
+        if meta["set"] == which and not meta.get("refined"):
+            groups.setdefault((meta["variable"], meta["value"],
+                               tuple(sorted(meta.get("at", {}).items())), meta["target"],
+                               meta["method"], meta["material"], meta["inversion"]),
+                              []).append(r)
     rows = []
-    for (var, v, m, inv), rs in groups.items():
-        rows.append({"variable": var, "value": v, "material": m, "inversion": inv,
-                     "n": len(rs),
-                     **_summary(rs, chance),
+    for (var, v, at, target, method, m, inv), rs in groups.items():
+        rows.append({"variable": var, "value": v, "at": dict(at), "target": target,
+                     "method": method, "material": m, "inversion": inv, "n": len(rs),
+                     **_summary(rs, chance(target)),
                      "photon_counts": float(np.mean([r["counts"] for r in rs])),
                      "depth_error_m": float(np.mean([r["depth_error_m"] for r in rs]))})
     return rows
 
 
-def smallest_legible(rows: list[dict], materials, inversions=("lambertian",)) -> list[dict]:
+def smallest_legible(rows: list[dict], materials, inversions=("lambertian",),
+                     level: float = LEGIBLE_ACCURACY) -> list[dict]:
     """Per material and inversion: the smallest letter height and the smallest exposure whose
-    identification reaches LEGIBLE_ACCURACY (None where no swept value does); per material
-    also the best over the inversions (``inversion = "best"``, naming which one gave each
-    number)."""
+    identification reaches ``level`` (None where no swept value does); per material also the
+    best over the inversions (``inversion = "best"``, naming which one gave each number)."""
     def first(var, m, inv):
         ok = sorted(r["value"] for r in rows if r["variable"] == var and r["material"] == m
-                    and r["inversion"] == inv
-                    and r["identification"]["accuracy"] >= LEGIBLE_ACCURACY)
+                    and r["inversion"] == inv and r["identification"]["accuracy"] >= level)
         return ok[0] if ok else None
 
     out = []
@@ -168,26 +176,29 @@ def smallest_legible(rows: list[dict], materials, inversions=("lambertian",)) ->
     return out
 
 
-def tilt_rows(plan, results, chance: float) -> list[dict]:
-    """One row per (tilt, material): identification up to translation per inversion and of
-    the measurement alone, each with the mean displacement of the glyph (m), beside a
-    mirror's z tan(tilt)."""
+def tilt_rows(plan, results, chance) -> list[dict]:
+    """One row per (tilt, target, method, material): identification up to translation per
+    inversion and of the measurement alone, each with the mean displacement of the glyph
+    (m), beside a mirror's z tan(tilt); ``chance(target)`` the chance of reading it."""
     groups: dict = {}
     for (meta, s), r in zip(plan, results, strict=True):
         if meta["set"] == "tilt_sweep":
-            groups.setdefault((meta["value"], meta["material"]), []).append((meta, s, r))
+            groups.setdefault((meta["value"], meta["target"], meta["method"],
+                               meta["material"]), []).append((meta, s, r))
     rows = []
-    for (tilt, m), entries in sorted(groups.items()):
-        row = {"tilt_deg": tilt, "material": m,
+    for (tilt, target, method, m), entries in sorted(groups.items()):
+        chance_t = chance(target)
+        row = {"tilt_deg": tilt, "target": target, "method": method, "material": m,
                "mirror_shift_m": entries[0][1]["depth_m"] * math.tan(math.radians(tilt))}
         for inv in dict.fromkeys(meta["inversion"] for meta, _, _ in entries):
             rs = [r for meta, _, r in entries if meta["inversion"] == inv]
             row[inv] = {"identification": identification_summary(
-                [r["tilt_identified"] for r in rs], chance),
+                [r["tilt_identified"] for r in rs], chance_t),
                 "shift_m": float(np.mean([r["tilt_shift_m"] for r in rs]))}
-        rs = [r for meta, _, r in entries if meta["inversion"] == "lambertian"]
+        first = "lambertian" if "lambertian" in row else entries[0][0]["inversion"]
+        rs = [r for meta, _, r in entries if meta["inversion"] == first]
         row["measurement"] = {"identification": identification_summary(
-            [r["tilt_measurement_identified"] for r in rs], chance),
+            [r["tilt_measurement_identified"] for r in rs], chance_t),
             "shift_m": float(np.mean([r["tilt_measurement_shift_m"] for r in rs]))}
         rows.append(row)
     return rows

@@ -34,22 +34,7 @@ import numpy as np
 
 from clnlos.study.score.legibility import identification_summary
 
-# face samples of the comparison (tools/results/study_transport_faces.csv)
-# against 4 x 8 (tools/results/study_transport_faces.csv): 2 x 4 is 4.9% off in relative L2
-# and 5% in total signal for quartz glass (the sharpest lobe, 0.75 deg; 3 x 6: 0.7%, 0.0%;
-# the confocal model: 16.5%), 0.9% and 0.0% for the aluminium alloy (2.6 deg; confocal 11%);
-# 3 x 6 costs 4-6x more
-COMPARE_RINGS = 2
-COMPARE_ANGLES = 4
 TRANSPORTS = ("confocal", "bistatic")
-
-
-def bistatic_table(rings: int = COMPARE_RINGS, angles: int = COMPARE_ANGLES) -> dict:
-    """The ``transport`` table of a bistatic study sample (:func:`clnlos.study.samples.render.
-    scene_dict` passes it to the scene)."""
-    return {"model": "bistatic", "face_rings": int(rings), "face_angles": int(angles)}
-
-
 
 
 def rank_of(accuracy, margin) -> np.ndarray:

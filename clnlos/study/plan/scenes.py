@@ -1,55 +1,33 @@
-"""A study sample's scene: the rig every sample shares (:class:`StudyGrid`), the objects of a
-sample (letters, bar glyphs, plates, spheres), its time window and the scene table
-(:func:`scene_dict`), and the random extras of the metric validation
-(:func:`dataset_samples`). Pure: nothing is rendered here (:mod:`clnlos.study.samples.render`
+"""A study sample's scene (pure: nothing is rendered here; :mod:`clnlos.study.samples.render`
 renders a sample).
+
+A sample is a JSON-able dict: the target (``object``: "letters" with ``text``, ``height_m``
+and ``stroke_m``; "pattern" with ``pattern`` and ``side_m``; "mask" with ``mask``, its
+SHA-256 and ``width_m`` / ``height_m``; the random extras' "bars", "rectangle", "sphere"),
+its ``depth_m`` and ``rotate_deg``, the scene ``material`` (a preset name or a BRDF texture's
+absolute path, with ``material_sha256``) and ``albedo``, the ``exposure_s`` per scan point,
+the noise ``seed``, and optional overrides: ``scan_width_m``, ``slab_thickness_m`` (0: no
+slab), a ``transport`` table (the bistatic comparison), the inversion ``method`` and the
+``brdf`` it assumes (:mod:`clnlos.brdf.lobes`; absent: Lambertian). With the rig
+(:class:`~clnlos.study.file.spec.StudyGrid`) it defines one scene (:func:`scene_dict`) and
+one reconstruction (:func:`reconstruction_window_m`).
 """
 
 from __future__ import annotations
 
 import math
-from dataclasses import dataclass
 
 import numpy as np
 
-from clnlos.forward.scene import Detector
+from clnlos.forward.geometry import rotation_matrix
 from clnlos.physics.constants import C0
-from clnlos.physics.slab import CDT_SLAB
-
-
-@dataclass(frozen=True)
-class StudyGrid:
-    """Scan, time, photon budget and reconstruction shared by every sample (seed Table 1:
-    0.3 m x 0.3 m scan of 32 x 32 points, 2.54 cm slab, 35 ps pulse, 10 MHz, 0.4 W at 532 nm)."""
-
-    scan_width_m: float = 0.3  # 0.09 m^2
-    points: int = 32
-    bin_width_s: float = 48e-12  # 7.2 mm of depth per bin (lateral voxel: 9.4 mm)
-    max_path_m: float = 1.6  # reconstruction window (round-trip path), m
-    density_per_m2: float = 4e4
-    method: str = "iterative"
-    iterations: int = 30  # the study's budget (the config's default runs to its stopping
-    #                       rule, 100-200): the working-set solver reaches at 30 what plain
-    #                       FISTA did at the 50 of before (oracle table, mean IoU 0.687
-    #                       against 0.681; clnlos.inverse.solvers)
-    snr_rule: str = "gcv"  # the SNR rule of every method, the study's budget too: GCV's
-    #                        pick (the config's "auto" for the iterative method; for LCT
-    #                        and f-k "auto" searches the halves' agreement,
-    #                        clnlos.inverse.reproducibility, up to 18 half reconstructions)
-    # the detector: the scene's defaults (seed Table 1), but for the etendue and dark counts
-    # of the study's SPAD behind the slab
-    power_w: float = Detector.power_w
-    rep_rate_hz: float = Detector.rep_rate_hz
-    pulse_width_s: float = 35e-12
-    wavelength_m: float = Detector.wavelength_m
-    etendue_m2_sr: float = 1e-9
-    efficiency: float = Detector.efficiency
-    dark_count_rate_hz: float = 1000.0
-
-
+from clnlos.study.file.spec import StudyGrid
+from clnlos.study.score.patterns import CHART_SCALE, pattern_objects
 
 # glyphs of 4-5 cm bars: (centre x, centre y, width, height) in units of the glyph size L and
 # bar width b, built into rectangles
+
+
 def _bars(glyph: str, L: float, b: float) -> list[tuple[float, float, float, float]]:
     h = b / 2
     return {
@@ -70,11 +48,12 @@ def _rotate_z(x: float, y: float, deg: float) -> tuple[float, float]:
 
 
 def scene_objects(sample: dict) -> list[dict]:
-    """The [[objects]] of a sample (several rectangles for a bar glyph)."""
+    """The [[objects]] of a sample (several rectangles for a bar glyph or a chart)."""
     ox, oy = sample.get("offset_m", [0.0, 0.0])
     z = sample["depth_m"]
     rot = [float(v) for v in sample.get("rotate_deg", [0.0, 0.0, 0.0])]
-    base = {"rotate_deg": rot, "material": sample["material"], "albedo": 1.0}
+    base = {"rotate_deg": rot, "material": sample["material"],
+            "albedo": float(sample.get("albedo", 1.0))}
     kind = sample["object"]
     if kind == "bars":
         out = []
@@ -83,10 +62,16 @@ def scene_objects(sample: dict) -> list[dict]:
             out.append({**base, "shape": "rectangle", "size_m": [w, h],
                         "translate_m": [ox + px, oy + py, z]})
         return out
+    if kind == "pattern":
+        objs = pattern_objects(sample["pattern"], sample["side_m"] / CHART_SCALE, 0.0,
+                               (ox, oy, z), base["material"], base["albedo"])
+        return _rotated_chart(objs, rot, (ox, oy, z))
     obj = {**base, "shape": kind, "translate_m": [ox, oy, z]}
     if kind == "letters":
         obj.update(text=sample.get("text", "UT"), height_m=sample.get("height_m", 0.15),
                    stroke_m=sample.get("stroke_m", 0.04))
+    elif kind == "mask":
+        obj.update(path=sample["mask"], size_m=[sample["width_m"], sample["height_m"]])
     elif kind == "rectangle":
         obj.update(size_m=sample.get("size_m", [0.15, 0.1]))
     else:
@@ -94,54 +79,102 @@ def scene_objects(sample: dict) -> list[dict]:
     return [obj]
 
 
+def _rotated_chart(objs: list[dict], rot, centre) -> list[dict]:
+    """A chart's rectangles turned as one plate about the chart's centre (R = Rz Ry Rx)."""
+    R = rotation_matrix(rot)
+    c = np.asarray(centre, float)
+    out = []
+    for o in objs:
+        p = R @ (np.asarray(o["translate_m"], float) - c) + c
+        out.append({**o, "translate_m": [float(v) for v in p], "rotate_deg": list(rot)})
+    return out
+
+
+def bistatic_table(rings: int, angles: int) -> dict:
+    """The ``transport`` table of a bistatic sample (Eq. 8 in full, ``rings`` x ``angles``
+    samples of the slab's face), passed to the scene by :func:`scene_dict`."""
+    return {"model": "bistatic", "face_rings": int(rings), "face_angles": int(angles)}
+
+
+BINS_PER_FWHM = 4  # the inversions' bins per temporal FWHM of the rig, where the study sets them
+
+
+def rig_temporal_fwhm_s(grid: StudyGrid) -> float:
+    """The rig's temporal FWHM: pulse and capture bin in quadrature (s)."""
+    return math.hypot(grid.pulse_width_s or 0.0, grid.bin_width_s)
+
+
 WINDOW_STEP_M = 0.4
 
 
 def window_m(sample: dict, grid: StudyGrid) -> float:
-    """Reconstruction window (round-trip path, m): the grid's, or for deep targets
-    2 (depth + 0.3 m) rounded up to WINDOW_STEP_M (few distinct windows: each is a plan)."""
+    """Reconstruction window (round-trip path, m): the rig's shortest, or for deep targets
+    2 (depth + 0.3 m) rounded up to WINDOW_STEP_M (few distinct windows: each is a plan);
+    never past the end of a recorded time axis."""
     need = 2.0 * (sample["depth_m"] + 0.3)
-    return max(grid.max_path_m, math.ceil(need / WINDOW_STEP_M - 1e-9) * WINDOW_STEP_M)
+    w = max(grid.max_path_m, math.ceil(need / WINDOW_STEP_M - 1e-9) * WINDOW_STEP_M)
+    if grid.bins is not None:
+        w = min(w, C0 * (grid.start_s + grid.bins * grid.bin_width_s))
+    return w
+
+
+def capture_bins(sample: dict, grid: StudyGrid) -> int:
+    """The capture's bins: the rig's recorded axis, else 30% past the reconstruction window
+    (the deconvolution's guard bins)."""
+    if grid.bins is not None:
+        return grid.bins
+    return int(math.ceil(1.3 * window_m(sample, grid) / (C0 * grid.bin_width_s)))
+
+
+def slab_table(sample: dict, grid: StudyGrid) -> dict | None:
+    """The sample's [slab] table: the rig's, its thickness swept where the sample says."""
+    if grid.slab is None:
+        return None
+    thickness, mu_a, mu_s_prime, n = grid.slab
+    thickness = sample.get("slab_thickness_m", thickness)
+    if thickness <= 0:
+        return None
+    return {"thickness_m": thickness, "mu_a": mu_a, "mu_s_prime": mu_s_prime, "n": n}
 
 
 def scene_dict(sample: dict, grid: StudyGrid) -> dict:
+    """The scene table of a sample on the rig (every key of a scene file)."""
     width = sample.get("scan_width_m", grid.scan_width_m)
-    thickness = sample.get("slab_thickness_m", CDT_SLAB.thickness_m)
-    # the capture runs 30% past the reconstruction window: the deconvolution's guard bins
-    bins = int(math.ceil(1.3 * window_m(sample, grid) / (C0 * grid.bin_width_s)))
+    slab = slab_table(sample, grid)
     d = {"seed": int(sample["seed"]),
          "scan": {"width_m": width, "points": grid.points},
-         "time": {"bin_width_s": grid.bin_width_s, "bins": bins, "start_s": 0.0},
+         "time": {"bin_width_s": grid.bin_width_s, "bins": capture_bins(sample, grid),
+                  "start_s": 0.0 if slab is not None else grid.start_s},
          "objects": scene_objects(sample),
-         "laser": {"pulse_width_s": grid.pulse_width_s},
          "detector": {"power_w": grid.power_w, "rep_rate_hz": grid.rep_rate_hz,
                       "exposure_s": sample["exposure_s"], "efficiency": grid.efficiency,
                       "wavelength_m": grid.wavelength_m, "etendue_m2_sr": grid.etendue_m2_sr,
                       "dark_count_rate_hz": grid.dark_count_rate_hz},
          "sampling": {"density_per_m2": grid.density_per_m2, "splat_order": 1}}
-    if thickness > 0:
-        d["slab"] = {"thickness_m": thickness, "mu_a": CDT_SLAB.mu_a,
-                     "mu_s_prime": CDT_SLAB.mu_s_prime, "n": CDT_SLAB.n}
+    if grid.pulse_width_s is not None:
+        d["laser"] = {"pulse_width_s": grid.pulse_width_s}
+    if slab is not None:
+        d["slab"] = slab
     if "transport" in sample:  # the scene's [transport] table (absent: the confocal model)
         d["transport"] = dict(sample["transport"])
     return d
 
 
-
 TEXTS = ("UT", "S", "T", "L", "H", "E", "F", "X", "O", "Z")
 
 
-def dataset_samples(n: int, materials: list[str], seed: int) -> list[dict]:
-    """n samples spread so that quality varies for physical reasons: every material; letters,
-    bar glyphs (4-5 cm bars), plates and spheres of several sizes; 0.35-0.75 m deep, up to
-    5 cm off the axis, tilted up to 20 degrees about x and y and turned about z; exposures
-    log-uniform over 5 ms - 0.3 s (photon counts over two decades)."""
+def dataset_samples(n: int, materials: list[dict], seed: int) -> list[dict]:
+    """n samples spread so that quality varies for physical reasons: every material (each a
+    sample's material keys: ``material``, ``albedo``, ...); letters, bar glyphs (4-5 cm
+    bars), plates and spheres of several sizes; 0.35-0.75 m deep, up to 5 cm off the axis,
+    tilted up to 20 degrees about x and y and turned about z; exposures log-uniform over
+    5 ms - 0.3 s (photon counts over two decades)."""
     rng = np.random.default_rng(seed)
     kinds = ("letters", "bars", "rectangle", "sphere")
     out = []
     for k in range(n):
         kind = kinds[int(rng.integers(len(kinds)))]
-        s = {"material": materials[int(rng.integers(len(materials)))], "object": kind,
+        s = {**materials[int(rng.integers(len(materials)))], "object": kind,
              "depth_m": round(float(rng.uniform(0.35, 0.75)), 3),
              "offset_m": [round(float(v), 3) for v in rng.uniform(-0.05, 0.05, 2)],
              "rotate_deg": [round(float(rng.uniform(-20, 20)), 1),
@@ -164,4 +197,3 @@ def dataset_samples(n: int, materials: list[str], seed: int) -> list[dict]:
             s["radius_m"] = round(float(rng.uniform(0.04, 0.1)), 3)
         out.append(s)
     return out
-

@@ -51,7 +51,7 @@ from clnlos.io.figures import new_figure
 from clnlos.io.files import read_capture, save_figure
 from clnlos.physics.slab import CDT_SLAB
 from clnlos.runtime.device import get_queue
-from clnlos.study.plan.scenes import StudyGrid
+from clnlos.study.file.spec import StudyGrid
 from clnlos.study.score.metrics import iou, otsu_threshold
 from clnlos.study.score.quality import otsu_separability
 from clnlos.study.samples.resolution import ResolutionGeometry, chart_features, fwhm_1d

@@ -50,6 +50,7 @@ from clnlos.inverse.snr import estimate_noise, first_recorded_bin
 from clnlos.io.capture import Capture, without_direct
 from clnlos.io.figures import new_figure
 from clnlos.io.files import read_capture
+from clnlos.study.score.legibility import detail as detail_image
 from clnlos.study.real.capture import capture_config, estimate_letters, measurement_summary
 from clnlos.study.samples.resolution import chart_features, json_ready, otoole_lateral_bound_m
 from clnlos.study.real.thinning import thinned_series
@@ -167,8 +168,7 @@ def ncc(a: np.ndarray, b: np.ndarray) -> float:
 def detail(img: np.ndarray) -> np.ndarray:
     """The image minus its Gaussian blur of DETAIL_SIGMA_FRACTION of the scan (rms): the
     strokes and edges a blob lacks."""
-    img = np.asarray(img, np.float64)
-    return img - gaussian_filter(img, DETAIL_SIGMA_FRACTION * img.shape[1])
+    return detail_image(img, DETAIL_SIGMA_FRACTION * np.shape(img)[1])
 
 
 def image_score(image: np.ndarray, reference: np.ndarray) -> float:

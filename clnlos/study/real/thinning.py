@@ -33,7 +33,7 @@ from scipy.ndimage import zoom
 from clnlos.inverse.pipeline import reconstruct
 from clnlos.io.files import atomic_path, read_capture
 from clnlos.io.figures import new_figure
-from clnlos.study.plan.scenes import StudyGrid
+from clnlos.study.file.spec import StudyGrid
 from clnlos.study.samples.render import NPZ_ERRORS, code_version
 from clnlos.study.real.capture import PUBLISHED_SCAN_WIDTH_M, capture_config
 

@@ -44,7 +44,7 @@ def fig_materials(results, plan, res, geometry: str):
     import matplotlib.pyplot as plt
 
     geo = next(g for g in results["geometries"] if g["name"] == geometry)
-    glyphs = results["options"]["glyphs"]
+    glyphs = geo["glyphs"]
     mats = geo["materials"]
     w = geo["scan_width_m"]
     # a fixed grid, no layout engine: solving one for 80 panels costs seconds per figure
@@ -81,7 +81,7 @@ def fig_figure8(results, plan, res, geometry: str):
     geo = next(g for g in results["geometries"] if g["name"] == geometry)
     mats = geo["materials"]
     w = geo["scan_width_m"]
-    glyph = results["options"]["glyphs"][0]
+    glyph = geo["glyphs"][0]
     aware = next((inv for inv in ("known", "auto") if inv in results.get("inversions", ())),
                  None)
     ncol = 7 if aware else 6

@@ -44,6 +44,7 @@ from clnlos.study.report.figures import (
     short_name,
 )
 from clnlos.study.findings.transport import fmt_r
+from clnlos.study.report.plan import fig_threshold_gallery, plan_table, real_check_html
 
 PAGE_WIDTH_PX = 1180
 DPI = 100
@@ -328,15 +329,26 @@ def _figure(title: str, caption: str, fig) -> list[str]:
 
 
 def _setup_line(results) -> str:
+    """The rig and the reconstruction, as the study file gave them."""
     g = results["options"]["grid"]
-    return (f"<p>Mode <b>{results['study']}</b>: {g['points']} x {g['points']} scan points, "
-            f"{g['bin_width_s'] * 1e12:.0f} ps bins, 2.54 cm slab (mu_a 0.53 1/m, mu_s' 262 "
-            f"1/m, n 1.12), 35 ps pulse, {g['rep_rate_hz'] / 1e6:.0f} MHz, "
-            f"{g['power_w'] * 1e3:.0f} mW at {g['wavelength_m'] * 1e9:.0f} nm, 0.1 s per scan "
-            f"point unless swept; reconstruction: {g['method']} ({_reconstruction_detail(g)})"
-            f"; glyphs {''.join(results['options']['glyphs'])} (K = "
-            f"{len(results['options']['glyphs'])}), {results['options']['seeds']} noise "
-            f"realisation(s) each; {results['n_dataset']} reconstructions in all.</p>")
+    slab = ("no slab" if g["slab"] is None else
+            f"{100 * g['slab'][0]:.3g} cm slab (mu_a {g['slab'][1]:g} 1/m, mu_s' "
+            f"{g['slab'][2]:g} 1/m, n {g['slab'][3]:g})")
+    pulse = ("no pulse blur" if g["pulse_width_s"] is None
+             else f"{g['pulse_width_s'] * 1e12:.0f} ps pulse")
+    recon = ", ".join(f"{m} ({_reconstruction_detail({**g, 'method': m})})"
+                      for m in results["options"]["methods"])
+    return (f"<p>Study <b>{html.escape(results['study'])}</b>"
+            + (f" ({html.escape(results['source'])})" if results.get("source") else "")
+            + f": {g['points']} x {g['points']} scan points over {g['scan_width_m']:g} m "
+            f"(targets may name their own), {g['bin_width_s'] * 1e12:.3g} ps bins, {slab}, "
+            f"{pulse}, {g['rep_rate_hz'] / 1e6:.3g} MHz, {g['power_w'] * 1e3:.3g} mW at "
+            f"{g['wavelength_m'] * 1e9:.0f} nm, detector efficiency {g['efficiency']:g}, "
+            f"etendue {g['etendue_m2_sr']:.3g} m^2 sr, dark counts "
+            f"{g['dark_count_rate_hz']:g} /s; {g['exposure_s']:g} s per scan point unless "
+            f"swept; reconstruction: {recon}; {results['options']['realisations']} noise "
+            f"realisation(s) per point unless a sweep says otherwise; {results['n_dataset']} "
+            "reconstructions in all.</p>")
 
 
 def _need_table(results) -> str:
@@ -351,8 +363,10 @@ def _need_table(results) -> str:
                                               n.get("inversion", ""))),
              need(n, "letter_height_m"), need(n, "exposure_s")]
             for n in results["smallest_legible"]]
-    return ("<p>Legible geometry; identification >= 0.9 at 0.1 s per point (height) and with "
-            "0.3 m letters (exposure); '-': not reached within the swept values; a value "
+    o = results["options"]
+    return (f"<p>Legible geometry; identification >= {o['legible_fraction']:g} at "
+            f"{o['grid']['exposure_s']:g} s per point (height) and at the target's own letter "
+            "height (exposure); '-': not reached within the swept values; a value "
             "equal to the smallest swept one is an upper bound (the smallest tried).</p>"
             + _table(["material", "inversion", "smallest legible letter (m)",
                       "exposure needed (s)"], rows))
@@ -388,22 +402,64 @@ def real_materials_html(results, out_dir) -> list[str]:
     return []
 
 
-def real_headline_rows(results) -> list | None:
-    """The real captures' rows of the headline figure (:mod:`clnlos.study.report.headline`'s row
-    format), where the real-materials section gives them (its ``headline_rows``)."""
-    section = results.get("real_materials")
-    return section.get("headline_rows") if isinstance(section, dict) else None
-
-
-def write_report(out_dir, results, plan, res, real=None) -> None:
+def write_report(out_dir, results, plan, res, real=None, checks=None) -> None:
+    """report.html: the answer first (:func:`headline_html`), then the plan's table and
+    reconstructions, the real captures beside their twins, the material table's sections
+    where the study has one, the materials, the setup and the cost."""
     import matplotlib
 
     matplotlib.use("Agg")
+    title = ("How the surface material of a hidden target changes what we can read"
+             if results.get("geometries") else
+             f"Exposure needed: {html.escape(results['study'])}")
+    body = [f"<h1>{title}</h1>", headline_html(results, png_base64)]
+    body += plan_sections(results, plan, res)
+    if results.get("real_check"):
+        body.append(_section("Real captures of the rig beside their twins",
+                             real_check_html(results, checks, _table, png_base64), open_=True))
+    if results.get("geometries"):
+        body += table_sections(results, plan, res, real, out_dir)
+    elif results.get("real_materials"):
+        body += real_materials_html(results, out_dir)
+    body += [_section("Materials and setup", [_materials_html(results), _setup_line(results)]),
+             _section("Where the time goes", _cost_html(results))]
+    with atomic_path(out_dir / "report.html") as tmp:
+        tmp.write_text(page_html(body), encoding="utf-8")
 
+
+def plan_sections(results, plan, res) -> list[str]:
+    """The plan's table, what was left out, the reconstructions around the threshold, the
+    smallest legible letters, the other sweeps."""
+    out = []
+    if results.get("plan"):
+        parts = [plan_table(results["plan"], _table)]
+        if results.get("left_out"):
+            parts.append("<p>Left out (a method cannot assume that reflectance): "
+                         + "; ".join(html.escape(n) for n in results["left_out"]) + ".</p>")
+        gallery = fig_threshold_gallery(results, plan, res)
+        if gallery is not None:
+            parts += _figure("Reconstructions along each curve (first realisation; green "
+                             "frame: the fitted share reaches the legible level)",
+                             "Front views (max over depth, normalised); title: exposure per "
+                             "scan point, legible realisations / all.", gallery)
+        out.append(_section("The exposure needed, row by row", parts, open_=True))
+    letters = [L for L in results.get("smallest_legible_letter", ())]
+    if letters:
+        rows = [[html.escape(L["target"]), html.escape(L["material"]),
+                 html.escape(f"{L['method']} {L['reflectance']}"), f"{L['exposure_s']:g}",
+                 "none" if L["letter_height_m"] is None else f"{100 * L['letter_height_m']:.3g}",
+                 ", ".join(f"{100 * h:.3g}: {f:.2f}" for h, f in zip(
+                     L["heights_m"], L["fractions"], strict=True))] for L in letters]
+        out.append(_section("The smallest legible letter", [_table(
+            ["target", "material", "inversion", "exposure per point (s)",
+             "smallest legible (cm)", "height (cm): share legible"], rows)]))
+    return out
+
+
+def table_sections(results, plan, res, real, out_dir) -> list[str]:
+    """The material table's sections (the seed's question)."""
     legible, seed = results["legible_geometry"], results["seed_geometry"]
-    body = [
-        "<h1>How the surface material of a hidden target changes what we can read</h1>",
-        headline_html(results, png_base64, real_headline_rows(results)),
+    return [
         "<h2>The seed's Figure 8, side by side (legible geometry)</h2>",
         "<p>Per material: the measurement (photon counts) integrated over time with its x-t "
         "and y-t slices, the Lambertian reconstruction's MIP with the true outline (red) and "
@@ -418,8 +474,9 @@ def write_report(out_dir, results, plan, res, real=None) -> None:
                      fig_identification(results)),
             *_figure("Every glyph at the legible geometry", "Title: true glyph -> the "
                      "matched one.", fig_materials(results, plan, res, legible)),
-            *_figure("Every glyph at the seed's Table 1 geometry", "Title: true glyph -> "
-                     "the matched one.", fig_materials(results, plan, res, seed))]),
+            *(_figure("Every glyph at the seed's Table 1 geometry", "Title: true glyph -> "
+                      "the matched one.", fig_materials(results, plan, res, seed))
+              if seed != legible else [])]),
         _section("What the material costs: letter size and exposure", [
             _need_table(results),
             *_figure("Letter size and exposure", "Legible geometry; mean over glyphs and "
@@ -431,7 +488,8 @@ def write_report(out_dir, results, plan, res, real=None) -> None:
                                            "the measurement alone.", fig_tilt(results))
                                    if results.get("tilt_sweep") else [])]),
         _section("Geometry sweeps (the seed's letters)", _figure("Geometry sweeps", "",
-                                                                   fig_sweeps(results))),
+                                                                   fig_sweeps(results))
+                 if results.get("sweeps") else ["<p>No geometry sweep in this study.</p>"]),
         *real_materials_html(results, out_dir),
         _section("A real capture and its simulation", [
             _real_html(results), *(_figure("A real capture beside its simulation", "",
@@ -440,7 +498,7 @@ def write_report(out_dir, results, plan, res, real=None) -> None:
                                    else [])]),
         _section("The legibility judge", classifier_section(
             results, None if real is None else real.get("thinning"), _table, png_base64,
-            None if real is None else [r for r in real.get("family", ()) if "mip" in r])),
+            None if real is None else [r for r in real.get("family") or () if "mip" in r])),
         _section("The material table under both transports",
                  _transport_section(results.get("transport_comparison"))),
         _section("Methods: resolution, metrics, BRDFs", [
@@ -451,11 +509,24 @@ def write_report(out_dir, results, plan, res, real=None) -> None:
                      fig_metrics(results, plan, res)),
             *(_figure("The seed's CNN recipe (seed Fig. 9)", "", fig_cnn(results))
               if results.get("cnn_seed_recipe") else []),
-            *_figure("BRDF of each material (seed Fig. 7)", "", fig_brdf(results))]),
-        _section("Where the time goes", _cost_html(results)),
-    ]
-    with atomic_path(out_dir / "report.html") as tmp:
-        tmp.write_text(page_html(body), encoding="utf-8")
+            *_figure("BRDF of each material (seed Fig. 7)", "", fig_brdf(results))])]
+
+
+def _materials_html(results) -> str:
+    """Each material: its BRDF, albedo, class, and what was made of a file (a measured
+    BRDF's fit with every candidate's held-out agreement)."""
+    rows = []
+    for m in results.get("materials_prepared", ()):
+        fit = m.get("fit")
+        fit_txt = "" if not fit else (
+            f"{fit['model']}: held-out agreement {fit['test_agreement_pct']:.1f}%, peak error "
+            f"{fit['test_peak_error_pct']:+.0f}%"
+            + ("" if m.get("fit_usable") else " (below the usable 80%: approximate)")
+            + "; candidates " + ", ".join(f"{k} {v['test_agreement_pct']:.0f}%"
+                                          for k, v in fit["candidates"].items()))
+        rows.append([html.escape(m["name"]), html.escape(str(m["brdf"])), f"{m['albedo']:g}",
+                     html.escape(m["brdf_class"]), html.escape(fit_txt)])
+    return _table(["material", "BRDF", "albedo", "class", "fit of a measured BRDF"], rows)
 
 
 def page_html(body: list[str]) -> str:

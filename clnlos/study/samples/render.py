@@ -1,10 +1,9 @@
-"""Study samples: simulate a hidden object through the slab, reconstruct it, score it.
+"""Study samples: simulate a hidden object on the rig, reconstruct it, score it.
 
-A sample is a JSON-able dict (material, object and its size, pose, depth, exposure, seed,
-and optional overrides of the scan width and slab thickness for the sweeps, a ``transport``
-table, :class:`clnlos.forward.scene.TransportSettings`, for the bistatic comparison, and a
-``brdf`` the iterative inversion assumes, :mod:`clnlos.brdf.lobes`; absent: Lambertian);
-with the grid it defines one scene (:func:`scene_dict`) and its reconstruction. Its result
+A sample is a JSON-able dict (:mod:`clnlos.study.plan.scenes`: the target, its material,
+exposure, seed, the swept overrides, the inversion and the ``brdf`` it assumes); with the rig
+it defines one scene (:func:`~clnlos.study.plan.scenes.scene_dict`) and its reconstruction
+(:func:`sample_config`). Its result
 is cached on disk as ``<cache>/<sha1 of sample, grid and code version>.npz`` (written
 atomically, with the mode the umask gives), so reruns and interrupted runs resume and a
 changed clnlos never reuses an old result. Each entry also holds its key and a SHA-256 of
@@ -29,29 +28,45 @@ import time
 import warnings
 import zipfile
 import zlib
-from dataclasses import asdict
+import threading
+from collections import OrderedDict
+from dataclasses import asdict, dataclass, replace
 from importlib import resources
 from pathlib import Path
 
 import numpy as np
 from tqdm import tqdm
 
+from clnlos.physics.constants import C0
 from clnlos.version import __version__
 from clnlos.brdf.lobes import LAMBERTIAN, lobe_by_name
 from clnlos.config import ReconstructionConfig, snr_rule_applies
 from clnlos.errors import ParameterError
 from clnlos.forward.model import ForwardModel
+from clnlos.forward.noise import photon_counts
 from clnlos.forward.scene import Scene
 from clnlos.inverse.pipeline import reconstruct
+from clnlos.inverse.preprocessing import bins_for
+from clnlos.io.capture import Capture
 from clnlos.io.files import atomic_path
 from clnlos.io.outputs import install_sigterm_cleanup
+from clnlos.runtime.caches import CACHES
 from clnlos.runtime.device import get_queue
 from clnlos.runtime.programs import code_digest, kernel_families
-from clnlos.study.plan.scenes import StudyGrid, scene_dict, window_m
+from clnlos.study.file.spec import StudyGrid
+from clnlos.study.plan.scenes import (
+    BINS_PER_FWHM,
+    capture_bins,
+    rig_temporal_fwhm_s,
+    scene_dict,
+    window_m,
+)
 from clnlos.study.score.legibility import box_baseline_iou
 from clnlos.study.score.metrics import coverage_image, iou, otsu_threshold, peak_depth_m
 from clnlos.study.score.quality import METRICS, quality_metrics
 
+
+EXPECTED_BUDGET_BYTES = 256 << 20  # host bytes of noise-free transients kept per process
 
 # what shapes a sample's result: every kernel family, the physics, forward, operator, runtime,
 # inverse, io and BRDF packages, the top-level modules, the study's sampling and metrics
@@ -78,30 +93,94 @@ def sample_key(sample: dict, grid: StudyGrid, version: str) -> str:
 
 
 
+@dataclass(frozen=True)
+class Expected:
+    """What every exposure and noise draw of one scene shares: the noise-free transient
+    [t, y, x] (float32, as the forward model reads it out), the capture's recorded setup,
+    the true coverage of each scan cell and the targets' mean depth (m)."""
+
+    tau: np.ndarray
+    attrs: dict
+    cover: np.ndarray
+    true_depth_m: float
+
+
+class ExpectedTransients:
+    """The noise-free transients of the scenes a process rendered last, least recently used
+    dropped first past ``budget_bytes`` (host memory): the samples of one scene at several
+    exposures and noise realisations simulate it once."""
+
+    def __init__(self, budget_bytes: int = EXPECTED_BUDGET_BYTES):
+        self.budget = budget_bytes
+        self._items: OrderedDict[str, Expected] = OrderedDict()
+        self._lock = threading.Lock()
+
+    def get(self, key: str, build) -> Expected:
+        with self._lock:
+            hit = self._items.get(key)
+            if hit is not None:
+                self._items.move_to_end(key)
+                return hit
+        value = build()
+        with self._lock:
+            self._items[key] = value
+            while len(self._items) > 1 and sum(
+                    v.tau.nbytes for v in self._items.values()) > self.budget:
+                self._items.popitem(last=False)
+        return value
+
+    def clear(self) -> None:
+        with self._lock:
+            self._items.clear()
+
+
+EXPECTED = ExpectedTransients()
+CACHES.register("study noise-free transients", EXPECTED.clear)
+
+
+def expected_key(sample: dict, grid: StudyGrid) -> str:
+    """What a sample's noise-free transient depends on: its scene without the detector's
+    exposure and the noise seed."""
+    d = scene_dict(sample, grid)
+    d.pop("seed")
+    d["detector"] = {k: v for k, v in d["detector"].items() if k != "exposure_s"}
+    return json.dumps(d, sort_keys=True)
+
+
+def expected_capture(scene: Scene, queue) -> Expected:
+    """The scene's forward model without its photon noise, run once."""
+    fm = ForwardModel(replace(scene, detector=None), queue=queue)
+    tau = fm.run()
+    attrs = fm.setup_attrs()
+    if scene.detector is not None:
+        attrs["stages"] = json.dumps([*json.loads(attrs["stages"]), "photon_noise"])
+    cover = np.clip(coverage_image(fm.samples.elements, scene.scan_centres()), 0.0, 1.0)
+    return Expected(tau, attrs, cover, float(np.mean(fm.samples.elements.pos[:, 2])))
+
+
 def render_sample(sample: dict, grid: StudyGrid, device: str | None = None) -> dict:
-    """Simulate, reconstruct and score one sample; returns arrays and numbers."""
+    """Simulate (the noise-free transient shared by a scene's exposures and noise draws,
+    then the photon counts of this one), reconstruct and score one sample."""
     queue = get_queue(device)
     t0 = time.perf_counter()
     scene = Scene.from_dict(scene_dict(sample, grid))
-    fm = ForwardModel(scene, queue=queue)
-    cap = fm.capture()
+    exp = EXPECTED.get(expected_key(sample, grid), lambda: expected_capture(scene, queue))
+    counts = (exp.tau if scene.detector is None else photon_counts(
+        exp.tau, scene, np.random.default_rng(scene.seed))).astype(np.float32)
+    cap = Capture(counts, scene.bin_width_s, scene.start_s, scene.width_m, "simulated",
+                  dict(exp.attrs))
     t1 = time.perf_counter()
-    rule = {"snr_rule": grid.snr_rule} if snr_rule_applies(grid.snr_rule, grid.method) else {}
-    brdf = {"brdf": sample["brdf"]} if "brdf" in sample else {}
-    cfg = ReconstructionConfig(max_path_m=window_m(sample, grid), slab=scene.slab,
-                               method=grid.method, iterations=grid.iterations,
-                               **rule, **brdf).validate()
-    rec = reconstruct(cap, cfg, device=queue)
+    rec = reconstruct(cap, sample_config(sample, grid, scene.slab), device=queue)
     t2 = time.perf_counter()
     vol = rec.volume
     mip = vol.max(axis=0)
     mip = mip / mip.max() if mip.max() > 0 else mip
-    cover = np.clip(coverage_image(fm.samples.elements, scene.scan_centres()), 0.0, 1.0)
+    cover = exp.cover
     mask = cover >= 0.5
     pred = mip > otsu_threshold(mip)
     dz = rec.extents["voxel_depth_m"]
     depth = peak_depth_m(vol, dz)
-    true_depth = float(np.mean(fm.samples.elements.pos[:, 2]))
+    true_depth = exp.true_depth_m
     mse = float(np.mean((mip - cover) ** 2))
     depth_map = ((np.argmax(vol, axis=0) + 0.5) * dz).astype(np.float32)
     return {"mip": mip.astype(np.float32), "truth": cover.astype(np.float32),
@@ -115,6 +194,39 @@ def render_sample(sample: dict, grid: StudyGrid, device: str | None = None) -> d
             "simulate_s": t1 - t0, "reconstruct_s": t2 - t1,
             "lobe_halfwidth_deg": lobe_halfwidth_deg(rec.params),
             **{f"q_{k}": v for k, v in quality_metrics(vol, dz).items()}}
+
+
+def sample_config(sample: dict, grid: StudyGrid, slab) -> ReconstructionConfig:
+    """The reconstruction of a sample: its method (the rig's default where it names none),
+    the window of its depth (on bins of the study's ``[reconstruction] bin_width_s`` where
+    it sets one), the rig's iterations and SNR rule (where the method takes it), the
+    ``brdf`` it assumes."""
+    method = sample.get("method", grid.method)
+    rule = {"snr_rule": grid.snr_rule} if snr_rule_applies(grid.snr_rule, method) else {}
+    brdf = {"brdf": sample["brdf"]} if "brdf" in sample else {}
+    it = {"iterations": grid.iterations} if method == "iterative" else {}
+    window = window_m(sample, grid)
+    cfg = ReconstructionConfig(max_path_m=window, slab=slab, method=method, **it, **rule,
+                               **brdf).validate()
+    bins = study_bins(cfg, sample, grid)
+    return cfg if bins is None else cfg.replace(bins=bins).validate()
+
+
+def study_bins(cfg: ReconstructionConfig, sample: dict, grid: StudyGrid) -> int | None:
+    """The bins a sample's inversion runs on where the study sets them: the
+    ``[reconstruction] bin_width_s``, else a quarter of the rig's temporal FWHM (pulse and
+    bin in quadrature; the published LCT code's 16 ps for its 4 ps bins and ~60 ps system)
+    where the method's own default is finer (None: the method's default)."""
+    window = cfg.max_path_m
+    bw = grid.reconstruction_bin_width_s or rig_temporal_fwhm_s(grid) / BINS_PER_FWHM
+    if bw <= grid.bin_width_s:
+        return None
+    bins = max(1, int(round(window / (C0 * bw))))
+    nt = capture_bins(sample, grid)
+    own = bins_for(cfg, nt, grid.bin_width_s, 0.0)
+    if grid.reconstruction_bin_width_s is None and own is not None and own <= bins:
+        return None
+    return bins
 
 
 def lobe_halfwidth_deg(params: dict) -> float:

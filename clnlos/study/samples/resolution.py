@@ -54,7 +54,8 @@ from clnlos.io.capture import Capture
 from clnlos.io.figures import new_figure
 from clnlos.physics.slab import CDT_SLAB, Slab
 from clnlos.runtime.device import get_queue
-from clnlos.study.plan.scenes import StudyGrid, window_m
+from clnlos.study.file.spec import StudyGrid
+from clnlos.study.plan.scenes import window_m
 
 CONTRAST_RESOLVED = 0.2   # dip between two maxima, as a fraction of the lower one
 PEAK_FLOOR = 0.25         # chart maxima below this fraction of the image maximum are ignored

@@ -118,6 +118,13 @@ def identify(mip: np.ndarray, templates: dict[str, np.ndarray],
     return ranked[0], float(margin), scores
 
 
+def detail(img: np.ndarray, sigma_cells: float) -> np.ndarray:
+    """The image less its Gaussian blur of ``sigma_cells`` (rms): the strokes and edges a
+    blob lacks (float64)."""
+    img = np.asarray(img, np.float64)
+    return img - gaussian_filter(img, sigma_cells)
+
+
 def wilson_interval(k: int, n: int, level: float = 0.95) -> list[float]:
     """Wilson score interval [lo, hi] of a proportion k / n."""
     if n <= 0:

@@ -1,0 +1,139 @@
+"""A study's materials made ready for its scenes and inversions (:func:`prepare_materials`):
+a preset as it is, a BRDF texture as it is, a fitted model (``clnlos brdf fit``) tabulated
+into a texture for the simulation, a measured gonio CSV fitted first (every analytic model
+of :data:`clnlos.brdf.fit.FIT_SPACE` on a seeded 80/20 split, the best on the held-out
+fifth kept, :func:`fit_measured`). What is made is written under ``OUT/materials/``, named
+by the source file's SHA-256, and reused while that file is unchanged."""
+
+from __future__ import annotations
+
+import warnings
+from pathlib import Path
+
+import numpy as np
+
+from clnlos.brdf.catalog import ANALYTIC_PRESETS, LAMBERTIAN, RETROREFLECTIVE, preset_table
+from clnlos.brdf.data import BRDFSamples, read_gonio_csv
+from clnlos.brdf.fit import FIT_SPACE, fit_analytic
+from clnlos.brdf.lobes import retro_lobe
+from clnlos.brdf.models import model_spec
+from clnlos.brdf.store import load_model, save_model
+from clnlos.brdf.texture import tabulate, write_texture
+from clnlos.study.file.spec import Material, Study
+from clnlos.study.plan.entries import MaterialKeys
+
+HELD_OUT_FRACTION = 0.2     # of a measured CSV's rows, held out to choose the model
+FIT_STARTS = 4              # seeded starts of each analytic fit
+USABLE_AGREEMENT_PCT = 80.0  # held-out agreement below which a fit is flagged (docs/brdf.md)
+
+
+def split_samples(s: BRDFSamples, seed: int) -> tuple[BRDFSamples, BRDFSamples]:
+    """A seeded split of measured samples: (training, held-out HELD_OUT_FRACTION)."""
+    idx = np.random.default_rng(seed).permutation(len(s))
+    n_test = max(1, int(round(HELD_OUT_FRACTION * len(s))))
+    return s.subset(np.sort(idx[n_test:])), s.subset(np.sort(idx[:n_test]))
+
+
+def fit_measured(path: Path, seed: int = 0):
+    """(the analytic model that predicts the held-out samples of a gonio CSV best, its
+    metrics with every candidate's held-out agreement)."""
+    train, test = split_samples(read_gonio_csv(path), seed)
+    fits = {name: fit_analytic(name, train, test, starts=FIT_STARTS, seed=seed)
+            for name in FIT_SPACE}
+    best = max(fits, key=lambda n: fits[n].metrics["test_agreement_pct"])
+    metrics = {**fits[best].metrics, "candidates": {
+        n: {"test_agreement_pct": f.metrics["test_agreement_pct"],
+            "test_peak_error_pct": f.metrics["test_peak_error_pct"]} for n, f in fits.items()},
+        "held_out_fraction": HELD_OUT_FRACTION, "split_seed": seed}
+    return fits[best].model, metrics
+
+
+def _made(out_dir: Path, m: Material, what: str) -> Path:
+    return out_dir / "materials" / f"{Path(m.brdf).stem}-{m.sha256[:12]}.{what}.h5"
+
+
+def texture_of_model(model_path: Path, texture_path: Path) -> None:
+    """Tabulate a fitted model file into a texture (what ``clnlos brdf texture`` writes)."""
+    model, meta = load_model(model_path)
+    spec = model_spec(model)
+    texture_path.parent.mkdir(parents=True, exist_ok=True)
+    write_texture(texture_path, tabulate(model, provenance={
+        "model_file": str(model_path), **meta, **({} if spec is None else {"model_spec": spec})}))
+
+
+def _fit_file(m: Material, out_dir: Path, seed: int) -> tuple[Path, dict]:
+    """The model file of a measured CSV (fitted now, or read back), with its fit metrics."""
+    path = _made(out_dir, m, "model")
+    if path.is_file():
+        return path, load_model(path)[1]["metrics"]
+    model, metrics = fit_measured(Path(m.brdf), seed)
+    path.parent.mkdir(parents=True, exist_ok=True)
+    save_model(path, model, metrics, {"train": {"source": m.brdf, "sha256": m.sha256}})
+    return path, metrics
+
+
+def brdf_class(m: Material, flat: bool) -> str:
+    """The seed's class of a preset; "retroreflective"; "Lambertian" for a flat lobe; else
+    "measured" (a file's lobe)."""
+    if m.brdf in preset_table():
+        return preset_table()[m.brdf]["class"]
+    if m.brdf == RETROREFLECTIVE:
+        return "retroreflective"
+    if flat:
+        return "Lambertian"
+    return "analytic" if m.brdf in ANALYTIC_PRESETS else "measured"
+
+
+def prepare_material(m: Material, out_dir: Path, seed: int = 0) -> tuple[MaterialKeys, dict]:
+    """(what samples hold of ``m`` and the inversion assumes, a record for results.json: the
+    files made, a measured BRDF's fit and whether it is usable)."""
+    record: dict = {"name": m.name, "brdf": m.brdf, "albedo": m.albedo, "kind": m.kind}
+    sample: dict = {}
+    if m.kind == "preset":
+        scene, known = m.brdf, m.brdf
+    elif m.kind == "texture":
+        scene, known = m.brdf, m.brdf
+        sample["material_sha256"] = m.sha256
+    else:
+        if m.kind == "measured":
+            model_path, metrics = _fit_file(m, out_dir, seed)
+            record["fit"] = metrics
+            record["fit_usable"] = bool(metrics.get("test_agreement_pct", 0.0)
+                                        >= USABLE_AGREEMENT_PCT)
+            if not record["fit_usable"]:
+                warnings.warn(
+                    f"material {m.name!r}: the best analytic fit of {m.brdf} "
+                    f"({metrics.get('model')}) agrees {metrics.get('test_agreement_pct', 0):.1f}%"
+                    f" with its held-out samples (usable from {USABLE_AGREEMENT_PCT:g}%): its "
+                    "lobe, and what the study says of it, are approximate", UserWarning,
+                    stacklevel=2)
+        else:
+            model_path = Path(m.brdf)
+        tex = _made(out_dir, m, "texture")
+        if not tex.is_file():
+            texture_of_model(model_path, tex)
+        scene, known = str(tex), str(model_path)
+        record["model_file"], record["texture_file"] = str(model_path), str(tex)
+        sample["material_sha256"] = m.sha256
+    sample = {"material": scene, **sample}
+    if m.albedo != 1.0:
+        sample["albedo"] = m.albedo
+    retro = m.brdf == RETROREFLECTIVE
+    flat = m.brdf == LAMBERTIAN or (not retro and retro_lobe(known).flat)
+    keys = MaterialKeys(m.name, sample, None if flat else known, retro, flat,
+                        brdf_class(m, flat))
+    record["brdf_class"] = keys.brdf_class
+    return keys, record
+
+
+def prepare_materials(study: Study, out_dir: Path) -> tuple[dict[str, MaterialKeys], list]:
+    """Every material of the study (and of its real captures) made ready: ({name: keys},
+    the records)."""
+    mats, records = {}, []
+    every = list(study.materials) + [r.material for r in study.real
+                                     if r.material.name not in {m.name for m in
+                                                                study.materials}]
+    for m in every:
+        mats[m.name], rec = prepare_material(m, out_dir, study.seed)
+        records.append(rec)
+    return mats, records
