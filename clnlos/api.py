@@ -29,6 +29,8 @@ from clnlos.config import (
     python_keywords,
     slab_from_table,
 )
+from clnlos.brdf.store import FitQualityWarning
+from clnlos.brdf.texture import read_texture, texture_fit_warning
 from clnlos.errors import InputFileError, MissingParameterError, ParameterError
 from clnlos.forward.model import ForwardModel
 from clnlos.forward.scene import Scene
@@ -88,8 +90,11 @@ def simulate(scene: PathLike | Scene | Mapping[str, Any], *, dtype: DTypeLike = 
     Returns the capture ``[t, y, x]`` (float32; photon counts with a ``[detector]``, else
     1/(m^2 sr) per bin), with its geometry and the attributes a capture file records (scene,
     slab, stages, ``seconds`` of simulation, provenance), so ``reconstruct`` applies the
-    recorded slab as it does for a file."""
+    recorded slab as it does for a file. A texture material of a BRDF fit that is not usable
+    warns (``FitQualityWarning``)."""
     sc = load_scene(scene)
+    for line in material_fit_warnings(sc):
+        warnings.warn(line, FitQualityWarning, stacklevel=2)
     t0 = time.perf_counter()
     fm = ForwardModel(sc, dtype=dtype, queue=get_queue(device))
     done = iter(range(1, len(fm.stages) + 1))
@@ -103,6 +108,17 @@ def simulate(scene: PathLike | Scene | Mapping[str, Any], *, dtype: DTypeLike = 
     return Capture(np.asarray(tau, np.float32), sc.bin_width_s, sc.start_s, sc.width_m,
                    "simulated", attrs,
                    scan_height_m=None if ny == nx else sc.width_m * ny / nx)
+
+
+def material_fit_warnings(scene: Scene) -> list[str]:
+    """The warnings of the BRDF fits a scene's texture materials tabulate: one line per
+    texture of a fit that is not usable (``clnlos.brdf.texture.texture_fit_warning``)."""
+    out = []
+    for path in scene.texture_paths():
+        line = texture_fit_warning(read_texture(path), path)
+        if line and line not in out:
+            out.append(line)
+    return out
 
 
 def reconstruction_config(config: PathLike | Mapping[str, Any] | ReconstructionConfig | None

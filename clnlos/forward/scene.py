@@ -210,9 +210,12 @@ class Scene:
         out = []
         for o in self.objects:
             out += [self.base_dir / p for p in (o.path, o.brdf_retro_csv) if p is not None]
-            if isinstance(o.material, str) and o.material.endswith((".h5", ".hdf5")):
-                out.append(self.base_dir / o.material)
-        return out
+        return out + self.texture_paths()
+
+    def texture_paths(self) -> list[Path]:
+        """The BRDF texture files the scene's materials name, resolved against its folder."""
+        return [self.base_dir / o.material for o in self.objects
+                if isinstance(o.material, str) and o.material.endswith((".h5", ".hdf5"))]
 
     @classmethod
     def from_toml(cls, path) -> Scene:
