@@ -33,6 +33,8 @@ def volume_attrs(rec: Reconstruction) -> dict:
             "solver": json.dumps(rec.solver), "notes": json.dumps(rec.notes),
             "brdf": rec.params.get("brdf_used", "lambertian"),
             "axes": "volume[z, y, x]; +x with column index, +y with row index",
+            "capture_axes": rec.params.get("axes_used", "t,y,x"),
+            "capture_axes_source": rec.params.get("axes_source", "recorded by the file"),
             "format": "clnlos-volume-1"}
 
 
