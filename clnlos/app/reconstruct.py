@@ -38,11 +38,15 @@ def volume_attrs(rec: Reconstruction) -> dict:
             "format": "clnlos-volume-1"}
 
 
-def _iteration(bar) -> None:
-    """One iteration done: the set-up note (if any) goes, the bar moves."""
+def _iteration(bar, done: int, total: int) -> None:
+    """Iteration ``done`` of ``total`` finished: the set-up note (if any) goes, the bar takes
+    the total the solver runs to (the config's iterations, or fewer where the stop rule
+    says, clnlos.inverse.iterative) and moves to ``done``."""
     if bar.postfix:
         bar.set_postfix_str("", refresh=False)
-    bar.update(1)
+    if bar.total != total:
+        bar.total = total
+    bar.update(done - bar.n)
 
 
 def reconstruct_to_files(capture: Capture, out, config: ReconstructionConfig, *,
@@ -62,7 +66,8 @@ def reconstruct_to_files(capture: Capture, out, config: ReconstructionConfig, *,
     try:
         rec = reconstruct(capture, config=config, no_slab=no_slab, dtype=dtype, device=queue,
                           names=names, log=log,
-                          progress=None if bar is None else (lambda k, n: _iteration(bar)),
+                          progress=None if bar is None else (
+                              lambda k, n: _iteration(bar, k, n)),
                           setup=None if bar is None else (
                               lambda step: stage(bar, f"setup: {step}")))
     finally:
