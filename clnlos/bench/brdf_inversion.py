@@ -140,7 +140,7 @@ def operator_check(material: str, *, tilt_deg: float, slab: bool, transport: str
                                 dtype=dtype, queue=queue, lobe=retro_lobe(lobe_name),
                                 footprint_rms_m=fp)
         build = time.perf_counter() - t0
-        pred = op(vol)
+        pred = op(np.asarray(vol, dtype))
         if blur is not None:
             pred = blur(pred)
         if margin:
