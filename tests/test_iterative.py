@@ -98,6 +98,7 @@ def _tv(x, wz):
     return float(np.sqrt((_grad(x, wz) ** 2).sum(0)).sum())
 
 
+@pytest.mark.fp64
 def test_tv_prox_1d_matches_independent_solver(queue):
     """On a (n, 1, 1) volume TV is 1D: the FGP prox equals the solution of the box-constrained
     dual min_p 1/2 ||v - lam D^T p||^2, |p| <= 1, by L-BFGS-B (x = v - lam D^T p)."""
