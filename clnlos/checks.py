@@ -11,6 +11,7 @@ import math
 import numbers
 import os
 import tomllib
+from dataclasses import dataclass
 from pathlib import Path
 from typing import Any
 
@@ -98,6 +99,67 @@ GEOMETRY_LIMITS: dict[str, tuple[float, float, bool]] = {
     "bin_width_s": (0.0, 1e-6, False),   # histogram bin (s), > 0
     "start_s": (-1e-3, 1e-3, True),      # start of bin 0, round trip (s)
 }
+
+
+@dataclass(frozen=True)
+class Plausible:
+    """What a lab NLOS capture can have of one quantity (SI units). Inside ``usual``
+    nothing is said; outside it but inside ``possible``, one warning line (unusual); outside
+    ``possible`` no NLOS capture has it -- most likely a unit slip, ``slip_high`` /
+    ``slip_low`` name the likely one -- and it is an error unless the user accepts it
+    (``allow_implausible``). Why each bound: docs/reference/files.md, "Values that cannot
+    be"."""
+
+    unit: str  # "m" or "s": how values are shown
+    usual: tuple[float, float]
+    possible: tuple[float, float]
+    slip_high: str
+    slip_low: str
+    slip_factor: float | None = None  # a value too high times this: what was likely meant
+
+
+# The one plausibility rule of every reader, flag, config key and scene (a reconstruction:
+# clnlos.config.plausibility_warnings; a simulation: clnlos.api.simulate). Kinds: the side of
+# the scanned area; a time resolution (a histogram bin, a laser pulse's FWHM); a depth behind
+# the scan plane (where a time window ends, c (start + n dt) / 2; where it starts; max_path / 2;
+# depth_min).
+PLAUSIBLE: dict[str, Plausible] = {
+    "scan_width_m": Plausible("m", (1e-2, 10.0), (1e-4, 20.0), "a length in cm typed as m",
+                              "a length in km", 1e-2),
+    "time_step_s": Plausible("s", (1e-13, 1e-9), (1e-15, 1e-8), "a time in ns typed for ps",
+                             "a time in fs typed for ps", 1e-3),
+    "depth_m": Plausible("m", (-100.0, 100.0), (-1e3, 1e3), "a time in ns typed for ps (or "
+                         "us for ns)", "a time in ns typed for ps (or us for ns)"),
+}
+ALLOW_IMPLAUSIBLE = "--allow-implausible"  # the option that accepts an impossible value
+
+
+def shown_quantity(value: float, unit: str) -> str:
+    """A value for a message: lengths in m, times in ps below 1 ns, else in ns."""
+    if unit == "m":
+        return f"{value:.4g} m"
+    return f"{value * 1e12:.4g} ps" if abs(value) < 1e-9 else f"{value * 1e9:.4g} ns"
+
+
+def plausibility(kind: str, value: float) -> tuple[str, str]:
+    """("usual" | "unusual" | "impossible", the clause saying why) of ``value`` of the
+    quantity ``kind`` of :data:`PLAUSIBLE`."""
+    p = PLAUSIBLE[kind]
+    lo, hi = p.usual
+    if lo <= value <= hi:
+        return "usual", ""
+    high = value > hi
+    slip = p.slip_high if high else p.slip_low
+    if high and p.slip_factor:
+        slip += f": {shown_quantity(value * p.slip_factor, p.unit)}"
+    plo, phi = p.possible
+    if plo <= value <= phi:
+        bound = shown_quantity(hi if high else lo, p.unit)
+        return "unusual", (f"{'more' if high else 'less'} than the {bound} usual for an NLOS "
+                           f"capture ({slip}?)")
+    bound = shown_quantity(phi if high else plo, p.unit)
+    return "impossible", (f"{'beyond' if high else 'below'} the {bound} any NLOS capture can "
+                          f"have ({slip}?)")
 
 
 def check_keys(section: str, table: dict, allowed) -> None:

@@ -7,6 +7,13 @@ optional and its default is the field default of :class:`ReconstructionConfig`::
     scan_width_m = 0.7           # side of the scanned area along x (pitch x columns)
     bin_width_s = 16e-12         # overrides the file
     start_s = 0.0                # time of the start of bin 0
+    axes = "t,y,x"               # the stored array's axes in order, for a file that records
+                                 # no layout (.npy, .mat, HDF5 of other tools): t, y, x each
+                                 # once, a leading minus for a reversed axis (clnlos.io.layout;
+                                 # default: the layout's own or, for an unknown one, assumed
+                                 # from the shape, with a note)
+    allow_implausible = false    # accept a value no NLOS capture can have (a unit slip?:
+                                 # clnlos.checks.PLAUSIBLE) instead of stopping
     direct_cut_s = 2.4e-9        # zero the window before this time (round trip, s): the
                                  # direct reflection off the relay wall; default: what the
                                  # capture records (the LCT release: the published 600 bins
@@ -94,7 +101,9 @@ import numpy as np
 
 from clnlos.brdf.catalog import LAMBERTIAN, check_brdf_spec
 from clnlos.checks import (  # noqa: F401 (the capture checks: read from here too)
+    ALLOW_IMPLAUSIBLE,
     GEOMETRY_LIMITS,
+    PLAUSIBLE,
     auto_or_positive,
     check_geometry,
     check_keys,
@@ -103,10 +112,13 @@ from clnlos.checks import (  # noqa: F401 (the capture checks: read from here to
     input_file,
     integer,
     parse_toml,
+    plausibility,
     positive,
     real,
+    shown_quantity,
 )
-from clnlos.errors import InputFileError, ParameterError
+from clnlos.errors import ImplausibleValueError, InputFileError, ParameterError
+from clnlos.io.layout import parse_axes
 from clnlos.physics.constants import C0
 from clnlos.physics.lobe import MAX_TERMS
 from clnlos.physics.slab import SLAB_KEYS, Slab, slab_from_table, slab_table  # noqa: F401
@@ -234,17 +246,14 @@ def snr_rule_applies(rule: str, method: str) -> bool:
     return rule == split_rule(method)
 
 
-# Plausible geometry of a lab NLOS capture: a value past these is more likely a unit slip (cm
-# for m, ns for ps) than a scene, and gets one warning line (:func:`plausibility_warnings`).
-PLAUSIBLE_SCAN_WIDTH_M = 10.0    # side of the scanned area (m)
-PLAUSIBLE_DEPTH_M = 100.0        # depth the time window reaches, c (start + n dt) / 2 (m)
 # a value the user gives that differs from the one the capture gives by more than this
 # (relative) is said to contradict it
 CONTRADICTION_RTOL = 1e-3
 
 # config field -> its ``clnlos reconstruct`` flag (the CLI's RECON_FLAGS derive from it)
 FIELD_FLAGS: dict[str, str] = {
-    "scan_width_m": "--scan-width", "bin_width_s": "--bin-width",
+    "scan_width_m": "--scan-width", "bin_width_s": "--bin-width", "axes": "--axes",
+    "allow_implausible": ALLOW_IMPLAUSIBLE,
     "direct_cut_s": "--direct-cut", "snr": "--snr",
     "snr_rule": "--snr-rule", "inversion_snr": "--inversion-snr", "falloff": "--falloff",
     "max_path_m": "--max-path", "bins": "--bins", "method": "--method",
@@ -252,7 +261,9 @@ FIELD_FLAGS: dict[str, str] = {
     "depth_min_m": "--depth-min", "slab_model": "--slab-model", "brdf": "--brdf",
     "brdf_terms": "--brdf-terms"}
 # CLI words of the notes and their Python keyword (clnlos.reconstruct's) spelling
-FLAG_WORDS_PYTHON = {"--no-slab": "no_slab=True", "--slab-* flags": "slab={...}"}
+FLAG_WORDS_PYTHON = {"--no-slab": "no_slab=True", "--slab-* flags": "slab={...}",
+                     ALLOW_IMPLAUSIBLE: "allow_implausible=True",
+                     "[capture] start_s": "start_s="}
 
 
 def python_keywords(text: str) -> str:
@@ -266,20 +277,54 @@ def python_keywords(text: str) -> str:
     return text
 
 
-def _seconds(v: float) -> str:
-    return f"{v * 1e12:.4g} ps" if abs(v) < 1e-9 else f"{v * 1e9:.4g} ns"
+def accepted_by(how: str | None, python: bool = False) -> str:
+    """How the user accepts an impossible value, spelled as they gave it (``how``: a flag, a
+    TOML key or a keyword; None: the capture gave it, ``python`` for a Python caller)."""
+    if how is None:
+        return "allow_implausible=True" if python else ALLOW_IMPLAUSIBLE
+    if how.startswith("--"):
+        return ALLOW_IMPLAUSIBLE
+    if "." in how:  # a TOML key: the flag or the file's own key
+        return f"{ALLOW_IMPLAUSIBLE} or [capture] allow_implausible = true"
+    return "allow_implausible=True"
+
+
+def judged(kind: str, value: float, head: str, subject: str, *, allow: bool, accept: str
+           ) -> str | None:
+    """The line the plausibility rule (:func:`clnlos.checks.plausibility`) says of a value:
+    None where usual, a warning line where unusual or impossible and accepted (``allow``),
+    else an ImplausibleValueError naming ``head`` (how it was given), ``subject`` (what it
+    means) and ``accept`` (how to accept it)."""
+    level, clause = plausibility(kind, value)
+    if level == "usual":
+        return None
+    line = f"{head}: {subject}, {clause}"
+    if level == "impossible":
+        if not allow:
+            raise ImplausibleValueError(head, value, line, accept)
+        return f"{line} (accepted: {accept})"
+    return line
+
+
+def window_depth_m(nt: int, bin_width_s: float, start_s: float) -> float:
+    """Where a time window of ``nt`` bins of ``bin_width_s`` from ``start_s`` ends, as a depth
+    behind the scan plane: c (start + nt dt) / 2 (m)."""
+    return C0 * (start_s + nt * bin_width_s) / 2
 
 
 def plausibility_warnings(*, nt: int, bin_width_s: float, start_s: float, scan_width_m: float,
-                          recorded: dict, given: dict[str, str]) -> list[str]:
-    """One line each for geometry values implausible for a lab NLOS capture (a scan wider than
-    PLAUSIBLE_SCAN_WIDTH_M, a time window of ``nt`` bins reaching deeper than
-    PLAUSIBLE_DEPTH_M) and for values the user gave (``given``: field -> how, a flag, a TOML
-    key or a keyword) that contradict the value the capture gives (``recorded``: field ->
-    value or None). Each names the value, how it was given and what the file gave."""
+                          recorded: dict, given: dict[str, str], allow: bool = False,
+                          python: bool = False) -> list[str]:
+    """The plausibility rule (:data:`clnlos.checks.PLAUSIBLE`) on the geometry a
+    reconstruction resolved: the scan width, the bin width, the start and the depth the time
+    window of ``nt`` bins reaches; one line each for unusual values and for values the user
+    gave (``given``: field -> how, a flag, a TOML key or a keyword) that contradict the value
+    the capture gives (``recorded``: field -> value or None). A value no NLOS capture can have
+    is an ImplausibleValueError naming how it was given (or the capture), unless ``allow``
+    (then a warning line); ``python``: the capture's values are accepted by keyword."""
     out = []
-    units = {"scan_width_m": lambda v: f"{v:g} m", "bin_width_s": _seconds,
-             "start_s": _seconds}
+    units = {"scan_width_m": lambda v: f"{v:g} m", "bin_width_s": lambda v:
+             shown_quantity(v, "s"), "start_s": lambda v: shown_quantity(v, "s")}
 
     def said(field, value):
         rec = recorded.get(field)
@@ -287,21 +332,25 @@ def plausibility_warnings(*, nt: int, bin_width_s: float, start_s: float, scan_w
         head = spelled(how, value) if how else f"{field} = {value:g} (from the capture)"
         tail = (f"; the capture gives {units[field](rec)}" if how and rec is not None
                 else "")
-        return head, tail
+        return head, tail, accepted_by(how, python)
 
-    if scan_width_m > PLAUSIBLE_SCAN_WIDTH_M:
-        head, tail = said("scan_width_m", scan_width_m)
-        out.append(f"{head}: a scan {scan_width_m:g} m wide, more than the "
-                   f"{PLAUSIBLE_SCAN_WIDTH_M:g} m plausible for an NLOS capture (a length in "
-                   f"cm or mm?){tail}")
-    depth = C0 * (start_s + nt * bin_width_s) / 2
-    if depth > PLAUSIBLE_DEPTH_M:
-        field = "bin_width_s" if "bin_width_s" in given or "start_s" not in given \
-            else "start_s"
-        head, tail = said(field, bin_width_s if field == "bin_width_s" else start_s)
-        out.append(f"{head}: the time window ({nt} bins) reaches {depth:.4g} m deep, more "
-                   f"than the {PLAUSIBLE_DEPTH_M:g} m plausible for an NLOS capture (a time in "
-                   f"ns for ps?){tail}")
+    depth = window_depth_m(nt, bin_width_s, start_s)
+    window_field = "bin_width_s" if "bin_width_s" in given or "start_s" not in given \
+        else "start_s"
+    checks = (("scan_width_m", "scan_width_m", scan_width_m,
+               f"a scan {scan_width_m:g} m wide"),
+              ("time_step_s", "bin_width_s", bin_width_s,
+               f"a bin of {shown_quantity(bin_width_s, 's')}"),
+              ("depth_m", "start_s", C0 * start_s / 2,
+               f"the window starts {C0 * start_s / 2:.4g} m deep"),
+              ("depth_m", window_field, depth,
+               f"the time window ({nt} bins) reaches {depth:.4g} m deep"))
+    for kind, field, value, subject in checks:
+        head, tail, accept = said(field, bin_width_s if field == "bin_width_s" else
+                                  start_s if field == "start_s" else value)
+        line = judged(kind, value, head, subject, allow=allow, accept=accept)
+        if line is not None and not any(o.startswith(head) for o in out):
+            out.append(line + tail)
     for field, value in (("scan_width_m", scan_width_m), ("bin_width_s", bin_width_s),
                          ("start_s", start_s)):
         rec, how = recorded.get(field), given.get(field)
@@ -313,6 +362,58 @@ def plausibility_warnings(*, nt: int, bin_width_s: float, start_s: float, scan_w
             out.append(f"{spelled(how, value)} contradicts the {units[field](rec)} the "
                        "capture gives (the value given is used)")
     return out
+
+
+def scene_plausibility(*, width_m: float, bin_width_s: float, bins: int, start_s: float,
+                       pulse_width_s: float | None, allow: bool = False,
+                       accept: str = ALLOW_IMPLAUSIBLE) -> list[str]:
+    """The plausibility rule (:data:`clnlos.checks.PLAUSIBLE`) on a scene's capture geometry
+    (its TOML keys): the scan width, the bin width, the laser pulse, the start and the depth
+    its window reaches. One warning line per unusual value; a value no NLOS capture can have
+    is an ImplausibleValueError naming the key, unless ``allow`` (``accept`` says how)."""
+    depth = window_depth_m(bins, bin_width_s, start_s)
+    checks = [("scan_width_m", "scan.width_m", width_m, width_m, f"a scan {width_m:g} m wide"),
+              ("time_step_s", "time.bin_width_s", bin_width_s, bin_width_s,
+               f"a bin of {shown_quantity(bin_width_s, 's')}"),
+              ("depth_m", "time.start_s", start_s, C0 * start_s / 2,
+               f"the window starts {C0 * start_s / 2:.4g} m deep"),
+              ("depth_m", "time.bin_width_s", bin_width_s, depth,
+               f"the time window ({bins} bins) reaches {depth:.4g} m deep")]
+    if pulse_width_s is not None:
+        checks.append(("time_step_s", "laser.pulse_width_s", pulse_width_s, pulse_width_s,
+                       f"a pulse of {shown_quantity(pulse_width_s, 's')}"))
+    out: list[str] = []
+    for kind, key, given, value, subject in checks:
+        head = spelled(key, given)
+        line = judged(kind, value, head, subject, allow=allow, accept=accept)
+        if line is not None and not any(o.startswith(head) for o in out):
+            out.append(line)
+    return out
+
+
+def check_given_plausible(config: ReconstructionConfig, names: dict[str, str]) -> None:
+    """The values a config sets that no NLOS capture can have (the plausibility rule, each on
+    its own: scan width, bin width, start, max_path_m / 2 and depth_min_m as depths) are an
+    ImplausibleValueError naming how they were given, before any capture is read, unless
+    ``allow_implausible``."""
+    def nm(f):
+        return names.get(f, FIELD_NAMES.get(f, f))
+
+    items = (("scan_width_m", "scan_width_m", lambda v: v, lambda v: f"a scan {v:g} m wide"),
+             ("bin_width_s", "time_step_s", lambda v: v,
+              lambda v: f"a bin of {shown_quantity(v, 's')}"),
+             ("start_s", "depth_m", lambda v: C0 * v / 2,
+              lambda v: f"the window starts {C0 * v / 2:.4g} m deep"),
+             ("max_path_m", "depth_m", lambda v: v / 2,
+              lambda v: f"a path of {v:g} m reaches {v / 2:.4g} m deep"),
+             ("depth_min_m", "depth_m", lambda v: v, lambda v: f"a depth of {v:g} m"))
+    for field, kind, measure, subject in items:
+        v = getattr(config, field)
+        if v is None or isinstance(v, str):
+            continue
+        how = nm(field)
+        judged(kind, measure(v), spelled(how, v), subject(v),
+               allow=config.allow_implausible, accept=accepted_by(how))
 
 
 def spelled(how: str, value) -> str:
@@ -329,6 +430,8 @@ TOML_FIELDS: dict[tuple[str, str], str] = {
     ("capture", "scan_width_m"): "scan_width_m",
     ("capture", "bin_width_s"): "bin_width_s",
     ("capture", "start_s"): "start_s",
+    ("capture", "axes"): "axes",
+    ("capture", "allow_implausible"): "allow_implausible",
     ("capture", "direct_cut_s"): "direct_cut_s",
     ("preprocess", "max_path_m"): "max_path_m",
     ("preprocess", "bins"): "bins",
@@ -465,6 +568,8 @@ class ReconstructionConfig:
     scan_width_m: float | None = None
     bin_width_s: float | None = None
     start_s: float | None = None
+    axes: str | None = None
+    allow_implausible: bool = False
     direct_cut_s: float | None = None
     max_path_m: float | None = None
     bins: int | None = None
@@ -492,7 +597,11 @@ class ReconstructionConfig:
 
     def validate(self, names: dict[str, str] | None = None) -> ReconstructionConfig:
         """A validated copy. ``names`` maps field names to how the user gave them (a CLI
-        flag such as ``--scan-width``), for error messages; else the TOML name."""
+        flag such as ``--scan-width``), for error messages; else the TOML name. With
+        ``names`` (the final config: a file's own validation passes none, the flags may still
+        accept what it sets) a value no NLOS capture can have is an error unless
+        ``allow_implausible`` (:func:`check_given_plausible`)."""
+        given = names
         names = names or {}
 
         def nm(f):
@@ -502,6 +611,11 @@ class ReconstructionConfig:
         for f in GEOMETRY_LIMITS:
             if getattr(self, f) is not None:
                 v[f] = check_geometry(f, getattr(self, f), nm(f))
+        if self.axes is not None:
+            v["axes"] = str(parse_axes(self.axes, nm("axes")))
+        if not isinstance(self.allow_implausible, bool):
+            raise ParameterError(nm("allow_implausible"), self.allow_implausible,
+                                 "true or false")
         if self.direct_cut_s is not None:
             v["direct_cut_s"] = real(nm("direct_cut_s"), self.direct_cut_s, *DIRECT_CUT_RANGE)
         if self.max_path_m is not None:
@@ -560,7 +674,10 @@ class ReconstructionConfig:
                 raise ParameterError(nm(field), getattr(self, field), "only with method "
                                      + " or ".join(f"\"{m}\"" for m in readers)
                                      + f" (method \"{self.method}\" does not use it)")
-        return dataclasses.replace(self, **v, user_fields=self.user_fields | frozenset(names))
+        out = dataclasses.replace(self, **v, user_fields=self.user_fields | frozenset(names))
+        if given is not None:  # the whole config, flags over the file: accepted or not
+            check_given_plausible(out, names)
+        return out
 
     def _rules_for_method(self) -> str:
         """The snr_rule values that apply with this config's method, quoted."""

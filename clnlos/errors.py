@@ -44,6 +44,15 @@ class MissingParameterError(ParameterError):
         ValueError.__init__(self, f"{name} is needed: {why}")
 
 
+class ImplausibleValueError(ParameterError):
+    """A value no NLOS capture can have (most likely a unit slip); the message names it, why
+    it cannot be, the likely slip and the option that accepts it anyway."""
+
+    def __init__(self, name: str, value, why: str, accept: str):
+        self.name, self.value, self.allowed = name, value, why
+        ValueError.__init__(self, f"{why}; {accept} accepts it")
+
+
 class ShapeError(ClnlosError, ValueError):
     """An array has the wrong shape or dtype for the operator it is given to."""
 

@@ -12,13 +12,19 @@ from clnlos.runtime import device as runtime
 SHARED = Path(__file__).resolve().parents[1].parent / "shared" / "data"
 
 
-@pytest.fixture(scope="session")
-def queue():
-    """One queue on the test device: $CLNLOS_DEVICE, else PoCL if present, else the default."""
+def device_queue():
+    """The queue tests run on: $CLNLOS_DEVICE, else PoCL if present, else the default (one
+    per process: clnlos.runtime.caches keeps it)."""
     spec = os.environ.get(settings.ENV_DEVICE) or None
     if spec is None and any("portable" in d.platform.lower() for d in runtime.list_devices()):
         spec = "pocl"
     return runtime.get_queue(spec)
+
+
+@pytest.fixture(scope="session")
+def queue():
+    """One queue on the test device (:func:`device_queue`)."""
+    return device_queue()
 
 
 @pytest.fixture(params=[np.float32, np.float64], ids=["f32", "f64"])
@@ -28,29 +34,14 @@ def dtype(request, queue):
     return np.dtype(request.param)
 
 
-def _fp64_missing(excinfo) -> bool:
-    """A float64 request refused by a device without cl_khr_fp64 (or a float64 kernel build
-    that failed for that reason)."""
-    from clnlos.errors import DeviceCapabilityError, KernelBuildError
-
-    msg = str(excinfo.value)
-    return ((excinfo.errisinstance(DeviceCapabilityError) and "float64 requested" in msg)
-            or (excinfo.errisinstance(KernelBuildError) and "REAL_T=double" in msg
-                and "fp64" in msg))
-
-
-@pytest.hookimpl(hookwrapper=True)
-def pytest_runtest_makereport(item, call):
-    """On a device without fp64 (rusticl/llvmpipe, many GPUs), a test whose float64 device
-    reference is refused is reported as skipped with that reason, not failed: the float32
-    path it checks is covered against host float64 references by the other tests."""
-    outcome = yield
-    rep = outcome.get_result()
-    if call.when in ("setup", "call") and call.excinfo is not None \
-            and _fp64_missing(call.excinfo):
-        rep.outcome = "skipped"
-        rep.longrepr = (str(item.path), item.location[1] or 0,
-                        "Skipped: the device has no fp64, this test needs a float64 device run")
+def pytest_runtest_setup(item):
+    """A test marked ``fp64`` runs float64 on the device: skipped, with that reason, on a
+    device without cl_khr_fp64 (rusticl/llvmpipe, many GPUs), before its fixtures are set
+    up; its float32 path is covered against host float64 references by the other tests. Any
+    other test that meets a "float64 requested" refusal fails."""
+    if item.get_closest_marker("fp64") is not None \
+            and not runtime.has_fp64(device_queue().device):
+        pytest.skip("the device has no fp64, this test needs a float64 device run")
 
 
 @pytest.fixture(scope="session")

@@ -555,6 +555,7 @@ def test_gcv_bins_of_a_folded_spectrum_equal_the_whole():
         assert folded.snr(p, 1.0, 1e8) == whole.snr(p, 1.0, 1e8)
 
 
+@pytest.mark.fp64
 def test_lightcone_noise_power_from_its_law(queue):
     """Without a slab the light-cone UPRE takes the noise's power spectrum from its law
     (LCT.column_noise_power, no realisation): Parseval's total exactly, and the mean power

@@ -229,7 +229,11 @@ def test_start_far_past_zero_names_the_window(tmp_path):
     line = _one_error_line(rc, err)
     assert "start_s" in line and f"at most {MAX_BINS}" in line and "memory" not in line, line
     rc, _, err = _run_both(["reconstruct", str(cap), "-o", str(out), "--bins", "64"])
-    assert rc == 0, err  # rebinned, the window is reachable
+    line = _one_error_line(rc, err)  # rebinned, the window is reachable, but 15 km deep
+    assert "start_s = 0.0001 (from the capture): the window starts 1.499e+04 m deep" in line
+    rc, _, err = _run_both(["reconstruct", str(cap), "-o", str(out), "--bins", "64",
+                            "--allow-implausible"])
+    assert rc == 0, err
 
 
 def test_window_ending_before_zero_names_start(tmp_path):

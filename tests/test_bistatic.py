@@ -187,6 +187,7 @@ def test_bistatic_lambertian_patch_matches_float64_quadrature(queue):
         assert _shape_err(tau[:, 2, col], ref[i]) < TOL_SHAPE
 
 
+@pytest.mark.fp64
 def test_face_quadrature_carries_the_slab_energy(queue):
     """The samples' masses sum, lag by lag, to Phi summed over the face (a fine grid of
     :func:`clnlos.diffusion.diffusion_psf`); equal-energy rings; kernels m_i (x) m_j."""

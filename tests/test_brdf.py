@@ -310,8 +310,27 @@ def test_brdf_cli_fit_texture_plot(tmp_path, capsys):
     assert not (tmp_path / "x.h5").exists()
 
 
+def _scene_against_reference(fm, tables):
+    """(the model's transient, the float64 numpy reference of its light cone with the retro
+    ``tables`` [materials, N_THETA] given): the same surface elements."""
+    from reference.lightcone_ref import lightcone_ref
+
+    sc, smp = fm.scene, fm.samples
+    el = smp.elements
+    ref = lightcone_ref(el.pos, el.normal, el.area, smp.albedo, smp.material, tables,
+                        points=sc.points, width=sc.width_m, bins=sc.bins,
+                        bin_width=sc.bin_width_s, start=sc.start_s,
+                        splat_order=sc.splat_order)
+    return fm.run(), ref
+
+
 def test_texture_material_in_scene(queue, tmp_path):
+    """A texture material renders the transient of its model's own retro slice (the float64
+    reference with the analytic model's slice, not the texture's)."""
+    from helpers import rel_l2
+
     from clnlos.forward.model import ForwardModel
+    from clnlos.forward.sampling import N_THETA
     from clnlos.forward.scene import Scene
 
     m = BRDFModel("phong", {"kd": 0.2, "ks": 0.8, "shininess": 40.0})
@@ -321,7 +340,9 @@ def test_texture_material_in_scene(queue, tmp_path):
          "objects": [{"shape": "rectangle", "size_m": [0.1, 0.1], "material": "t.h5",
                       "translate_m": [0, 0, 0.4]}]}
     fm = ForwardModel(Scene.from_dict(d, base_dir=tmp_path), queue=queue)
-    assert fm.stages == ["lightcone:brdf-table"] and fm.run().sum() > 0
+    assert fm.stages == ["lightcone:brdf-table"]
+    out, ref = _scene_against_reference(fm, retro_slice(m, N_THETA)[None])
+    assert ref.sum() > 0 and rel_l2(ref, out) < 1e-3
 
 
 @pytest.mark.shared_data
@@ -333,8 +354,11 @@ def test_measured_ptfe_five_param_fit(shared_data):
 
 
 def test_ten_presets_in_four_classes(queue):
+    from helpers import rel_l2
+
     from clnlos.brdf.presets import CLASSES, preset_model, preset_table
     from clnlos.forward.model import ForwardModel
+    from clnlos.forward.sampling import N_THETA
     from clnlos.forward.scene import Scene
 
     t = preset_table()
@@ -347,4 +371,10 @@ def test_ten_presets_in_four_classes(queue):
                                                           "start_s": 2.5e-9},
          "objects": [{"shape": "rectangle", "size_m": [0.1, 0.1], "material": "Quartz Glass",
                       "translate_m": [0, 0, 0.4]}]}
-    assert ForwardModel(Scene.from_dict(d), queue=queue).run().sum() > 0
+    out, ref = _scene_against_reference(ForwardModel(Scene.from_dict(d), queue=queue),
+                                        retro_slice(preset_model("quartz glass"),
+                                                    N_THETA)[None])
+    assert ref.sum() > 0 and rel_l2(ref, out) < 1e-3
+    lam = dict(d, objects=[{**d["objects"][0], "material": "lambertian"}])
+    # its narrow lobe, not the Lambertian 1/pi: far from the Lambertian transient
+    assert rel_l2(ForwardModel(Scene.from_dict(lam), queue=queue).run(), out) > 0.5

@@ -70,6 +70,7 @@ def test_late_times_and_pointwise_against_mpmath(queue, dtype):
             assert abs(out - ref) <= tol * ref, (t, out, ref)
 
 
+@pytest.mark.fp64
 def test_small_n_dipoles_is_wrong_late_but_never_negative(queue):
     t = np.linspace(1e-10, 8e-9, 200)
     exact = slab_transmittance(0.0, t, **CDT, dtype=np.float64, device=queue)
@@ -82,6 +83,7 @@ def test_small_n_dipoles_is_wrong_late_but_never_negative(queue):
     assert errs[0] > 1e-2 and errs[-1] < 1e-10
 
 
+@pytest.mark.fp64
 def test_total_transmittance_lossless(queue):
     s = Slab(thickness_m=0.0254, mu_a=0.0, mu_s_prime=262.0, n=1.12)
     lt = np.linspace(np.log(1e-13), np.log(2e-6), 40000)
@@ -147,6 +149,7 @@ def test_invalid_n_dipoles_and_nan_inputs(queue):
         slab_transmittance(0.0, np.array([np.nan]), **CDT, device=queue)
 
 
+@pytest.mark.fp64
 def test_psf_grid_layout_and_normalisation(queue):
     s = Slab(**CDT)
     dt, pitch, nt, n = 16e-12, 0.01, 256, 16
@@ -179,6 +182,7 @@ def test_plan_reuses_program(queue):
     assert a.kernels is b.kernels
 
 
+@pytest.mark.fp64
 def test_temporal_support_holds_all_but_tol_of_the_psf(queue):
     """The slab PSF is evaluated only over its temporal support: what is cut is below the
     stated tolerance of the full table's energy, and a slab whose response outlasts the

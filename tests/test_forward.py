@@ -89,6 +89,7 @@ def test_kernel_vs_reference(queue, dtype, splat, brdf, variant):
     assert rel_l2(ref, out) < TOL[np.dtype(dtype).type] * (20 if splat == 0 else 1)
 
 
+@pytest.mark.fp64
 def test_single_patch_hyperbola_and_amplitude(queue):
     x0, y0, z0, dA = 0.03, -0.05, 0.4, 1e-6
     el = Elements(np.array([[x0, y0, z0]]), np.array([[0.0, 0.0, -1.0]]), np.array([dA]))
@@ -108,6 +109,7 @@ def test_single_patch_hyperbola_and_amplitude(queue):
             assert col.sum() == pytest.approx(cos**4 / r**4 * dA / np.pi, rel=1e-12)
 
 
+@pytest.mark.fp64
 def test_lambertian_square_matches_quadrature(queue):
     """Time-integrated I of a fronto-parallel square = (1/pi) int cos^2 cos^2 / r^4 dA."""
     from scipy.integrate import dblquad
@@ -128,6 +130,7 @@ def test_lambertian_square_matches_quadrature(queue):
             assert out[iy, ix] == pytest.approx(ref, rel=1e-4)
 
 
+@pytest.mark.fp64
 def test_sampling_density_convergence(queue):
     dense = ForwardModel(Scene.from_dict({**_raw(), "sampling": {"density_per_m2": 4e6}}),
                          queue=queue, dtype=np.float64).run()

@@ -98,6 +98,7 @@ def _tv(x, wz):
     return float(np.sqrt((_grad(x, wz) ** 2).sum(0)).sum())
 
 
+@pytest.mark.fp64
 def test_tv_prox_1d_matches_independent_solver(queue):
     """On a (n, 1, 1) volume TV is 1D: the FGP prox equals the solution of the box-constrained
     dual min_p 1/2 ||v - lam D^T p||^2, |p| <= 1, by L-BFGS-B (x = v - lam D^T p)."""
@@ -169,6 +170,7 @@ def test_fista_matches_lbfgsb(queue, dtype):
     assert f(x)[0] <= f(np.zeros(30))[0] and res.objective and res.change
 
 
+@pytest.mark.fp64
 def test_lipschitz_is_largest_eigenvalue(queue):
     A = np.random.default_rng(4).standard_normal((40, 25))
     L = lipschitz(_matrix_operator(queue, A, np.float64), iterations=200)
@@ -178,6 +180,7 @@ def test_lipschitz_is_largest_eigenvalue(queue):
 
 # ------------------------------------------------------------------ light-cone transport
 @pytest.mark.parametrize("case", [(96, 8, 40e-12, 0.4, 0), (120, 6, 30e-12, 0.3, 3)])
+@pytest.mark.fp64
 def test_transport_matches_lightcone_kernel(queue, case):
     """Voxels facing the scan plane rendered by the forward light-cone kernel (an independent
     element-wise method): per scan point, the time-integrated signal within 2% and the time
@@ -209,6 +212,7 @@ def test_transport_matches_lightcone_kernel(queue, case):
     assert np.abs(c_out - c_ref).max() < 0.25
 
 
+@pytest.mark.fp64
 def test_transport_support_rows_are_zero(queue):
     op = LightConeTransport((80, 4, 4), bin_width_s=40e-12, scan_width_m=0.2,
                             depth_min_m=0.25, dtype=np.float64, queue=queue)
@@ -413,6 +417,7 @@ def test_kernel_support_and_fast_lengths():
     assert row_blocks((3, 100), 10) == [(0, 1), (1, 2), (2, 3)]
 
 
+@pytest.mark.fp64
 def test_working_set_solves_a_sparse_problem_in_fewer_steps(queue):
     """A sparse non-negative problem with coherent columns (a Gaussian blur, an L1
     weight): the working-set solver reaches L-BFGS-B's minimiser as plain FISTA does, in

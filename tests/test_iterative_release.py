@@ -39,6 +39,7 @@ def test_the_release_hint_gives_the_iterative_voxels_the_retroreflective_falloff
     assert cfg.falloff == RETROREFLECTIVE_FALLOFF and cfg.brdf == "auto"
 
 
+@pytest.mark.fp64
 def test_falloff_scales_the_transport_by_r_squared(queue):
     """falloff 2 is the Lambertian transport times r^2 = (c t / 2)^2 per time bin."""
     shape, bw = (48, 6, 6), 32e-12

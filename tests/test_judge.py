@@ -125,8 +125,15 @@ def test_cli_and_api_judge_volumes_and_captures(tiny_judge_dir, tmp_path, capsys
              "detector": {"exposure_s": 1.0, "etendue_m2_sr": 1e-6}}
     cap = clnlos.simulate(scene, device=queue)
     c = clnlos.legibility(cap, model=d, device=queue)
-    assert c.kind == "capture" and 0 <= c.p_legible <= 1
-    assert set(c.features) == set(CAPTURE_FEATURES)
+    assert c.kind == "capture" and set(c.features) == set(CAPTURE_FEATURES)
+    # the judge's own model of the features it reports: legible for this easy L
+    x = np.array([[c.features[f] for f in judge.capture.features]])
+    assert c.p_legible == pytest.approx(float(judge.capture.predict_proba(x)[0]), rel=1e-9)
+    assert c.p_legible > 0.5
+    # the same L with 1e-11 of the exposure (tens of photons): judged illegible
+    dim = {**scene, "detector": {**scene["detector"], "exposure_s": 1e-11}}
+    assert clnlos.legibility(clnlos.simulate(dim, device=queue), model=d,
+                             device=queue).p_legible < 0.5
     # errors a user can cause: one line, exit 2, before any work
     assert main(["legibility", str(vol), "--model", str(tmp_path)]) == 2
     assert "no judge.json" in capsys.readouterr().err

@@ -85,7 +85,9 @@ def test_direct_cut_zeroes_the_window_and_says_so(tmp_path, queue):
     cap = clnlos.read_capture(tmp_path / "c.mat")
     cut, notes = without_direct(cap)
     assert not cut.transient[:600].any() and cut.transient[700:704].sum() == tau[700:704].sum()
-    assert len(notes) == 2 and "600 bins" in notes[1]
+    assert len(notes) == 3 and "600 bins" in notes[2]
+    assert "'rect_data' (MATLAB's order) read as axes -x,-y,t" in notes[0]
+    assert "bin width 4 ps: the published code's 4 ps" in notes[1] and "start 0 ps" in notes[1]
     kept, notes = without_direct(cap, 0.0)
     np.testing.assert_array_equal(kept.transient, tau)
     part, _ = without_direct(cap, 10 * LCT_MAT_BIN_WIDTH_S)

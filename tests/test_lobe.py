@@ -136,6 +136,7 @@ def _render(queue, vol, model, *, bw, w, margin, sub=16):
 
 
 @pytest.mark.parametrize("model", [GOLD, ALLOY], ids=["gold", "alloy"])
+@pytest.mark.fp64
 def test_lobe_transport_matches_the_forward_kernel(queue, model):
     """Per scan point the time-integrated signal within 2% of the peak and the time centroid
     within 0.25 bins of the element-wise renderer (the operator splats in v = r^2, the
@@ -157,7 +158,8 @@ def test_lobe_transport_matches_the_forward_kernel(queue, model):
     assert np.abs(c_out - c_ref).max() < 0.25
 
 
-@pytest.mark.parametrize("dtype,tol", [(np.float64, 1e-12), (np.float32, 1e-5)])
+@pytest.mark.parametrize("dtype,tol", [pytest.param(np.float64, 1e-12, marks=pytest.mark.fp64),
+                                       (np.float32, 1e-5)])
 def test_lobe_transport_adjoint(queue, dtype, tol):
     op = LightConeTransport((60, 5, 4), bin_width_s=40e-12, scan_width_m=0.2, margin=1,
                             depth_min_m=0.15, dtype=dtype, queue=queue, lobe=_lobe(GOLD),
@@ -166,6 +168,7 @@ def test_lobe_transport_adjoint(queue, dtype, tol):
     assert dot_test(op, np.random.default_rng(3)) < tol
 
 
+@pytest.mark.fp64
 def test_lambertian_lobe_is_the_lambertian_operator(queue):
     vol = _scene(nt=80, n=6)
     kw = dict(bin_width_s=40e-12, scan_width_m=0.25, margin=1, depth_min_m=0.2,
@@ -176,6 +179,7 @@ def test_lambertian_lobe_is_the_lambertian_operator(queue):
     assert np.array_equal(a, b)
 
 
+@pytest.mark.fp64
 def test_more_terms_approach_the_full_lobe(queue):
     """The operator's error against its own K = 10 form falls with K (the bench reports it)."""
     vol = _scene(nt=100, n=8, seed=4)

@@ -16,9 +16,8 @@ import pytest
 import clnlos
 from clnlos.api import PlausibilityWarning
 from clnlos.app.cli import main
+from clnlos.checks import PLAUSIBLE
 from clnlos.config import (
-    PLAUSIBLE_DEPTH_M,
-    PLAUSIBLE_SCAN_WIDTH_M,
     ReconstructionConfig,
     drop_other_methods_settings,
     plausibility_warnings,
@@ -107,14 +106,11 @@ def test_python_method_over_a_config_notes_it_in_python_words(files, queue):
 
 # ------------------------------------------------------------------ item 3
 @pytest.mark.parametrize("flags,needle", [
-    (["--scan-width", "60"], "--scan-width 60: a scan 60 m wide"),
-    (["--scan-width", "30"], "--scan-width 30: a scan 30 m wide"),
-    (["--bin-width", "8e-9"], "--bin-width 8e-09: the time window (160 bins) reaches 191.9 m deep"),
-    (["--bin-width", "2e-8"], "--bin-width 2e-08: the time window (160 bins) reaches 479.7 m deep"),
-    # 160 bins of 4 ns reach 96 m, inside the limit: the contradiction is said instead
-    (["--bin-width", "4e-9"], "--bin-width 4e-09 contradicts the 20 ps"),
+    (["--scan-width", "15"], "--scan-width 15: a scan 15 m wide, more than the 10 m usual"),
+    (["--bin-width", "8e-9"], "--bin-width 8e-09: a bin of 8 ns, more than the 1 ns usual"),
+    (["--bin-width", "4e-9"], "--bin-width 4e-09: a bin of 4 ns, more than the 1 ns usual"),
 ])
-def test_implausible_units_warn_once_naming_flag_value_and_file(files, capsys, flags, needle):
+def test_unusual_units_warn_once_naming_flag_value_and_file(files, capsys, flags, needle):
     main(["reconstruct", str(files / "cap.h5"), "-o", str(files / "w.h5"), "--force",
           *flags])
     err = capsys.readouterr().err
@@ -138,14 +134,15 @@ def test_plausibility_limits_and_plain_values():
     ok = dict(nt=512, bin_width_s=16e-12, start_s=0.0, scan_width_m=0.3, recorded=rec)
     assert plausibility_warnings(**ok, given={}) == []
     assert plausibility_warnings(**ok, given={"scan_width_m": "--scan-width"}) == []
-    wide = plausibility_warnings(**{**ok, "scan_width_m": PLAUSIBLE_SCAN_WIDTH_M * 1.5},
+    usual_scan = PLAUSIBLE["scan_width_m"].usual[1]
+    wide = plausibility_warnings(**{**ok, "scan_width_m": usual_scan * 1.5},
                                  given={"scan_width_m": "capture.scan_width_m"})
     assert len(wide) == 1 and wide[0].startswith("capture.scan_width_m = 15:")
-    deep_bw = 2 * PLAUSIBLE_DEPTH_M * 1.1 / 3e8 / 512
-    deep = plausibility_warnings(**{**ok, "bin_width_s": deep_bw},
+    deep_bw = 2 * PLAUSIBLE["depth_m"].usual[1] * 1.1 / 3e8 / 4096  # 179 ps: a usual bin
+    deep = plausibility_warnings(**{**ok, "nt": 4096, "bin_width_s": deep_bw},
                                  given={"bin_width_s": "bin_width_s"})
-    assert len(deep) == 1 and deep[0].startswith(f"bin_width_s={deep_bw:g}:")
-    # a file's own implausible value (nothing given): named as the file's
+    assert len(deep) == 1 and deep[0].startswith(f"bin_width_s={deep_bw:g}: the time window")
+    # a file's own unusual value (nothing given): named as the file's
     own = plausibility_warnings(**{**ok, "bin_width_s": 4e-9,
                                      "recorded": {**rec, "bin_width_s": 4e-9}}, given={})
     assert len(own) == 1 and "(from the capture)" in own[0]
@@ -153,8 +150,8 @@ def test_plausibility_limits_and_plain_values():
 
 def test_python_warns_with_the_keyword(files, queue):
     cap = clnlos.read_capture(files / "cap.h5")
-    with pytest.warns(PlausibilityWarning, match=r"scan_width_m=60: a scan 60 m wide"):
-        clnlos.reconstruct(cap, scan_width_m=60.0, device=queue)
+    with pytest.warns(PlausibilityWarning, match=r"scan_width_m=15: a scan 15 m wide"):
+        clnlos.reconstruct(cap, scan_width_m=15.0, device=queue)
     with warnings.catch_warnings():
         warnings.simplefilter("error")
         clnlos.reconstruct(cap, device=queue)  # plausible: no warning

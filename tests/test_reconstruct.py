@@ -355,6 +355,7 @@ def test_shape_errors(queue):
         _ = op @ AxisResample(sp.identity(3, format="csr"), (4, 4), queue=queue)
 
 
+@pytest.mark.fp64
 def test_energy_of_blur_is_squared_transmission(queue):
     """sum(Phi * Phi * I) = sum(I) x T_total^2 (mu_a = 0: T_total = (z0+ze)/(d+2ze))."""
     lossless = dict(CDT, mu_a=0.0)
@@ -380,6 +381,7 @@ def _blurred_capture(points, weights, nt=512, n=24, width=0.6, dt=16e-12, queue=
 
 @pytest.mark.parametrize("method", ["lct", "fk"])
 @pytest.mark.parametrize("target", ["point", "patch"])
+@pytest.mark.fp64
 def test_synthetic_target_at_right_voxel(queue, method, target):
     centre = (0.1, -0.075, 0.5)
     if target == "point":
@@ -453,6 +455,7 @@ def test_real_letter_s(queue, shared_data, method):
 
 
 # ------------------------------------------------------------------ CLI
+@pytest.mark.fp64
 def test_cli_reconstruct_writes_volume_and_png(tmp_path, queue):
     cap = _blurred_capture([(0.0, 0.05, 0.4)], [1.0], nt=256, n=16, width=0.5, queue=queue)
     src = write_capture(tmp_path / "cap.h5", cap.transient, bin_width_s=cap.bin_width_s,
@@ -648,6 +651,7 @@ def test_inversions_agree_with_brute_force_backprojection(queue, method):
     assert focus > {"lct": 0.4, "fk": 0.9}[method], focus
 
 
+@pytest.mark.fp64
 def test_a_kept_spectrum_is_reused_only_while_current(queue):
     """The spectrum power_blocks leaves (an SNR chosen on it) serves the next filtering of the
     same input; after another input's transform asked for the work buffer, or for another

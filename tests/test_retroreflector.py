@@ -65,6 +65,7 @@ def _plate_signal(queue, z, material):
       "diffuse_albedo": 0.0}, 4.0),   # the cone is far wider than the spot: 1 / r^4
     ("lambertian", 4.0),
 ])
+@pytest.mark.fp64
 def test_simulated_falloff_exponent(queue, material, exponent):
     near, far = _plate_signal(queue, 0.4, material), _plate_signal(queue, 0.8, material)
     measured = math.log(near / far) / math.log(2.0)

@@ -45,6 +45,7 @@ WIENER_INPUTS = {
 
 @pytest.mark.parametrize("snr", [1e-3, 1.0, 1e4, 1e12])
 @pytest.mark.parametrize("kind", sorted(WIENER_INPUTS))
+@pytest.mark.fp64
 def test_wiener_snr_and_inputs(queue, snr, kind):
     shape = (16, 5, 6)
     x = WIENER_INPUTS[kind](shape)
@@ -93,6 +94,7 @@ LIGHTCONE_CASES = {
 
 
 @pytest.mark.parametrize("case", sorted(LIGHTCONE_CASES))
+@pytest.mark.fp64
 def test_lightcone_hard_geometry(queue, case):
     pos, nrm, start, bins = LIGHTCONE_CASES[case]
     nrm = nrm / np.linalg.norm(nrm, axis=1, keepdims=True)
@@ -116,6 +118,7 @@ def test_lightcone_hard_geometry(queue, case):
         assert outs[np.float64].sum() == pytest.approx(w * (b + 0.5), rel=1e-6)
 
 
+@pytest.mark.fp64
 def test_lightcone_mirror_like_brdf(queue):
     """Microfacet roughness 0.001 sampled at its nodes (the hard case for the kernel:
     retro_slice averages them to 4.6e3): retro values above 1e4 1/sr stay finite and
@@ -139,6 +142,7 @@ def test_lightcone_mirror_like_brdf(queue):
         assert rel_l2(ref, o) < (F32_TOL["lightcone"] if dt == np.float32 else 1e-10)
 
 
+@pytest.mark.fp64
 def test_lightcone_empty_scene_and_a_million_elements(queue):
     empty = SurfaceSamples(Elements(np.zeros((0, 3)), np.zeros((0, 3)), np.zeros(0)),
                            np.zeros(0), np.zeros(0, np.int32), None)
@@ -159,6 +163,7 @@ def test_lightcone_empty_scene_and_a_million_elements(queue):
 # ------------------------------------------------------------------ LCT / f-k
 @pytest.mark.parametrize("shape", [(1, 4, 4), (7, 5, 3), (33, 9, 11), (50, 6, 6)])
 @pytest.mark.parametrize("method", ["lct", "fk"])
+@pytest.mark.fp64
 def test_inversions_odd_sizes_one_bin(queue, shape, method):
     x = np.random.default_rng(4).random(shape)
 

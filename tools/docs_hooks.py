@@ -12,6 +12,8 @@ Placeholders a page may hold:
   :mod:`clnlos.config` (tests/test_docs.py parses it with ReconstructionConfig);
 - ``{{ generated:scene-example }}`` and ``{{ generated:scene-materials }}``: the commented
   example scene and the materials paragraph of :mod:`clnlos.forward.scene`;
+- ``{{ generated:plausibility-table }}``: the plausibility rule of every capture
+  (:data:`clnlos.checks.PLAUSIBLE`), its bounds and the unit slips it names;
 - ``{{ source:PATH }}``: the text of a file of the repository (an example script) as a code
   block;
 - ``{{ oracle:PATH }}``: a summary CSV of tools/oracle_params.py as a table (ORACLE_COLUMNS,
@@ -159,7 +161,38 @@ def generated(name: str) -> str:
     if name == "study-template":
         return importlib.import_module("clnlos.study.file.spec").builtin_text(
             "template").rstrip()
+    if name == "plausibility-table":
+        return plausibility_table()
     raise KeyError(name)
+
+
+# what each kind of the plausibility rule is checked on (clnlos.checks.PLAUSIBLE)
+PLAUSIBLE_WHAT = {
+    "scan_width_m": "the scan width (`--scan-width`, `[capture] scan_width_m`, a file's, "
+                    "`[scan] width_m`)",
+    "time_step_s": "a time resolution: the bin width (`--bin-width`, `[capture] bin_width_s`, "
+                   "a file's, `[time] bin_width_s`) and the laser pulse (`[laser] "
+                   "pulse_width_s`)",
+    "depth_m": "a depth behind the scan plane: where the time window ends, c (start + n dt) "
+               "/ 2, and starts, c start / 2 (`[capture] start_s`, a file's, `[time] "
+               "start_s`); `max_path_m` / 2; `depth_min_m`",
+}
+
+
+def plausibility_table() -> str:
+    """The plausibility rule as a Markdown table (usual range, possible range, slips)."""
+    checks = importlib.import_module("clnlos.checks")
+
+    def shown(v, unit):
+        return checks.shown_quantity(v, unit).replace(" ", "&nbsp;")
+
+    rows = ["| quantity | usual (no word) | possible (a warning outside usual) | "
+            "likely slip above / below |", "|---|---|---|---|"]
+    for kind, p in checks.PLAUSIBLE.items():
+        rows.append(f"| {PLAUSIBLE_WHAT[kind]} | {shown(p.usual[0], p.unit)} to "
+                    f"{shown(p.usual[1], p.unit)} | {shown(p.possible[0], p.unit)} to "
+                    f"{shown(p.possible[1], p.unit)} | {p.slip_high} / {p.slip_low} |")
+    return "\n".join(rows)
 
 
 def oracle_table(path: str) -> str:

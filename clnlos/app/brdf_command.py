@@ -3,12 +3,13 @@
 
 from __future__ import annotations
 
+import warnings
 from pathlib import Path
 
 from tqdm import tqdm
 
 from clnlos.app.flags import add_force, require
-from clnlos.brdf.data import CSV_COLUMNS
+from clnlos.brdf.data import CSV_COLUMNS, MERL_GONIO_DEG
 from clnlos.brdf.evaluate import MODELS as EVAL_MODELS
 from clnlos.brdf.evaluate import MODES as EVAL_MODES
 from clnlos.brdf.evaluate import (
@@ -19,10 +20,20 @@ from clnlos.brdf.evaluate import (
     summary_table,
     write_rows,
 )
-from clnlos.brdf.fit import fit_to_file
+from clnlos.brdf.fit import (
+    AUTO,
+    AUTO_CANDIDATES,
+    AUTO_VALIDATION_FRACTION,
+    MLP_MODELS,
+    USABLE_AGREEMENT_PCT,
+    USABLE_PEAK_RATIO,
+    auto_line,
+    fit_to_file,
+    quality_line,
+)
 from clnlos.brdf.models import model_spec
 from clnlos.brdf.plot import brdf_figure, read_samples
-from clnlos.brdf.store import load_model
+from clnlos.brdf.store import FitQualityWarning, fit_warning, load_model
 from clnlos.brdf.texture import MAX_NODES, MIN_NODES, tabulate, write_texture
 from clnlos.checks import integer
 from clnlos.errors import ParameterError
@@ -32,25 +43,41 @@ from clnlos.io.progress import counter, progress_bar
 
 BRDF_MODELS = ["mlp", "mlp-seed", "five-param", "torrance-sparrow", "phong", "minnaert",
                "lambert"]
+FIT_MODELS = [*BRDF_MODELS, AUTO]
 
 
 def cmd_brdf_fit(args) -> int:
-    if args.model in ("mlp", "mlp-seed"):
-        require("torch", f"brdf fit --model {args.model}")
+    candidates = tuple(args.candidates or AUTO_CANDIDATES)
+    if args.candidates and args.model != AUTO:
+        raise ParameterError("--candidates", " ".join(args.candidates), "only with --model "
+                             "auto")
+    neural = [m for m in ((args.model,) if args.model != AUTO else candidates)
+              if m in MLP_MODELS]
+    if neural:
+        require("torch", f"brdf fit --model {args.model}"
+                + (f" --candidates ... {neural[0]}" if args.model == AUTO else ""))
     outs = {"-o": Path(args.output)}
     if args.metrics_json:
         outs["--metrics-json"] = Path(args.metrics_json)
     check_outputs(outs, inputs=[args.data, args.test], suffixes={"-o": HDF5_SUFFIXES})
 
     train = read_samples(args.data)
-    test = read_samples(args.test) if args.test else None
-    unit = "epoch" if args.model in ("mlp", "mlp-seed") else "start"
+    test = read_samples(args.test, held_out=True) if args.test else None
+    unit = ("fit" if args.model == AUTO else "epoch" if args.model in MLP_MODELS
+            else "start")
     with progress_bar(None, f"brdf fit {args.model}", unit) as bar:
         metrics = fit_to_file(args.model, train, test, args.output, seed=args.seed,
-                              metrics_json=args.metrics_json, progress=counter(bar))
+                              metrics_json=args.metrics_json, progress=counter(bar),
+                              candidates=candidates)
     for k, v in metrics.items():
-        if k != "loss_log":
+        if k not in ("loss_log", "fit_quality", "auto"):
             print(f"{k}: {v:.4g}" if isinstance(v, float) else f"{k}: {v}")
+    if "auto" in metrics:
+        print(auto_line(metrics["auto"]))
+    quality = metrics["fit_quality"]
+    print(quality_line(metrics["model"], quality))
+    if "warning" in quality:
+        warnings.warn(quality["warning"], FitQualityWarning, stacklevel=1)
     print(f"wrote {args.output}")
     return 0
 
@@ -63,6 +90,9 @@ def cmd_brdf_texture(args) -> int:
     check_outputs({"-o": Path(args.output)}, inputs=[args.model],
                   suffixes={"-o": HDF5_SUFFIXES})
     model, meta = load_model(args.model)
+    warning = fit_warning(meta.get("metrics", {}), args.model)
+    if warning:  # said now, and carried in the texture for what uses it
+        warnings.warn(warning, FitQualityWarning, stacklevel=1)
     spec = model_spec(model)  # stored so the texture can be checked against it when used
     tex = tabulate(model, args.resolution, args.dphi or args.resolution, args.retro,
                    provenance={"model_file": str(args.model), **meta,
@@ -106,17 +136,29 @@ def cmd_brdf_evaluate(args) -> int:
 def brdf_arguments(b, add_device) -> None:
     """The arguments of ``clnlos brdf`` (its sub-commands) on the parser ``b``."""
     bs = b.add_subparsers(dest="brdf_command", required=True)
-    f = bs.add_parser("fit", help="fit a model to measured data (CSV or pbrt .brdf)")
+    f = bs.add_parser("fit", help="fit a model to measured data (CSV, pbrt .brdf or MERL "
+                      ".binary); prints its held-out agreement and peak error and warns when "
+                      "the fit is not usable")
     data = (f"measured samples: CSV with columns {','.join(CSV_COLUMNS)} (angles in degrees, "
-            "BRDF in 1/sr; # comment lines) or pbrt-v2 .brdf")
+            "BRDF in 1/sr; # comment lines), pbrt-v2 .brdf or MERL .binary (its green "
+            f"channel sampled at incidence {', '.join(f'{a:g}' for a in MERL_GONIO_DEG)} deg)")
     f.add_argument("data", help=data)
-    f.add_argument("--model", required=True, choices=BRDF_MODELS,
+    f.add_argument("--model", required=True, choices=FIT_MODELS,
                    help="mlp: the peak-keeping neural BRDF; mlp-seed: the seed's MLP recipe "
                         "(both need torch); five-param, torrance-sparrow, phong, minnaert, "
-                        "lambert: analytic models fitted by least squares in log space")
+                        "lambert: analytic models fitted by least squares in log space; auto: "
+                        "fit every --candidates model on the training data less "
+                        f"{AUTO_VALIDATION_FRACTION * 100:g}%% held out, keep the one that "
+                        "agrees best with that part, fit it again on all of it")
+    f.add_argument("--candidates", nargs="+", choices=BRDF_MODELS, metavar="MODEL",
+                   help="--model auto: the models it tries, of " + ", ".join(BRDF_MODELS)
+                        + " (default " + " ".join(AUTO_CANDIDATES) + "; add mlp for the "
+                        "neural BRDF, about 100 s per fit on 2 CPU cores)")
     f.add_argument("-o", "--output", required=True, help="fitted model (.h5)")
-    f.add_argument("--test", help="held-out data (same formats) for the test metrics "
-                   "(default: none, training metrics only)")
+    f.add_argument("--test", help="held-out data (same formats; a MERL .binary is sampled at "
+                   "random directions) for the test metrics, which judge the fit (usable: "
+                   f"agreement >= {USABLE_AGREEMENT_PCT:g}%% and the peak within a factor "
+                   f"{USABLE_PEAK_RATIO:g}) (default: none, judged on the training data)")
     f.add_argument("--metrics-json", help="also write the metrics to this JSON file "
                    "(default: printed only)")
     f.add_argument("--seed", type=int, default=0,

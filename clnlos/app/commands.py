@@ -154,7 +154,8 @@ def cmd_reconstruct(args) -> int:
     queue = get_queue(args.device, settings=args.settings)
     names = flag_names(args)
     with capture_use(_pipeline_fits(args.capture, cfg, queue, DTYPES[args.dtype], names)):
-        capture = read_capture(args.capture)  # the pipeline's size checked before the data
+        # the pipeline's size checked before the data
+        capture = read_capture(args.capture, axes=cfg.axes)
     rec = reconstruct_to_files(capture, out, cfg, dtype=DTYPES[args.dtype], queue=queue,
                                no_slab=args.no_slab, names=names,
                                log=lambda note: print(f"clnlos: note: {note}",
@@ -188,6 +189,15 @@ def reconstruct_arguments(r, add_device) -> None:
                    help="side of the scanned area along x (m; the pitch is this over the "
                         f"columns, the same along y) {from_file}")
     r.add_argument("--bin-width", type=float, help=f"histogram bin width (s) {from_file}")
+    r.add_argument("--axes",
+                   help="the stored axes in order for a file that records no layout (.npy, "
+                        ".mat, HDF5 of other tools): t, y, x each once, comma-separated, a "
+                        "leading minus for a reversed axis, e.g. t,y,x, x,y,t or t,-y,x "
+                        "(the order numpy gives; MATLAB's for a .mat) (default: the layout's "
+                        "own, else assumed from the shape; a note names it)")
+    r.add_argument("--allow-implausible", action="store_true", default=None,
+                   help="accept a scan width, bin width, start or depth no NLOS capture can "
+                        "have (most likely a unit slip: refused by default, before any work)")
     r.add_argument("--direct-cut", type=float,
                    help="zero the window before this round-trip time (s): the direct "
                         "reflection off the relay wall; 0 keeps everything (default: what "
@@ -327,7 +337,8 @@ def cmd_simulate(args) -> int:
                   inputs=[args.scene, *scene.input_paths()], suffixes={"-o": HDF5_SUFFIXES},
                   implied={"figure": None}, force=args.force)
     queue = get_queue(args.device, settings=args.settings)
-    sim = simulate_to_file(scene, out, fmt=args.format, dtype=DTYPES[args.dtype], queue=queue)
+    sim = simulate_to_file(scene, out, fmt=args.format, dtype=DTYPES[args.dtype], queue=queue,
+                           allow_implausible=args.allow_implausible)
     print(f"wrote {out} ({args.format}) transient {sim.transient.shape} [t, y, x]; stages "
           f"{', '.join(sim.stages)}; {sim.seconds:.2f} s on {queue.device.name.strip()}")
     print(f"wrote {sim.figure}")
@@ -342,6 +353,10 @@ def simulate_arguments(s, add_device) -> None:
     s.add_argument("--format", choices=["clnlos", "tal"], default="clnlos",
                    help="capture format: clnlos (clnlos HDF5) or tal (y-tal HDF5) "
                         "(default %(default)s)")
+    s.add_argument("--allow-implausible", action="store_true",
+                   help="accept a scan width, bin width, pulse, start or time window no NLOS "
+                        "capture can have (most likely a unit slip: refused by default, "
+                        "before any work)")
     add_force(s)
     add_precision(s)
     add_device(s)

@@ -33,14 +33,20 @@ def volume_attrs(rec: Reconstruction) -> dict:
             "solver": json.dumps(rec.solver), "notes": json.dumps(rec.notes),
             "brdf": rec.params.get("brdf_used", "lambertian"),
             "axes": "volume[z, y, x]; +x with column index, +y with row index",
+            "capture_axes": rec.params.get("axes_used", "t,y,x"),
+            "capture_axes_source": rec.params.get("axes_source", "recorded by the file"),
             "format": "clnlos-volume-1"}
 
 
-def _iteration(bar) -> None:
-    """One iteration done: the set-up note (if any) goes, the bar moves."""
+def _iteration(bar, done: int, total: int) -> None:
+    """Iteration ``done`` of ``total`` finished: the set-up note (if any) goes, the bar takes
+    the total the solver runs to (the config's iterations, or fewer where the stop rule
+    says, clnlos.inverse.iterative) and moves to ``done``."""
     if bar.postfix:
         bar.set_postfix_str("", refresh=False)
-    bar.update(1)
+    if bar.total != total:
+        bar.total = total
+    bar.update(done - bar.n)
 
 
 def reconstruct_to_files(capture: Capture, out, config: ReconstructionConfig, *,
@@ -60,7 +66,8 @@ def reconstruct_to_files(capture: Capture, out, config: ReconstructionConfig, *,
     try:
         rec = reconstruct(capture, config=config, no_slab=no_slab, dtype=dtype, device=queue,
                           names=names, log=log,
-                          progress=None if bar is None else (lambda k, n: _iteration(bar)),
+                          progress=None if bar is None else (
+                              lambda k, n: _iteration(bar, k, n)),
                           setup=None if bar is None else (
                               lambda step: stage(bar, f"setup: {step}")))
     finally:

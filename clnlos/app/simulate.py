@@ -9,6 +9,7 @@ from pathlib import Path
 import numpy as np
 
 from clnlos.api import simulate
+from clnlos.checks import ALLOW_IMPLAUSIBLE
 from clnlos.io.progress import progress_bar, stage
 from clnlos.errors import ParameterError
 from clnlos.io.figures import transient_figure
@@ -39,18 +40,20 @@ def _stage_done(bar, name: str, total: int) -> None:
     bar.update(1)
 
 
-def simulate_to_file(scene, out, *, fmt: str = "clnlos", dtype=np.float32, queue=None
-                     ) -> Simulated:
-    """Run the forward model of ``scene`` (:func:`clnlos.api.simulate`) and write the
-    capture (clnlos HDF5, or y-tal HDF5 for ``fmt="tal"``) and a PNG of x-t / y-t slices
-    beside it, atomically together."""
+def simulate_to_file(scene, out, *, fmt: str = "clnlos", dtype=np.float32, queue=None,
+                     allow_implausible: bool = False) -> Simulated:
+    """Run the forward model of ``scene`` (:func:`clnlos.api.simulate`; ``allow_implausible``:
+    accept geometry no NLOS capture can have) and write the capture (clnlos HDF5, or y-tal
+    HDF5 for ``fmt="tal"``) and a PNG of x-t / y-t slices beside it, atomically together."""
     if fmt not in FORMATS:
         raise ParameterError("--format", fmt, " or ".join(FORMATS))
     out = Path(out)
 
     with progress_bar(None, "simulate", "stage") as bar:
         capture = simulate(scene, dtype=dtype, device=queue,
-                           progress=lambda name, done, total: _stage_done(bar, name, total))
+                           progress=lambda name, done, total: _stage_done(bar, name, total),
+                           allow_implausible=allow_implausible,
+                           names={"allow_implausible": ALLOW_IMPLAUSIBLE})
     tau, attrs = capture.transient, capture.attrs
     seconds, stages = attrs["seconds"], json.loads(attrs["stages"])
     fig = transient_figure(tau, width_m=scene.width_m, start_s=scene.start_s,

@@ -36,6 +36,7 @@ from clnlos.forward.scene import Scene
 from clnlos.forward.transport import LightConeTransport
 from clnlos.inverse.pipeline import reconstruct
 from clnlos.physics.slab import CDT_SLAB
+from clnlos.runtime.device import has_fp64
 from clnlos.study.score.metrics import mip_iou, truth_mask
 
 CHECK_MATERIALS = ("quartz glass", "aluminium alloy sample", "gold-plated polyester film",
@@ -108,10 +109,12 @@ def operator_check(material: str, *, tilt_deg: float, slab: bool, transport: str
                    queue, points: int = 32) -> list[dict]:
     """Rows: the scene rendered by ``clnlos simulate``'s forward model against the transport
     with the Lambertian lobe and with the material's (and, behind a slab, the material's
-    without the footprint), each on the voxelised scene."""
+    without the footprint), each on the voxelised scene, in the most precise dtype the
+    device has (float64, else float32)."""
     scene = glyph_scene(material, tilt_deg=tilt_deg, slab=slab, transport=transport,
                         points=points)
-    fm = ForwardModel(scene, queue=queue, dtype=np.float64)
+    dtype = np.float64 if has_fp64(queue.device) else np.float32
+    fm = ForwardModel(scene, queue=queue, dtype=dtype)
     ref = fm.run()
     pitch = scene.width_m / scene.points
     margin, blur = 0, None
@@ -120,7 +123,7 @@ def operator_check(material: str, *, tilt_deg: float, slab: bool, transport: str
                                 scene.points, 1e-3, None, queue)
         nw = scene.points + 2 * margin
         blur = slab_blur(scene.slab, (scene.bins, nw, nw), bin_width_s=scene.bin_width_s,
-                         pitch_m=pitch, mode="convolve", dtype=np.float64, queue=queue)
+                         pitch_m=pitch, mode="convolve", dtype=dtype, queue=queue)
     rms = (face_quadrature(scene.slab, bins=scene.bins, bin_width_s=scene.bin_width_s,
                            rings=1, angles=1, queue=queue).rms_m if slab else 0.0)
     lobe = retro_lobe(material)
@@ -134,10 +137,10 @@ def operator_check(material: str, *, tilt_deg: float, slab: bool, transport: str
         t0 = time.perf_counter()
         op = LightConeTransport(vol.shape, bin_width_s=scene.bin_width_s,
                                 scan_width_m=scene.width_m, margin=margin, depth_min_m=0.2,
-                                dtype=np.float64, queue=queue, lobe=retro_lobe(lobe_name),
+                                dtype=dtype, queue=queue, lobe=retro_lobe(lobe_name),
                                 footprint_rms_m=fp)
         build = time.perf_counter() - t0
-        pred = op(vol)
+        pred = op(np.asarray(vol, dtype))
         if blur is not None:
             pred = blur(pred)
         if margin:
@@ -235,6 +238,6 @@ def operator_rows(b) -> None:
     for r in rows:
         t = r.pop("build_s")
         b.record("brdf_operator", f"{r['material']}@{r['tilt_deg']:g}deg/{r['transport']}"
-                 f"{'+slab' if r['slab'] != 'none' else ''}", r["model_lobe"], np.float64,
+                 f"{'+slab' if r['slab'] != 'none' else ''}", r["model_lobe"], b.dtypes[-1],
                  {"median_s": t, "min_s": t, "max_s": t, "repeats": 1}, r["rel_l2_image"],
                  error_kind="rel L2 (time-integrated image)", **r)

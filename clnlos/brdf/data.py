@@ -185,6 +185,15 @@ def read_pbrt_brdf(path, wavelength_nm: float = 550.0) -> BRDFSamples:
 # ------------------------------------------------------------------ MERL
 MERL_SHAPE = (90, 90, 180)  # theta_half, theta_diff, phi_diff
 MERL_SCALE = (1.0 / 1500.0, 1.15 / 1500.0, 1.66 / 1500.0)  # red, green, blue
+# A MERL table sampled for ``brdf fit`` (:func:`merl_samples`): the training set as the
+# gonioreflectometer sets of ../shared/data/brdf (incidence 30/45/60 deg, phi_i = 0, the
+# detector every MERL_GONIO_STEP_DEG in theta_s and every 2 x that in phi_s over the half
+# space an isotropic BRDF repeats), the held-out set at random directions (seeded)
+MERL_GONIO_DEG = (30.0, 45.0, 60.0)
+MERL_GONIO_STEP_DEG = 5.0
+MERL_MAX_ZENITH_DEG = 85.0
+MERL_HELD_OUT_SAMPLES = 2000
+MERL_HELD_OUT_SEED = 0
 
 
 def write_merl_binary(path, rgb: np.ndarray) -> None:
@@ -226,6 +235,31 @@ class MerlBRDF:
         pd = np.where(pd < 0, pd + np.pi, pd)
         ip = np.clip((pd / np.pi * 180).astype(int), 0, 179)
         return np.maximum(self.table[ih, idd, ip], 0)
+
+
+def merl_samples(path, *, held_out: bool = False, channel: int = 1) -> BRDFSamples:
+    """Samples of a MERL ``.binary`` (its ``channel``, default green) for a fit: the
+    gonioreflectometer grid (MERL_GONIO_DEG), or, ``held_out``, MERL_HELD_OUT_SAMPLES random
+    directions (zeniths uniform in cos theta up to MERL_MAX_ZENITH_DEG, azimuth difference
+    uniform; seeded) -- the other directions a held-out set needs."""
+    merl = MerlBRDF(path, channel)
+    if held_out:
+        rng = np.random.default_rng(MERL_HELD_OUT_SEED)
+        cmin = np.cos(np.radians(MERL_MAX_ZENITH_DEG))
+        ti, ts = (np.arccos(1 - rng.random((2, MERL_HELD_OUT_SAMPLES)) * (1 - cmin)))
+        pi_ = np.zeros(MERL_HELD_OUT_SAMPLES)
+        ps = rng.random(MERL_HELD_OUT_SAMPLES) * 2 * np.pi
+    else:
+        step = MERL_GONIO_STEP_DEG
+        TI, TS, PS = np.meshgrid(np.radians(MERL_GONIO_DEG),
+                                 np.radians(np.arange(0.0, MERL_MAX_ZENITH_DEG + 1e-9, step)),
+                                 np.radians(np.arange(0.0, 180.0 + 1e-9, 2 * step)),
+                                 indexing="ij")
+        ti, ts, ps = TI.ravel(), TS.ravel(), PS.ravel()
+        pi_ = np.zeros_like(ti)
+    meta = {**merl.meta, "sampling": "random directions (held out)" if held_out else
+            f"incidence {', '.join(f'{a:g}' for a in MERL_GONIO_DEG)} deg"}
+    return BRDFSamples(ti, pi_, ts, ps, merl(ti, pi_, ts, ps), meta)
 
 
 def half_diff(ti, pi_, ts, ps):

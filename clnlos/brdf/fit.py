@@ -4,6 +4,14 @@ Residuals r_i = log(fhat_i + eps) - log(f_i + eps) (eps = 1e-3 x median positive
 exact zeros of some measurements do not dominate), minimised with
 ``scipy.optimize.least_squares`` inside the parameter bounds from several seeded random
 starts; the best run is kept and its parameters are reported with the metrics.
+
+Every fit says how good it is (:func:`fit_quality`): its agreement and peak error on the
+held-out data (the ``--test`` set; without one, on the training data), the parameters that
+ended at a bound of the fit space, and whether it is a usable fit: agreement >=
+USABLE_AGREEMENT_PCT and the fitted peak within a factor USABLE_PEAK_RATIO of the measured
+one (docs/brdf.md, "A usable fit"). ``model = "auto"`` (:func:`fit_auto`) fits every
+candidate on the training data less a held-out part (AUTO_VALIDATION_FRACTION, seeded), keeps
+the one that agrees best with that part, and fits it again on all the training data.
 """
 
 from __future__ import annotations
@@ -39,6 +47,17 @@ FIT_SPACE = {
 }
 FIXED = {"torrance-sparrow": {"f0": 1.0, "distribution": "ggx"}}
 MIN_MLP_SAMPLES = 10  # significant training samples an MLP fit needs at least
+MLP_MODELS = ("mlp", "mlp-seed")  # the neural BRDFs (torch)
+AUTO = "auto"  # the model name that fits the candidates and keeps the best
+# ``auto``'s default candidates: the analytic models (seconds each; the neural BRDF, about
+# 100 s on 2 CPU cores, is a candidate when asked for: ``candidates``)
+AUTO_CANDIDATES = ("five-param", "torrance-sparrow", "phong", "minnaert", "lambert")
+AUTO_VALIDATION_FRACTION = 0.2  # the training samples ``auto`` holds out to choose on
+# A usable fit (docs/brdf.md): a mean relative error of at most 20% on held-out data (the
+# seed's agreement) and the peak of the lobe within a factor 2 of the measured one
+USABLE_AGREEMENT_PCT = 80.0
+USABLE_PEAK_RATIO = 2.0
+AT_BOUND_RTOL = 1e-6  # a parameter within this fraction of its range of a bound sits on it
 
 
 def min_fit_samples(model_name: str) -> int:
@@ -172,25 +191,178 @@ def fit_analytic(name: str, train: BRDFSamples, test: BRDFSamples | None = None,
     return FitResult(model, m)
 
 
-def fit_to_file(model_name: str, train, test, out, *, seed: int = 0,
-                metrics_json=None, progress=None) -> dict:
-    """Fit ``model_name`` (an analytic model, or ``mlp`` / ``mlp-seed``) to ``train`` and save it
-    (and its metrics as JSON when asked); returns the metrics. ``progress(done, total)``
-    follows the fit: epochs of the MLPs (:func:`clnlos.brdf.mlp.train_mlp`), optimiser runs of
-    an analytic model (:func:`fit_analytic`)."""
-    check_fit_samples(model_name, train, test)
-    if model_name in ("mlp", "mlp-seed"):
+def fit_one(model_name: str, train: BRDFSamples, test: BRDFSamples | None, *, seed: int = 0,
+            progress=None) -> FitResult:
+    """Fit one model (an analytic one, or ``mlp`` / ``mlp-seed``) to ``train``; its metrics
+    on ``train`` and ``test`` (:func:`metrics_for`)."""
+    if model_name in MLP_MODELS:
         t0 = time.perf_counter()
         model, log = train_mlp(train, MLPConfig(recipe="seed" if model_name == "mlp-seed"
                                                 else "improved", seed=seed),
                                progress=progress)
-        metrics = {"model": model_name, "fit_time_s": time.perf_counter() - t0,
-                   "recipe": model.meta()["config"],
-                   **{k: v for k, v in log.items() if k != "loss_log"},
-                   **metrics_for(model, train, test)}
+        return FitResult(model, {"model": model_name, "fit_time_s": time.perf_counter() - t0,
+                                 "recipe": model.meta()["config"],
+                                 **{k: v for k, v in log.items() if k != "loss_log"},
+                                 **metrics_for(model, train, test)})
+    return fit_analytic(model_name, train, test, seed=seed, progress=progress)
+
+
+def params_at_bounds(metrics: dict) -> list[str]:
+    """The fitted parameters of an analytic fit that sit on a bound of its fit space
+    (:data:`FIT_SPACE`, within AT_BOUND_RTOL of the range), as "kr = 50 (upper bound)": the
+    best fit lies outside the space searched. A bound at 0 is not one of them: a term whose
+    weight is 0 is the model without that term, a fit inside the model's own range."""
+    name = metrics.get("model")
+    out = []
+    for key, lo, hi in FIT_SPACE.get("lambert" if name == "lambertian" else name, ()):
+        v = metrics.get("params", {}).get(key)
+        if v is None:
+            continue
+        tol = AT_BOUND_RTOL * (hi - lo)
+        if (v <= lo + tol and lo != 0.0) or v >= hi - tol:
+            out.append(f"{key} = {v:.4g} ({'lower' if v <= lo + tol else 'upper'} bound)")
+    return out
+
+
+def fit_quality(metrics: dict) -> dict:
+    """How good a fit is (module docstring): ``on`` ("test", else "train"), its
+    ``agreement_pct`` and ``peak_error_pct`` there, ``samples``, the parameters ``at_bound``
+    (:func:`params_at_bounds`), ``usable`` (agreement and peak) and ``why`` a warning is due
+    (not usable, a parameter at a bound)."""
+    on = "test" if "test_agreement_pct" in metrics else "train"
+    agree, peak = metrics[f"{on}_agreement_pct"], metrics[f"{on}_peak_error_pct"]
+    bound = params_at_bounds(metrics)
+    why = []
+    if not agree >= USABLE_AGREEMENT_PCT:
+        why.append(f"agreement {agree:.1f}% < {USABLE_AGREEMENT_PCT:g}%")
+    ratio = 1 + peak / 100
+    if not 1 / USABLE_PEAK_RATIO <= ratio <= USABLE_PEAK_RATIO:
+        why.append(f"peak off by more than a factor {USABLE_PEAK_RATIO:g} ({peak:+.1f}%)")
+    usable = not why
+    if bound:
+        why.append("at its bound: " + ", ".join(bound))
+    return {"on": on, "agreement_pct": agree, "peak_error_pct": peak,
+            "samples": metrics.get(f"{on}_samples"), "at_bound": bound,
+            "usable": usable, "why": why}
+
+
+def quality_line(model_name: str, quality: dict) -> str:
+    """The one line a fit prints: its model, agreement and peak error and where measured."""
+    where = ("held-out" if quality["on"] == "test" else "training (no held-out data: "
+             "--test)")
+    return (f"{model_name}: {where} agreement {quality['agreement_pct']:.1f}%, peak error "
+            f"{quality['peak_error_pct']:+.1f}% ({quality['samples']} samples)")
+
+
+def better_models(train: BRDFSamples, test: BRDFSamples | None, model_name: str,
+                  agreement_pct: float, *, seed: int = 0,
+                  candidates=AUTO_CANDIDATES) -> list[tuple[str, float]]:
+    """(model, agreement %) of the analytic ``candidates`` other than ``model_name`` that
+    agree better than ``agreement_pct`` with the data a fit is judged on (``test``, else
+    ``train``), best first: fitted on ``train`` here (a few seconds each)."""
+    out = []
+    for name in candidates:
+        if name == model_name or name in MLP_MODELS:
+            continue
+        q = fit_quality(fit_analytic(name, train, test, seed=seed).metrics)
+        if q["agreement_pct"] > agreement_pct:
+            out.append((name, q["agreement_pct"]))
+    return sorted(out, key=lambda r: -r[1])
+
+
+def quality_warning(model_name: str, quality: dict, better: list[tuple[str, float]]) -> str:
+    """The warning line of a fit that is not usable or has a parameter at a bound: why, and a
+    model that fits better (an analytic one measured on the same data, else the neural
+    BRDF)."""
+    if better:
+        name, agree = better[0]
+        hint = (f"{name} agrees better ({agree:.1f}% on the same data): --model {name}, or "
+                "--model auto to choose on held-out data")
+    elif quality["usable"]:
+        hint = ("its agreement and peak are usable; the best parameters lie outside the space "
+                "searched and no analytic model agrees better on the same data")
+    elif model_name in MLP_MODELS:
+        hint = "no analytic model agrees better on the same data"
     else:
-        r = fit_analytic(model_name, train, test, seed=seed, progress=progress)
-        model, metrics = r.model, r.metrics
+        hint = ("no analytic model agrees better on the same data: the neural BRDF "
+                "(--model mlp, needs torch) fits measured glossy sets better (docs/brdf.md)")
+    if quality["usable"]:
+        return (f"{model_name} fit has a parameter at its bound ({'; '.join(quality['why'])}): "
+                f"{hint}")
+    return (f"{model_name} fit is not usable ({'; '.join(quality['why'])}; usable: agreement "
+            f">= {USABLE_AGREEMENT_PCT:g}% and the peak within a factor "
+            f"{USABLE_PEAK_RATIO:g}, docs/brdf.md): {hint}")
+
+
+def validation_split(train: BRDFSamples, seed: int) -> tuple[BRDFSamples, BRDFSamples]:
+    """(fit part, held-out part) of the training samples: AUTO_VALIDATION_FRACTION of them
+    at random (numpy Generator seeded with ``seed``) held out."""
+    order = np.random.default_rng(seed).permutation(len(train))
+    n_held = max(1, int(round(AUTO_VALIDATION_FRACTION * len(train))))
+    return train.subset(np.sort(order[n_held:])), train.subset(np.sort(order[:n_held]))
+
+
+def fit_auto(train: BRDFSamples, test: BRDFSamples | None, *, seed: int = 0,
+             candidates=AUTO_CANDIDATES, progress=None) -> FitResult:
+    """Fit every candidate on ``train`` less a held-out part (:func:`validation_split`),
+    keep the one whose agreement with that part is highest, fit it again on all of
+    ``train``; its metrics gain ``auto`` (each candidate's held-out agreement and peak
+    error, the one kept). ``progress(done, total)`` counts the fits."""
+    part, held = validation_split(train, seed)
+    total = len(candidates) + 1
+    scores = {}
+    for k, name in enumerate(candidates):
+        if progress is not None:
+            progress(k, total)
+        check_fit_samples(name, part, held)
+        m = fit_one(name, part, held, seed=seed).metrics
+        scores[name] = {"agreement_pct": m["test_agreement_pct"],
+                        "peak_error_pct": m["test_peak_error_pct"]}
+    best = max(candidates, key=lambda n: scores[n]["agreement_pct"])
+    if progress is not None:
+        progress(len(candidates), total)
+    r = fit_one(best, train, test, seed=seed)
+    if progress is not None:
+        progress(total, total)
+    r.metrics["auto"] = {"candidates": scores, "kept": best,
+                         "held_out_fraction": AUTO_VALIDATION_FRACTION, "seed": seed}
+    return r
+
+
+def auto_line(auto: dict) -> str:
+    """The line ``auto`` prints: each candidate's agreement on the held-out part, the kept."""
+    scores = sorted(auto["candidates"].items(), key=lambda kv: -kv[1]["agreement_pct"])
+    return (f"auto: held-out agreement on {auto['held_out_fraction'] * 100:g}% of the "
+            "training data: " + ", ".join(f"{n} {v['agreement_pct']:.1f}%" for n, v in scores)
+            + f"; {auto['kept']} kept")
+
+
+def fit_to_file(model_name: str, train, test, out, *, seed: int = 0,
+                metrics_json=None, progress=None, candidates=AUTO_CANDIDATES) -> dict:
+    """Fit ``model_name`` (an analytic model, ``mlp`` / ``mlp-seed``, or ``auto``: the best
+    of ``candidates`` on held-out data, :func:`fit_auto`) to ``train`` and save it (and its
+    metrics as JSON when asked); returns the metrics, with ``fit_quality``
+    (:func:`fit_quality`; for a fit that is not usable or has a parameter at a bound
+    ``fit_quality["warning"]``, naming a model that fits better: :func:`better_models`).
+    ``progress(done, total)`` follows the fit: epochs of the MLPs
+    (:func:`clnlos.brdf.mlp.train_mlp`), optimiser runs of an analytic model
+    (:func:`fit_analytic`), candidates of ``auto``."""
+    if model_name == AUTO:
+        for name in candidates:
+            check_fit_samples(name, train, test)
+        r = fit_auto(train, test, seed=seed, candidates=candidates, progress=progress)
+    else:
+        check_fit_samples(model_name, train, test)
+        r = fit_one(model_name, train, test, seed=seed, progress=progress)
+    model, metrics = r.model, r.metrics
+    quality = fit_quality(metrics)
+    if quality["why"]:  # not usable, or a parameter at a bound of the space searched
+        kept = metrics["model"]
+        tried = set(candidates) if model_name == AUTO else set()
+        better = better_models(train, test, kept, quality["agreement_pct"], seed=seed,
+                               candidates=[c for c in AUTO_CANDIDATES if c not in tried])
+        quality["warning"] = quality_warning(kept, quality, better)
+    metrics["fit_quality"] = quality
     save_model(out, model, metrics, {"train": train.meta, "test": test.meta if test else None})
     if metrics_json:
         with atomic_path(metrics_json) as tmp:

@@ -5,15 +5,19 @@ from __future__ import annotations
 
 import numpy as np
 
-from clnlos.brdf.data import read_gonio_csv, read_pbrt_brdf
+from clnlos.brdf.data import merl_samples, read_gonio_csv, read_pbrt_brdf
 
 PLANE_TOL_DEG = 0.6   # samples within this of the plotted incidence angle
 PLANE_SIN_TOL = 0.05  # and |sin(phi_s - phi_i)| below this (in the plane of incidence)
 
 
-def read_samples(path):
-    """Measured samples: pbrt-v2 ``.brdf`` (by content of its name) or gonioreflectometer CSV."""
+def read_samples(path, *, held_out: bool = False):
+    """Measured samples by the file's suffix: pbrt-v2 ``.brdf``, MERL ``.binary``
+    (:func:`clnlos.brdf.data.merl_samples`: its gonioreflectometer grid, or random directions
+    for a ``held_out`` set), else gonioreflectometer CSV."""
     p = str(path)
+    if p.endswith(".binary"):
+        return merl_samples(p, held_out=held_out)
     return read_pbrt_brdf(p) if p.endswith(".brdf") else read_gonio_csv(p)
 
 

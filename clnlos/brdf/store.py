@@ -22,6 +22,22 @@ from clnlos.io.files import write_h5
 FORMAT = MODEL_FORMAT
 
 
+class FitQualityWarning(UserWarning):
+    """A BRDF fit that is not usable (docs/brdf.md, "A usable fit"), or a texture or scene
+    that uses one."""
+
+
+def fit_warning(metrics: dict, source) -> str | None:
+    """The warning a fit's metrics carry (``fit_quality["warning"]``, written by
+    :func:`clnlos.brdf.fit.fit_to_file` for a fit that is not usable or has a parameter at a
+    bound), naming ``source`` (the model file, a texture of it); None for a fit without one
+    or one fitted before fits said so."""
+    quality = metrics.get("fit_quality") if isinstance(metrics, dict) else None
+    if not isinstance(quality, dict) or not quality.get("warning"):
+        return None
+    return f"{source}: {quality['warning']}"
+
+
 def save_model(path, model, metrics: dict, provenance: dict) -> None:
     attrs = {"format": FORMAT, "version": 1, "metrics": json.dumps(metrics),
              "provenance": json.dumps(provenance)}

@@ -30,7 +30,7 @@ import numpy as np
 from clnlos.brdf.catalog import TEXTURE_FORMAT
 from clnlos.brdf.mlp import CHECK_QUADRATURE, albedo_quadrature
 from clnlos.brdf.models import GRAZING, hat_samples, make_model, retro_slice
-from clnlos.brdf.store import load_model
+from clnlos.brdf.store import fit_warning, load_model
 from clnlos.checks import input_file
 from clnlos.errors import InputFileError, ParameterError
 from clnlos.io.files import write_h5
@@ -227,12 +227,6 @@ def _sample_nodes(model, tex: np.ndarray, nodes: np.ndarray) -> None:
             (f * w).sum(axis=1)
 
 
-def texture_errors(tex: BRDFTexture, model) -> tuple[float, float]:
-    """(albedo error, retro error) of a texture against the model it tabulates
-    (:func:`lobe_errors`, :func:`retro_errors`: the energy parts)."""
-    return lobe_errors(tex.texture, model)[0], retro_errors(tex.retro, model)[0]
-
-
 def lobe_errors(texture: np.ndarray, model) -> tuple[float, float]:
     """(albedo error, shape error) of the texture's trilinear interpolant against the model
     on the half-vector quadrature of :func:`clnlos.brdf.mlp.directional_albedo` (it resolves
@@ -269,6 +263,14 @@ def write_texture(path, tex: BRDFTexture) -> None:
              {"format": FORMAT, "version": VERSION, "theta_range_rad": [0.0, np.pi / 2],
               "dphi_range_rad": [0.0, np.pi], "resolution": list(tex.shape),
               "n_retro": len(tex.retro), "provenance": json.dumps(tex.provenance)})
+
+
+def texture_fit_warning(tex: BRDFTexture, path) -> str | None:
+    """The warning of the fit a texture tabulates, carried from its model file's metrics
+    (:func:`clnlos.brdf.store.fit_warning`), naming the texture; None for a usable fit."""
+    model = tex.provenance.get("model_file")
+    return fit_warning(tex.provenance.get("metrics", {}),
+                       f"{path}" + (f" (a texture of {model})" if model else ""))
 
 
 def read_texture(path) -> BRDFTexture:

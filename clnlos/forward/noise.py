@@ -3,6 +3,10 @@
     N ~ Poisson(eta tau + dark),  eta = photons emitted x efficiency x etendue (m^2 sr),
     dark = dark-count rate x exposure x bin width x repetition rate (counts per bin)
 
+per scan point: the photons emitted and the exposure are those of one scan point's dwell
+(``[detector] exposure_s`` is per scan point, so the counts of a scan point do not depend on
+how many points the scan has)
+
 with tau in 1/(m^2 sr) per bin (:mod:`clnlos.forward.model`); the generator is a
 ``numpy.random.Generator`` (seeded by the scene's ``seed``), so a capture is reproducible.
 """

@@ -36,7 +36,8 @@ Every error names the field, its value and the allowed range; numbers must be TO
     [detector]              # a photon budget -> Poisson noise
     power_w = 0.4
     rep_rate_hz = 10e6
-    exposure_s = 1.0        # per scan point (s): a scan of N x N points takes N^2 times this
+    exposure_s = 1.0        # per scan point: each point's histogram collects photons this
+                            # long (s); the whole scan takes points^2 times it
     efficiency = 0.3
     wavelength_m = 532e-9
     etendue_m2_sr = 1e-8
@@ -169,6 +170,11 @@ class SceneObject:
 
 @dataclass
 class Detector:
+    """The photon budget of a capture: laser power (W), repetition rate (Hz), exposure per scan
+    point (s: every scan point's histogram collects for ``exposure_s``, so a scan of N x N
+    points takes N^2 ``exposure_s``), detection efficiency, wavelength (m), etendue (m^2 sr)
+    and dark-count rate (Hz)."""
+
     power_w: float = 0.4
     rep_rate_hz: float = 10e6
     exposure_s: float = 1.0
@@ -178,7 +184,8 @@ class Detector:
     dark_count_rate_hz: float = 0.0
 
     def photons_emitted(self) -> float:
-        """Photons leaving the laser during the exposure, P lambda / (h c) * T."""
+        """Photons leaving the laser while one scan point is exposed, P lambda / (h c) * T
+        (T = ``exposure_s``, per scan point)."""
         h, c = 6.62607015e-34, 299_792_458.0
         return self.power_w * self.wavelength_m / (h * c) * self.exposure_s
 
@@ -217,9 +224,12 @@ class Scene:
         for o in self.objects:
             out += [self.base_dir / p for p in (o.path, o.brdf_retro_csv, o.depth_path,
                                                 o.albedo_path) if p is not None]
-            if isinstance(o.material, str) and o.material.endswith((".h5", ".hdf5")):
-                out.append(self.base_dir / o.material)
-        return out
+        return out + self.texture_paths()
+
+    def texture_paths(self) -> list[Path]:
+        """The BRDF texture files the scene's materials name, resolved against its folder."""
+        return [self.base_dir / o.material for o in self.objects
+                if isinstance(o.material, str) and o.material.endswith((".h5", ".hdf5"))]
 
     @classmethod
     def from_toml(cls, path) -> Scene:

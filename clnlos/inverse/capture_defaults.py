@@ -42,16 +42,16 @@ def format_defaults(attrs: dict, config: ReconstructionConfig, *, bins_kept: int
         changes["brdf"] = hint
         falloff = f" (falloff {RETROREFLECTIVE_FALLOFF:g})" if hint == "retroreflective" else ""
         notes.append(f"brdf {hint}{falloff}: "
-                     f"{attrs.get('reflectance_source', 'the format')} (--brdf lambertian / "
-                     "brdf=\"lambertian\" for a diffuse target)")
+                     f"{attrs.get('reflectance_source', 'the format')} (--brdf lambertian for "
+                     "a diffuse target)")
     lobe_left = ((config.brdf == "lambertian" and not chosen)
                  or (config.brdf == AUTO and "falloff" not in config.user_fields))
     if (hint == "retroreflective" and config.method == ITERATIVE and config.falloff is None
             and lobe_left):
         changes["falloff"] = RETROREFLECTIVE_FALLOFF
         notes.append(f"falloff {RETROREFLECTIVE_FALLOFF:g} (retroreflective voxels, 1/r^2): "
-                     f"{attrs.get('reflectance_source', 'the format')} (--falloff 4 / "
-                     "falloff=4 for a diffuse target)")
+                     f"{attrs.get('reflectance_source', 'the format')} (--falloff 4 for a "
+                     "diffuse target)")
     target = attrs.get("bin_width_default_s")
     if (target and config.bins is None and "bins" not in config.user_fields
             and float(target) > bin_width_s):
@@ -60,5 +60,5 @@ def format_defaults(attrs: dict, config: ReconstructionConfig, *, bins_kept: int
             changes["bins"] = bins
             notes.append(f"{bins} bins of {bins_kept * bin_width_s / bins * 1e12:.3g} ps: "
                          f"{attrs.get('bin_width_default_source', 'the format')} "
-                         "(--bins / bins= to change)")
+                         "(change with --bins)")
     return (config.replace(**changes) if changes else config), notes

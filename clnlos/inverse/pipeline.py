@@ -614,7 +614,8 @@ def reconstruct(capture: Capture, config: ReconstructionConfig, *, dtype=np.floa
     """
     capture, reader_notes = without_direct(capture, config.direct_cut_s,
                                            bin_width_s=config.bin_width_s,
-                                           start_s=config.start_s)
+                                           start_s=config.start_s,
+                                           scan_width_m=config.scan_width_m)
     if capture.bin_width_s is not None or config.bin_width_s is not None:
         bw = config.bin_width_s or capture.bin_width_s
         start = config.start_s if config.start_s is not None else capture.start_s

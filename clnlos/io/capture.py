@@ -14,6 +14,7 @@ import numpy as np
 
 from clnlos.checks import check_geometry, parse_toml
 from clnlos.errors import ClnlosError, InputFileError, ParameterError
+from clnlos.io.layout import parse_axes
 from clnlos.physics.constants import C0
 from clnlos.physics.slab import slab_from_table
 
@@ -111,21 +112,62 @@ class Capture:
             raise InputFileError(f"{src}: {where}: {exc}") from None
 
 
+# the geometry a reader may take from its layout's published code: (field, attribute naming
+# where from, label, how the user overrides it)
+SUPPLIED = (("bin_width_s", "bin_width_source", "bin width", "--bin-width"),
+            ("scan_width_m", "scan_width_source", "scan width", "--scan-width"),
+            ("start_s", "start_source", "start", "[capture] start_s"))
+
+
+def _value(field: str, v: float) -> str:
+    if field == "scan_width_m":
+        return f"{v:g} m"
+    return f"{v * 1e12:.4g} ps"
+
+
+def reader_notes(capture: Capture, *, bin_width_s: float | None = None,
+                 start_s: float | None = None, scan_width_m: float | None = None
+                 ) -> list[str]:
+    """One note line each for what a reader supplied and the user did not override (the
+    keyword arguments: the user's values, None where not given): the layout it read an array
+    with that the file does not record (attribute ``axes``, unless the user gave it), and the
+    geometry taken from the layout's published code (:data:`SUPPLIED`)."""
+    src = capture.source or "the capture"
+    notes = []
+    axes, why = capture.attrs.get("axes"), capture.attrs.get("axes_source")
+    if axes and why and why != "given":
+        shape = capture.attrs.get("axes_stored_shape") or ()
+        described = parse_axes(axes).describe(shape) if len(shape) == 3 else ""
+        notes.append(f"{src}: {capture.attrs.get('axes_array', 'the array')} read as axes "
+                     f"{axes} ({why}): {described}; if the front view is turned or mirrored, "
+                     "give the stored order with --axes (e.g. t,x,y or -y,x,t)")
+    given = {"bin_width_s": bin_width_s, "start_s": start_s, "scan_width_m": scan_width_m}
+    parts, flags = [], []
+    for name, attr, label, flag in SUPPLIED:
+        why = capture.attrs.get(attr)
+        value = getattr(capture, name)
+        if why and value is not None and given[name] is None:
+            parts.append(f"{label} {_value(name, value)}: {why}")
+            flags.append(flag)
+    if parts:
+        notes.append(f"{src}: " + "; ".join(parts) + f" (the file does not store "
+                     f"{'it' if len(parts) == 1 else 'them'}; override with "
+                     f"{', '.join(flags)})")
+    return notes
+
+
 def without_direct(capture: Capture, cut_s: float | None = None, *,
-                   bin_width_s: float | None = None, start_s: float | None = None
-                   ) -> tuple[Capture, list[str]]:
+                   bin_width_s: float | None = None, start_s: float | None = None,
+                   scan_width_m: float | None = None) -> tuple[Capture, list[str]]:
     """(capture, notes): the capture with its window zeroed before ``cut_s`` (round trip, s;
     None: the direct reflection the reader recorded, attribute ``direct_end_s``; 0: nothing),
     the bins the direct reflection off the relay wall fills, and one note line per thing a
-    reader supplied (the cut, a bin width the file does not store). ``bin_width_s`` and
-    ``start_s``: the time axis the reconstruction uses where the user overrides the file's
-    (default: the capture's). Bins are zeroed, not dropped: the time axis (and t = 0 at the
-    wall) stays."""
-    notes = []
-    src = capture.attrs.get("bin_width_source")
-    if src and capture.bin_width_s is not None and bin_width_s is None:
-        notes.append(f"bin width {capture.bin_width_s * 1e12:g} ps: {src} (override with "
-                     "--bin-width / bin_width_s)")
+    reader supplied (:func:`reader_notes`; the cut). ``bin_width_s``, ``start_s`` and
+    ``scan_width_m``: the geometry the reconstruction uses where the user overrides the
+    file's (default: the capture's). Bins are zeroed, not dropped: the time axis (and t = 0
+    at the wall) stays."""
+    notes = reader_notes(capture, bin_width_s=bin_width_s, start_s=start_s,
+                         scan_width_m=scan_width_m)
     recorded = capture.attrs.get("direct_end_s")
     cut = float(recorded or 0.0) if cut_s is None else float(cut_s)
     bw = capture.bin_width_s if bin_width_s is None else float(bin_width_s)
@@ -143,7 +185,7 @@ def without_direct(capture: Capture, cut_s: float | None = None, *,
            else "as asked")
     notes.append(f"the first {k} bins ({cut * 1e9:.3g} ns, paths below {C0 * cut:.3g} m) "
                  f"zeroed: {why} ({removed:.4g} of {removed + kept:.4g} counts; change with "
-                 "--direct-cut / direct_cut_s, 0 keeps them)")
+                 "--direct-cut, 0 keeps them)")
     return dataclasses.replace(capture, transient=t), notes
 
 

@@ -47,21 +47,21 @@ def display_scale(img: np.ndarray, gamma: float | None = None, log: bool = False
 def volume_figure(volume: np.ndarray, extents: dict, title: str = "", *,
                   gamma: float | None = None, log: bool = False):
     """Max-intensity projection (x-y), depth map (depth of the brightest voxel, where the MIP
-    is at least DEPTH_MAP_FLOOR of its maximum), x-z and y-z projections: a
-    :class:`clnlos.io.raster.RasterFigure` (drawn with Pillow in a few tens of milliseconds;
-    saved like a matplotlib figure)."""
+    is at least DEPTH_MAP_FLOOR of its maximum; its colour bar spans the volume's depth
+    range), x-z and y-z projections: a :class:`clnlos.io.raster.RasterFigure` (drawn with
+    Pillow in a few tens of milliseconds; saved like a matplotlib figure)."""
     e = extents
     xy = (e["x_min_m"], e["x_max_m"], e["y_min_m"], e["y_max_m"])
     raw_mip = volume.max(axis=0)
     mip, label = display_scale(raw_mip, gamma, log)
-    depth = (np.argmax(volume, axis=0) + 0.5) * e["voxel_depth_m"]
-    depth = np.where(raw_mip < DEPTH_MAP_FLOOR * max(raw_mip.max(), 1e-300), np.nan, depth)
+    depth = volume_view(volume, e, "depth")[0]
     empty = not raw_mip.max() > 0  # nothing to show a depth of: said, not drawn as a map
     panels = [Panel(mip, xy, "max over depth (x-y)" + (": all zero" if empty else ""),
                     "x (m)", "y (m)", "gray", label),
               Panel(depth, xy, "depth of the brightest voxel" + (": none (the volume is all "
                                                                   "zero)" if empty else ""),
-                    "x (m)", "y (m)", "viridis", "depth z (m)")]
+                    "x (m)", "y (m)", "viridis", "depth z (m)",
+                    limits=depth_range(e))]
     for axis, lo, hi, lab in ((1, "x_min_m", "x_max_m", "x (m)"),
                               (2, "y_min_m", "y_max_m", "y (m)")):
         proj, plab = display_scale(volume.max(axis=axis), gamma, log)
@@ -105,14 +105,11 @@ def volume_view(volume: np.ndarray, extents: dict | None, view: str, *,
     """(image, extent (left, right, bottom, top), x label, y label, colour-bar label) of one
     view of a volume [z, y, x]: "xy" the maximum over depth, "xz" / "yz" the maximum over y /
     x (depth increasing downwards), "depth" the depth (m) of the brightest voxel where the
-    maximum is at least DEPTH_MAP_FLOOR of its largest value. Without ``extents`` the axes
-    count voxels."""
+    maximum is at least DEPTH_MAP_FLOOR of its largest value (:func:`depth_range`: the
+    range its colour bar spans). Without ``extents`` the axes count voxels."""
     if view not in VIEWS:
         raise ValueError(f"view {view!r}: one of {', '.join(VIEWS)}")
-    nz, ny, nx = volume.shape
-    e = extents or {"x_min_m": 0.0, "x_max_m": float(nx), "y_min_m": 0.0,
-                    "y_max_m": float(ny), "depth_min_m": 0.0, "depth_max_m": float(nz),
-                    "voxel_depth_m": 1.0}
+    e = extents or voxel_extents(volume.shape)
     unit = "m" if extents else "voxels"
     xy = (e["x_min_m"], e["x_max_m"], e["y_min_m"], e["y_max_m"])
     if view == "depth":
@@ -128,6 +125,19 @@ def volume_view(volume: np.ndarray, extents: dict | None, view: str, *,
     lo, hi = ("x_min_m", "x_max_m") if view == "xz" else ("y_min_m", "y_max_m")
     return (img, (e[lo], e[hi], e["depth_max_m"], e["depth_min_m"]), f"{view[0]} ({unit})",
             f"depth z ({unit})", label)
+
+
+def voxel_extents(shape) -> dict:
+    """Extents in voxels, for a volume [z, y, x] given without its extents in metres."""
+    nz, ny, nx = shape
+    return {"x_min_m": 0.0, "x_max_m": float(nx), "y_min_m": 0.0, "y_max_m": float(ny),
+            "depth_min_m": 0.0, "depth_max_m": float(nz), "voxel_depth_m": 1.0}
+
+
+def depth_range(extents: dict) -> tuple[float, float]:
+    """The range a depth map's colour bar spans: the volume's depths (m, or voxels), so the
+    colours mean the same depth in every figure of the volume."""
+    return float(extents["depth_min_m"]), float(extents["depth_max_m"])
 
 
 def volume_axes(volume: np.ndarray, extents: dict | None = None, *, ax=None,
@@ -149,6 +159,8 @@ def volume_axes(volume: np.ndarray, extents: dict | None = None, *, ax=None,
     ax.set(xlabel=xlabel, ylabel=ylabel,
            title={"xy": "max over depth", "xz": "max over y", "yz": "max over x",
                   "depth": "depth of the brightest voxel"}[view])
+    if view == "depth":
+        im.set_clim(*depth_range(extents or voxel_extents(np.shape(volume))))
     if colorbar:
         ax.figure.colorbar(im, ax=ax, label=label, shrink=0.85)
     return ax

@@ -22,9 +22,10 @@ from clnlos.io.formats import read_capture as read
 from clnlos.io.outputs import png_metadata, write_group
 
 
-def read_capture(path: str | os.PathLike) -> Capture:
-    """Read a capture of any supported format (:func:`clnlos.io.formats.read_capture`)."""
-    return read(path)
+def read_capture(path: str | os.PathLike, axes: str | None = None) -> Capture:
+    """Read a capture of any supported format (:func:`clnlos.io.formats.read_capture`;
+    ``axes``: the layout of an array that records none, :mod:`clnlos.io.layout`)."""
+    return read(path, axes)
 
 
 

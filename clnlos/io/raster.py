@@ -81,6 +81,7 @@ class Panel:
     cmap: str = "gray"
     bar_label: str = ""
     aspect: str = "equal"
+    limits: tuple[float, float] | None = None  # the colour bar's range (default: the data's)
 
 
 class RasterFigure:
@@ -93,6 +94,7 @@ class RasterFigure:
         self.canvas = Image.new("RGB", (int(width_px), int(height_px)), BACKGROUND)
         self.draw = ImageDraw.Draw(self.canvas)
         self.fonts = {k: ImageFont.load_default(size=v) for k, v in FONT_PX.items()}
+        self.panels = list(panels)
         top = 0
         if suptitle:
             self._text((width_px / 2, 8), suptitle, "suptitle", anchor="ma")
@@ -148,8 +150,11 @@ class RasterFigure:
     def _panel(self, p: Panel, left: int, width: int, top: int, height: int):
         img = np.asarray(p.img, np.float64)
         finite = np.isfinite(img)
-        lo = float(img[finite].min()) if finite.any() else 0.0
-        hi = float(img[finite].max()) if finite.any() else 1.0
+        if p.limits is not None:
+            lo, hi = (float(v) for v in p.limits)
+        else:
+            lo = float(img[finite].min()) if finite.any() else 0.0
+            hi = float(img[finite].max()) if finite.any() else 1.0
         hi = hi if hi > lo else lo + 1.0
         # room: y ticks + label on the left, colour bar + its ticks + label on the right
         ax_l, ax_r = left + 78, left + width - (BAR_GAP_PX + BAR_WIDTH_PX + 70)

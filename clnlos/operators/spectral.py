@@ -286,11 +286,6 @@ class SpectralFilter(LinearOperator):
         return (h.real.astype(np.float64) ** 2 + h.imag.astype(np.float64) ** 2) \
             * self.h_scale**2
 
-    @property
-    def stored_shape(self) -> tuple[int, int, int]:
-        """The shape of the stored spectrum: the half spectrum, or its folded quarter."""
-        return tuple(int(v) for v in self.H.shape)
-
     def power_blocks(self, blocks, x_g: cla.Array | None = None, *, write_input=None,
                      nonzero=None, source=None):
         """The power spectrum |F[pad(x)]|^2 of the input as this filter pads it (``x_g``), or

@@ -136,10 +136,6 @@ class Retroreflector:
         """S of (3) at distance ``r_m`` (m) from the spot."""
         return spot_factor(self.spot_constant_m2 / np.square(np.asarray(r_m, np.float64)))
 
-    def effective_slice(self, theta, r_m) -> np.ndarray:
-        """f_eff(theta, r) of (3) (1/sr)."""
-        return self.diffuse_slice(theta) + self.cone_slice(theta) * self.spot_factor(r_m)
-
 
 def spot_factor(x) -> np.ndarray:
     """(1 - exp(-x)) / x, x = beta_s^2 / (2 sigma^2) (1 at x = 0): S of (3)."""

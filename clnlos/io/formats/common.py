@@ -1,4 +1,4 @@
-"""Helpers shared by the capture readers: validation and per-pixel time alignment."""
+"""Helpers shared by the capture readers: validation, layouts, per-pixel time alignment."""
 
 from __future__ import annotations
 
@@ -6,7 +6,13 @@ import h5py
 import numpy as np
 
 from clnlos.errors import InputFileError
+from clnlos.io.capture import Capture
+from clnlos.io.layout import Layout, assumed_layout
 from clnlos.runtime.limits import declared_capture
+
+# why a layout was taken for an array that records none (the note names it)
+ASSUMED_LAYOUT = ("assumed, no layout recorded: time on the longest axis, the scan axes as "
+                  "rows then columns")
 
 
 def validate_transient(arr, path) -> np.ndarray:
@@ -78,3 +84,35 @@ def align_columns(arr: np.ndarray, shift_bins: np.ndarray, path, what: str
                              f"earlier, past the {arr.shape[0]}-bin window: no bin is left "
                              "that every scan point recorded")
     return out[:keep], s
+
+
+def recorded_layout(layout: Layout, given: bool, what: str, stored_shape, why: str) -> dict:
+    """The attributes a reader records of the layout it read ``what`` (the array's name)
+    with: ``axes`` (its text), ``axes_source`` ("given", else ``why``), ``axes_array`` and
+    ``axes_stored_shape`` (for the reconstruction's note and the output's record)."""
+    return {"axes": str(layout), "axes_source": "given" if given else why,
+            "axes_array": what, "axes_stored_shape": [int(n) for n in stored_shape]}
+
+
+def array_capture(stored, path, *, given: Layout | None, what: str, fmt: str,
+                  order, matlab73: bool = False) -> Capture:
+    """A Capture of one 3-D array of a file that records no layout: read with the layout
+    ``given``, else :func:`clnlos.io.layout.assumed_layout` of ``order`` (the stored shape in
+    the order the layout names: MATLAB's for a .mat); no bin width, scan width or start is
+    taken (bin 0 at t = 0). An h5py dataset is declared before it is read
+    (:func:`clnlos.runtime.limits.declared_capture`); ``matlab73``: its axes are MATLAB's
+    reversed."""
+    order = tuple(int(n) for n in order)
+    layout = given if given is not None else assumed_layout(order)
+    if isinstance(stored, h5py.Dataset):
+        declared_capture(path, layout.shape_tyx(order), stored.dtype.itemsize)
+        try:
+            stored = stored[()]
+        except (OSError, ValueError) as exc:
+            raise InputFileError(f"{path}: cannot read {what} ({exc})") from None
+        if matlab73:
+            stored = np.transpose(stored)
+    arr = validate_transient(layout.to_tyx(stored), path)
+    attrs = {"format": fmt, **recorded_layout(layout, given is not None, what, order,
+                                              ASSUMED_LAYOUT)}
+    return Capture(arr, None, 0.0, None, str(path), attrs)

@@ -110,9 +110,3 @@ def study_judge(pairs, out_dir: Path, *, per_geometry: int, seed: int = 0,
                           "family_cpu": cpu3 - cpu2,
                           "wall": time.perf_counter() - wall0}}
     return judge, classifier, details, family
-
-
-def family_rows_with_mips(family: list[dict]) -> list[dict]:
-    """The family split's rows that hold a MIP (the report's figure)."""
-    return [r for r in family if "mip" in r]
-

@@ -519,11 +519,12 @@ def _materials_html(results) -> str:
     for m in results.get("materials_prepared", ()):
         fit = m.get("fit")
         fit_txt = "" if not fit else (
-            f"{fit['model']}: held-out agreement {fit['test_agreement_pct']:.1f}%, peak error "
-            f"{fit['test_peak_error_pct']:+.0f}%"
-            + ("" if m.get("fit_usable") else " (below the usable 80%: approximate)")
-            + "; candidates " + ", ".join(f"{k} {v['test_agreement_pct']:.0f}%"
-                                          for k, v in fit["candidates"].items()))
+            f"{fit['model']}: held-out agreement {fit['agreement_pct']:.1f}%, peak error "
+            f"{fit['peak_error_pct']:+.0f}%" + ("" if m.get("fit_usable") else
+                                                 " (not usable: approximate)")
+            + ("; candidates " + ", ".join(f"{k} {v['agreement_pct']:.0f}%"
+                                           for k, v in fit["candidates"].items())
+               if fit.get("candidates") else ""))
         rows.append([html.escape(m["name"]), html.escape(str(m["brdf"])), f"{m['albedo']:g}",
                      html.escape(m["brdf_class"]), html.escape(fit_txt)])
     return _table(["material", "BRDF", "albedo", "class", "fit of a measured BRDF"], rows)

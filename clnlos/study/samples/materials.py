@@ -1,9 +1,10 @@
 """A study's materials made ready for its scenes and inversions (:func:`prepare_materials`):
 a preset as it is, a BRDF texture as it is, a fitted model (``clnlos brdf fit``) tabulated
-into a texture for the simulation, a measured gonio CSV fitted first (every analytic model
-of :data:`clnlos.brdf.fit.FIT_SPACE` on a seeded 80/20 split, the best on the held-out
-fifth kept, :func:`fit_measured`). What is made is written under ``OUT/materials/``, named
-by the source file's SHA-256, and reused while that file is unchanged."""
+into a texture for the simulation, a measured gonio CSV fitted first (``clnlos brdf fit
+--model auto`` on a seeded 80% of its rows, :func:`clnlos.brdf.fit.fit_to_file`; its
+quality measured on the other 20%, a fit that is not usable said in a warning). What is made
+is written under ``OUT/materials/``, named by the source file's SHA-256, and reused while
+that file is unchanged."""
 
 from __future__ import annotations
 
@@ -14,17 +15,15 @@ import numpy as np
 
 from clnlos.brdf.catalog import ANALYTIC_PRESETS, LAMBERTIAN, RETROREFLECTIVE, preset_table
 from clnlos.brdf.data import BRDFSamples, read_gonio_csv
-from clnlos.brdf.fit import FIT_SPACE, fit_analytic
+from clnlos.brdf.fit import AUTO, fit_to_file
 from clnlos.brdf.lobes import retro_lobe
 from clnlos.brdf.models import model_spec
-from clnlos.brdf.store import load_model, save_model
+from clnlos.brdf.store import load_model
 from clnlos.brdf.texture import tabulate, write_texture
 from clnlos.study.file.spec import Material, Study
 from clnlos.study.plan.entries import MaterialKeys
 
-HELD_OUT_FRACTION = 0.2     # of a measured CSV's rows, held out to choose the model
-FIT_STARTS = 4              # seeded starts of each analytic fit
-USABLE_AGREEMENT_PCT = 80.0  # held-out agreement below which a fit is flagged (docs/brdf.md)
+HELD_OUT_FRACTION = 0.2     # of a measured CSV's rows, held out to say how good its fit is
 
 
 def split_samples(s: BRDFSamples, seed: int) -> tuple[BRDFSamples, BRDFSamples]:
@@ -32,20 +31,6 @@ def split_samples(s: BRDFSamples, seed: int) -> tuple[BRDFSamples, BRDFSamples]:
     idx = np.random.default_rng(seed).permutation(len(s))
     n_test = max(1, int(round(HELD_OUT_FRACTION * len(s))))
     return s.subset(np.sort(idx[n_test:])), s.subset(np.sort(idx[:n_test]))
-
-
-def fit_measured(path: Path, seed: int = 0):
-    """(the analytic model that predicts the held-out samples of a gonio CSV best, its
-    metrics with every candidate's held-out agreement)."""
-    train, test = split_samples(read_gonio_csv(path), seed)
-    fits = {name: fit_analytic(name, train, test, starts=FIT_STARTS, seed=seed)
-            for name in FIT_SPACE}
-    best = max(fits, key=lambda n: fits[n].metrics["test_agreement_pct"])
-    metrics = {**fits[best].metrics, "candidates": {
-        n: {"test_agreement_pct": f.metrics["test_agreement_pct"],
-            "test_peak_error_pct": f.metrics["test_peak_error_pct"]} for n, f in fits.items()},
-        "held_out_fraction": HELD_OUT_FRACTION, "split_seed": seed}
-    return fits[best].model, metrics
 
 
 def _made(out_dir: Path, m: Material, what: str) -> Path:
@@ -62,14 +47,14 @@ def texture_of_model(model_path: Path, texture_path: Path) -> None:
 
 
 def _fit_file(m: Material, out_dir: Path, seed: int) -> tuple[Path, dict]:
-    """The model file of a measured CSV (fitted now, or read back), with its fit metrics."""
+    """The model file of a measured CSV (fitted now by ``auto``, or read back), with its fit
+    metrics (``fit_quality``: the held-out agreement and peak error, whether it is usable)."""
     path = _made(out_dir, m, "model")
-    if path.is_file():
-        return path, load_model(path)[1]["metrics"]
-    model, metrics = fit_measured(Path(m.brdf), seed)
-    path.parent.mkdir(parents=True, exist_ok=True)
-    save_model(path, model, metrics, {"train": {"source": m.brdf, "sha256": m.sha256}})
-    return path, metrics
+    if not path.is_file():
+        train, test = split_samples(read_gonio_csv(m.brdf), seed)
+        path.parent.mkdir(parents=True, exist_ok=True)
+        fit_to_file(AUTO, train, test, path, seed=seed)
+    return path, load_model(path)[1]["metrics"]
 
 
 def brdf_class(m: Material, flat: bool) -> str:
@@ -84,9 +69,12 @@ def brdf_class(m: Material, flat: bool) -> str:
     return "analytic" if m.brdf in ANALYTIC_PRESETS else "measured"
 
 
-def prepare_material(m: Material, out_dir: Path, seed: int = 0) -> tuple[MaterialKeys, dict]:
+def prepare_material(m: Material, out_dir: Path, seed: int = 0, warned: set | None = None
+                     ) -> tuple[MaterialKeys, dict]:
     """(what samples hold of ``m`` and the inversion assumes, a record for results.json: the
-    files made, a measured BRDF's fit and whether it is usable)."""
+    files made, a measured BRDF's fit and whether it is usable); a fit's warning is given
+    once per file (``warned``: the SHA-256 of those already said)."""
+    warned = set() if warned is None else warned
     record: dict = {"name": m.name, "brdf": m.brdf, "albedo": m.albedo, "kind": m.kind}
     sample: dict = {}
     if m.kind == "preset":
@@ -97,16 +85,14 @@ def prepare_material(m: Material, out_dir: Path, seed: int = 0) -> tuple[Materia
     else:
         if m.kind == "measured":
             model_path, metrics = _fit_file(m, out_dir, seed)
-            record["fit"] = metrics
-            record["fit_usable"] = bool(metrics.get("test_agreement_pct", 0.0)
-                                        >= USABLE_AGREEMENT_PCT)
-            if not record["fit_usable"]:
-                warnings.warn(
-                    f"material {m.name!r}: the best analytic fit of {m.brdf} "
-                    f"({metrics.get('model')}) agrees {metrics.get('test_agreement_pct', 0):.1f}%"
-                    f" with its held-out samples (usable from {USABLE_AGREEMENT_PCT:g}%): its "
-                    "lobe, and what the study says of it, are approximate", UserWarning,
-                    stacklevel=2)
+            quality = metrics["fit_quality"]
+            record["fit"] = {"model": metrics["model"], **quality,
+                             "candidates": metrics.get("auto", {}).get("candidates", {})}
+            record["fit_usable"] = bool(quality["usable"])
+            if quality.get("warning") and m.sha256 not in warned:
+                warned.add(m.sha256)
+                warnings.warn(f"material {m.name!r} ({m.brdf}): {quality['warning']}",
+                              UserWarning, stacklevel=2)
         else:
             model_path = Path(m.brdf)
         tex = _made(out_dir, m, "texture")
@@ -133,7 +119,8 @@ def prepare_materials(study: Study, out_dir: Path) -> tuple[dict[str, MaterialKe
     every = list(study.materials) + [r.material for r in study.real
                                      if r.material.name not in {m.name for m in
                                                                 study.materials}]
+    warned: set = set()
     for m in every:
-        mats[m.name], rec = prepare_material(m, out_dir, study.seed)
+        mats[m.name], rec = prepare_material(m, out_dir, study.seed, warned)
         records.append(rec)
     return mats, records
