@@ -100,23 +100,25 @@ def test_plot_volume_returns_labelled_axes(scene_capture, queue, view):
 
 
 def test_study_run_is_the_function_and_the_module_stays_importable(monkeypatch, tmp_path):
-    """clnlos.study.run builds the options `clnlos study` builds and calls the same
-    run_study (recorded here instead of run: the study itself is tests/test_study.py's)."""
+    """clnlos.study(...) and clnlos.study.run(...) run the study file `clnlos study` runs
+    through the same run_study (recorded here instead of run: the study itself is
+    tests/test_study.py's); the command line's overrides reach it."""
     import clnlos.study as study_pkg
-    from clnlos.study.run import StudyOptions
+    from clnlos.study.file.spec import load_study
 
     calls = []
     monkeypatch.setattr(study_pkg, "run_study",
-                        lambda out, opts, **kw: calls.append((out, opts, kw)) or {"ok": 1})
+                        lambda out, study, **kw: calls.append((out, study, kw)) or {"ok": 1})
     assert clnlos.study.run(tmp_path / "s") == {"ok": 1}
-    out, opts, kw = calls[-1]
-    assert out == tmp_path / "s" and opts == StudyOptions.quick().validate()
-    assert kw == {"workers": None, "scheduler": None, "device": None}
-    clnlos.study.run(tmp_path, full=True, method="lct", labels="fft", n_dataset=3,
-                     transport="confocal", workers=1)
-    _, opts, kw = calls[-1]
-    assert (opts.label, opts.grid.method, opts.labels, opts.n_dataset, opts.transport) == (
-        "full", "lct", "fft", 3, "confocal") and kw["workers"] == 1
+    out, study, kw = calls[-1]
+    assert out == tmp_path / "s" and study == load_study("quick")
+    assert kw == {"workers": None, "scheduler": None, "device": None, "labels": None}
+    assert clnlos.study("full", tmp_path, method="lct", labels="fft", n_dataset=3,
+                        transport="confocal", workers=1) == {"ok": 1}
+    _, study, kw = calls[-1]
+    assert (study.name, study.grid.method, study.methods, study.classifier.labels,
+            study.classifier.extras, study.transport) == (
+        "full", "lct", ("lct",), "fft", 3, None) and kw["workers"] == 1
     with pytest.warns(UserWarning, match="no real CDT capture"):
         clnlos.study.run(tmp_path, real_data=tmp_path)  # a folder without cdt/*.mat
     assert calls[-1][1].real_data is None

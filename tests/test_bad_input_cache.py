@@ -132,7 +132,8 @@ def _grid():
 def _sample(seed=0):
     from clnlos.study.plan.scenes import dataset_samples
 
-    return {**dataset_samples(1, ["standard white plate"], seed)[0], "slab_thickness_m": 0.0}
+    return {**dataset_samples(1, [{"material": "standard white plate"}], seed)[0],
+            "slab_thickness_m": 0.0}
 
 
 @pytest.fixture()
@@ -405,14 +406,15 @@ def test_legitimate_large_sizes_pass_the_checks(queue):
     from clnlos.forward.sampling import check_scene_size
     from clnlos.forward.scene import Scene
     from clnlos.runtime.limits import declared_capture
-    from clnlos.study.plan.scenes import StudyGrid, dataset_samples, scene_dict
+    from clnlos.study.file.spec import StudyGrid
+    from clnlos.study.plan.scenes import dataset_samples, scene_dict
 
     declared_capture("c.h5", (512, 128, 128), 4)
     cfg = ReconstructionConfig(method="iterative").validate()
     _pipeline_fits("c.h5", cfg, queue, np.float32)((512, 128, 128), 16e-12, 0.0)
     demo = resources.files("clnlos.data").joinpath("demo_scene.toml")
     check_scene_size(Scene.from_toml(demo), queue.device, np.float32)
-    for s in dataset_samples(8, ["standard white plate"], 0):
+    for s in dataset_samples(8, [{"material": "standard white plate"}], 0):
         check_scene_size(Scene.from_dict(scene_dict(s, StudyGrid())), queue.device,
                          np.float32)
 

@@ -254,12 +254,15 @@ def test_score_margin_is_the_noise_part_of_the_difference():
 def _glyph_capture(queue, material, *, points=16, exposure_s=0.1, glyph="E"):
     from clnlos.forward.model import ForwardModel
     from clnlos.forward.scene import Scene
-    from clnlos.study.plan.scenes import StudyGrid, scene_dict
-    from clnlos.study.run import glyph_sample
+    from clnlos.study.file.spec import StudyGrid, Target
+    from clnlos.study.plan.entries import MaterialKeys, target_sample
+    from clnlos.study.plan.scenes import scene_dict
 
     grid = StudyGrid(points=points, bin_width_s=64e-12, iterations=30, density_per_m2=2e4)
-    s = glyph_sample(glyph, material, scan_width_m=0.6, height_m=0.3, stroke_m=0.1,
-                     depth_m=0.5, exposure_s=exposure_s, seed=3)
+    target = Target("glyph", "glyphs", 0.5, glyphs=(glyph,), height_m=0.3, stroke_m=0.1)
+    s = target_sample(target, glyph, MaterialKeys(material, {"material": material}, material),
+                      exposure_s=exposure_s, seed=3, method="iterative", brdf={},
+                      scan_width_m=0.6)
     scene = Scene.from_dict(scene_dict(s, grid))
     fm = ForwardModel(scene, queue=queue)
     return fm.capture(), scene, fm, grid

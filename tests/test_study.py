@@ -6,7 +6,6 @@ import json
 import shutil
 import subprocess
 import sys
-from dataclasses import replace
 from pathlib import Path
 
 import numpy as np
@@ -14,25 +13,22 @@ import pytest
 from scipy.ndimage import gaussian_filter
 
 import clnlos
-from clnlos.errors import ParameterError
 from clnlos.forward.geometry import letters_mask
 from clnlos.study.score.clarity import clarity_label, clarity_score, label_thresholds
 from clnlos.study.judge.cnn import dihedral
-from clnlos.study.plan.scenes import StudyGrid, dataset_samples, scene_dict, window_m
+from clnlos.study.file.spec import StudyGrid, load_study, parse_study
+from clnlos.study.findings.sweeps import SEED_FIGURE9, mean_interval, specular_fraction
+from clnlos.study.plan.entries import study_plan
+from clnlos.study.plan.scenes import dataset_samples, scene_dict, window_m
 from clnlos.study.report.page import _reconstruction_detail
+from clnlos.study.run import run_study
+from clnlos.study.samples.materials import prepare_materials
 from clnlos.study.score.quality import (
     central_energy,
     depth_coherence,
     otsu_separability,
     quality_metrics,
     validate_metrics,
-)
-from clnlos.study.run import (
-    SEED_FIGURE9,
-    StudyOptions,
-    mean_interval,
-    run_study,
-    specular_fraction,
 )
 
 
@@ -112,7 +108,7 @@ def test_dataset_design_and_scenes():
     from clnlos.brdf.presets import preset_names
     from clnlos.forward.scene import Scene
 
-    s = dataset_samples(60, preset_names(), 3)
+    s = dataset_samples(60, [{"material": m} for m in preset_names()], 3)
     assert len({x["material"] for x in s}) >= 8
     assert {x["object"] for x in s} == {"letters", "bars", "rectangle", "sphere"}
     ex = np.array([x["exposure_s"] for x in s])
@@ -129,47 +125,70 @@ def test_dataset_design_and_scenes():
     assert set(SEED_FIGURE9) == set(preset_names())
 
 
-TINY = StudyOptions(
-    n_dataset=6, epochs=3, seeds=1, sweep_seeds=1, transport="confocal",
-    materials=["standard white plate", "quartz glass", "painted steel plate"],
-    sweep_materials=("quartz glass", "standard white plate"),
-    sweeps={"scan_width_m": (0.3, 0.5), "depth_m": (0.4, 0.6),
-            "slab_thickness_m": (0.0, 0.0254)},
-    legibility_sweeps={"letter_height_m": (0.2, 0.3), "exposure_s": (0.1, 1.0)},
-    glyphs=("E", "H", "T", "U"), sweep_glyphs=("E", "T"),
-    aware_glyphs=("E",), tilts_deg=(0.0, 10.0), tilt_materials=("quartz glass",),
-    tilt_glyphs=("E", "T"), tilt_inversions=("lambertian", "known"),
-    grid=replace(StudyGrid(), points=12, bin_width_s=64e-12, iterations=10,
-                 density_per_m2=2e4),
-    judge_twins=1, label="tiny")
+CDT = {"thickness_m": 0.0254, "mu_a": 0.53, "mu_s_prime": 262.0, "n": 1.12}
+GLYPH_SET = ["E", "H", "T", "U"]
+TINY_MATERIALS = ["standard white plate", "quartz glass", "painted steel plate"]
+# a tiny material study: every section of the built-in ones on a 12 x 12 grid
+TINY = {
+    "study": {"name": "tiny", "realisations": 1, "refine_ratio": 0},
+    "scan": {"width_m": 0.3, "points": 12}, "time": {"bin_width_s": 64e-12}, "slab": CDT,
+    "laser": {"pulse_width_s": 35e-12},
+    "detector": {"exposure_s": 0.1, "etendue_m2_sr": 1e-9, "dark_count_rate_hz": 1000.0},
+    "sampling": {"density_per_m2": 2e4}, "reconstruction": {"iterations": 10},
+    "inversions": {"reflectance": ["lambertian", "known", "auto"]},
+    "materials": [{"brdf": m} for m in TINY_MATERIALS],
+    "targets": [{"name": "seed_table1", "glyphs": GLYPH_SET, "height_m": 0.15,
+                 "stroke_m": 0.04, "depth_m": 0.5, "scan_width_m": 0.3},
+                {"name": "legible", "glyphs": GLYPH_SET, "height_m": 0.3, "stroke_m": 0.08,
+                 "depth_m": 0.5, "scan_width_m": 0.6}],
+    "sweeps": [
+        {"letter_height_m": [0.2, 0.3], "targets": ["legible"], "glyphs": ["E"],
+         "materials": ["quartz glass", "standard white plate"],
+         "reflectance": ["lambertian", "known"]},
+        {"exposure_s": [0.1, 1.0], "targets": ["legible"], "glyphs": ["E"],
+         "materials": ["quartz glass", "standard white plate"],
+         "reflectance": ["lambertian", "known"]},
+        {"tilt_deg": [0.0, 10.0], "targets": ["legible"], "glyphs": ["E", "T"],
+         "materials": ["quartz glass"], "reflectance": ["lambertian", "known"]},
+        *({var: vals, "targets": ["seed_table1"], "glyphs": ["E", "T"],
+           "materials": ["quartz glass", "standard white plate"],
+           "reflectance": ["lambertian"]}
+          for var, vals in (("scan_width_m", [0.3, 0.5]), ("depth_m", [0.4, 0.6]),
+                            ("slab_thickness_m", [0.0, 0.0254])))],
+    "table": {"aware_glyphs": ["E"], "legible_target": "legible",
+              "seed_target": "seed_table1"},
+    "judge": {"twins": 1}, "classifier": {"extras": 6, "epochs": 3}}
 
 # the distributed runs: two materials, the Lambertian inversion, one point per sweep
-SMALL = replace(TINY, n_dataset=0, materials=TINY.materials[:2], inversions=("lambertian",),
-                sweep_inversions=("lambertian",), tilts_deg=(0.0,), tilt_glyphs=("E",),
-                tilt_inversions=("lambertian",), sweeps={"depth_m": (0.4,)},
-                sweep_materials=("quartz glass",), legibility_sweeps={"exposure_s": (0.1,)})
+SMALL = {**TINY, "classifier": {"extras": 0},
+         "materials": TINY["materials"][:2], "inversions": {"reflectance": ["lambertian"]},
+         "sweeps": [{"depth_m": [0.4], "targets": ["seed_table1"], "glyphs": ["E", "T"],
+                     "materials": ["quartz glass"]}]}
 
 
-def _check_contract(res, opts):
+def _check_contract(res, d):
     """results.json: today's keys and the legibility contract of the study issue."""
-    assert [m["name"] for m in res["materials"]] == opts.materials
-    names = [g["name"] for g in res["geometries"]]
-    assert "seed_table1" in names and "legible" in names
+    opts = parse_study(d)
+    names = [m.name for m in opts.materials]
+    glyphs = opts.target("legible").glyphs
+    assert [m["name"] for m in res["materials"]] == names
+    geos = [g["name"] for g in res["geometries"]]
+    assert "seed_table1" in geos and "legible" in geos
     for g in res["geometries"]:
         for k in ("scan_width_m", "letter_height_m", "stroke_m", "depth_m",
                   "stroke_over_resolution"):
             assert np.isfinite(g[k]) and g[k] > 0
-        assert [m["name"] for m in g["materials"]] == opts.materials
+        assert [m["name"] for m in g["materials"]] == names
         for m in g["materials"]:
             for k in ("brdf_class", "clarity_score", "clarity_label", "cnn_label", "iou",
                       "iou_ci", "label", "seed_label", "depth_error_m", "identification",
                       "iou_box_baseline"):
                 assert k in m
             ident = m["identification"]
-            assert ident["chance"] == pytest.approx(1 / len(opts.glyphs))
-            assert ident["n"] == len(opts.glyphs) * opts.seeds
+            assert ident["chance"] == pytest.approx(1 / len(glyphs))
+            assert ident["n"] == len(glyphs) * opts.table.realisations
             assert ident["ci"][0] <= ident["accuracy"] <= ident["ci"][1]
-            assert m["label"] in (1, 2, 3) and m["cnn_label"] in (1, 2, 3)
+            assert m["label"] in (1, 2, 3) and m["cnn_label"] in (1, 2, 3, None)
             assert 0 <= m["iou"] <= 1 and 0 < m["iou_box_baseline"] <= 1
             assert m["seed_label"] == SEED_FIGURE9[m["name"]]
     r = res["resolution"]
@@ -180,9 +199,10 @@ def _check_contract(res, opts):
     assert {x["variable"] for x in rows} == {"letter_height_m", "exposure_s"}
     for x in rows:
         assert {"value", "material", "identification", "iou", "iou_box_baseline"} <= set(x)
-    invs = (*opts.sweep_inversions, "best")
-    assert [(x["material"], x["inversion"]) for x in res["smallest_legible"]] == [
-        (m, inv) for m in opts.sweep_materials for inv in invs]
+    sweep = next(s for s in opts.sweeps if "exposure_s" in s.variables)
+    invs = (*sweep.reflectance, "best")
+    assert sorted((x["material"], x["inversion"]) for x in res["smallest_legible"]) == sorted(
+        (m, inv) for m in sweep.materials for inv in invs)
     for x in res["smallest_legible"]:
         assert {"material", "inversion", "letter_height_m", "exposure_s"} <= set(x)
         if x["inversion"] == "best":
@@ -191,13 +211,14 @@ def _check_contract(res, opts):
     # every material row with each inversion; the tilt sweep with the measurement beside
     for g in res["geometries"]:
         for m in g["materials"]:
-            assert set(m["inversions"]) == set(opts.inversions)
+            assert set(m["inversions"]) == set(opts.table.reflectance)
             assert m["inversions"]["lambertian"]["identification"] == m["identification"]
     tilts = res["tilt_sweep"]
+    tilt = next(s for s in opts.sweeps if "tilt_deg" in s.variables)
     assert {(t["material"], t["tilt_deg"]) for t in tilts} == {
-        (m, t) for m in opts.tilt_materials for t in opts.tilts_deg}
+        (m, t) for m in tilt.materials for t in dict(tilt.values)["tilt_deg"]}
     for t in tilts:
-        for col in (*opts.tilt_inversions, "measurement"):
+        for col in (*tilt.reflectance, "measurement"):
             assert 0 <= t[col]["identification"]["accuracy"] <= 1 and t[col]["shift_m"] >= 0
     assert "statement" in res["findings"] and "brdf" in res["findings"]["statement"]
     assert {s["variable"] for s in res["sweeps"]} == {"scan_width_m", "depth_m",
@@ -219,15 +240,23 @@ def test_setup_line_names_the_snr_rule_each_method_ran():
 
 @pytest.mark.slow
 def test_tiny_study_serial_and_dask_agree(tmp_path):
-    serial = run_study(tmp_path / "serial", TINY, workers=1)
+    serial = run_study(tmp_path / "serial", parse_study(TINY), workers=1)
     html = (tmp_path / "serial" / "report.html").read_text()
-    assert html.count("data:image/png;base64,") == 11 and "standard white plate" in html
+    assert html.count("data:image/png;base64,") >= 12 and "standard white plate" in html
     assert html.index("id='headline'") < html.index("<details")  # the answer first
     assert "Tilted glyphs" in html and "known BRDF" in html
     assert "dataset.overflow" in html and "max-width" in html and "box baseline" in html
     assert "SNRs by gcv)" in html  # the rule the study pins, named for every method
     res = json.loads((tmp_path / "serial" / "results.json").read_text())
     _check_contract(res, TINY)
+    # the plan: one exposure curve per material x inversion of the exposure sweep
+    assert {(r["material"], r["reflectance"]) for r in res["plan"]} == {
+        (m, i) for m in ("quartz glass", "standard white plate") for i in ("lambertian",
+                                                                          "known")}
+    for r in res["plan"]:
+        assert [p["exposure_s"] for p in r["curve"]] == [0.1, 1.0]
+        assert r["status"] in ("bracketed", "beyond the sweep",
+                               "at most the smallest exposure")
     # the legibility classifier: three held-out splits, the contract's keys, every glyph
     # reconstruction tested once per split; no real captures given: no thinning rows
     assert set(res["classifier"]) == {"splits", "volume_splits", "family", "real_thinning"}
@@ -247,10 +276,10 @@ def test_tiny_study_serial_and_dask_agree(tmp_path):
     assert res["labels"]["metric"] == "identification" and "fft_clarity" in res["metrics"]
     # resume: a rerun reads every sample from the cache; one file per distinct scene
     n_cached = len(sorted((tmp_path / "serial" / "cache").glob("*.npz")))
-    again = run_study(tmp_path / "serial", TINY, workers=1)
+    again = run_study(tmp_path / "serial", parse_study(TINY), workers=1)
     assert len(sorted((tmp_path / "serial" / "cache").glob("*.npz"))) == n_cached
     assert again["materials"] == serial["materials"]
-    fft = run_study(tmp_path / "serial", replace(TINY, labels="fft"), workers=1)
+    fft = run_study(tmp_path / "serial", parse_study(TINY), workers=1, labels="fft")
     assert fft["labels"]["metric"] == "fft_clarity"
     seed_cnn = fft["cnn_seed_recipe"]  # the seed's recipe beside the legibility classifier
     assert 0 <= seed_cnn["val_accuracy"] <= 1 and 0 < seed_cnn["majority_baseline"] <= 1
@@ -258,8 +287,8 @@ def test_tiny_study_serial_and_dask_agree(tmp_path):
     assert len(seed_cnn["train_loss"]) == 3 and len(seed_cnn["val_loss"]) == 3
     assert fft["classifier"]["splits"] == serial["classifier"]["splits"]  # seeded
     pytest.importorskip("dask.distributed")
-    local = run_study(tmp_path / "local", SMALL, workers=1)
-    dask = run_study(tmp_path / "dask", SMALL, workers=2)
+    local = run_study(tmp_path / "local", parse_study(SMALL), workers=1)
+    dask = run_study(tmp_path / "dask", parse_study(SMALL), workers=2)
     for a, b in zip(local["materials"], dask["materials"], strict=True):
         assert a["iou"] == b["iou"] and a["identification"] == b["identification"]
     report = tmp_path / "serial" / "report.html"
@@ -287,7 +316,7 @@ def test_study_on_a_separately_started_dask_cluster(tmp_path):
     dask_cli = Path(sys.executable).with_name("dask")
     if not dask_cli.exists():
         pytest.skip("the dask command-line tool is not installed")
-    small = SMALL
+    small = parse_study(SMALL)
     sched_file = tmp_path / "scheduler.json"
     env = dict(os.environ, CLNLOS_THREADS="1", POCL_MAX_PTHREAD_COUNT="1")
     procs = []
@@ -346,16 +375,16 @@ def test_real_data_folder_is_named_not_searched(tmp_path, shared_data):
     assert real_capture_dir(shared_data) == shared_data / "cdt"
 
 
-def test_quick_plan_runs_auto_at_the_legible_geometry_and_compares_sweeps_on_equal_glyphs():
-    """The quick study: brdf auto only where auto_geometries says; every inversion of a
+def test_quick_plan_runs_auto_at_the_legible_geometry_and_compares_sweeps_on_equal_glyphs(
+        tmp_path):
+    """The quick study: brdf auto only at its table's auto targets; every inversion of a
     legibility sweep point on the same glyphs (smallest legible compares them)."""
-    from clnlos.brdf.presets import preset_names
-    from clnlos.study.run import LEGIBLE_GEOMETRY, study_plan
-
-    opts = StudyOptions.quick().validate()
-    plan = study_plan(list(preset_names()), opts)
+    quick = load_study("quick")
+    mats, _ = prepare_materials(quick, tmp_path)
+    plan, notes = study_plan(quick, mats)
+    assert not notes
     auto_geos = {m["geometry"] for m, _ in plan if m.get("inversion") == "auto"}
-    assert auto_geos == {LEGIBLE_GEOMETRY}
+    assert auto_geos == {"legible"}
     sweep = {}
     for m, _ in plan:
         if m["set"] == "legibility_sweep":
@@ -363,31 +392,25 @@ def test_quick_plan_runs_auto_at_the_legible_geometry_and_compares_sweeps_on_equ
                              set()).add(m["glyph"])
     for (var, val, mat, inv), glyphs in sweep.items():
         assert glyphs == sweep[(var, val, mat, "lambertian")], (var, val, mat, inv)
-    with pytest.raises(ParameterError):
-        replace(opts, auto_geometries=("nowhere",)).validate()
 
 
-def test_quick_study_keeps_its_questions():
+def test_quick_study_keeps_its_questions(tmp_path):
     """The quick study asks what the full one asks (issue 25, 50): at least four letter
     heights, exposures over two decades, both geometries, the tilt sweep; its sweep points
-    at the legible geometry's own size and exposure are the main set's samples (no extra
+    at the legible geometry's own size and exposure are the table's samples (no extra
     render)."""
-    import json as json_
-
-    from clnlos.brdf.presets import preset_names
-    from clnlos.study.run import DEFAULT_EXPOSURE_S, LEGIBLE_GEOMETRY, SEED_GEOMETRY, study_plan
-
-    opts = StudyOptions.quick().validate()
-    heights = opts.legibility_sweeps["letter_height_m"]
-    exposures = opts.legibility_sweeps["exposure_s"]
+    quick = load_study("quick")
+    values = {var: vals for s in quick.sweeps for var, vals in s.values}
+    heights, exposures = values["letter_height_m"], values["exposure_s"]
     assert len(set(heights)) >= 4 and max(exposures) / min(exposures) >= 100
-    assert {g.name for g in opts.geometries} == {LEGIBLE_GEOMETRY, SEED_GEOMETRY}
-    assert len(opts.tilts_deg) >= 2 and max(opts.tilts_deg) > 0
-    legible = opts.geometry(LEGIBLE_GEOMETRY)
-    assert legible.letter_height_m in heights and DEFAULT_EXPOSURE_S in exposures
-    plan = study_plan(list(preset_names()), opts)
-    main = {json_.dumps(s, sort_keys=True) for m, s in plan if m["set"] == "main"}
-    own = {("letter_height_m", legible.letter_height_m), ("exposure_s", DEFAULT_EXPOSURE_S)}
+    assert {t.name for t in quick.targets} == {"legible", "seed_table1"}
+    assert len(values["tilt_deg"]) >= 2 and max(values["tilt_deg"]) > 0
+    legible = quick.target("legible")
+    assert legible.height_m in heights and quick.grid.exposure_s in exposures
+    mats, _ = prepare_materials(quick, tmp_path)
+    plan, _ = study_plan(quick, mats)
+    main = {json.dumps(s, sort_keys=True) for m, s in plan if m["set"] == "main"}
+    own = {("letter_height_m", legible.height_m), ("exposure_s", quick.grid.exposure_s)}
     shared = [s for m, s in plan if m["set"] == "legibility_sweep"
               and (m["variable"], m["value"]) in own]
-    assert shared and all(json_.dumps(s, sort_keys=True) in main for s in shared)
+    assert shared and all(json.dumps(s, sort_keys=True) in main for s in shared)

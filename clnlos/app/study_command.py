@@ -115,7 +115,8 @@ def study_arguments(s, add_device) -> None:
     s.add_argument("--init", default=None, metavar="FILE",
                    help="write a study file to start from and stop: the exposure planner's "
                         "template (one material at two albedos, a letter at 1 m, no slab), "
-                        "or with --quick / --full the built-in study")
+                        "or with --quick / --full the built-in study (default: none, run a "
+                        "study)")
     s.add_argument("-o", "--output", default="out/study",
                    help="output folder: report.html, results.json and the sample cache "
                         "(default %(default)s)")
