@@ -60,12 +60,15 @@ def test_exposure_needed_never_invents_a_number_beyond_the_sweep():
     assert [r["status"] for r in sorted(rows, key=need_order)] == [BELOW, BRACKETED, BEYOND]
 
 
-def test_refinement_adds_the_geometric_mean_until_the_bracket_is_fine():
-    curves = {"a": _curve([1e-4, 1e-3, 1e-2], [0, 2, 4]),
-              "b": _curve([1e-4, 1.4e-4], [0, 4]),
-              "c": _curve([1e-4, 1e-3], [0, 0])}
+def test_refinement_adds_rungs_evenly_in_log_exposure_until_the_bracket_is_fine():
+    curves = {"a": _curve([1e-4, 1e-3, 1e-2], [0, 2, 4]),     # a decade: two rungs
+              "b": _curve([1e-4, 1.4e-4], [0, 4]),           # fine already
+              "c": _curve([1e-4, 1e-3], [0, 0]),             # beyond the sweep
+              "d": _curve([1e-4, 2e-4], [0, 4])}             # 2x: one rung
     add = refinement(curves, 0.9, 1.5)
-    assert set(add) == {"a"} and add["a"] == [pytest.approx(math.sqrt(1e-5))]
+    assert set(add) == {"a", "d"}
+    assert add["a"] == [pytest.approx(10 ** (-3 + 1 / 3)), pytest.approx(10 ** (-3 + 2 / 3))]
+    assert add["d"] == [pytest.approx(math.sqrt(2) * 1e-4)]
     assert refinement(curves, 0.9, 0) == {}
 
 

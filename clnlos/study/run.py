@@ -64,7 +64,7 @@ from clnlos.study.samples.identify import (
     study_resolution,
 )
 from clnlos.study.samples.materials import prepare_materials
-from clnlos.study.samples.render import cpu_workers
+from clnlos.study.samples.render import cpu_workers, sample_pool
 from clnlos.study.samples.resolution import json_ready
 from clnlos.study.score.clarity import label_thresholds
 from clnlos.study.score.quality import METRICS, pearson, validate_metrics
@@ -205,8 +205,14 @@ def run_study(out_dir: Path, study: Study, *, workers: int | None = None,
     out_dir.mkdir(parents=True, exist_ok=True)
     cache = out_dir / "cache"
     nw = cpu_workers(workers) if scheduler is None else 1
-    kw = {"workers": nw, "scheduler": scheduler, "device": device}
     labels = labels or (study.classifier.labels if study.classifier else "legibility")
+    with sample_pool(nw, scheduler) as pool:
+        return _run_study(out_dir, study, cache, nw, labels, pool=pool, device=device)
+
+
+def _run_study(out_dir: Path, study: Study, cache: Path, nw: int, labels: str, **kw) -> dict:
+    """:func:`run_study` in its sample pool (``kw``: ``pool``, ``device``)."""
+    device = kw["device"]
     timings: dict = {}
 
     t0 = time.perf_counter()

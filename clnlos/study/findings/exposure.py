@@ -16,8 +16,8 @@ the bracket. Where no rung reaches L the row is "beyond the sweep" (its lower bo
 largest exposure tried); where the smallest already does, "at most" the smallest (an upper
 bound). No number beyond the sweep is made up.
 
-The bracket is refined (:func:`refinement`): a rung is added at the geometric mean of the
-bracket until its ends are within the study's ``refine_ratio`` (1.5) of each other.
+The bracket is refined (:func:`refinement`): rungs are added inside it, evenly in log
+exposure, until its ends are within the study's ``refine_ratio`` (1.5) of each other.
 """
 
 from __future__ import annotations
@@ -28,7 +28,8 @@ import numpy as np
 
 from clnlos.study.score.legibility import wilson_interval
 
-MAX_REFINEMENTS = 4   # rounds of refinement at most (a decade: 10 -> 3.2 -> 1.8 -> 1.3)
+MAX_REFINEMENTS = 4   # rounds of refinement at most
+RUNGS_PER_ROUND = 2   # rungs added to one bracket in one round at most
 BRACKETED, BEYOND, BELOW = "bracketed", "beyond the sweep", "at most the smallest exposure"
 
 
@@ -119,8 +120,10 @@ def exposure_needed(points: list[dict], level: float) -> dict:
 
 
 def refinement(curves: dict, level: float, ratio: float) -> dict[tuple, list[float]]:
-    """{curve: the exposures to add}: the geometric mean of each bracket whose ends are more
-    than ``ratio`` apart (none where ``ratio`` is 0)."""
+    """{curve: the exposures to add}: where a bracket's ends are more than ``ratio`` apart,
+    rungs spaced evenly in log exposure inside it -- as many as bring it within ``ratio``,
+    at most two a round (a decade within 1.5x in two rounds, three rungs, as bisection);
+    none where ``ratio`` is 0."""
     if not ratio:
         return {}
     out = {}
@@ -128,7 +131,8 @@ def refinement(curves: dict, level: float, ratio: float) -> dict[tuple, list[flo
         a = exposure_needed(pts, level)
         lo, hi = a["bracket_s"]
         if a["status"] == BRACKETED and hi / lo > ratio:
-            out[key] = [math.sqrt(lo * hi)]
+            n = min(RUNGS_PER_ROUND, math.ceil(math.log(hi / lo) / math.log(ratio)) - 1)
+            out[key] = [lo * (hi / lo) ** (k / (n + 1)) for k in range(1, n + 1)]
     return out
 
 

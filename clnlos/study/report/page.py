@@ -44,7 +44,12 @@ from clnlos.study.report.figures import (
     short_name,
 )
 from clnlos.study.findings.transport import fmt_r
-from clnlos.study.report.plan import fig_threshold_gallery, plan_table, real_check_html
+from clnlos.study.report.plan import (
+    fig_curves,
+    fig_threshold_gallery,
+    plan_table,
+    real_check_html,
+)
 
 PAGE_WIDTH_PX = 1180
 DPI = 100
@@ -436,6 +441,11 @@ def plan_sections(results, plan, res) -> list[str]:
         if results.get("left_out"):
             parts.append("<p>Left out (a method cannot assume that reflectance): "
                          + "; ".join(html.escape(n) for n in results["left_out"]) + ".</p>")
+        if results.get("geometries"):  # the first screen holds the table's panel instead
+            parts += _figure("The curves the exposure needed comes from",
+                             "Share of legible realisations (Wilson 95%) against exposure "
+                             "per scan point; lines: the non-decreasing fit; dashed: the "
+                             "legible level.", fig_curves(results))
         gallery = fig_threshold_gallery(results, plan, res)
         if gallery is not None:
             parts += _figure("Reconstructions along each curve (first realisation; green "

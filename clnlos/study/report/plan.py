@@ -45,10 +45,11 @@ def exposure_panel(ax, rows: list[dict], level: float) -> None:
         colour = METHOD_COLOURS.get(r["method"], "k")
         marker = REFLECTANCE_MARKERS.get(r["reflectance"], "o")
         lo, hi = r["exposure_needed_interval_s"]
-        if r["status"] == BEYOND:
-            ax.annotate("", (x_max, y), (lo, y), arrowprops={"arrowstyle": "->",
-                                                             "color": colour, "lw": 1.5})
-            ax.plot(lo, y, "|", color=colour, ms=8)
+        if r["status"] == BEYOND:  # more than the largest exposure tried
+            last = r["bracket_s"][0]
+            ax.annotate("", (x_max, y), (last, y), arrowprops={"arrowstyle": "->",
+                                                               "color": colour, "lw": 1.5})
+            ax.plot(last, y, "|", color=colour, ms=8)
             continue
         if r["status"] == BELOW:
             ax.annotate("", (x_min, y), (hi, y), arrowprops={"arrowstyle": "->",
@@ -103,23 +104,33 @@ def curves_panel(ax, rows: list[dict], level: float) -> None:
 
 
 def fig_plan(results, identification_panel=None):
-    """The first screen's figure: the exposure needed (left), the curves (right); with a
-    material table, ``identification_panel(ax)`` draws a third panel first."""
+    """The first screen's figure: the exposure needed beside the curves it comes from; with
+    a material table, ``identification_panel(ax)`` draws the left panel and the exposure
+    needed the right one (the curves: :func:`fig_curves`, below the first screen)."""
     import matplotlib.pyplot as plt  # optional dependency: only when a report draws
 
     rows, level = results["plan"], results["options"]["legible_fraction"]
     n = len(list(dict.fromkeys(row_label(r) for r in rows)))
     h = max(3.6, min(7.0, 1.6 + 0.45 * n))
     if identification_panel is not None:
-        fig, ax = plt.subplots(1, 3, figsize=(11.5, max(h, 4.3)),
-                               width_ratios=(1.25, 1.1, 0.85), constrained_layout=True)
-        identification_panel(ax[0])
-        ax = ax[1:]
-    else:
-        fig, ax = plt.subplots(1, 2, figsize=(11.5, h), width_ratios=(1.2, 1),
+        fig, ax = plt.subplots(1, 2, figsize=(11.5, max(h, 4.3)), width_ratios=(1.3, 1),
                                constrained_layout=True)
+        identification_panel(ax[0])
+        exposure_panel(ax[1], rows, level)
+        return fig
+    fig, ax = plt.subplots(1, 2, figsize=(11.5, h), width_ratios=(1.2, 1),
+                           constrained_layout=True)
     exposure_panel(ax[0], rows, level)
     curves_panel(ax[1], rows, level)
+    return fig
+
+
+def fig_curves(results):
+    """The curves alone (the share of legible realisations against exposure)."""
+    import matplotlib.pyplot as plt
+
+    fig, ax = plt.subplots(1, 1, figsize=(8.0, 4.2), constrained_layout=True)
+    curves_panel(ax, results["plan"], results["options"]["legible_fraction"])
     return fig
 
 

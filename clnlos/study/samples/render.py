@@ -22,6 +22,7 @@ from __future__ import annotations
 
 import hashlib
 import json
+import logging
 import math
 import os
 import time
@@ -30,6 +31,7 @@ import zipfile
 import zlib
 import threading
 from collections import OrderedDict
+from contextlib import contextmanager
 from dataclasses import asdict, dataclass, replace
 from importlib import resources
 from pathlib import Path
@@ -360,62 +362,100 @@ def _pin_threads(threads: int) -> dict:
             "MKL_NUM_THREADS": t, "OPENBLAS_NUM_THREADS": t}
 
 
-def run_samples(samples: list[dict], grid: StudyGrid, cache: Path, *, workers: int = 1,
-                scheduler: str | None = None, device: str | None = None,
-                desc: str = "samples") -> list[dict]:
-    """Render every sample (cached), serially, on local Dask processes (workers x threads =
-    cores), or on an existing cluster."""
-    cache.mkdir(parents=True, exist_ok=True)
-    version = code_version()
+@dataclass
+class SamplePool:
+    """Where a study's samples render: in this process (``client`` None), or on Dask (local
+    worker processes with pinned threads, or an existing cluster). One pool serves every
+    render of a study (its samples, its refined exposures, the transport comparison): its
+    workers keep their OpenCL programs and noise-free transients from one call to the next."""
+
+    client: object = None
+    cluster: object = None
+
+    def close(self) -> None:
+        if self.client is not None:
+            self.client.close()
+        if self.cluster is not None:
+            self.cluster.close()
+
+
+@contextmanager
+def sample_pool(workers: int = 1, scheduler: str | None = None):
+    """A :class:`SamplePool`: serial for one worker, local Dask processes (workers x threads
+    = cores), or the cluster at ``scheduler``; closed on exit. Dask's own log lines (its
+    workers' start and stop) are kept from the user's terminal while it runs."""
     if scheduler is None and workers <= 1:
-        return _report([_cached(s, grid, cache, version, device)
-                        for s in tqdm(samples, desc=desc, unit="sample")])
-    from dask.distributed import Client, LocalCluster, as_completed
-
-    cluster = None
-    if scheduler is None:
-        threads = max(1, (os.cpu_count() or 1) // workers)
-        saved = {k: os.environ.get(k) for k in _pin_threads(threads)}
-        os.environ.update(_pin_threads(threads))  # inherited by the spawned workers
+        yield SamplePool()
+        return
+    log = logging.getLogger("distributed")
+    level = log.level
+    log.setLevel(logging.ERROR)
+    try:
+        pool = _dask_pool(workers, scheduler)
         try:
-            import dask
-
-            # Dask's nanny sets MALLOC_TRIM_THRESHOLD_ in workers, which switches off glibc's
-            # dynamic mmap threshold: every large FFT buffer is then mmap-ed and page-faulted
-            # anew (a sample took 2.6x longer, most of it in the kernel). The workers get
-            # the thread pinning above instead, and glibc's defaults.
-            with dask.config.set({"distributed.nanny.pre-spawn-environ": {}}):
-                cluster = LocalCluster(n_workers=workers, threads_per_worker=1,
-                                       processes=True, dashboard_address=None)
+            # a worker stopped by SIGTERM removes the cache entry it was writing
+            pool.client.run(install_sigterm_cleanup, chain=True)
+            yield pool
         finally:
-            for k, v in saved.items():
-                if v is None:
-                    os.environ.pop(k, None)
-                else:
-                    os.environ[k] = v
-        client = Client(cluster)
-    else:
+            pool.close()
+    finally:
+        log.setLevel(level)
+
+
+def _dask_pool(workers: int, scheduler: str | None) -> SamplePool:
+    from dask.distributed import Client, LocalCluster  # optional: the study extra
+
+    if scheduler is not None:
         try:
-            client = Client(scheduler)
+            return SamplePool(Client(scheduler))
         except (OSError, TimeoutError, ValueError) as exc:  # nothing there, refused, ...
             why = str(exc).splitlines()[0] if str(exc) else type(exc).__name__
             raise ParameterError("--scheduler", scheduler, "the address of a running Dask "
                                  f"scheduler (connecting failed: {why})") from None
+    threads = max(1, (os.cpu_count() or 1) // workers)
+    saved = {k: os.environ.get(k) for k in _pin_threads(threads)}
+    os.environ.update(_pin_threads(threads))  # inherited by the spawned workers
     try:
-        # a worker stopped by SIGTERM removes the cache entry it was writing
-        client.run(install_sigterm_cleanup, chain=True)
-        futs = [client.submit(_cached, s, grid, cache, version, device, pure=False)
-                for s in samples]
-        index = {f.key: i for i, f in enumerate(futs)}
-        out: list = [None] * len(samples)
-        for f in tqdm(as_completed(futs), total=len(futs), desc=desc, unit="sample"):
-            out[index[f.key]] = f.result()
-        return _report(out)
-    finally:
-        client.close()
-        if cluster is not None:
-            cluster.close()
+        import dask  # optional: the study extra
 
+        # Dask's nanny sets MALLOC_TRIM_THRESHOLD_ in workers, which switches off glibc's
+        # dynamic mmap threshold: every large FFT buffer is then mmap-ed and page-faulted
+        # anew (a sample took 2.6x longer, most of it in the kernel). The workers get
+        # the thread pinning above instead, and glibc's defaults.
+        with dask.config.set({"distributed.nanny.pre-spawn-environ": {}}):
+            cluster = LocalCluster(n_workers=workers, threads_per_worker=1,
+                                   processes=True, dashboard_address=None)
+    finally:
+        for k, v in saved.items():
+            if v is None:
+                os.environ.pop(k, None)
+            else:
+                os.environ[k] = v
+    return SamplePool(Client(cluster), cluster)
+
+
+def run_samples(samples: list[dict], grid: StudyGrid, cache: Path, *, workers: int = 1,
+                scheduler: str | None = None, device: str | None = None,
+                desc: str = "samples", pool: SamplePool | None = None) -> list[dict]:
+    """Render every sample (cached) in ``pool``, else in a pool of its own (serially, on
+    local Dask processes, or on an existing cluster)."""
+    if pool is None:
+        with sample_pool(workers, scheduler) as own:
+            return run_samples(samples, grid, cache, device=device, desc=desc, pool=own)
+    cache.mkdir(parents=True, exist_ok=True)
+    version = code_version()
+    if pool.client is None:
+        return _report([_cached(s, grid, cache, version, device)
+                        for s in tqdm(samples, desc=desc, unit="sample")])
+    from dask.distributed import as_completed  # optional: the study extra
+
+    futs = [pool.client.submit(_cached, s, grid, cache, version, device, pure=False)
+            for s in samples]
+    index = {f.key: i for i, f in enumerate(futs)}
+    out: list = [None] * len(samples)
+    for f in tqdm(as_completed(futs), total=len(futs), desc=desc, unit="sample"):
+        out[index[f.key]] = f.result()
+    return _report(out)
 
 
 MAX_WORKERS = 256  # local worker processes at most
