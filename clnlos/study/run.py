@@ -251,14 +251,15 @@ def _run_study(out_dir: Path, study: Study, cache: Path, nw: int, labels: str, *
     checks = None
     if study.real:
         with progress_bar(None, "real captures and their twins", "reconstruction") as bar:
-            checks = real_check(study, mats, out_dir, device, counter(bar))
+            checks = real_check(study, mats, out_dir, device, lambda: bar.update(1))
     timings["real_check_s"] = time.perf_counter() - t0
 
     t0 = time.perf_counter()
     real_section = None
     if study.real_data is not None and real_capture_paths(study.real_data):
         real_section = real_materials(study.real_data, RealPlan.quick()
-                                      if study.name == "quick" else RealPlan(), device)
+                                      if study.real_data_plan == "quick" else RealPlan(),
+                                      device)
     timings["real_materials_s"] = time.perf_counter() - t0
 
     need = smallest_legible(legibility_rows, list(dict.fromkeys(

@@ -60,6 +60,7 @@ from clnlos.study.score.legibility import LEGIBLE_ACCURACY
 BUILTIN_STUDIES = {"quick": "study_quick.toml", "full": "study_full.toml",
                    "template": "study_template.toml"}
 REFLECTANCES = ("lambertian", "known", "auto")
+REAL_DATA_PLANS = ("quick", "full")  # clnlos.study.real.materials.RealPlan.quick() or ()
 LABELS = ("legibility", "nr", "fft")
 PATTERNS = {"bars": "bars_v", "bars_v": "bars_v", "bars_h": "bars_h", "dots": "dots_3x3",
             "dots_3x3": "dots_3x3", "dots_2x2": "dots_2x2"}
@@ -259,6 +260,7 @@ class Study:
     realisations: int = 4
     legible_fraction: float = LEGIBLE_ACCURACY
     refine_ratio: float = REFINE_RATIO
+    real_data_plan: str = "full"    # the shared captures' section (--real-data): its ladder
     source: str = ""                # the study file's path ("" for a dict)
     text: str = ""                  # its TOML text, recorded in results.json
     real_data: Path | None = None   # --real-data: the shared captures' folder
@@ -630,7 +632,7 @@ def parse_study(d: dict, *, base_dir=".", source: str = "", text: str = "") -> S
     check_keys("", d, set(TOP_KEYS))
     meta = _table(d, "study")
     check_keys("study", meta, {"name", "seed", "realisations", "legible_fraction",
-                               "refine_ratio"})
+                               "refine_ratio", "real_data_plan"})
     grid = parse_rig(d, base)
     inv = _table(d, "inversions")
     check_keys("inversions", inv, {"methods", "reflectance"})
@@ -723,7 +725,10 @@ def parse_study(d: dict, *, base_dir=".", source: str = "", text: str = "") -> S
         realisations=realisations,
         legible_fraction=real("study.legible_fraction",
                               meta.get("legible_fraction", LEGIBLE_ACCURACY), 0.5, 1.0),
-        refine_ratio=float(refine), source=source, text=text)
+        refine_ratio=float(refine),
+        real_data_plan=choice("study.real_data_plan", meta.get("real_data_plan", "full"),
+                              REAL_DATA_PLANS),
+        source=source, text=text)
 
 
 def _unique(section: str, names: list[str]) -> None:

@@ -75,32 +75,46 @@ def exposure_panel(ax, rows: list[dict], level: float) -> None:
               frameon=False)
 
 
+METHOD_MARKERS = {"lct": "o", "fk": "D", "iterative": "s"}
+
+
 def curves_panel(ax, rows: list[dict], level: float) -> None:
-    """The share of legible realisations against exposure (Wilson 95% intervals; line: the
-    non-decreasing fit), one curve per row."""
+    """The share of legible realisations against exposure (Wilson 95% intervals; lines: the
+    non-decreasing fit), one curve per row: colour the material and target (the method, as
+    the exposure panel's, where there is one material and target), line the reflectance
+    assumed, marker the method."""
     groups = list(dict.fromkeys(row_label(r) for r in rows))
-    shades = np.linspace(0.0, 0.55, max(len(groups), 1))
+    by_method = len(groups) == 1
+    colours = {g: f"C{k % 10}" for k, g in enumerate(groups)}
     for r in rows:
         e = np.array([p["exposure_s"] for p in r["curve"]])
         f = np.array([p["fraction"] for p in r["curve"]])
         lo = np.array([p["ci"][0] for p in r["curve"]])
         hi = np.array([p["ci"][1] for p in r["curve"]])
-        colour = METHOD_COLOURS.get(r["method"], "k")
-        g = groups.index(row_label(r))
-        off = 1 + 0.04 * (g - len(groups) / 2)
+        colour = (METHOD_COLOURS.get(r["method"], "k") if by_method
+                  else colours[row_label(r)])
+        k = list(dict.fromkeys((x["method"], x["reflectance"]) for x in rows)).index(
+            (r["method"], r["reflectance"]))
+        off = 1 + 0.03 * (k - 1)  # a little apart: the intervals of one rung do not overlap
         ax.errorbar(e * off, f, yerr=[np.clip(f - lo, 0, None), np.clip(hi - f, 0, None)],
-                    fmt=REFLECTANCE_MARKERS.get(r["reflectance"], "o"), color=colour,
-                    alpha=1 - shades[g], ms=3.5, capsize=1.5, lw=0.8)
-        ax.plot(e, [p["fit"] for p in r["curve"]], REFLECTANCE_STYLES.get(
-            r["reflectance"], "-"), color=colour, alpha=1 - shades[g], lw=1)
-    ax.axhline(level, color="gray", ls="--", lw=0.8)
+                    fmt=METHOD_MARKERS.get(r["method"], "o"), color=colour, ms=3.5,
+                    capsize=1.5, lw=0.6, alpha=0.8)
+        ax.plot(e, [p["fit"] for p in r["curve"]],
+                REFLECTANCE_STYLES.get(r["reflectance"], "-"), color=colour, lw=1.2)
+    for g in ([] if by_method else groups):
+        ax.plot([], [], "-", color=colours[g], label=g)
+    for m, refl in dict.fromkeys((r["method"], r["reflectance"]) for r in rows):
+        ax.plot([], [], REFLECTANCE_STYLES.get(refl, "-"), marker=METHOD_MARKERS.get(m, "o"),
+                color=METHOD_COLOURS.get(m, "k") if by_method else "0.3",
+                label=inversion_label({"method": m, "reflectance": refl}))
+    ax.axhline(level, color="gray", ls=":", lw=0.8)
     ax.set_xscale("log")
     ax.set(ylim=(-0.03, 1.03), xlabel="exposure per scan point (s)",
            ylabel="share of realisations legible",
-           title="the curves: legible share (Wilson 95%) and its monotone fit\n"
-                 "(paler: later rows of the left panel)")
+           title="the curves: legible share (Wilson 95%), its monotone fit")
     ax.title.set_fontsize(9)
     ax.grid(True, which="major", lw=0.3, alpha=0.5)
+    ax.legend(fontsize=6, loc="lower right", frameon=False)
 
 
 def fig_plan(results, identification_panel=None):
