@@ -15,7 +15,8 @@ from clnlos.study.findings.exposure import (
     need_order,
     refinement,
 )
-from clnlos.study.real.check import AT_MOST, ratio_of, series_crossing
+from clnlos.study.real.check import ratio_of
+from clnlos.study.real.ladder import AT_MOST, series_crossing, series_summary
 from clnlos.study.score.legibility import wilson_interval
 
 
@@ -87,7 +88,7 @@ def test_series_crossing_brackets_the_loss_within_the_ratio_on_nested_rungs():
         frac = float(y.sum()) / total
         return 1.0 - 0.2 * math.log(frac) / math.log(true)
 
-    s = series_crossing(score, counts, seed=3, ratio=1.5)
+    s = series_crossing(score, counts, seed=3, level=0.8, ratio=1.5)
     assert s["status"] == "bracketed"
     assert s["kept"] / s["lost"] <= 1.5 and s["lost"] <= s["crossing"] <= s["kept"]
     assert s["crossing"] == pytest.approx(true, rel=0.1)
@@ -99,8 +100,10 @@ def test_series_crossing_brackets_the_loss_within_the_ratio_on_nested_rungs():
 
 def test_series_that_keeps_its_image_is_a_bound_and_bounds_stay_bounds():
     counts = np.full((8, 2, 2), 1000.0, np.float32)
-    s = series_crossing(lambda y: 1.0, counts, seed=0)
+    s = series_crossing(lambda y: 1.0, counts, seed=0, level=0.8)
     assert s["status"] == AT_MOST and s["lost"] is None
+    summary = series_summary([s, s, s], 100.0)
+    assert summary["status"] == AT_MOST and summary["interval"][0] is None
     val = {"photons_needed": 10.0, "status": "bracketed"}
     bound = {"photons_needed": 10.0, "status": AT_MOST}
     assert ratio_of(val, val) == (1.0, None)

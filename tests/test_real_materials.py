@@ -13,7 +13,6 @@ from clnlos.study.real.materials import (
     binned_scan,
     blob_control,
     capture_rows,
-    crossing_photons,
     headline_ratios,
     image_score,
 )
@@ -26,14 +25,6 @@ def _letter_s(n: int = 32) -> np.ndarray:
     img[n // 2 - s // 2:n // 2 + s // 2, s:n - s] = 1
     img[n // 2:n - s, n - 2 * s:n - s] = img[n - 2 * s:n - s, s:n - s] = 1
     return img
-
-
-def test_crossing_interpolates_in_log_photons_and_says_when_it_never_falls():
-    p = [1e6, 1e5, 1e4]
-    assert crossing_photons(p, [0.9, 0.85, 0.5]) == pytest.approx(
-        np.exp(np.log(1e5) + (0.05 / 0.35) * np.log(0.1)))
-    assert crossing_photons(p, [0.9, 0.9, 0.9]) == 1e4  # never falls: the smallest tried
-    assert crossing_photons(p, [0.5, 0.9, 0.9]) is None  # not even at full photons
 
 
 def test_a_blob_and_noise_fail_the_score_a_noisy_copy_keeps_it():

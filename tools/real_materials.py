@@ -27,7 +27,6 @@ def main(argv=None) -> int:
         real_capture_paths,
         real_materials,
         section_figure,
-        variants,
     )
     from clnlos.study.samples.resolution import json_ready
 
@@ -36,9 +35,9 @@ def main(argv=None) -> int:
     ap.add_argument("--quick", action="store_true", help="the quick study's plan")
     args = ap.parse_args(argv)
     plan = RealPlan.quick() if args.quick else RealPlan()
-    paths = real_capture_paths(Path(args.shared))
-    steps = len(paths) * len(variants(plan.inversions)) * (1 + plan.seeds)
-    with tqdm(total=steps, desc="real materials") as bar:
+    if not real_capture_paths(Path(args.shared)):
+        raise SystemExit(f"no shared capture under {args.shared}")
+    with tqdm(total=None, desc="real materials", unit="reconstruction") as bar:
         section = real_materials(Path(args.shared), plan, progress=bar.update)
     RESULTS.mkdir(parents=True, exist_ok=True)
     save_figure_file(section_figure(section), RESULTS / "real_materials.png")

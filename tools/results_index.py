@@ -57,6 +57,12 @@ ENTRIES: tuple[tuple[str, str, str, str], ...] = (
      "supersede lct_release_check.*'s)"),
     ("retro_identifiability.*", "python tools/retro_identifiability.py", "current",
      "held-out scores of each reflectance model on the LCT release (docs/brdf.md)"),
+    ("lct_rig.json", "python tools/study_rig.py examples/studies/lct_rig.toml", "current",
+     "the LCT rig's study file: the exposure a white and a retroreflective S need, the five "
+     "released captures beside their twins (docs/real-materials.md)"),
+    ("cdt_rig.json", "python tools/study_rig.py examples/studies/cdt_rig.toml", "current",
+     "the CDT rig's study file: the exposure a white S needs behind the slab, the three "
+     "released captures beside their twins (docs/real-materials.md)"),
     ("real_materials.*", "python tools/real_materials.py --quick", "current",
      "photons a real target needs per inversion x reflectance, the twins, the charts "
      "(docs/real-materials.md)"),

@@ -7,17 +7,11 @@ detail with the full-photon reconstruction's is at least KEEP_LEVEL (0.8). The v
 entry's method with the reflectance its material asks for (retroreflective: the (t/T)^2
 falloff; else Lambertian).
 
-Photons needed, finely enough to be checked. Each of SEEDS series thins the capture
-binomially down the ladder LADDER (nested: every photon of a fainter rung is one of the
-brighter rung's, the exact model of a shorter exposure), stopping at the first rung that
-loses the image; a rung is then inserted at the geometric mean of the last kept and the first
-lost fraction, nested between them (the photons of the kept rung not in the lost one each
-kept with probability (f - f_lost) / (f_kept - f_lost)), until they are within RATIO of each
-other; the crossing is interpolated in log photons between them. The photons needed is the
-median over the series; its interval runs from the smallest lost to the largest kept rung
-of any series (it holds every bracket and the spread of the seeds). A series that keeps the
-image down to the last rung bounds the need from above ("at most"); those bounds stay bounds
-in every ratio.
+Photons needed, finely enough to be checked: SEEDS series of nested thinnings, each refined at
+its crossing until bracketed within 1.5x (:mod:`clnlos.study.real.ladder`); the median over
+the series, its interval holding every bracket and the seeds' spread; a series that keeps the
+image down to its last rung bounds the need from above ("at most"), and those bounds stay
+bounds in every ratio.
 
 The twin. ``target = "from-capture"``: the Otsu mask of the full-photon reconstruction's
 front view, each pixel at the depth of its brightest voxel and with the front view's value as
@@ -35,7 +29,6 @@ that are thinned like the capture.
 from __future__ import annotations
 
 import json
-import math
 from dataclasses import dataclass
 from pathlib import Path
 
@@ -52,6 +45,7 @@ from clnlos.io.files import read_capture
 from clnlos.study.file.spec import RealEntry, Study
 from clnlos.study.plan.entries import MaterialKeys, target_sample
 from clnlos.study.plan.scenes import scene_objects
+from clnlos.study.real.ladder import bounded_ratio, series_crossing, series_summary
 from clnlos.study.real.materials import (
     KEEP_LEVEL,
     TWIN_DENSITY_PER_M2,
@@ -64,13 +58,9 @@ from clnlos.study.samples.resolution import otoole_lateral_bound_m
 from clnlos.study.score.legibility import FWHM_PER_SIGMA
 from clnlos.study.score.metrics import otsu_threshold
 
-LADDER = (1.0, 0.3, 0.1, 0.03, 0.01, 0.003, 0.001, 0.0003)
 SEEDS = 3
-RATIO = 1.5            # the crossing bracketed within this ratio of photons
-MAX_INSERTS = 8        # rungs inserted per series at most
 SERIES_SEED = 5600     # first seed of the series
 TWIN_SEED = 5656
-BRACKETED, AT_MOST = "bracketed", "at most"
 
 
 @dataclass(frozen=True)
@@ -95,52 +85,6 @@ def variant_of(entry: RealEntry, mat: MaterialKeys, base: ReconstructionConfig) 
     return Variant(cfg)
 
 
-def _nested_between(kept: np.ndarray, lost: np.ndarray, f_kept: float, f_lost: float,
-                    f: float, rng) -> np.ndarray:
-    """The rung at fraction ``f`` between two nested rungs: the lost rung's photons and each
-    other photon of the kept rung with probability (f - f_lost) / (f_kept - f_lost)."""
-    extra = np.rint(kept).astype(np.int64) - np.rint(lost).astype(np.int64)
-    q = (f - f_lost) / (f_kept - f_lost)
-    return (lost + rng.binomial(np.maximum(extra, 0), q)).astype(np.float32)
-
-
-def series_crossing(score, counts: np.ndarray, seed: int, ladder=LADDER,
-                    ratio: float = RATIO) -> dict:
-    """One nested series (the module docstring): ``score(counts)`` of each rung tried,
-    the bracket [f_lost, f_kept] and the crossing fraction (interpolated in log photons), or
-    the last rung where the image is never lost (``status`` "at most")."""
-    rng = np.random.default_rng(seed)
-    tried = {1.0: 1.0}
-    rungs = {1.0: np.rint(counts).astype(np.float32)}
-    f_kept, f_lost = 1.0, None
-    for f in ladder[1:]:
-        rungs[f] = rng.binomial(np.rint(rungs[f_kept]).astype(np.int64),
-                                f / f_kept).astype(np.float32)
-        tried[f] = score(rungs[f])
-        if tried[f] < KEEP_LEVEL:
-            f_lost = f
-            break
-        f_kept = f
-    if f_lost is None:
-        return {"status": AT_MOST, "kept": f_kept, "lost": None, "crossing": f_kept,
-                "tried": sorted(tried.items(), reverse=True)}
-    for _ in range(MAX_INSERTS):
-        if f_kept / f_lost <= ratio:
-            break
-        f = math.sqrt(f_kept * f_lost)
-        rungs[f] = _nested_between(rungs[f_kept], rungs[f_lost], f_kept, f_lost, f, rng)
-        tried[f] = score(rungs[f])
-        if tried[f] >= KEEP_LEVEL:
-            f_kept = f
-        else:
-            f_lost = f
-    s_k, s_l = tried[f_kept], tried[f_lost]
-    w = (s_k - KEEP_LEVEL) / (s_k - s_l) if s_k > s_l else 0.0
-    crossing = math.exp(math.log(f_kept) + w * (math.log(f_lost) - math.log(f_kept)))
-    return {"status": BRACKETED, "kept": f_kept, "lost": f_lost, "crossing": crossing,
-            "tried": sorted(tried.items(), reverse=True)}
-
-
 def photons_needed(cap: Capture, variant: Variant, queue, seeds: int = SEEDS,
                    seed0: int = SERIES_SEED, progress=None) -> dict:
     """The photons a capture needs to keep its image (the module docstring): ``photons``,
@@ -156,15 +100,10 @@ def photons_needed(cap: Capture, variant: Variant, queue, seeds: int = SEEDS,
             progress()
         return s
 
-    series = [series_crossing(score, counts, seed0 + k) for k in range(seeds)]
-    crossings = [s["crossing"] for s in series]
-    k_med = int(np.argsort(crossings)[len(crossings) // 2])
-    status = series[k_med]["status"]
-    lo = min((s["lost"] for s in series if s["lost"] is not None), default=None)
-    hi = max(s["kept"] for s in series)
-    return {"photons": photons, "photons_needed": float(np.median(crossings)) * photons,
-            "interval": [None if lo is None else lo * photons, hi * photons],
-            "status": status, "series": series, "reference": ref}
+    series = [series_crossing(score, counts, seed0 + k, level=KEEP_LEVEL)
+              for k in range(seeds)]
+    return {"photons": photons, **series_summary(series, photons), "series": series,
+            "reference": ref}
 
 
 def from_capture_mask(volume: np.ndarray, voxel_depth_m: float
@@ -313,14 +252,9 @@ def matched_expectation(cap: Capture, tau: np.ndarray, sigma) -> tuple[np.ndarra
 
 
 def ratio_of(predicted: dict, measured: dict) -> tuple[float, str | None]:
-    """predicted / measured photons needed, with ``"<="`` or ``">="`` where one is an upper
-    bound (a bound stays a bound: at most over a value is at most; a value over at most is
-    at least; two bounds say nothing: None)."""
-    r = predicted["photons_needed"] / measured["photons_needed"]
-    p, m = predicted["status"] == AT_MOST, measured["status"] == AT_MOST
-    if p and m:
-        return r, "unknown"
-    return r, "<=" if p else ">=" if m else None
+    """predicted / measured photons needed, a bound where either is one
+    (:func:`clnlos.study.real.ladder.bounded_ratio`)."""
+    return bounded_ratio(predicted, measured)
 
 
 def real_check(study: Study, mats: dict, out_dir: Path, queue=None, progress=None) -> list:

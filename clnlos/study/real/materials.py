@@ -18,14 +18,13 @@ with the reference is at least KEEP_LEVEL. A blob does not: the reference blurre
 Gaussian of BLOB_SIGMA_FRACTION of the scan is scored too (``blob_ncc``, below KEEP_LEVEL on
 every shared capture; a capture where it is not is flagged). Noise scores about 0.
 
-Photons needed. Each capture is thinned binomially to the fractions of ``LADDER`` (nested:
-every photon of a fainter capture is one of the brighter one's, the exact model of a
-shorter exposure; :func:`clnlos.study.real.thinning.thinned_series`), SEEDS series per
-capture; the photons needed by one series is where its score first falls below KEEP_LEVEL,
-interpolated in log photons between the two fractions around the crossing (the count at the
-smallest fraction where it never falls; None where the full capture already scores below).
-The section reports the median over the series and their range; photons are the counts
-the reconstruction sees (after the direct reflection).
+Photons needed. Each capture is thinned binomially down the plan's ladder (nested: every
+photon of a fainter capture is one of the brighter one's, the exact model of a shorter
+exposure), its ``seeds`` series each refined at the crossing of KEEP_LEVEL until bracketed
+within 1.5x (:mod:`clnlos.study.real.ladder`); the median over the series and the range
+that holds every bracket; "at most" where a series keeps the image to its last rung (an
+upper bound, kept as one in every ratio), "not kept" where the full capture already scores
+below. Photons are the counts the reconstruction sees (after the direct reflection).
 
 The question on real data: photons a diffuse S needs over those a retroreflective S needs
 (``data_diffuse_s`` and the S of ``data_s_u``, same rig), per inversion, each with the
@@ -51,6 +50,7 @@ from clnlos.io.capture import Capture, without_direct
 from clnlos.io.figures import new_figure
 from clnlos.io.files import read_capture
 from clnlos.study.score.legibility import detail as detail_image
+from clnlos.study.real.ladder import AT_MOST, bounded_ratio, series_crossing, series_summary
 from clnlos.study.real.capture import capture_config, estimate_letters, measurement_summary
 from clnlos.study.samples.resolution import chart_features, json_ready, otoole_lateral_bound_m
 from clnlos.study.real.thinning import thinned_series
@@ -183,22 +183,6 @@ def blob_control(reference: np.ndarray) -> float:
                        reference)
 
 
-def crossing_photons(photons: list[float], scores: list[float], level: float = KEEP_LEVEL
-                     ) -> float | None:
-    """The photons where ``scores`` (at ``photons``, decreasing) first fall below ``level``,
-    interpolated linearly in log photons; the last photons where they never do; None where
-    the first is already below."""
-    if not scores or scores[0] < level:
-        return None
-    for k in range(1, len(scores)):
-        if scores[k] < level:
-            s0, s1 = scores[k - 1], scores[k]
-            w = (s0 - level) / (s0 - s1) if s0 > s1 else 0.0
-            return float(math.exp(math.log(photons[k - 1])
-                                  + w * (math.log(photons[k]) - math.log(photons[k - 1]))))
-    return float(photons[-1])
-
-
 def _front(cap: Capture, counts: np.ndarray, cfg: ReconstructionConfig, queue) -> np.ndarray:
     c = Capture(counts, cap.bin_width_s, cap.start_s, cap.scan_width_m, cap.source,
                 {k: v for k, v in cap.attrs.items() if k != "direct_end_s"})
@@ -237,31 +221,28 @@ def ladder_rows(cap: Capture, base: ReconstructionConfig, plan: RealPlan, invers
             progress()
     best = max(var, key=lambda v: agree[v])
     ref = full[best]
-    series = [thinned_series(counts, plan.ladder, seed=SERIES_SEED + s)
-              for s in range(plan.seeds)]
     rows = []
     for v in var:
-        scores = []
-        for ladder in series:
-            scores.append([image_score(full[v], ref) if f == 1.0 else
-                           image_score(_front(cap, y, cfgs[v], queue), ref)
-                           for f, y in zip(plan.ladder, ladder, strict=True)])
+        def score(y, v=v):
+            s = image_score(_front(cap, y, cfgs[v], queue), ref)
             if progress:
                 progress()
-        needed = [crossing_photons([photons * f for f in plan.ladder], s) for s in scores]
-        got = [n for n in needed if n is not None]
+            return s
+
+        full_score = image_score(full[v], ref)
+        series = [series_crossing(score, counts, SERIES_SEED + k, level=KEEP_LEVEL,
+                                  ladder=plan.ladder, full_score=full_score)
+                  for k in range(plan.seeds)]
+        need = series_summary(series, photons)
+        n = need["photons_needed"]
         rows.append({"inversion": v[0], "reflectance": v[1], "half_agreement": agree[v],
-                     "scores": scores, "mean_scores": np.mean(scores, axis=0).tolist(),
-                     "photons_needed": float(np.median(got)) if len(got) == len(needed)
-                     else None,
-                     "photons_needed_range": [min(got), max(got)] if got else None,
-                     "fraction_needed": (float(np.median(got)) / photons
-                                         if len(got) == len(needed) else None),
-                     "signal_photons_needed": (float(np.median(got)) * signal / photons
-                                               if len(got) == len(needed) else None),
-                     "at_most": bool(got and max(s[-1] for s in scores) >= KEEP_LEVEL)})
+                     "full_score": full_score, "series": series, "status": need["status"],
+                     "photons_needed": n, "photons_needed_range": need["interval"],
+                     "fraction_needed": None if n is None else n / photons,
+                     "signal_photons_needed": None if n is None else n * signal / photons,
+                     "at_most": need["status"] == AT_MOST})
     blob = blob_control(ref)
-    return {"photons": photons, "signal_photons": signal, "fractions": list(plan.ladder),
+    return {"photons": photons, "signal_photons": signal, "ladder": list(plan.ladder),
             "reference": {"inversion": best[0], "reflectance": best[1]}, "blob_ncc": blob,
             "blob_fails": bool(blob < KEEP_LEVEL), "rows": rows,
             "arrays": {"reference": ref.astype(np.float32)}}
@@ -341,6 +322,17 @@ def signal_photons(counts: np.ndarray, bin_width_s: float, start_s: float) -> fl
                - noise.background_per_bin * n_scan * (nt - first))
 
 
+def ratio_text(h: dict, fmt: str = ".3g") -> str:
+    """A headline ratio in words: "26x (21-33x)", "at most 26x (-33x)": a bound said as one,
+    an open end of its range as "-"."""
+    lo, hi = h["ratio_range"]
+    bound = {"<=": "at most ", ">=": "at least ", "unknown": "(two bounds) "}.get(
+        h.get("ratio_bound"), "")
+    end = "-" if lo is None else format(lo, fmt)
+    top = "-" if hi is None else format(hi, fmt)
+    return f"{bound}{format(h['ratio'], fmt)}x ({end} to {top}x)"
+
+
 def headline_ratios(captures: list[dict]) -> list[dict]:
     """Per inversion: photons the diffuse S needs over those the retroreflective S needs,
     each with its best-reading reflectance (the fewest photons needed), with the range
@@ -358,17 +350,18 @@ def headline_ratios(captures: list[dict]) -> list[dict]:
         d, r = best[HEADLINE[0]], best[HEADLINE[1]]
         row = {"inversion": inv, "diffuse": None if d is None else
                {"reflectance": d["reflectance"], "photons": d["photons_needed"],
-                "signal_photons": d["signal_photons_needed"]},
+                "signal_photons": d["signal_photons_needed"], "status": d["status"]},
                "retroreflective": None if r is None else
                {"reflectance": r["reflectance"], "photons": r["photons_needed"],
-                "signal_photons": r["signal_photons_needed"]}}
+                "signal_photons": r["signal_photons_needed"], "status": r["status"]}}
         if d is not None and r is not None:
-            row["ratio"] = d["photons_needed"] / r["photons_needed"]
+            row["ratio"], row["ratio_bound"] = bounded_ratio(d, r)
             row["signal_ratio"] = d["signal_photons_needed"] / r["signal_photons_needed"]
-            row["ratio_range"] = [d["photons_needed_range"][0] / r["photons_needed_range"][1],
-                                  d["photons_needed_range"][1] / r["photons_needed_range"][0]]
+            (dlo, dhi), (rlo, rhi) = d["photons_needed_range"], r["photons_needed_range"]
+            row["ratio_range"] = [None if dlo is None else dlo / rhi,
+                                  None if rlo is None else dhi / rlo]
         elif d is None and r is not None:
-            row["ratio"] = None
+            row["ratio"], row["ratio_bound"] = None, None
             row["note"] = ("the diffuse S does not keep its image even with all its photons: "
                            "the ratio exceeds its photons over the retroreflective S's need")
         out.append(row)
@@ -457,15 +450,14 @@ def headline_rows(section: dict) -> list[list]:
                         [c["photons"], None]])
             continue
         lo, hi = r["photons_needed_range"]
-        floor = c["photons"] * min(c["fractions"])
         out.append([f"{c['target'].split(',')[0]}, {c['material'].split(' (')[0]}",
-                    r["photons_needed"], [None if lo <= floor * 1.0001 else lo, hi]])
+                    r["photons_needed"], [lo, hi]])
     return out
 
 
 def section_figure(section: dict):
-    """Per capture: its reference front view and the score along the thinning ladder of
-    each variant (mean over series; dashed: the keep level) (matplotlib Figure)."""
+    """Per capture: its reference front view and the score of each variant against photons
+    along each refined series (dashed: the keep level) (matplotlib Figure)."""
     caps = section["captures"]
     fig, ax = new_figure(2, max(1, len(caps)), (2.3 * max(1, len(caps)), 4.8))
     ax = np.asarray(ax).reshape(2, -1)
@@ -475,10 +467,12 @@ def section_figure(section: dict):
             ax[0, k].imshow(ref, cmap="gray", origin="lower")
         ax[0, k].set_title(f"{c['target']}\n{c['material']}", fontsize=7)
         ax[0, k].set_axis_off()
-        for r in c["rows"]:
-            ph = [c["photons"] * f for f in c["fractions"]]
-            ax[1, k].plot(ph, r["mean_scores"], marker="o", ms=3,
-                          label=f"{r['inversion']} {r['reflectance'][:5]}.")
+        for j, r in enumerate(c["rows"]):
+            for i, s in enumerate(r["series"]):
+                f, v = zip(*sorted(s["tried"]), strict=True)
+                ax[1, k].plot(np.asarray(f) * c["photons"], v, marker="o", ms=2.5, lw=0.8,
+                              color=f"C{j}", label=None if i else
+                              f"{r['inversion']} {r['reflectance'][:5]}.")
         ax[1, k].axhline(section["keep_level"], color="gray", ls="--", lw=0.8)
         ax[1, k].set_xscale("log")
         ax[1, k].set(ylim=(-0.2, 1.05), xlabel="photons")
@@ -522,10 +516,9 @@ def section_html(section: dict, out_dir, png=None) -> str:
            "reference blurred to a blob" + _blob_sentence(section) + "</p>"]
     for h in section["headline"]:
         if h.get("ratio") is not None:
-            lo, hi = h["ratio_range"]
             out.append(f"<p><b>{esc(h['inversion'].upper())}: the diffuse S needs "
-                       f"{h['ratio']:.3g}x the photons of the retroreflective S</b> (range "
-                       f"{lo:.3g}-{hi:.3g}; {h['diffuse']['photons']:.3g} against "
+                       f"{esc(ratio_text(h))} the photons of the retroreflective S</b> "
+                       f"({h['diffuse']['photons']:.3g} against "
                        f"{h['retroreflective']['photons']:.3g}); counted above the floor of "
                        f"dark counts and ambient light, {h['signal_ratio']:.3g}x "
                        f"({h['diffuse']['signal_photons']:.3g} against "
@@ -543,8 +536,11 @@ def section_html(section: dict, out_dir, png=None) -> str:
                          f"{c['reference']['inversion']} {c['reference']['reflectance']}",
                          f"{c['blob_ncc']:.2f}", r["inversion"], r["reflectance"],
                          f"{r['half_agreement']:.2f}",
-                         "not kept at full photons" if need is None else f"{need:.3g}",
-                         "" if rng is None else f"{rng[0]:.3g}-{rng[1]:.3g}",
+                         "not kept at full photons" if need is None else
+                         f"{'at most ' if r['at_most'] else ''}{need:.3g}",
+                         "" if rng is None else
+                         f"{'-' if rng[0] is None else format(rng[0], '.3g')} to "
+                         f"{rng[1]:.3g}",
                          "" if r["fraction_needed"] is None else f"{r['fraction_needed']:.3g}"])
     out.append("<div class='tab'><table><tr>" + "".join(f"<th>{esc(h)}</th>" for h in head)
                + "</tr>" + "".join("<tr>" + "".join(f"<td>{esc(str(v))}</td>" for v in r)
@@ -558,9 +554,7 @@ def section_html(section: dict, out_dir, png=None) -> str:
                    f"{t['real']['temporal_fwhm_s'] * 1e9:.2f} ns); needs {h}.</p>")
     for h in section.get("twin_headline", ()):
         if h.get("ratio") is not None:
-            lo, hi = h["ratio_range"]
-            out.append(f"<p><b>The twins predict {h['ratio']:.3g}x</b> (range {lo:.3g}-"
-                       f"{hi:.3g}).</p>")
+            out.append(f"<p><b>The twins predict {esc(ratio_text(h))}</b>.</p>")
     for ch in section["charts"]:
         def cm(v):
             return "-" if v is None else f"{100 * v:.1f} cm"

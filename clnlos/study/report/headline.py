@@ -20,6 +20,7 @@ import numpy as np
 
 from clnlos.study.score.legibility import wilson_interval
 from clnlos.study.report.figures import INVERSION_LABELS, short_name
+from clnlos.study.real.materials import ratio_text
 from clnlos.study.report.plan import fig_plan, plan_findings
 
 # the BRDF classes, most diffuse first (the order of the rows)
@@ -185,9 +186,8 @@ def real_materials_finding(results) -> str | None:
     if not rows:
         return None
     h = rows[0]
-    lo, hi = h["ratio_range"]
     text = (f"On real captures of one rig (O'Toole et al. 2018), the diffuse S needs "
-            f"{h['ratio']:.0f}x [{lo:.0f}, {hi:.0f}] the photons of the retroreflective S to "
+            f"{ratio_text(h, '.2g')} the photons of the retroreflective S to "
             f"keep its image ({h['diffuse']['photons']:.2g} against "
             f"{h['retroreflective']['photons']:.2g}, {h['inversion'].upper()}; "
             f"{h.get('signal_ratio', float('nan')):.0f}x counting only the photons above "
@@ -195,8 +195,7 @@ def real_materials_finding(results) -> str | None:
     twins = [t for t in section.get("twin_headline", ()) if t.get("ratio") is not None]
     if twins:
         t = twins[0]
-        text += (f"; their simulated twins predict {t['ratio']:.0f}x "
-                 f"[{t['ratio_range'][0]:.0f}, {t['ratio_range'][1]:.0f}]")
+        text += f"; their simulated twins predict {ratio_text(t, '.2g')}"
     return text + "."
 
 

@@ -387,9 +387,13 @@ def sample_pool(workers: int = 1, scheduler: str | None = None):
     if scheduler is None and workers <= 1:
         yield SamplePool()
         return
-    log = logging.getLogger("distributed")
-    level = log.level
-    log.setLevel(logging.ERROR)
+    import distributed  # noqa: F401  (optional: the study extra; its loggers, configured)
+
+    logs = [logging.getLogger(n) for n in ["distributed", *logging.root.manager.loggerDict]
+            if n.startswith("distributed")]
+    levels = [log.level for log in logs]
+    for log in logs:
+        log.setLevel(logging.ERROR)
     try:
         pool = _dask_pool(workers, scheduler)
         try:
@@ -399,7 +403,8 @@ def sample_pool(workers: int = 1, scheduler: str | None = None):
         finally:
             pool.close()
     finally:
-        log.setLevel(level)
+        for log, level in zip(logs, levels, strict=True):
+            log.setLevel(level)
 
 
 def _dask_pool(workers: int, scheduler: str | None) -> SamplePool:
