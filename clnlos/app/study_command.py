@@ -95,7 +95,7 @@ def write_study(args) -> int:
     out.parent.mkdir(parents=True, exist_ok=True)
     with atomic_path(out) as tmp:
         tmp.write_text(text, encoding="utf-8")
-    print(f"wrote {out}: edit it, then run clnlos study {out}")
+    print(f"wrote {out} (edit it, then run: clnlos study {out})")
     return 0
 
 
