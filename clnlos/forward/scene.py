@@ -69,7 +69,8 @@ plate", "black anode plate", "fuchsia lacquer board", "aluminium diffuse reflect
 an analytic model table (``material = { model = "phong", kd = 0.2, ks = 0.8, shininess = 40
 }``); "retroreflective" (:mod:`clnlos.physics.retroreflector`; its fields overridden by a
 table ``{ model = "retroreflective", spot_radius_m = 0.02, ... }``, fields and ranges:
-``RETRO_LIMITS``; confocal transport only); or ``brdf_retro_csv = "f.csv"`` (columns theta_deg, brdf: the confocal slice).
+``RETRO_LIMITS``; confocal transport only); or ``brdf_retro_csv = "f.csv"`` (columns
+theta_deg, brdf: the confocal slice).
 """
 
 from __future__ import annotations

@@ -7,6 +7,7 @@ an interrupted or failed run leaves nothing half-written.
 from __future__ import annotations
 
 import contextlib
+import hashlib
 import json
 import os
 from pathlib import Path
@@ -28,6 +29,15 @@ def read_capture(path: str | os.PathLike, axes: str | None = None) -> Capture:
     return read(path, axes)
 
 
+
+
+def file_sha256(path: str | os.PathLike) -> str:
+    """The SHA-256 of a file's bytes (hex), read in 1 MiB blocks."""
+    h = hashlib.sha256()
+    with open(path, "rb") as f:
+        for block in iter(lambda: f.read(1 << 20), b""):
+            h.update(block)
+    return h.hexdigest()
 
 
 @contextlib.contextmanager

@@ -24,7 +24,6 @@ to the study file's folder. Every error names the key, its value and what is all
 
 from __future__ import annotations
 
-import hashlib
 import importlib.resources
 from dataclasses import asdict, dataclass, replace
 from pathlib import Path
@@ -53,6 +52,7 @@ from clnlos.errors import ClnlosError, InputFileError, ParameterError
 from clnlos.forward.geometry import GLYPHS as FONT
 from clnlos.forward.geometry import MASK_FORMATS, read_mask
 from clnlos.forward.scene import Detector, Scene
+from clnlos.io.files import file_sha256
 from clnlos.physics.slab import CDT_SLAB, Slab
 from clnlos.study.score.patterns import CHART_SCALE
 from clnlos.study.score.legibility import LEGIBLE_ACCURACY
@@ -334,13 +334,6 @@ def _file(base: Path, name: str, v: Any, what: str, suffixes=None) -> Path:
     except InputFileError as exc:
         raise InputFileError(f"{name}: {exc}") from None
 
-
-def file_sha256(path: Path) -> str:
-    h = hashlib.sha256()
-    with open(path, "rb") as f:
-        for chunk in iter(lambda: f.read(1 << 20), b""):
-            h.update(chunk)
-    return h.hexdigest()
 
 
 def parse_material(i: int, t: dict, base: Path) -> Material:

@@ -85,8 +85,9 @@ def _corr(a, b) -> dict:
 
 
 def comparison_table(materials, plan, results, chance: float, table=None) -> dict:
-    """The comparison from identified results (:func:`clnlos.study.samples.identify.identification_of`
-    run on ``plan``): ``rows`` per material, ``correlation``, ``moved`` and ``statement``."""
+    """The comparison from identified results
+    (:func:`clnlos.study.samples.identify.identification_of` run on ``plan``): ``rows`` per
+    material, ``correlation``, ``moved`` and ``statement``."""
     rows = []
     for m in materials:
         row = {"material": m, "brdf_class": None if table is None else table[m]["class"]}

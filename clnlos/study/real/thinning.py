@@ -31,7 +31,7 @@ import numpy as np
 from scipy.ndimage import zoom
 
 from clnlos.inverse.pipeline import reconstruct
-from clnlos.io.files import atomic_path, read_capture
+from clnlos.io.files import atomic_path, file_sha256, read_capture
 from clnlos.io.figures import new_figure
 from clnlos.study.file.spec import StudyGrid
 from clnlos.study.samples.render import NPZ_ERRORS, code_version
@@ -71,13 +71,6 @@ def study_mip(volume: np.ndarray, points: int) -> np.ndarray:
     return (mip / m if m > 0 else mip).astype(np.float32)
 
 
-def _file_digest(path: Path) -> str:
-    h = hashlib.sha256()
-    with open(path, "rb") as f:
-        for block in iter(lambda: f.read(1 << 20), b""):
-            h.update(block)
-    return h.hexdigest()
-
 
 def _cache_path(cache: Path, digest: str, fraction: float, seed: int, grid: StudyGrid,
                 version: str) -> Path:
@@ -114,7 +107,7 @@ def thinned_mips(path, grid: StudyGrid, *, fractions=THINNING_FRACTIONS,
     cap = read_capture(path)
     cfg = capture_config(name, grid.method, iterations=grid.iterations,
                          snr_rule=grid.snr_rule)
-    digest = _file_digest(path) if cache is not None else ""
+    digest = file_sha256(path) if cache is not None else ""
     version = code_version() if cache is not None else ""
     out = []
     for f, counts in zip(fractions, thinned_series(cap.transient, fractions, seed),

@@ -330,7 +330,8 @@ def _section(title: str, parts, open_: bool = False) -> str:
 def _figure(title: str, caption: str, fig) -> list[str]:
     out = [f"<h3>{html.escape(title)}</h3>"] + ([f"<p>{html.escape(caption)}</p>"]
                                                if caption else [])
-    return out + [f"<img alt='{html.escape(title)}' src='data:image/png;base64,{png_base64(fig)}'/>"]
+    src = f"data:image/png;base64,{png_base64(fig)}"
+    return out + [f"<img alt='{html.escape(title)}' src='{src}'/>"]
 
 
 def _setup_line(results) -> str:
