@@ -59,7 +59,11 @@ def _workers() -> int:
 def _pocketfft():
     """scipy's pocketfft binding, whose r2c/c2r write into a given array (scipy.fft's public
     functions do not take ``out=``: their result is a 270 MB temporary at 128 x 128 x 512,
-    then copied); None when this scipy does not have it (the public functions are used)."""
+    then copied); None when this scipy does not have it (the public functions are used).
+
+    Where the binding is there, its errors propagate: the pruned transforms write part of
+    their output (and :func:`_c2r_pruned` overwrites its input) before a later pass could
+    fail, so no fallback could start again from what they were given."""
     try:
         from scipy.fft._pocketfft import pypocketfft as pp
     except ImportError:
@@ -104,16 +108,12 @@ def host_rfftn(x: np.ndarray, out: np.ndarray, nonzero=None) -> None:
     the transform skips the lines that are zero (:func:`_r2c_pruned`)."""
     pp = _pocketfft()
     block = _block(x.shape, nonzero)
-    if pp is not None:
-        try:
-            if block is None:
-                pp.r2c(x, (0, 1, 2), True, 0, out, _workers())
-            else:
-                _r2c_pruned(pp, x, out, *block)
-            return
-        except TypeError:
-            pass
-    out[...] = sfft.rfftn(x, workers=_workers())
+    if pp is None:
+        out[...] = sfft.rfftn(x, workers=_workers())
+    elif block is None:
+        pp.r2c(x, (0, 1, 2), True, 0, out, _workers())
+    else:
+        _r2c_pruned(pp, x, out, *block)
 
 
 def host_irfftn(s: np.ndarray, shape, out: np.ndarray, needed=None) -> None:
@@ -123,16 +123,12 @@ def host_irfftn(s: np.ndarray, shape, out: np.ndarray, needed=None) -> None:
     block is computed and written (:func:`_c2r_pruned`); ``s`` is then overwritten."""
     pp = _pocketfft()
     block = _block(shape, needed)
-    if pp is not None:
-        try:
-            if block is None:
-                pp.c2r(s, (0, 1, 2), int(shape[-1]), False, 2, out, _workers())
-            else:
-                _c2r_pruned(pp, s, int(shape[-1]), out, *block)
-            return
-        except TypeError:
-            pass
-    out[...] = sfft.irfftn(s, s=shape, axes=(0, 1, 2), workers=_workers())
+    if pp is None:
+        out[...] = sfft.irfftn(s, s=shape, axes=(0, 1, 2), workers=_workers())
+    elif block is None:
+        pp.c2r(s, (0, 1, 2), int(shape[-1]), False, 2, out, _workers())
+    else:
+        _c2r_pruned(pp, s, int(shape[-1]), out, *block)
 
 
 def host_fftn_inplace(a: np.ndarray, forward: bool, block=None) -> None:
@@ -142,15 +138,12 @@ def host_fftn_inplace(a: np.ndarray, forward: bool, block=None) -> None:
     pp = _pocketfft()
     b = _block(a.shape, block)
     if pp is not None and b is not None:
-        try:
-            w, norm = _workers(), 0 if forward else 2
-            n0, n1 = b
-            passes = [(2, a[:n0, :n1]), (1, a[:n0]), (0, a)]  # the forward order
-            for axis, v in (passes if forward else passes[::-1]):
-                pp.c2c(v, (axis,), forward, norm, v, w)
-            return
-        except TypeError:
-            pass
+        w, norm = _workers(), 0 if forward else 2
+        n0, n1 = b
+        passes = [(2, a[:n0, :n1]), (1, a[:n0]), (0, a)]  # the forward order
+        for axis, v in (passes if forward else passes[::-1]):
+            pp.c2c(v, (axis,), forward, norm, v, w)
+        return
     f = sfft.fftn if forward else sfft.ifftn
     _store(a, f(a, workers=_workers(), overwrite_x=True))
 
@@ -161,13 +154,10 @@ LOW_ROWS_BLOCK = 1 << 22  # complex values per block of the zero-padded pass alo
 def _c2c_inverse(v: np.ndarray, axis: int) -> None:
     """v <- ifft(v) along ``axis`` (divided by its length), in place where the binding allows."""
     pp = _pocketfft()
-    if pp is not None:
-        try:
-            pp.c2c(v, (axis,), False, 2, v, _workers())
-            return
-        except TypeError:
-            pass
-    v[...] = sfft.ifft(v, axis=axis, workers=_workers())
+    if pp is None:
+        v[...] = sfft.ifft(v, axis=axis, workers=_workers())
+    else:
+        pp.c2c(v, (axis,), False, 2, v, _workers())
 
 
 def host_ifftn_low_rows(a: np.ndarray, n0: int, needed) -> None:
