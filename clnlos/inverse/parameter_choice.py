@@ -266,12 +266,15 @@ class ParameterSearches:
         """The gate both split searches share: their rule on (``rule_on``), not under
         ``snr_rule = "auto"`` where the slab model is inexact (``model_snr`` finite), an
         "auto" slab SNR, a slab, and a capture of photon counts (``noise``: the raw
-        capture's, :meth:`raw_noise`)."""
+        capture's, :meth:`raw_noise`) with light above its background (the halves of a
+        capture of noise alone agree on nothing: every candidate would be tried for none,
+        the GCV rule stands, and a note says the capture holds no light)."""
         c = self.config
         if not rule_on or (c.snr_rule == "auto" and math.isfinite(model_snr)):
             return False
         return (c.snr == "auto" and self.deconv is not None and noise.photon_counts
-                and not noise.noise_free and is_counts(np.asarray(transient)))
+                and not noise.noise_free and noise.first_arrival_s is not None
+                and is_counts(np.asarray(transient)))
 
     def _split(self, transient: np.ndarray) -> tuple[np.ndarray, np.ndarray] | None:
         """The binomial split of the counts (:func:`clnlos.inverse.thinning.thin_counts`),

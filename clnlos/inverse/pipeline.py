@@ -379,7 +379,8 @@ class ReconstructionPipeline(ParameterSearches):
         if named in ("thinning", "reproducibility") and cv is None and (
                 slab_snr_factor is None and snrs is None):
             notes.append(f"snr_rule {named} not applied (it needs an \"auto\" slab SNR, a "
-                         "slab and photon counts): the GCV rule or the configured SNRs")
+                         "slab and photon counts with light above their background): the "
+                         "GCV rule or the configured SNRs")
         if cv is not None and cv.get("snr_rule_used") == SPLIT_EMPTY:
             notes.append(f"no split search ({SPLIT_EMPTY_REASON}): the GCV rule")
         elif cv is not None and cv.get("reproducibility_agreed") is False:
@@ -565,8 +566,9 @@ class ReconstructionPipeline(ParameterSearches):
 
     def _deconvolution_for(self, profile, noise: NoiseEstimate, snr: float, params: dict,
                            notes: list[str]):
-        """The slab deconvolution for this capture: the plain Wiener filter, or where the
-        time window ends before the blur of its latest arrivals has decayed (more than
+        """The slab deconvolution for this capture: the plain Wiener filter (always where no
+        light rises above the capture's background: ``noise.first_arrival_s`` None), or where
+        the time window ends before the blur of its latest arrivals has decayed (more than
         :func:`cut_level` of the peak still arriving in its last ``peak`` bins, and fewer
         than GUARD_PEAKS peak lags of guard bins between the volume's end and the cut) the
         :class:`~clnlos.inverse.tail_fill.TailFilledDeconvolution` on the window padded by the
@@ -575,6 +577,9 @@ class ReconstructionPipeline(ParameterSearches):
         their response only."""
         scales = self.blur_scales
         n_scan = self.shape[1] * self.shape[2]
+        if noise.first_arrival_s is None:  # no light above the floor (not subtracted then):
+            params["window_end_level"] = 0.0  # none arrives at the end, no blur tail to fill
+            return self.deconv
         # the profile was taken after background_subtracted (prepare, _held_out): no floor left
         level = window_end_level(profile, background=0.0, end_bins=scales.peak_lags,
                                  photon_counts=noise.photon_counts, sigma=noise.sigma,
