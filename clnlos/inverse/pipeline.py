@@ -45,10 +45,14 @@ from clnlos.brdf.lobes import AUTO
 from clnlos.config import ReconstructionConfig
 from clnlos.errors import InputFileError
 from clnlos.forward.blur import blur_time_scales, confocal_lag_energy, confocal_psf, slab_blur
-from clnlos.inverse.brdf_choice import LOBE_NOT_SEARCHED, LOBE_NOT_SEARCHED_REASON
+from clnlos.inverse.brdf_choice import (
+    LOBE_NOT_SEARCHED,
+    LOBE_NOT_SEARCHED_REASON,
+    lobe_choice_note,
+)
 from clnlos.inverse.capture_defaults import format_defaults
 from clnlos.inverse.gcv import GcvBins, binned_power
-from clnlos.inverse.methods import InversionGrid, method_class
+from clnlos.inverse.methods import METHODS, InversionGrid, method_class
 from clnlos.inverse.parameter_choice import (
     SPLIT_EMPTY,
     SPLIT_EMPTY_REASON,
@@ -63,6 +67,7 @@ from clnlos.inverse.preprocessing import (
     GUARD_PEAKS,
     MIN_DEPTH_BINS,
     aligned_window_note,
+    bandwidth_bins,
     bins_for,
     centred_extents,
     cut_level,
@@ -285,6 +290,7 @@ class ReconstructionPipeline(ParameterSearches):
                 t0 = time.perf_counter()
                 lobe, lobe_params = self.brdf_lobe(transient, noise, model_snr, setup)
                 timings["choose_brdf"] = time.perf_counter() - t0
+                lobe_params["brdf_choice_s"] = timings["choose_brdf"]
             self.invert.set_lobe(lobe)
         if slab_snr_factor is None and self._thinning_applies(transient, noise, model_snr):
             t0 = time.perf_counter()
@@ -370,6 +376,8 @@ class ReconstructionPipeline(ParameterSearches):
         notes: list[str] = []
         if (lobe_params or {}).get("brdf_rule_used") == LOBE_NOT_SEARCHED:
             notes.append(f"brdf auto: {LOBE_NOT_SEARCHED_REASON}; the Lambertian lobe")
+        elif "brdf_chosen" in (lobe_params or {}) and snrs is None and slab_snr_factor is None:
+            notes.append(lobe_choice_note(lobe_params))
         if math.isfinite(resampled) and self.deconv is not None:
             params["resampling_snr"] = resampled
             free = auto_snrs(noise, self.config, unbounded, data_snr=data_snr)[0]
@@ -627,6 +635,13 @@ def reconstruct(capture: Capture, config: ReconstructionConfig, *, dtype=np.floa
                                   config.max_path_m, None)
         config, notes = format_defaults(capture.attrs, config, bins_kept=kept, bin_width_s=bw)
         reader_notes += notes
+        above = METHODS[config.method].sum_bins_above if config.method in METHODS else None
+        if config.bins is None and "bins" not in config.user_fields and above is not None:
+            bins, note = bandwidth_bins(capture.transient, bins_kept=kept, bin_width_s=bw,
+                                        start_s=start, above=above)
+            if bins is not None:
+                config = config.replace(bins=bins)
+                reader_notes.append(note)
     bw, start, sw = resolve_geometry(capture, config)
     queue = get_queue(device)
     key = (capture.transient.shape, bw, start, sw, json.dumps(config.as_attrs(), sort_keys=True),

@@ -292,15 +292,20 @@ class SeparableLobe:
 
 
 def separable_terms(G: np.ndarray, depths_m, pitch_m: float, *, name: str = "",
-                    tolerance: float = LOBE_TOLERANCE, terms: int | None = None
-                    ) -> SeparableLobe:
+                    tolerance: float = LOBE_TOLERANCE, terms: int | None = None,
+                    depth_extent=None) -> SeparableLobe:
     """The fewest terms of (3) whose error on G is under ``tolerance`` (or exactly ``terms``),
     error weighted by the Lambertian response's importance (z / r)^8 through its best
-    separable (rank-one) factor w1(z) w2(d): the SVD of w1 G w2, divided back."""
+    separable (rank-one) factor w1(z) w2(d): the SVD of w1 G w2, divided back. Each row
+    (depth) counts in the error by its ``depth_extent`` (the depth its bin spans, any unit;
+    default 1 each: equal depth bins), so rows sampled unevenly in depth (the light cone's
+    u = z^2 grid) weigh as the depths they stand for."""
     nz, ny, nx = G.shape
     z = np.maximum(np.asarray(depths_m, np.float64), 1e-9)
     d2 = ((np.arange(ny)[:, None] * pitch_m) ** 2 + (np.arange(nx)[None, :] * pitch_m) ** 2)
     W = (z[:, None] ** 2 / (z[:, None] ** 2 + d2.ravel()[None, :])) ** 4
+    if depth_extent is not None:
+        W = W * np.sqrt(np.asarray(depth_extent, np.float64))[:, None]
     uw, sw, vw = np.linalg.svd(W, full_matrices=False)
     w1 = np.abs(uw[:, 0]) * math.sqrt(sw[0]) + 1e-300
     w2 = np.abs(vw[0]) * math.sqrt(sw[0]) + 1e-300
