@@ -265,7 +265,8 @@ class RealFFT3:
         the plan's shape, zero outside x[:rows, :nonzero_y]; ``out_g`` complex, at least
         ``rows`` planes of (n1, n2 // 2 + 1)): the first two passes of :meth:`forward`."""
         pp = self._split_host("forward_lateral")
-        with host_view(x_g) as x, host_view(out_g, write=True) as out:
+        keep = out_g.shape[0] > rows  # planes past ``rows`` kept; else all of it written
+        with host_view(x_g) as x, host_view(out_g, write=True, read=keep) as out:
             _lateral_forward(pp, x, out, int(rows), int(nonzero_y))
         return out_g
 
