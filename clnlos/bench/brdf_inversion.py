@@ -24,18 +24,21 @@ import math
 import time
 
 import numpy as np
+import pyopencl.array as cla
 
 from clnlos.physics.constants import C0
-from clnlos.bench.harness import timed_once
-from clnlos.brdf.lobes import AUTO, LAMBERTIAN, retro_lobe
+from clnlos.bench.harness import timed_once, timeit
+from clnlos.brdf.lobes import AUTO, LAMBERTIAN, ladder_lobe, retro_lobe
 from clnlos.config import ReconstructionConfig
 from clnlos.forward.bistatic import face_quadrature
 from clnlos.forward.blur import blur_margin, slab_blur
 from clnlos.forward.model import ForwardModel
 from clnlos.forward.scene import Scene
 from clnlos.forward.transport import LightConeTransport
+from clnlos.inverse.iterative import IterativeInversion
 from clnlos.inverse.pipeline import reconstruct
 from clnlos.physics.slab import CDT_SLAB
+from clnlos.runtime.fft import RealFFT3
 from clnlos.study.metrics import mip_iou, truth_mask
 
 CHECK_MATERIALS = ("quartz glass", "aluminium alloy sample", "gold-plated polyester film",
@@ -238,3 +241,92 @@ def operator_rows(b) -> None:
                  f"{'+slab' if r['slab'] != 'none' else ''}", r["model_lobe"], np.float64,
                  {"median_s": t, "min_s": t, "max_s": t, "repeats": 1}, r["rel_l2_image"],
                  error_kind="rel L2 (time-integrated image)", **r)
+
+
+ITERATION_LOBES = ("retroreflective", "glossy-paint", "quartz glass", "ggx alpha 0.1")
+ITERATION_TERMS = (1, 2, 3, 4)  # K whose per-iteration cost and operator error are rows
+REFERENCE_TERMS = 8             # the operator the terms' errors are measured against
+
+
+def iteration_capture(queue, points: int, bins: int, bin_width_s: float):
+    """A capture like the LCT release read by clnlos (no slab, photon counts, a 0.8 m scan,
+    a glyph 0.6 m deep): the grid of the section ``brdf_iteration``."""
+    d = glyph_scene_dict("lambertian", points=points, bins=bins, bin_width_s=bin_width_s,
+                         scan_width_m=0.8, depth_m=0.6, glyph="S", height_m=0.4,
+                         density_per_m2=1e4)
+    d["detector"] = {"exposure_s": 0.5, "etendue_m2_sr": 1e-9, "dark_count_rate_hz": 1e3}
+    return ForwardModel(Scene.from_dict(d), queue=queue).capture()
+
+
+def iteration_rows(b) -> None:
+    """Section ``brdf_iteration`` (issue 59): per lobe, on one capture (64 x 64 x 512 at
+    ``full``), the iterative method's cost against its Lambertian one and the FFT floor: one
+    iteration's transforms (the operator and its adjoint, K the inversion takes) in time, x
+    Lambertian and FFT pairs (one r2c + c2r of the operator's padded grid, unpruned); one
+    solve (reconstruct, plans built: time, x Lambertian, iterations, K); and per K of
+    ITERATION_TERMS the iteration's time and what the terms buy: the relative L2 of L_K rho
+    against REFERENCE_TERMS terms on the inversion's own volume rho."""
+    points, bins, bw = {"tiny": (16, 128, 64e-12), "quick": (32, 256, 32e-12),
+                        "full": (64, 512, 16e-12)}[b.size]
+    cap = iteration_capture(b.q, points, bins, bw)
+    grid = f"{points}x{points}x{bins}"
+    plan = None
+    lam_it = lam_solve = None
+    for name in (LAMBERTIAN,) + (ITERATION_LOBES[:1] if b.size == "tiny" else ITERATION_LOBES):
+        ggx = name.startswith("ggx")
+        lobe = ladder_lobe(0.1) if ggx else retro_lobe(name)
+        cfg = ReconstructionConfig(method="iterative",
+                                   **({} if ggx else {"brdf": name})).validate()
+        if ggx:  # a ladder lobe is no --brdf spec: the solve row is left out
+            rec = None
+        else:
+            reconstruct(cap, cfg, device=b.q)  # plans built
+            rec, solve = timed_once(lambda cfg=cfg: reconstruct(cap, cfg, device=b.q), b.q)
+            lam_solve = solve["median_s"] if lam_solve is None else lam_solve
+            base = rec
+        if plan is None:
+            plan = IterativeInversion(base.volume.shape, bin_width_s=base.bin_width_s,
+                                      scan_width_m=base.scan_width_m, iterations=1,
+                                      l1_weight=0.1, tv_weight=0.0, queue=b.q,
+                                      falloff=base.params["falloff_used"])
+            depth_min = base.solver["depth_min_m"]
+            pad = plan.transport(depth_min).pad_shape
+            fft = RealFFT3(pad, np.float32, b.q)
+            buf, spec = cla.zeros(b.q, pad, np.float32), fft.empty_spectrum()
+            pair = timeit(lambda: fft.inverse(fft.forward(buf, spec), buf), b.q,
+                          repeat=b.repeat)["median_s"]
+            del buf, spec, fft
+        plan.set_lobe(lobe)
+        vol = (base if rec is None else rec).volume
+        x = cla.to_device(b.q, (vol / plan.scale[:, None, None]).astype(np.float32))
+
+        def cost(op):
+            return timeit(lambda: op.adjoint_device(op.apply_device(x)), b.q,
+                          repeat=b.repeat)
+
+        op = plan.transport(depth_min)
+        it = cost(op)
+        lam_it = it["median_s"] if lam_it is None else lam_it
+        b.record("brdf_iteration", f"iteration@{grid}", name, np.float32, it,
+                 op.lobe.errors[op.lobe.terms - 1], error_kind="separable terms' error",
+                 terms=op.lobe.terms, time_over_lambertian=it["median_s"] / lam_it,
+                 fft_pair_s=pair, fft_pairs=it["median_s"] / pair)
+        if rec is not None:
+            b.record("brdf_iteration", f"solve@{grid}", name, np.float32, solve, None,
+                     terms=rec.params.get("brdf_terms_used"),
+                     iterations=(rec.solver or {}).get("iterations"),
+                     time_over_lambertian=solve["median_s"] / lam_solve, fft_pair_s=pair,
+                     fft_pairs=solve["median_s"] / pair)
+        if name == LAMBERTIAN or b.size == "tiny":
+            continue
+        y_ref = plan.transport(depth_min, REFERENCE_TERMS).apply_device(x).get()
+        for k in ITERATION_TERMS:
+            opk = plan.transport(depth_min, k)
+            err = float(np.linalg.norm(opk.apply_device(x).get() - y_ref)
+                        / max(float(np.linalg.norm(y_ref)), 1e-300))
+            tk = cost(opk)
+            b.record("brdf_iteration", f"terms@{grid}", f"{name} K={k}", np.float32, tk, err,
+                     error_kind=f"rel L2 of L_K rho against K={REFERENCE_TERMS}",
+                     terms=k, terms_error=opk.lobe.errors[k - 1],
+                     time_over_lambertian=tk["median_s"] / lam_it,
+                     fft_pairs=tk["median_s"] / pair)

@@ -126,9 +126,11 @@ class LightConeTransport(LinearOperator):
     footprint_rms_m : float
         rms radius (m) of the slab's footprint that widens the lobe (0: no slab).
     lobe_terms : int, optional
-        Separable terms K of the lobe (default: the fewest within
-        :data:`clnlos.physics.lobe.LOBE_TOLERANCE`); ``self.lobe`` records them and their
-        error.
+        Separable terms K of the lobe (default: the fewest within ``lobe_tolerance``);
+        ``self.lobe`` records them and their error.
+    lobe_tolerance : float, optional
+        Weighted relative error the default K stops at (default the lobe's own,
+        :data:`clnlos.physics.lobe.LOBE_TOLERANCE` or a retroreflector's).
     falloff : float
         Radiometric exponent p of the voxels' radial falloff: W_t = r^-(4 + p), the
         Lambertian 1/r^4 at p = 4 (default); p = 2 a retroreflector whose returned cone the
@@ -142,7 +144,7 @@ class LightConeTransport(LinearOperator):
                  depth_min_m: float = 0.0, depth_weight=None, dtype=np.float32, queue=None,
                  scratch: Scratch | None = None, lobe: RetroLobe | None = None,
                  footprint_rms_m: float = 0.0, lobe_terms: int | None = None,
-                 falloff: float = LAMBERTIAN_FALLOFF):
+                 falloff: float = LAMBERTIAN_FALLOFF, lobe_tolerance: float | None = None):
         self.queue = get_queue(queue)
         self.dtype = require_dtype(self.queue.device, dtype)
         nt, ny, nx = (int(v) for v in shape)
@@ -183,7 +185,7 @@ class LightConeTransport(LinearOperator):
         self.u_depth_m = np.sqrt((j0 + np.arange(nv) + 0.5) * dv)  # u bins' centre depths
         self._u_edges_m = v_edges  # ... and their edges, as depths sqrt(u)
         self.fft = RealFFT3(self.pad_shape, self.dtype, self.queue)
-        self.lobe = self._separable_lobe(lobe, footprint_rms_m, lobe_terms)
+        self.lobe = self._separable_lobe(lobe, footprint_rms_m, lobe_terms, lobe_tolerance)
         K = self.lobe.terms
         # the terms split over the axes (module docstring) where the FFT allows it
         self.split = K > 1 and self.fft.split_axes
@@ -222,9 +224,10 @@ class LightConeTransport(LinearOperator):
         return fold_spectrum(whole) if self.folded else whole
 
     def _separable_lobe(self, lobe: RetroLobe | None, footprint_rms_m: float,
-                        terms: int | None) -> SeparableLobe:
+                        terms: int | None, tolerance: float | None) -> SeparableLobe:
         """The lobe's separable terms on this grid: a [K, nv] over the u bins (their centre
-        depths :attr:`u_depth_m`), b [K, |dy|, |dx|] over the padded grid's offsets."""
+        depths :attr:`u_depth_m`), b [K, |dy|, |dx|] over the padded grid's offsets; K =
+        ``terms``, else the fewest within ``tolerance`` (default the lobe's own)."""
         n_off = lobe_offsets(self.pad_shape)
         if lobe is None or lobe.lambertian:
             return SeparableLobe(np.ones((1, self.nv)), np.ones((1,) + n_off), (0.0,),
@@ -232,7 +235,8 @@ class LightConeTransport(LinearOperator):
         z = self.u_depth_m
         G = lobe_weight_table(lobe, z, self.pitch_m, n_off, footprint_rms_m)
         return separable_terms(G, z, self.pitch_m, name=lobe.name, terms=terms,
-                               tolerance=lobe.tolerance, depth_extent=np.diff(self._u_edges_m))
+                               tolerance=lobe.tolerance if tolerance is None else tolerance,
+                               depth_extent=np.diff(self._u_edges_m))
 
     def _apply(self, x_g):
         if self.split:

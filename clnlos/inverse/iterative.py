@@ -122,6 +122,10 @@ from clnlos.runtime.device import get_queue, require_dtype
 DEPTH_QUANTUM_M = 0.05  # support starts are rounded down to this, so plans are reused
 L1_NOISE_FACTOR = 2.0   # "auto" L1 weight: this times max(L^T n) (module docstring)
 FIXED_L1_WEIGHT = 0.1   # "auto" without a noise realisation, relative to max(L^T I)
+# the weighted relative error at which the inversion's separable lobe terms stop ("auto"
+# brdf_terms; the operator's own default is clnlos.physics.lobe.LOBE_TOLERANCE): the terms
+# past it change the reconstructions measured by less than their noise (docs/brdf.md, "Cost")
+INVERSION_LOBE_TOLERANCE = 0.1
 
 
 @dataclass
@@ -196,6 +200,9 @@ class IterativeInversion:
         self.report: SolveReport | None = None
         self.lobe = RetroLobe.lambert() if lobe is None else lobe
         self.lobe_terms = lobe_terms
+        # the error "auto" terms stop at (None: the lobe's own tolerance, the accurate
+        # operator the lobe search scores candidates with, IterativeMethod.search)
+        self.lobe_tolerance: float | None = INVERSION_LOBE_TOLERANCE
 
     def set_lobe(self, lobe: RetroLobe) -> None:
         """The retro lobe the next calls assume (operators kept per lobe and support)."""
@@ -212,24 +219,36 @@ class IterativeInversion:
         """(z / R)^p per depth bin for the current lobe's falloff p: rho = xi * scale."""
         return self.depth_ratio ** self.lobe_falloff(self.lobe)
 
+    def transport(self, depth_min_m: float, lobe_terms: int | None = None
+                  ) -> LightConeTransport:
+        """The model in xi for a support from ``depth_min_m`` (rounded down to a
+        DEPTH_QUANTUM_M step) with the current lobe: ``lobe_terms`` separable terms (default
+        the plan's; "auto": the fewest within :attr:`lobe_tolerance`, or the lobe's own
+        tolerance where that is larger)."""
+        step = int(math.floor(max(0.0, depth_min_m) / DEPTH_QUANTUM_M))
+        terms = self.lobe_terms if lobe_terms is None else lobe_terms
+        tol = (None if self.lobe_tolerance is None
+               else max(self.lobe_tolerance, self.lobe.tolerance))
+        return LightConeTransport(self.shape, bin_width_s=self.bin_width_s,
+                                  scan_width_m=self.scan_width_m, margin=0,
+                                  depth_min_m=step * DEPTH_QUANTUM_M, depth_weight=self.scale,
+                                  dtype=self.dtype, queue=self.queue, scratch=self.scratch,
+                                  lobe=self.lobe, lobe_terms=terms, lobe_tolerance=tol,
+                                  falloff=self.lobe_falloff(self.lobe))
+
     def operator(self, depth_min_m: float, setup=None) -> tuple[LinearOperator, int, float]:
         """(model in xi, first support row, Lipschitz constant) for a support from
-        ``depth_min_m``, built once per DEPTH_QUANTUM_M step; ``setup(step)`` names each
-        step of a build as it starts."""
+        ``depth_min_m``, built once per DEPTH_QUANTUM_M step (:meth:`transport`);
+        ``setup(step)`` names each step of a build as it starts."""
         step = int(math.floor(max(0.0, depth_min_m) / DEPTH_QUANTUM_M))
-        key = (step, self.lobe.name, self.lobe_terms, self.lobe_falloff(self.lobe))
+        key = (step, self.lobe.name, self.lobe_terms, self.lobe_tolerance,
+               self.lobe_falloff(self.lobe))
         hit = self._ops.get(key)
         if hit is None:
             if setup is not None:
                 setup("light-cone operator" + ("" if self.lobe.lambertian
                                                else f" ({self.lobe.name} lobe)"))
-            lc = LightConeTransport(self.shape, bin_width_s=self.bin_width_s,
-                                    scan_width_m=self.scan_width_m, margin=0,
-                                    depth_min_m=step * DEPTH_QUANTUM_M,
-                                    depth_weight=self.scale, dtype=self.dtype,
-                                    queue=self.queue, scratch=self.scratch, lobe=self.lobe,
-                                    lobe_terms=self.lobe_terms,
-                                    falloff=self.lobe_falloff(self.lobe))
+            lc = self.transport(depth_min_m)
             power = None if setup is None else (
                 lambda k, n: setup(f"step size (power iteration {k}/{n})"))
             hit = (lc, lc.k_min, lipschitz(lc, progress=power))
@@ -375,13 +394,17 @@ class IterativeMethod(Inversion):
 
     @contextmanager
     def iteration_budget(self, iterations: int):
-        """At most ``iterations`` iterations inside the block (a search's reconstructions)."""
-        keep = self.solver.iterations
-        self.solver.iterations = min(keep, int(iterations))
+        """At most ``iterations`` iterations inside the block (a search's reconstructions),
+        each lobe in the terms of its own tolerance (the accurate operator the held-out
+        scores compare: a lobe's cheaper terms, INVERSION_LOBE_TOLERANCE, are for the
+        reconstruction it is chosen for)."""
+        keep = self.solver.iterations, self.solver.lobe_tolerance
+        self.solver.iterations = min(keep[0], int(iterations))
+        self.solver.lobe_tolerance = None
         try:
             yield
         finally:
-            self.solver.iterations = keep
+            self.solver.iterations, self.solver.lobe_tolerance = keep
 
     def predict(self, volume: np.ndarray) -> cla.Array:
         """L rho: the light-cone transport of an albedo volume [z, y, x] on the support of

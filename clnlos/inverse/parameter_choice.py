@@ -208,10 +208,10 @@ class ParameterSearches:
         def score(cand: RetroLobe) -> float:
             if setup is not None:
                 setup(f"BRDF lobe by thinning: {cand.name}")
-            with self.invert.iteration_budget(LOBE_SEARCH_ITERATIONS):
+            with self.invert.iteration_budget(LOBE_SEARCH_ITERATIONS):  # predicted by the
                 rec = self.run(train, model_snr=model_snr, slab_snr_factor=1.0, lobe=cand)
-            fits[cand.name] = predicted(rec.volume)
-            surface_fits[cand.name] = predicted(surface_of(rec.volume))
+                fits[cand.name] = predicted(rec.volume)  # operator that reconstructed it
+                surface_fits[cand.name] = predicted(surface_of(rec.volume))
             return fitted_residual(fits[cand.name], held, scaled=True)
 
         def margin(new: RetroLobe, best: RetroLobe) -> float:
