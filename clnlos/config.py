@@ -71,7 +71,8 @@ optional and its default is the field default of :class:`ReconstructionConfig`::
                                  # (their falloff) or "retroreflective" (falloff 2, the
                                  # published variant; an explicit falloff wins)
     brdf_terms = "auto"          # iterative: separable terms K of the lobe, or "auto" (the
-                                 # fewest within clnlos.physics.lobe.LOBE_TOLERANCE)
+                                 # fewest within clnlos.physics.lobe.
+                                 # INVERSION_LOBE_TOLERANCE)
 
 A field that only some methods read (clnlos.inverse.methods.MethodEntry.reads: falloff for
 lct, fk and iterative, [inversion] snr for lct and iterative, iterations, l1_weight, tv_weight,

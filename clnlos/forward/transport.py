@@ -66,6 +66,7 @@ from clnlos.operators.spectral import (
 )
 from clnlos.physics.lightcone import lightcone_psf_grid
 from clnlos.physics.lobe import RetroLobe, SeparableLobe, lobe_weight_table, separable_terms
+from clnlos.runtime.blas import single_threaded_blas
 from clnlos.runtime.buffers import Scratch, fill_zero
 from clnlos.runtime.device import get_queue, require_dtype
 from clnlos.runtime.fft import RealFFT3
@@ -185,7 +186,8 @@ class LightConeTransport(LinearOperator):
         self.u_depth_m = np.sqrt((j0 + np.arange(nv) + 0.5) * dv)  # u bins' centre depths
         self._u_edges_m = v_edges  # ... and their edges, as depths sqrt(u)
         self.fft = RealFFT3(self.pad_shape, self.dtype, self.queue)
-        self.lobe = self._separable_lobe(lobe, footprint_rms_m, lobe_terms, lobe_tolerance)
+        with single_threaded_blas():  # its SVDs beside PoCL's and the FFT's threads
+            self.lobe = self._separable_lobe(lobe, footprint_rms_m, lobe_terms, lobe_tolerance)
         K = self.lobe.terms
         # the terms split over the axes (module docstring) where the FFT allows it
         self.split = K > 1 and self.fft.split_axes

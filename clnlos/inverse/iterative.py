@@ -105,7 +105,7 @@ from clnlos.checks import integer, real
 from clnlos.config import DEPTH_GUARD_M, FALLOFF_RANGE, ITERATIONS_RANGE, WEIGHT_RANGE
 from clnlos.brdf.lobes import AUTO, retro_lobe
 from clnlos.forward.transport import LAMBERTIAN_FALLOFF, LightConeTransport
-from clnlos.physics.lobe import RetroLobe
+from clnlos.physics.lobe import INVERSION_LOBE_TOLERANCE, RetroLobe
 from clnlos.inverse.lct import (
     DEFAULT_SNR,
     LCT,
@@ -122,10 +122,6 @@ from clnlos.runtime.device import get_queue, require_dtype
 DEPTH_QUANTUM_M = 0.05  # support starts are rounded down to this, so plans are reused
 L1_NOISE_FACTOR = 2.0   # "auto" L1 weight: this times max(L^T n) (module docstring)
 FIXED_L1_WEIGHT = 0.1   # "auto" without a noise realisation, relative to max(L^T I)
-# the weighted relative error at which the inversion's separable lobe terms stop ("auto"
-# brdf_terms; the operator's own default is clnlos.physics.lobe.LOBE_TOLERANCE): the terms
-# past it change the reconstructions measured by less than their noise (docs/brdf.md, "Cost")
-INVERSION_LOBE_TOLERANCE = 0.1
 
 
 @dataclass

@@ -62,6 +62,11 @@ LOBE_TOLERANCE = 1e-3     # weighted relative error of the separable terms (3)
 # ... for a retroreflector's lobe: its entrance profile ends at the acceptance angle with a
 # kink, which (3) converges to slowly (12 terms for 0.6%; 4 terms for 1%, docs/brdf.md)
 RETRO_LOBE_TOLERANCE = 1e-2
+# ... and for the iterative inversion's reconstructions ("auto" brdf_terms, at least the
+# lobe's own): the terms past it change the reconstructions measured by less than half the
+# photons do (docs/brdf.md, "Cost and reading against K"); the operator's default stays
+# LOBE_TOLERANCE (its checks against the renderer, the lobe search's scores)
+INVERSION_LOBE_TOLERANCE = 0.1
 MAX_TERMS = 12            # terms of (3) at most
 CELL_SAMPLES_PER_WIDTH = 3.0  # sub-samples of a cell per lobe width (1): the lobe resolved
 MAX_CELL_SAMPLES = 24     # per axis
