@@ -258,75 +258,95 @@ def iteration_capture(queue, points: int, bins: int, bin_width_s: float):
     return ForwardModel(Scene.from_dict(d), queue=queue).capture()
 
 
+SOLVE_ROUNDS = 2  # interleaved rounds of the solves (the least of each kept): minutes each
+
+
+def interleaved(fns: dict, queue, rounds: int) -> dict:
+    """{name: timing} of each callable run once per round, all of them in turn each round
+    (the machine's load falls on every one alike), warmed up first: the least time of the
+    rounds as ``min_s``, their median as ``median_s``."""
+    for fn in fns.values():
+        fn()
+    queue.finish()
+    times: dict = {k: [] for k in fns}
+    for _ in range(max(1, rounds)):
+        for k, fn in fns.items():
+            queue.finish()
+            t0 = time.perf_counter()
+            fn()
+            queue.finish()
+            times[k].append(time.perf_counter() - t0)
+    return {k: {"median_s": float(np.median(v)), "min_s": min(v), "max_s": max(v),
+                "repeats": len(v)} for k, v in times.items()}
+
+
 def iteration_rows(b) -> None:
     """Section ``brdf_iteration`` (issue 59): per lobe, on one capture (64 x 64 x 512 at
     ``full``), the iterative method's cost against its Lambertian one and the FFT floor: one
     iteration's transforms (the operator and its adjoint, K the inversion takes) in time, x
-    Lambertian and FFT pairs (one r2c + c2r of the operator's padded grid, unpruned); one
-    solve (reconstruct, plans built: time, x Lambertian, iterations, K); and per K of
-    ITERATION_TERMS the iteration's time and what the terms buy: the relative L2 of L_K rho
-    against REFERENCE_TERMS terms on the inversion's own volume rho."""
+    Lambertian and FFT pairs (one r2c + c2r of the operator's padded grid, unpruned), for K =
+    ITERATION_TERMS too with what those terms buy (the relative L2 of L_K rho against
+    REFERENCE_TERMS terms on the inversion's own volume rho); one solve (reconstruct, plans
+    built: time, x Lambertian, iterations, K). The operators are timed interleaved
+    (:func:`interleaved`: the least of ``b.repeat`` rounds), the solves likewise over
+    SOLVE_ROUNDS rounds; ratios are of those least times."""
     points, bins, bw = {"tiny": (16, 128, 64e-12), "quick": (32, 256, 32e-12),
                         "full": (64, 512, 16e-12)}[b.size]
     cap = iteration_capture(b.q, points, bins, bw)
     grid = f"{points}x{points}x{bins}"
-    plan = None
-    lam_it = lam_solve = None
-    for name in (LAMBERTIAN,) + (ITERATION_LOBES[:1] if b.size == "tiny" else ITERATION_LOBES):
-        ggx = name.startswith("ggx")
-        lobe = ladder_lobe(0.1) if ggx else retro_lobe(name)
-        cfg = ReconstructionConfig(method="iterative",
-                                   **({} if ggx else {"brdf": name})).validate()
-        if ggx:  # a ladder lobe is no --brdf spec: the solve row is left out
-            rec = None
-        else:
-            reconstruct(cap, cfg, device=b.q)  # plans built
-            rec, solve = timed_once(lambda cfg=cfg: reconstruct(cap, cfg, device=b.q), b.q)
-            lam_solve = solve["median_s"] if lam_solve is None else lam_solve
-            base = rec
-        if plan is None:
-            plan = IterativeInversion(base.volume.shape, bin_width_s=base.bin_width_s,
-                                      scan_width_m=base.scan_width_m, iterations=1,
-                                      l1_weight=0.1, tv_weight=0.0, queue=b.q,
-                                      falloff=base.params["falloff_used"])
-            depth_min = base.solver["depth_min_m"]
-            pad = plan.transport(depth_min).pad_shape
-            fft = RealFFT3(pad, np.float32, b.q)
-            buf, spec = cla.zeros(b.q, pad, np.float32), fft.empty_spectrum()
-            pair = timeit(lambda: fft.inverse(fft.forward(buf, spec), buf), b.q,
-                          repeat=b.repeat)["median_s"]
-            del buf, spec, fft
-        plan.set_lobe(lobe)
-        vol = (base if rec is None else rec).volume
+    names = (LAMBERTIAN,) + (ITERATION_LOBES[:1] if b.size == "tiny" else ITERATION_LOBES)
+    configs = {n: ReconstructionConfig(method="iterative", brdf=n).validate()
+               for n in names if not n.startswith("ggx")}  # a ladder lobe is no --brdf spec
+    recs = {n: reconstruct(cap, c, device=b.q) for n, c in configs.items()}  # plans built
+    base = recs[LAMBERTIAN]
+    plan = IterativeInversion(base.volume.shape, bin_width_s=base.bin_width_s,
+                              scan_width_m=base.scan_width_m, iterations=1, l1_weight=0.1,
+                              tv_weight=0.0, queue=b.q, falloff=base.params["falloff_used"])
+    depth_min = base.solver["depth_min_m"]
+    fft = RealFFT3(plan.transport(depth_min).pad_shape, np.float32, b.q)
+    buf, spec = cla.zeros(b.q, fft.shape, np.float32), fft.empty_spectrum()
+    ops, errors, xs = {}, {}, {}
+    for name in names:
+        plan.set_lobe(ladder_lobe(0.1) if name.startswith("ggx") else retro_lobe(name))
+        vol = recs.get(name, base).volume
         x = cla.to_device(b.q, (vol / plan.scale[:, None, None]).astype(np.float32))
-
-        def cost(op):
-            return timeit(lambda: op.adjoint_device(op.apply_device(x)), b.q,
-                          repeat=b.repeat)
-
-        op = plan.transport(depth_min)
-        it = cost(op)
-        lam_it = it["median_s"] if lam_it is None else lam_it
-        b.record("brdf_iteration", f"iteration@{grid}", name, np.float32, it,
-                 op.lobe.errors[op.lobe.terms - 1], error_kind="separable terms' error",
-                 terms=op.lobe.terms, time_over_lambertian=it["median_s"] / lam_it,
-                 fft_pair_s=pair, fft_pairs=it["median_s"] / pair)
-        if rec is not None:
-            b.record("brdf_iteration", f"solve@{grid}", name, np.float32, solve, None,
-                     terms=rec.params.get("brdf_terms_used"),
-                     iterations=(rec.solver or {}).get("iterations"),
-                     time_over_lambertian=solve["median_s"] / lam_solve, fft_pair_s=pair,
-                     fft_pairs=solve["median_s"] / pair)
+        ops[name] = plan.transport(depth_min)
+        xs[name] = x
         if name == LAMBERTIAN or b.size == "tiny":
             continue
         y_ref = plan.transport(depth_min, REFERENCE_TERMS).apply_device(x).get()
         for k in ITERATION_TERMS:
-            opk = plan.transport(depth_min, k)
-            err = float(np.linalg.norm(opk.apply_device(x).get() - y_ref)
-                        / max(float(np.linalg.norm(y_ref)), 1e-300))
-            tk = cost(opk)
-            b.record("brdf_iteration", f"terms@{grid}", f"{name} K={k}", np.float32, tk, err,
+            opk = ops[f"{name} K={k}"] = plan.transport(depth_min, k)
+            xs[f"{name} K={k}"] = x
+            errors[f"{name} K={k}"] = float(np.linalg.norm(opk.apply_device(x).get() - y_ref)
+                                            / max(float(np.linalg.norm(y_ref)), 1e-300))
+    fns = {k: (lambda op=op, x=xs[k]: op.adjoint_device(op.apply_device(x)))
+           for k, op in ops.items()}
+    fns["fft pair"] = lambda: fft.inverse(fft.forward(buf, spec), buf)
+    t = interleaved(fns, b.q, b.repeat)
+    pair, lam = t.pop("fft pair")["min_s"], t[LAMBERTIAN]["min_s"]
+    del buf, spec, fft
+    solves = interleaved({n: (lambda c=c: reconstruct(cap, c, device=b.q))
+                          for n, c in configs.items()}, b.q,
+                         1 if b.size == "tiny" else SOLVE_ROUNDS)
+    for key, timing in t.items():
+        op = ops[key]
+        name, _, k = key.partition(" K=")
+        row = dict(terms=op.lobe.terms, time_over_lambertian=timing["min_s"] / lam,
+                   fft_pair_s=pair, fft_pairs=timing["min_s"] / pair)
+        if k:
+            b.record("brdf_iteration", f"terms@{grid}", key, np.float32, timing, errors[key],
                      error_kind=f"rel L2 of L_K rho against K={REFERENCE_TERMS}",
-                     terms=k, terms_error=opk.lobe.errors[k - 1],
-                     time_over_lambertian=tk["median_s"] / lam_it,
-                     fft_pairs=tk["median_s"] / pair)
+                     terms_error=op.lobe.errors[op.lobe.terms - 1], **row)
+        else:
+            b.record("brdf_iteration", f"iteration@{grid}", name, np.float32, timing,
+                     op.lobe.errors[op.lobe.terms - 1], error_kind="separable terms' error",
+                     **row)
+    lam_solve = solves[LAMBERTIAN]["min_s"]
+    for name, timing in solves.items():
+        rec = recs[name]
+        b.record("brdf_iteration", f"solve@{grid}", name, np.float32, timing, None,
+                 terms=rec.params.get("brdf_terms_used"),
+                 iterations=(rec.solver or {}).get("iterations"),
+                 time_over_lambertian=timing["min_s"] / lam_solve, fft_pair_s=pair,
+                 fft_pairs=timing["min_s"] / pair)
