@@ -90,20 +90,20 @@ def test_auto_chooses_on_the_search_grid(queue, monkeypatch):
     from clnlos.forward.scene import Scene
 
     monkeypatch.setattr(brdf_choice, "LOBE_SEARCH_POINTS", 8)
-    monkeypatch.setattr(brdf_choice, "LOBE_SEARCH_BINS", 48)
-    d = glyph_scene_dict("lambertian", points=16, bins=96, bin_width_s=40e-12,
+    monkeypatch.setattr(brdf_choice, "LOBE_SEARCH_BINS", 32)
+    d = glyph_scene_dict("lambertian", points=16, bins=64, bin_width_s=60e-12,
                          scan_width_m=0.5, density_per_m2=5e3)
     d["detector"] = {"exposure_s": 0.05, "etendue_m2_sr": 1e-9, "dark_count_rate_hz": 1e3}
     cap = ForwardModel(Scene.from_dict(d), queue=queue).capture()
-    cfg = ReconstructionConfig(method="iterative", brdf="auto", iterations=8).validate()
+    cfg = ReconstructionConfig(method="iterative", brdf="auto", iterations=5).validate()
     rec = reconstruct(cap, cfg, device=queue)
     p = rec.params
-    assert p["brdf_search_grid"] == "48x8x8" and p["brdf_choice_s"] > 0
+    assert p["brdf_search_grid"] == "32x8x8" and p["brdf_choice_s"] > 0
     note = next(n for n in rec.notes if n.startswith("brdf auto chose"))
-    assert p["brdf_chosen"] in note and "48 x 8 x 8" in note
+    assert p["brdf_chosen"] in note and "32 x 8 x 8" in note
     small = Capture(block_sums(cap.transient, 2), cap.bin_width_s, cap.start_s,
                     cap.scan_width_m)
-    c2 = cfg.replace(bins=48)
+    c2 = cfg.replace(bins=32)
     bw, start, sw = resolve_geometry(small, c2)
     pipe = ReconstructionPipeline(small.transient.shape, bin_width_s=bw, start_s=start,
                                   scan_width_m=sw, config=c2, queue=queue)
