@@ -105,7 +105,7 @@ from clnlos.checks import integer, real
 from clnlos.config import DEPTH_GUARD_M, FALLOFF_RANGE, ITERATIONS_RANGE, WEIGHT_RANGE
 from clnlos.brdf.lobes import AUTO, retro_lobe
 from clnlos.forward.transport import LAMBERTIAN_FALLOFF, LightConeTransport
-from clnlos.physics.lobe import INVERSION_LOBE_TOLERANCE, RetroLobe
+from clnlos.physics.lobe import INVERSION_LOBE_TOLERANCE, SEARCH_LOBE_TOLERANCE, RetroLobe
 from clnlos.inverse.lct import (
     DEFAULT_SNR,
     LCT,
@@ -196,9 +196,9 @@ class IterativeInversion:
         self.report: SolveReport | None = None
         self.lobe = RetroLobe.lambert() if lobe is None else lobe
         self.lobe_terms = lobe_terms
-        # the error "auto" terms stop at (None: the lobe's own tolerance, the accurate
-        # operator the lobe search scores candidates with, IterativeMethod.search)
-        self.lobe_tolerance: float | None = INVERSION_LOBE_TOLERANCE
+        # the error "auto" terms stop at (at least the lobe's own tolerance; the lobe
+        # search's candidates take SEARCH_LOBE_TOLERANCE, IterativeMethod.iteration_budget)
+        self.lobe_tolerance: float = INVERSION_LOBE_TOLERANCE
 
     def set_lobe(self, lobe: RetroLobe) -> None:
         """The retro lobe the next calls assume (operators kept per lobe and support)."""
@@ -223,8 +223,7 @@ class IterativeInversion:
         tolerance where that is larger)."""
         step = int(math.floor(max(0.0, depth_min_m) / DEPTH_QUANTUM_M))
         terms = self.lobe_terms if lobe_terms is None else lobe_terms
-        tol = (None if self.lobe_tolerance is None
-               else max(self.lobe_tolerance, self.lobe.tolerance))
+        tol = max(self.lobe_tolerance, self.lobe.tolerance)
         return LightConeTransport(self.shape, bin_width_s=self.bin_width_s,
                                   scan_width_m=self.scan_width_m, margin=0,
                                   depth_min_m=step * DEPTH_QUANTUM_M, depth_weight=self.scale,
@@ -391,12 +390,12 @@ class IterativeMethod(Inversion):
     @contextmanager
     def iteration_budget(self, iterations: int):
         """At most ``iterations`` iterations inside the block (a search's reconstructions),
-        each lobe in the terms of its own tolerance (the accurate operator the held-out
-        scores compare: a lobe's cheaper terms, INVERSION_LOBE_TOLERANCE, are for the
-        reconstruction it is chosen for)."""
+        each lobe's terms within SEARCH_LOBE_TOLERANCE (the held-out scores compare models:
+        the cheaper terms of INVERSION_LOBE_TOLERANCE are for the reconstruction a lobe is
+        chosen for)."""
         keep = self.solver.iterations, self.solver.lobe_tolerance
         self.solver.iterations = min(keep[0], int(iterations))
-        self.solver.lobe_tolerance = None
+        self.solver.lobe_tolerance = SEARCH_LOBE_TOLERANCE
         try:
             yield
         finally:

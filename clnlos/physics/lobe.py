@@ -67,6 +67,10 @@ RETRO_LOBE_TOLERANCE = 1e-2
 # photons do (docs/brdf.md, "Cost and reading against K"); the operator's default stays
 # LOBE_TOLERANCE (its checks against the renderer, the lobe search's scores)
 INVERSION_LOBE_TOLERANCE = 0.1
+# ... and for the candidates the lobe search of brdf "auto" scores (clnlos.inverse.brdf_choice):
+# between the two, their scores compare models, and with the inversion's one retroreflective
+# term that lobe won a white plate's held-out score
+SEARCH_LOBE_TOLERANCE = 0.03
 MAX_TERMS = 12            # terms of (3) at most
 CELL_SAMPLES_PER_WIDTH = 3.0  # sub-samples of a cell per lobe width (1): the lobe resolved
 MAX_CELL_SAMPLES = 24     # per axis
