@@ -78,7 +78,8 @@ optional and its default is the field default of :class:`ReconstructionConfig`::
                                  # (their falloff) or "retroreflective" (falloff 2, the
                                  # published variant; an explicit falloff wins)
     brdf_terms = "auto"          # iterative: separable terms K of the lobe, or "auto" (the
-                                 # fewest within clnlos.physics.lobe.LOBE_TOLERANCE)
+                                 # fewest within clnlos.physics.lobe.
+                                 # INVERSION_LOBE_TOLERANCE)
 
 A field that only some methods read (clnlos.inverse.methods.MethodEntry.reads: falloff for
 lct, fk and iterative, [inversion] snr for lct and iterative, iterations, l1_weight, tv_weight,
@@ -147,9 +148,11 @@ class MethodEntry:
     # the config fields of the inversion that only some methods read which this one reads
     # (a user who sets one for a method that does not read it is told so: clnlos.config)
     reads: tuple[str, ...] = ()
-    # the most time bins the method inverts when ``bins`` is not set: a longer capture's bins
-    # are summed in pairs until it fits (clnlos.inverse.preprocessing.bins_for); None: all of them
-    max_bins: int | None = None
+    # where ``bins`` is not set, a capture of photon counts longer than this many bins has its
+    # bins summed in pairs while the frequency band a sum removes holds only noise
+    # (clnlos.inverse.preprocessing.bandwidth_bins: the method's cost is per bin; a note says
+    # so); None: every bin kept
+    sum_bins_above: int | None = None
 
     def __post_init__(self):
         if self.split_rule not in ("thinning", "reproducibility"):
@@ -160,10 +163,11 @@ class MethodEntry:
                              f"{self.split_rule!r}")
 
 
-# the iterative method's default time grid: at most 512 bins, the published LCT code's grid of
-# the 2048-bin captures of O'Toole et al. (4 ps bins summed to 16 ps); each iteration costs
-# light-cone FFTs on a grid twice the bins deep (a 64 x 64 x 2048 capture took minutes)
-ITERATIVE_MAX_BINS = 512
+# the iterative method's time grid: a capture of more bins is summed in pairs while the band
+# each sum removes holds only photon noise (down to this many at most; each iteration costs
+# light-cone FFTs on a grid twice the bins deep: a 64 x 64 x 2048 capture took minutes), the
+# published LCT code's 512 bins of the 2048-bin captures of O'Toole et al.
+ITERATIVE_SUM_BINS_ABOVE = 512
 
 METHODS: dict[str, MethodEntry] = {
     "lct": MethodEntry("clnlos.inverse.lct", "LCTMethod", 4.0,
@@ -178,7 +182,7 @@ METHODS: dict[str, MethodEntry] = {
                              "LCT", "thinning", "gcv",
                              ("inversion_snr", "iterations", "l1_weight", "tv_weight",
                               "depth_min_m", "slab_model", "brdf", "brdf_terms", "falloff"),
-                             ITERATIVE_MAX_BINS),
+                             ITERATIVE_SUM_BINS_ABOVE),
 }
 
 # LCT's and f-k's retroreflective variant (O'Toole et al. 2018, cnlos_reconstruction.m

@@ -5,6 +5,10 @@
  *   spectral_multiply: X <- G * X (convolution) or conj(G) * X (correlation = adjoint)
  *   spectral_multiply_into: Y <- G * X (or conj(G) * X), accumulated into Y when
  *                      accumulate = 1 (Y += ...): sums of convolutions share one inverse FFT
+ *   scale_rows:        Y[w] <- s[w] X[w] (or Y[w] += s[w] X[w]) for the rows w < n0, and
+ *                      Y[w] <- 0 for n0 <= w < n_out: a real weight per row of a spectrum
+ *                      transformed along y and x only (a depth weight commutes with the
+ *                      lateral transform), into a grid zero-padded along w
  *
  * with G = h_scale * H: the normalisation (unit DC gain) is applied on the fly, so a
  * spectrum is never rescaled in a pass of its own (270 MB at 128 x 128 x 512).
@@ -76,5 +80,21 @@ __kernel void spectral_multiply_into(__global const cplx_t *restrict H,
     const size_t i = (w * n1 + ky) * n2h + kx;
     const cplx_t h = spectrum_at(H, w, ky, kx, n0, n1, n2h, folded, h_scale);
     const cplx_t p = CMUL(conjugate ? CCONJ(h) : h, X[i]);
+    Y[i] = accumulate ? CADD(Y[i], p) : p;
+}
+
+__kernel void scale_rows(__global const cplx_t *restrict X, __global cplx_t *restrict Y,
+                         __global const real_t *restrict s, const int accumulate,
+                         const int n0, const int n_out, const int n1, const int n2h)
+{
+    const size_t kx = get_global_id(0), ky = get_global_id(1), w = get_global_id(2);
+    if (kx >= (size_t)n2h || ky >= (size_t)n1 || w >= (size_t)n_out)
+        return;
+    const size_t i = (w * n1 + ky) * n2h + kx;
+    if (w >= (size_t)n0) {  /* the zero padding past the weighted rows (never accumulated) */
+        Y[i] = (cplx_t){(real_t)0, (real_t)0};
+        return;
+    }
+    const cplx_t p = CRMUL(X[i], s[w]);
     Y[i] = accumulate ? CADD(Y[i], p) : p;
 }

@@ -9,6 +9,7 @@ import os
 import numpy as np
 import pyopencl.array as cla
 
+from clnlos.brdf.lobes import retro_lobe
 from clnlos.brdf.models import BRDFModel
 from clnlos.brdf.texture import tabulate
 from clnlos.brdf.texture_lookup import TextureLookup
@@ -83,6 +84,11 @@ for dt in dtypes:
                             depth_min_m=0.02, dtype=dt, queue=q)
     y = tr(np.random.default_rng(1).random((9, 3, 4)).astype(dt))
     tr.apply_adjoint(y)
+    # a lobe's terms split over the axes (kernels/wiener.cl scale_rows, folded cone spectra)
+    lobe_tr = LightConeTransport((9, 3, 4), bin_width_s=5e-11, scan_width_m=0.2,
+                                 depth_min_m=0.02, dtype=dt, queue=q,
+                                 lobe=retro_lobe("glossy-paint"), lobe_terms=2)
+    lobe_tr.apply_adjoint(lobe_tr(np.random.default_rng(4).random((9, 3, 4)).astype(dt)))
     fista(tr, cla.to_device(q, y), cla.zeros(q, (9, 3, 4), dt), l1=1e-3, tv=1e-3,
           row_min=tr.k_min, iterations=2, lipschitz_const=1.0)
     pk = ProxKernels(q, (9, 3, 4), dt)

@@ -118,6 +118,31 @@ def test_pruned_fft_vs_numpy(queue, dtype, backend, shape, block, monkeypatch):
     assert rel_l2(z[b], c.inverse(zg, needed=block).get()[b]) < tol("fft", dtype)
 
 
+def test_host_fft_binding_errors_are_not_swallowed(queue, monkeypatch):
+    """An error of pocketfft's binding propagates: the pruned transforms write part of their
+    output (the inverse overwrites its input) before a later pass can fail, so falling back
+    to the public functions would start from what the failed pass left."""
+    import clnlos.runtime.fft
+
+    class Broken:
+        def r2c(self, *a):
+            raise TypeError("binding signature changed")
+
+        c2c = c2r = r2c
+
+    monkeypatch.setenv("CLNLOS_FFT", "host")
+    monkeypatch.setattr(clnlos.runtime.fft, "_pocketfft", Broken)
+    p = RealFFT3((8, 4, 6), np.float32, queue)
+    x = cla.to_device(queue, np.ones((8, 4, 6), np.float32))
+    with pytest.raises(TypeError, match="binding"):
+        p.forward(x, nonzero=(4, 2, 6))
+    with pytest.raises(TypeError, match="binding"):
+        p.inverse(p.empty_spectrum(), needed=(4, 2, 6))
+    c = ComplexFFT3((8, 4, 6), np.float32, queue)
+    with pytest.raises(TypeError, match="binding"):
+        c.forward(cla.to_device(queue, np.ones((8, 4, 6), np.complex64)), nonzero=(4, 2, 6))
+
+
 def test_fft_backend_per_device(queue, monkeypatch):
     """auto: host FFT on CPU devices, VkFFT on others; CLNLOS_FFT=vkfft forces VkFFT (where
     PoCL does not miscompile it)."""

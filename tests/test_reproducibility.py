@@ -247,7 +247,8 @@ def test_measured_captures_keep_the_gcv_rule(small_capture, queue):
 
 def test_no_split_without_counts(small_capture, queue):
     """Data that are not counts have no binomial split: by name, a note says the rule was
-    not applied; one photon leaves a half empty and the GCV rule stands."""
+    not applied; one photon leaves a half empty (the split's own answer) and holds no light
+    above the background: the GCV rule stands, no search runs."""
     cap, _ = small_capture
     cfg = _config(cap, method="lct", snr_rule="reproducibility")
     bw, start, sw = resolve_geometry(cap, cfg)
@@ -261,8 +262,22 @@ def test_no_split_without_counts(small_capture, queue):
     chosen, params = pipe.reproducibility_snrs(one)
     assert chosen is None and params["snr_rule_used"].startswith("gcv")
     rec = pipe.run(one)
-    assert rec.params["snr_rule_used"].startswith("gcv (a half")
-    assert any("no split search" in n for n in rec.notes)
+    assert rec.params["snr_rule_used"] == "gcv" and "reproducibility_kappa" not in rec.params
+    assert any("reproducibility not applied" in n for n in rec.notes)
+
+
+def test_noise_alone_runs_no_search_and_no_tail_fill(small_capture, queue):
+    """A capture of background counts alone (no bin above its floor): the split-half search
+    would try every candidate for halves that agree on nothing and the window-end test would
+    read the floor as light still arriving; neither runs: the GCV rule, the plain Wiener
+    filter, and the note that the volume shows noise."""
+    cap, _ = small_capture
+    noise = replace(cap, transient=np.random.default_rng(3).poisson(
+        2.0, cap.transient.shape).astype(np.float32))
+    rec = reconstruct(noise, _config(cap, method="lct"), device=queue)
+    assert rec.params["snr_rule_used"] == "gcv" and "reproducibility_tried" not in rec.params
+    assert rec.params["window_end_level"] == 0.0 and "tail_fill_snr" not in rec.params
+    assert any("the volume shows noise" in n for n in rec.notes)
 
 
 def test_the_rule_by_name_is_for_the_closed_forms():

@@ -136,17 +136,6 @@ def test_auto_challenger_must_beat_the_walk_by_the_margin():
     assert challenge(ladder[0], tried, [retro], lambda lb: scores[lb.name])[0] is ladder[0]
 
 
-def test_iterative_sums_long_captures_to_its_bin_cap():
-    from clnlos.config import ReconstructionConfig
-    from clnlos.inverse.methods import ITERATIVE_MAX_BINS
-    from clnlos.inverse.preprocessing import bins_for
-    it = ReconstructionConfig(method="iterative").validate()
-    assert bins_for(it, 2048, 4e-12, 0.0) == ITERATIVE_MAX_BINS
-    assert bins_for(it, 300, 16e-12, 0.0) is None
-    assert bins_for(it.replace(bins=1024), 2048, 4e-12, 0.0) == 1024
-    assert bins_for(ReconstructionConfig(method="lct").validate(), 2048, 4e-12, 0.0) is None
-
-
 def test_power_iteration_norm_does_not_overflow_float32(queue):
     import pyopencl.array as cla
 

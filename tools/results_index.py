@@ -55,6 +55,14 @@ ENTRIES: tuple[tuple[str, str, str, str], ...] = (
      "the iterative method on the LCT release, defaults and brdf auto, after issue 47's "
      "SNR-matched stop and falloff hint (docs/validation/lct-release.md; its iterative rows "
      "supersede lct_release_check.*'s)"),
+    ("measured_rule_check.*", "python tools/measured_rule_check.py --methods lct fk",
+     "current", "the rule a measured capture gets (GCV, the model's accuracy combined) on "
+     "the oracle's captures, beside the default and the oracle (docs/validation/"
+     "parameter-rules.md)"),
+    ("experiments/brdf_iteration/bench.*", "clnlos bench --only brdf_iteration -o "
+     "tools/results/experiments/brdf_iteration", "current",
+     "per lobe the iterative method's iteration and solve against the Lambertian one and "
+     "the FFT pair, the error each separable term buys (docs/brdf.md)"),
     ("retro_identifiability.*", "python tools/retro_identifiability.py", "current",
      "held-out scores of each reflectance model on the LCT release (docs/brdf.md)"),
     ("lct_rig.json", "python tools/study_rig.py examples/studies/lct_rig.toml", "current",

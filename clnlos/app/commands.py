@@ -41,7 +41,8 @@ from clnlos.inverse.reproducibility import SLAB_SNRS_SLAB_ONLY as RP_SLAB_ONLY
 from clnlos.io.figures import volume_figure
 from clnlos.io.files import read_capture, read_volume, save_figure
 from clnlos.io.outputs import HDF5_SUFFIXES, check_outputs
-from clnlos.physics.lobe import LOBE_TOLERANCE
+from clnlos.inverse.brdf_choice import LOBE_SEARCH_BINS, LOBE_SEARCH_POINTS
+from clnlos.physics.lobe import INVERSION_LOBE_TOLERANCE
 from clnlos.runtime.device import get_queue
 from clnlos.runtime.limits import capture_use, check_memory
 
@@ -272,12 +273,14 @@ def reconstruct_arguments(r, add_device) -> None:
                         "voxel's cell and over the slab's footprint), or auto: the lobe "
                         "among a ladder from Lambertian to a 0.4 deg mirror, and the "
                         "retroreflective one, whose reconstruction from half the photons best "
-                        "predicts the other half (3-6 extra reconstructions of half the data) "
-                        f"(default {C.brdf})")
+                        "predicts the other half (3-6 reconstructions of half the data on at "
+                        f"most {LOBE_SEARCH_POINTS} x {LOBE_SEARCH_POINTS} scan points and "
+                        f"{LOBE_SEARCH_BINS} bins) (default {C.brdf})")
     r.add_argument("--brdf-terms", type=int_or_auto,
-                   help="iterative: separable terms K of the lobe (each one more FFT per "
-                        "operator apply), or auto: the fewest within a relative error of "
-                        f"{LOBE_TOLERANCE:g} (default {C.brdf_terms})")
+                   help="iterative: separable terms K of the lobe (each one more transform "
+                        "along t per operator apply), or auto: the fewest within a weighted "
+                        f"relative error of {INVERSION_LOBE_TOLERANCE:g} (default "
+                        f"{C.brdf_terms})")
     slab = ("(default: the config's [slab]; with no slab flag and no [slab], the slab a "
             "clnlos capture recorded)")
     r.add_argument("--slab-thickness", type=float, help=f"slab thickness (m) {slab}")

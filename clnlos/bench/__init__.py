@@ -40,7 +40,7 @@ from clnlos.bench.sections import (
     bench_reconstruction_process,
     bench_roofline,
 )
-from clnlos.bench.brdf_inversion import inversion_rows, operator_rows
+from clnlos.bench.brdf_inversion import inversion_rows, iteration_rows, operator_rows
 from clnlos.checks import choice
 from clnlos.io.outputs import stamp, write_group
 from clnlos.runtime.device import get_queue
@@ -53,7 +53,8 @@ SECTIONS = {"diffusion": bench_diffusion, "lightcone": bench_lightcone,
             "reconstruction_process": bench_reconstruction_process,
             "iterative": bench_iterative, "end_to_end": bench_end_to_end,
             "auto_params": bench_auto_params, "auto_params_cost": bench_auto_params_cost,
-            "brdf_operator": operator_rows, "brdf_inversion": inversion_rows}
+            "brdf_operator": operator_rows, "brdf_inversion": inversion_rows,
+            "brdf_iteration": iteration_rows}
 ONLY_HELP = "comma-separated sections: " + ", ".join(SECTIONS)
 
 

@@ -24,19 +24,22 @@ import math
 import time
 
 import numpy as np
+import pyopencl.array as cla
 
 from clnlos.physics.constants import C0
-from clnlos.bench.harness import timed_once
-from clnlos.brdf.lobes import AUTO, LAMBERTIAN, retro_lobe
+from clnlos.bench.harness import timed_once, timeit
+from clnlos.brdf.lobes import AUTO, LAMBERTIAN, ladder_lobe, retro_lobe
 from clnlos.config import ReconstructionConfig
 from clnlos.forward.bistatic import face_quadrature
 from clnlos.forward.blur import blur_margin, slab_blur
 from clnlos.forward.model import ForwardModel
 from clnlos.forward.scene import Scene
 from clnlos.forward.transport import LightConeTransport
+from clnlos.inverse.iterative import IterativeInversion
 from clnlos.inverse.pipeline import reconstruct
 from clnlos.physics.slab import CDT_SLAB
 from clnlos.runtime.device import has_fp64
+from clnlos.runtime.fft import RealFFT3
 from clnlos.study.score.metrics import mip_iou, truth_mask
 
 CHECK_MATERIALS = ("quartz glass", "aluminium alloy sample", "gold-plated polyester film",
@@ -241,3 +244,112 @@ def operator_rows(b) -> None:
                  f"{'+slab' if r['slab'] != 'none' else ''}", r["model_lobe"], b.dtypes[-1],
                  {"median_s": t, "min_s": t, "max_s": t, "repeats": 1}, r["rel_l2_image"],
                  error_kind="rel L2 (time-integrated image)", **r)
+
+
+ITERATION_LOBES = ("retroreflective", "glossy-paint", "quartz glass", "ggx alpha 0.1")
+ITERATION_TERMS = (1, 2, 3, 4)  # K whose per-iteration cost and operator error are rows
+REFERENCE_TERMS = 8             # the operator the terms' errors are measured against
+
+
+def iteration_capture(queue, points: int, bins: int, bin_width_s: float):
+    """A capture like the LCT release read by clnlos (no slab, photon counts, a 0.8 m scan,
+    a glyph 0.6 m deep): the grid of the section ``brdf_iteration``."""
+    d = glyph_scene_dict("lambertian", points=points, bins=bins, bin_width_s=bin_width_s,
+                         scan_width_m=0.8, depth_m=0.6, glyph="S", height_m=0.4,
+                         density_per_m2=1e4)
+    d["detector"] = {"exposure_s": 0.5, "etendue_m2_sr": 1e-9, "dark_count_rate_hz": 1e3}
+    return ForwardModel(Scene.from_dict(d), queue=queue).capture()
+
+
+SOLVE_ROUNDS = 2  # interleaved rounds of the solves (the least of each kept): minutes each
+
+
+def interleaved(fns: dict, queue, rounds: int) -> dict:
+    """{name: timing} of each callable run once per round, all of them in turn each round
+    (the machine's load falls on every one alike), warmed up first: the least time of the
+    rounds as ``min_s``, their median as ``median_s``."""
+    for fn in fns.values():
+        fn()
+    queue.finish()
+    times: dict = {k: [] for k in fns}
+    for _ in range(max(1, rounds)):
+        for k, fn in fns.items():
+            queue.finish()
+            t0 = time.perf_counter()
+            fn()
+            queue.finish()
+            times[k].append(time.perf_counter() - t0)
+    return {k: {"median_s": float(np.median(v)), "min_s": min(v), "max_s": max(v),
+                "repeats": len(v)} for k, v in times.items()}
+
+
+def iteration_rows(b) -> None:
+    """Section ``brdf_iteration`` (issue 59): per lobe, on one capture (64 x 64 x 512 at
+    ``full``), the iterative method's cost against its Lambertian one and the FFT floor: one
+    iteration's transforms (the operator and its adjoint, K the inversion takes) in time, x
+    Lambertian and FFT pairs (one r2c + c2r of the operator's padded grid, unpruned), for K =
+    ITERATION_TERMS too with what those terms buy (the relative L2 of L_K rho against
+    REFERENCE_TERMS terms on the inversion's own volume rho); one solve (reconstruct, plans
+    built: time, x Lambertian, iterations, K). The operators are timed interleaved
+    (:func:`interleaved`: the least of ``b.repeat`` rounds), the solves likewise over
+    SOLVE_ROUNDS rounds; ratios are of those least times."""
+    points, bins, bw = {"tiny": (16, 128, 64e-12), "quick": (32, 256, 32e-12),
+                        "full": (64, 512, 16e-12)}[b.size]
+    cap = iteration_capture(b.q, points, bins, bw)
+    grid = f"{points}x{points}x{bins}"
+    names = (LAMBERTIAN,) + (ITERATION_LOBES[:1] if b.size == "tiny" else ITERATION_LOBES)
+    configs = {n: ReconstructionConfig(method="iterative", brdf=n).validate()
+               for n in names if not n.startswith("ggx")}  # a ladder lobe is no --brdf spec
+    recs = {n: reconstruct(cap, c, device=b.q) for n, c in configs.items()}  # plans built
+    base = recs[LAMBERTIAN]
+    plan = IterativeInversion(base.volume.shape, bin_width_s=base.bin_width_s,
+                              scan_width_m=base.scan_width_m, iterations=1, l1_weight=0.1,
+                              tv_weight=0.0, queue=b.q, falloff=base.params["falloff_used"])
+    depth_min = base.solver["depth_min_m"]
+    fft = RealFFT3(plan.transport(depth_min).pad_shape, np.float32, b.q)
+    buf, spec = cla.zeros(b.q, fft.shape, np.float32), fft.empty_spectrum()
+    ops, errors, xs = {}, {}, {}
+    for name in names:
+        plan.set_lobe(ladder_lobe(0.1) if name.startswith("ggx") else retro_lobe(name))
+        vol = recs.get(name, base).volume
+        x = cla.to_device(b.q, (vol / plan.scale[:, None, None]).astype(np.float32))
+        ops[name] = plan.transport(depth_min)
+        xs[name] = x
+        if name == LAMBERTIAN or b.size == "tiny":
+            continue
+        y_ref = plan.transport(depth_min, REFERENCE_TERMS).apply_device(x).get()
+        for k in ITERATION_TERMS:
+            opk = ops[f"{name} K={k}"] = plan.transport(depth_min, k)
+            xs[f"{name} K={k}"] = x
+            errors[f"{name} K={k}"] = float(np.linalg.norm(opk.apply_device(x).get() - y_ref)
+                                            / max(float(np.linalg.norm(y_ref)), 1e-300))
+    fns = {k: (lambda op=op, x=xs[k]: op.adjoint_device(op.apply_device(x)))
+           for k, op in ops.items()}
+    fns["fft pair"] = lambda: fft.inverse(fft.forward(buf, spec), buf)
+    t = interleaved(fns, b.q, b.repeat)
+    pair, lam = t.pop("fft pair")["min_s"], t[LAMBERTIAN]["min_s"]
+    del buf, spec, fft
+    solves = interleaved({n: (lambda c=c: reconstruct(cap, c, device=b.q))
+                          for n, c in configs.items()}, b.q,
+                         1 if b.size == "tiny" else SOLVE_ROUNDS)
+    for key, timing in t.items():
+        op = ops[key]
+        name, _, k = key.partition(" K=")
+        row = dict(terms=op.lobe.terms, time_over_lambertian=timing["min_s"] / lam,
+                   fft_pair_s=pair, fft_pairs=timing["min_s"] / pair)
+        if k:
+            b.record("brdf_iteration", f"terms@{grid}", key, np.float32, timing, errors[key],
+                     error_kind=f"rel L2 of L_K rho against K={REFERENCE_TERMS}",
+                     terms_error=op.lobe.errors[op.lobe.terms - 1], **row)
+        else:
+            b.record("brdf_iteration", f"iteration@{grid}", name, np.float32, timing,
+                     op.lobe.errors[op.lobe.terms - 1], error_kind="separable terms' error",
+                     **row)
+    lam_solve = solves[LAMBERTIAN]["min_s"]
+    for name, timing in solves.items():
+        rec = recs[name]
+        b.record("brdf_iteration", f"solve@{grid}", name, np.float32, timing, None,
+                 terms=rec.params.get("brdf_terms_used"),
+                 iterations=(rec.solver or {}).get("iterations"),
+                 time_over_lambertian=timing["min_s"] / lam_solve, fft_pair_s=pair,
+                 fft_pairs=timing["min_s"] / pair)

@@ -30,14 +30,18 @@ that only such voxels reach are exactly zero, which also keeps the r^-8 weight's
 A reflectance lobe (``lobe``, a retro slice :class:`clnlos.physics.lobe.RetroLobe`): each
 voxel's weight is multiplied by G(d, z) of :mod:`clnlos.physics.lobe` (its BRDF's retro
 slice averaged over its cell and, behind a slab, over the slab's footprint), written as K
-separable terms sum_k a_k(z) b_k(d). Each term is a light cone with the volume weight a_k
+separable terms sum_k a_k(z) b_k(d), the depth weights a_k taken on the u grid (at the
+depth sqrt(u) of each u bin's centre). Each term is a light cone with the volume weight a_k
 and the lateral kernel weight b_k, and the terms share the data side:
 
-    I = W_t R_{v->t} sum_k (h_k * R_{z->u} W_z a_k rho),   h_k(v, d) = b_k(d) h(v, d)
+    I = W_t R_{v->t} sum_k (h_k * a_k R_{z->u} W_z rho),   h_k(v, d) = b_k(d) h(v, d)
 
-so the operator costs K forward FFTs and one inverse (the adjoint: one forward and K
-inverse) against one of each for a Lambertian voxel (K = 1, a = b = 1: exactly the
-Lambertian operator). Left out: occlusion, surface orientation other than facing the scan
+(K = 1, a = b = 1: exactly the Lambertian operator). a_k acts on the u axis alone, so it
+commutes with the FFT over (y, x): with the host FFT (``RealFFT3.split_axes``) the volume is
+transformed over (y, x) once, and each term costs a transform along t and two element-wise
+passes; the adjoint likewise (the data's forward FFT once, per term a product and an inverse
+along t, one inverse over (y, x)). Elsewhere (VkFFT) each term is its own 3D transform of
+a_k R_{z->u} W_z rho. Left out: occlusion, surface orientation other than facing the scan
 plane, interreflections.
 """
 
@@ -54,9 +58,15 @@ from clnlos.physics.constants import C0
 from clnlos.errors import ParameterError
 from clnlos.operators.base import LinearOperator
 from clnlos.operators.resample import AxisResample, overlap_matrix
-from clnlos.operators.spectral import multiply_spectrum, multiply_spectrum_into
+from clnlos.operators.spectral import (
+    fold_spectrum,
+    multiply_spectrum,
+    multiply_spectrum_into,
+    scale_rows,
+)
 from clnlos.physics.lightcone import lightcone_psf_grid
 from clnlos.physics.lobe import RetroLobe, SeparableLobe, lobe_weight_table, separable_terms
+from clnlos.runtime.blas import single_threaded_blas
 from clnlos.runtime.buffers import Scratch, fill_zero
 from clnlos.runtime.device import get_queue, require_dtype
 from clnlos.runtime.fft import RealFFT3
@@ -89,6 +99,7 @@ def lobe_offsets(pad_shape) -> tuple[int, int]:
 
 LAMBERTIAN_FALLOFF = 4.0  # the radial falloff 1/r^p of a Lambertian voxel (W_t = r^-8)
 LOBE_SLOT = "lobe"  # scratch slot of the summed spectrum (forward) or the data's (adjoint)
+LATERAL_SLOT = "lobe lateral"  # the volume's (y, x) spectrum on the u rows (split terms)
 
 
 class LightConeTransport(LinearOperator):
@@ -116,9 +127,11 @@ class LightConeTransport(LinearOperator):
     footprint_rms_m : float
         rms radius (m) of the slab's footprint that widens the lobe (0: no slab).
     lobe_terms : int, optional
-        Separable terms K of the lobe (default: the fewest within
-        :data:`clnlos.physics.lobe.LOBE_TOLERANCE`); ``self.lobe`` records them and their
-        error.
+        Separable terms K of the lobe (default: the fewest within ``lobe_tolerance``);
+        ``self.lobe`` records them and their error.
+    lobe_tolerance : float, optional
+        Weighted relative error the default K stops at (default the lobe's own,
+        :data:`clnlos.physics.lobe.LOBE_TOLERANCE` or a retroreflector's).
     falloff : float
         Radiometric exponent p of the voxels' radial falloff: W_t = r^-(4 + p), the
         Lambertian 1/r^4 at p = 4 (default); p = 2 a retroreflector whose returned cone the
@@ -132,7 +145,7 @@ class LightConeTransport(LinearOperator):
                  depth_min_m: float = 0.0, depth_weight=None, dtype=np.float32, queue=None,
                  scratch: Scratch | None = None, lobe: RetroLobe | None = None,
                  footprint_rms_m: float = 0.0, lobe_terms: int | None = None,
-                 falloff: float = LAMBERTIAN_FALLOFF):
+                 falloff: float = LAMBERTIAN_FALLOFF, lobe_tolerance: float | None = None):
         self.queue = get_queue(queue)
         self.dtype = require_dtype(self.queue.device, dtype)
         nt, ny, nx = (int(v) for v in shape)
@@ -170,45 +183,66 @@ class LightConeTransport(LinearOperator):
         pad_t = sfft.next_fast_len(nv + s_max, real=True)
         self.pad_shape = (pad_t, py, px)
         self.nv = nv
-        self.lobe = self._separable_lobe(lobe, footprint_rms_m, lobe_terms)
-        self._pre = [AxisResample((to_u @ sp.diags(w_z * a)).tocsr(), (ny, nx),
-                                  out_plane=(py, px), out_rows=pad_t, dtype=self.dtype,
-                                  queue=self.queue) for a in self.lobe.a]
+        self.u_depth_m = np.sqrt((j0 + np.arange(nv) + 0.5) * dv)  # u bins' centre depths
+        self._u_edges_m = v_edges  # ... and their edges, as depths sqrt(u)
+        self.fft = RealFFT3(self.pad_shape, self.dtype, self.queue)
+        with single_threaded_blas():  # its SVDs beside PoCL's and the FFT's threads
+            self.lobe = self._separable_lobe(lobe, footprint_rms_m, lobe_terms, lobe_tolerance)
+        K = self.lobe.terms
+        # the terms split over the axes (module docstring) where the FFT allows it
+        self.split = K > 1 and self.fft.split_axes
+        to_u_w = (to_u @ sp.diags(w_z)).tocsr()
+        weights = [None] if self.split else list(self.lobe.a)  # a_k into each R_{z->u}
+        self._pre = [AxisResample(to_u_w if a is None else (sp.diags(a) @ to_u_w).tocsr(),
+                                  (ny, nx), out_plane=(py, px), out_rows=pad_t,
+                                  dtype=self.dtype, queue=self.queue) for a in weights]
+        self._alpha = ([cla.to_device(self.queue, a.astype(self.dtype)) for a in self.lobe.a]
+                       if self.split else None)
         to_t_pad = sp.hstack([to_t, sp.csr_matrix((nt, pad_t - nv))]).tocsr()
         self._post = AxisResample(to_t_pad, self.out_shape[1:], in_plane=(py, px),
                                   dtype=self.dtype, queue=self.queue)
-        self.fft = RealFFT3(self.pad_shape, self.dtype, self.queue)
-        self.H = [self.fft.forward(cla.to_device(self.queue, lightcone_kernel(
+        # the cones are real and even in y and x unless shifted by a margin: stored folded
+        self.folded = m == 0
+        self.H = [self._spectrum(lightcone_kernel(
             nv, pad_t, py, px, dv_m2=dv, pitch_m=pitch, shift=m,
-            lateral_weight=b).astype(self.dtype))) for b in self.lobe.b]
+            lateral_weight=b).astype(self.dtype)) for b in self.lobe.b]
         self.scratch = Scratch(self.queue) if scratch is None else scratch
         self.scratch.reserve("a", self.pad_shape, self.dtype)
         self.scratch.reserve("b", self.fft.spec_shape, self.fft.cdtype)
-        if self.lobe.terms > 1:
+        if K > 1:
             self.scratch.reserve(LOBE_SLOT, self.fft.spec_shape, self.fft.cdtype)
+        if self.split:
+            self.scratch.reserve(LATERAL_SLOT, (nv,) + self.fft.spec_shape[1:],
+                                 self.fft.cdtype)
         self._k = get_kernels(self.queue, "wiener", real_defines(self.dtype))
         # blocks of the padded grid that hold data: what the model writes and reads
         self._in_block = (nv, ny, nx)
         self._out_block = (nv,) + self.out_shape[1:]
 
+    def _spectrum(self, kernel: np.ndarray) -> cla.Array:
+        """The half spectrum of a cone on the padded grid, folded where it is even
+        (:func:`clnlos.operators.spectral.fold_spectrum`: a quarter of the memory)."""
+        whole = self.fft.forward(cla.to_device(self.queue, kernel))
+        return fold_spectrum(whole) if self.folded else whole
+
     def _separable_lobe(self, lobe: RetroLobe | None, footprint_rms_m: float,
-                        terms: int | None) -> SeparableLobe:
-        """The lobe's separable terms on this grid: a [K, nz] over the depth bins (zero
-        above the support), b [K, |dy|, |dx|] over the padded grid's offsets."""
-        nt = self.in_shape[0]
+                        terms: int | None, tolerance: float | None) -> SeparableLobe:
+        """The lobe's separable terms on this grid: a [K, nv] over the u bins (their centre
+        depths :attr:`u_depth_m`), b [K, |dy|, |dx|] over the padded grid's offsets; K =
+        ``terms``, else the fewest within ``tolerance`` (default the lobe's own)."""
         n_off = lobe_offsets(self.pad_shape)
         if lobe is None or lobe.lambertian:
-            return SeparableLobe(np.ones((1, nt)), np.ones((1,) + n_off), (0.0,),
+            return SeparableLobe(np.ones((1, self.nv)), np.ones((1,) + n_off), (0.0,),
                                  "lambertian" if lobe is None else lobe.name)
-        z = self.depth_m[self.k_min:]
+        z = self.u_depth_m
         G = lobe_weight_table(lobe, z, self.pitch_m, n_off, footprint_rms_m)
-        sep = separable_terms(G, z, self.pitch_m, name=lobe.name, terms=terms,
-                              tolerance=lobe.tolerance)
-        a = np.zeros((sep.terms, nt))
-        a[:, self.k_min:] = sep.a
-        return SeparableLobe(a, sep.b, sep.errors, sep.name)
+        return separable_terms(G, z, self.pitch_m, name=lobe.name, terms=terms,
+                               tolerance=lobe.tolerance if tolerance is None else tolerance,
+                               depth_extent=np.diff(self._u_edges_m))
 
     def _apply(self, x_g):
+        if self.split:
+            return self._apply_split(x_g)
         buf = self.scratch.array("a", self.pad_shape, self.dtype)
         spec = self.scratch.array("b", self.fft.spec_shape, self.fft.cdtype)
         acc = spec if len(self.H) == 1 else \
@@ -218,28 +252,72 @@ class LightConeTransport(LinearOperator):
             pre.apply_into(x_g, buf)
             self.fft.forward(buf, spec, nonzero=self._in_block)
             if acc is spec:
-                multiply_spectrum(self._k, H, spec, h_scale=1.0, adjoint=False)
+                multiply_spectrum(self._k, H, spec, h_scale=1.0, adjoint=False,
+                                  folded=self.folded)
             else:
                 multiply_spectrum_into(self._k, H, spec, acc, adjoint=False,
-                                       accumulate=k > 0)
+                                       accumulate=k > 0, folded=self.folded)
         self.fft.inverse(acc, buf, needed=self._out_block)
         return self._post.apply_device(buf)
 
+    def _apply_split(self, x_g):
+        """:meth:`_apply` of K > 1 terms, split over the axes (module docstring)."""
+        q, spec_shape, cd = self.queue, self.fft.spec_shape, self.fft.cdtype
+        nv, ny = self.nv, self.in_shape[1]
+        buf = self.scratch.array("a", self.pad_shape, self.dtype)
+        fill_zero(q, buf)
+        self._pre[0].apply_into(x_g, buf)
+        lateral = self.scratch.array(LATERAL_SLOT, (nv,) + spec_shape[1:], cd)
+        self.fft.forward_lateral(buf, lateral, rows=nv, nonzero_y=ny)
+        term = self.scratch.array("b", spec_shape, cd)
+        acc = self.scratch.array(LOBE_SLOT, spec_shape, cd)
+        for k, (alpha, H) in enumerate(zip(self._alpha, self.H, strict=True)):
+            scale_rows(self._k, lateral, term, alpha, rows=nv, accumulate=False,
+                       zero_rows=spec_shape[0])
+            self.fft.time_pass(term, inverse=False)
+            multiply_spectrum_into(self._k, H, term, acc, adjoint=False, accumulate=k > 0,
+                                   folded=self.folded)
+        self.fft.inverse(acc, buf, needed=self._out_block)
+        return self._post.apply_device(buf)
+
+    def _adjoint_split(self, y_g):
+        """:meth:`_adjoint` of K > 1 terms, split over the axes (module docstring)."""
+        q, spec_shape, cd = self.queue, self.fft.spec_shape, self.fft.cdtype
+        nv, ny = self.nv, self.in_shape[1]
+        buf = self.scratch.array("a", self.pad_shape, self.dtype)
+        fill_zero(q, buf)
+        self._post.adjoint_into(y_g, buf)
+        data = self.scratch.array(LOBE_SLOT, spec_shape, cd)
+        self.fft.forward(buf, data, nonzero=self._out_block)
+        term = self.scratch.array("b", spec_shape, cd)
+        lateral = self.scratch.array(LATERAL_SLOT, (nv,) + spec_shape[1:], cd)
+        for k, (alpha, H) in enumerate(zip(self._alpha, self.H, strict=True)):
+            multiply_spectrum_into(self._k, H, data, term, adjoint=True, accumulate=False,
+                                   folded=self.folded)
+            self.fft.time_pass(term, inverse=True)
+            scale_rows(self._k, term, lateral, alpha, rows=nv, accumulate=k > 0)
+        self.fft.inverse_lateral(lateral, buf, rows=nv, needed_y=ny)
+        return self._pre[0].adjoint_device(buf)
+
     def _adjoint(self, y_g):
+        if self.split:
+            return self._adjoint_split(y_g)
         buf = self.scratch.array("a", self.pad_shape, self.dtype)
         fill_zero(self.queue, buf)
         self._post.adjoint_into(y_g, buf)
         spec = self.scratch.array("b", self.fft.spec_shape, self.fft.cdtype)
         if len(self.H) == 1:
             self.fft.forward(buf, spec, nonzero=self._out_block)
-            multiply_spectrum(self._k, self.H[0], spec, h_scale=1.0, adjoint=True)
+            multiply_spectrum(self._k, self.H[0], spec, h_scale=1.0, adjoint=True,
+                              folded=self.folded)
             self.fft.inverse(spec, buf, needed=self._in_block)
             return self._pre[0].adjoint_device(buf)
         data = self.scratch.array(LOBE_SLOT, self.fft.spec_shape, self.fft.cdtype)
         self.fft.forward(buf, data, nonzero=self._out_block)
         out = None
         for pre, H in zip(self._pre, self.H, strict=True):
-            multiply_spectrum_into(self._k, H, data, spec, adjoint=True, accumulate=False)
+            multiply_spectrum_into(self._k, H, data, spec, adjoint=True, accumulate=False,
+                                   folded=self.folded)
             self.fft.inverse(spec, buf, needed=self._in_block)
             part = pre.adjoint_device(buf)
             out = part if out is None else out.__iadd__(part)

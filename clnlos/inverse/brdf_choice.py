@@ -28,11 +28,15 @@ whose falloff in r differs, not only its width in theta) does not fit the order 
 each is scored after it against the lobe the walk chose and taken where its score is lower
 by more than the same margin (:func:`challenge`).
 The search never sees the truth, only the capture; it costs one reconstruction of half the
-data per lobe tried (3 to 6).
+data per lobe tried (3 to 6), on a grid of at most LOBE_SEARCH_POINTS scan points per side and
+LOBE_SEARCH_BINS bins (:func:`search_factors`: a larger capture's counts summed over blocks of
+scan points, still Poisson counts, and its time axis rebinned), so that choosing costs a
+fraction of the reconstruction it chooses for (docs/brdf.md).
 """
 
 from __future__ import annotations
 
+import json
 import math
 from collections.abc import Callable, Sequence
 
@@ -46,6 +50,12 @@ LOBE_NOT_SEARCHED_REASON = ("the lobe is chosen on held-out photons and the capt
                             "photon counts (or a half of the split is empty)")
 PATIENCE = 1  # lobes in a row without a significant gain that end the walk
 LOBE_SEARCH_ITERATIONS = 50  # iterations of each half reconstruction at most
+# the grid the search reconstructs its halves on, at most: scan points per side and time
+# bins (a larger capture's counts are summed over blocks of scan points and rebinned; the
+# chosen lobe then runs on the capture's own grid); the grid of the held-out scores that
+# docs/brdf.md reports for the LCT release (tools/retro_identifiability.py)
+LOBE_SEARCH_POINTS = 32
+LOBE_SEARCH_BINS = 256
 
 
 def score_margin(fit_new: np.ndarray, fit_best: np.ndarray, held: np.ndarray,
@@ -120,3 +130,41 @@ def challenge(best: RetroLobe, tried: list[tuple[str, float]], challengers: Sequ
         if best_score - s > (0.0 if margin is None else margin(cand, best)):
             best, best_score = cand, s
     return best, tried
+
+
+def search_factors(shape: tuple[int, int, int]) -> tuple[int, int]:
+    """(scan points summed per side, time bins per search bin) that bring an inverted grid
+    ``shape`` [t, y, x] within LOBE_SEARCH_POINTS per side and LOBE_SEARCH_BINS bins: the
+    fewest points per block that divide both sides, up to twice the fewest that would do
+    (1: none summed, where none does), and the fewest bins per search bin (the preprocessing
+    rebins the kept window to the rest)."""
+    nt, ny, nx = (int(v) for v in shape)
+    need = max(1, -(-max(ny, nx) // LOBE_SEARCH_POINTS))
+    f = next((f for f in range(need, 2 * need + 1) if not (ny % f or nx % f)), 1)
+    return f, max(1, -(-nt // LOBE_SEARCH_BINS))
+
+
+def block_sums(transient: np.ndarray, f: int) -> np.ndarray:
+    """A capture [t, y, x] with its scan points summed over f x f blocks (counts stay
+    counts: a sum of Poisson counts is Poisson)."""
+    if f == 1:
+        return np.asarray(transient)
+    t, ny, nx = transient.shape
+    a = np.asarray(transient)
+    return a.reshape(t, ny // f, f, nx // f, f).sum(axis=(2, 4), dtype=a.dtype)
+
+
+def lobe_choice_note(params: dict) -> str:
+    """One line: the lobe ``brdf = "auto"`` chose, every lobe's held-out score (whole volume
+    / surface; lower is better), the grid they were reconstructed on and what choosing
+    cost (the params :meth:`clnlos.inverse.pipeline.ReconstructionPipeline.brdf_lobe`
+    recorded)."""
+    whole = json.loads(params["brdf_tried"])
+    surface = dict(json.loads(params.get("brdf_tried_surface", "[]")))
+    scores = ", ".join(f"{name} {v:.4g}" + (f" / {surface[name]:.4g}" if name in surface
+                                             else "") for name, v in whole)
+    grid = params.get("brdf_search_grid", "").replace("x", " x ")
+    cost = params.get("brdf_choice_s")
+    return (f"brdf auto chose {params['brdf_chosen']} by held-out photons (scores, whole "
+            f"volume / surface, lower better: {scores}; halves reconstructed on a "
+            f"[t, y, x] = {grid} grid" + ("" if cost is None else f", {cost:.3g} s") + ")")

@@ -105,7 +105,7 @@ from clnlos.checks import integer, real
 from clnlos.config import DEPTH_GUARD_M, FALLOFF_RANGE, ITERATIONS_RANGE, WEIGHT_RANGE
 from clnlos.brdf.lobes import AUTO, retro_lobe
 from clnlos.forward.transport import LAMBERTIAN_FALLOFF, LightConeTransport
-from clnlos.physics.lobe import RetroLobe
+from clnlos.physics.lobe import INVERSION_LOBE_TOLERANCE, SEARCH_LOBE_TOLERANCE, RetroLobe
 from clnlos.inverse.lct import (
     DEFAULT_SNR,
     LCT,
@@ -196,6 +196,9 @@ class IterativeInversion:
         self.report: SolveReport | None = None
         self.lobe = RetroLobe.lambert() if lobe is None else lobe
         self.lobe_terms = lobe_terms
+        # the error "auto" terms stop at (at least the lobe's own tolerance; the lobe
+        # search's candidates take SEARCH_LOBE_TOLERANCE, IterativeMethod.iteration_budget)
+        self.lobe_tolerance: float = INVERSION_LOBE_TOLERANCE
 
     def set_lobe(self, lobe: RetroLobe) -> None:
         """The retro lobe the next calls assume (operators kept per lobe and support)."""
@@ -212,24 +215,35 @@ class IterativeInversion:
         """(z / R)^p per depth bin for the current lobe's falloff p: rho = xi * scale."""
         return self.depth_ratio ** self.lobe_falloff(self.lobe)
 
+    def transport(self, depth_min_m: float, lobe_terms: int | None = None
+                  ) -> LightConeTransport:
+        """The model in xi for a support from ``depth_min_m`` (rounded down to a
+        DEPTH_QUANTUM_M step) with the current lobe: ``lobe_terms`` separable terms (default
+        the plan's; "auto": the fewest within :attr:`lobe_tolerance`, or the lobe's own
+        tolerance where that is larger)."""
+        step = int(math.floor(max(0.0, depth_min_m) / DEPTH_QUANTUM_M))
+        terms = self.lobe_terms if lobe_terms is None else lobe_terms
+        tol = max(self.lobe_tolerance, self.lobe.tolerance)
+        return LightConeTransport(self.shape, bin_width_s=self.bin_width_s,
+                                  scan_width_m=self.scan_width_m, margin=0,
+                                  depth_min_m=step * DEPTH_QUANTUM_M, depth_weight=self.scale,
+                                  dtype=self.dtype, queue=self.queue, scratch=self.scratch,
+                                  lobe=self.lobe, lobe_terms=terms, lobe_tolerance=tol,
+                                  falloff=self.lobe_falloff(self.lobe))
+
     def operator(self, depth_min_m: float, setup=None) -> tuple[LinearOperator, int, float]:
         """(model in xi, first support row, Lipschitz constant) for a support from
-        ``depth_min_m``, built once per DEPTH_QUANTUM_M step; ``setup(step)`` names each
-        step of a build as it starts."""
+        ``depth_min_m``, built once per DEPTH_QUANTUM_M step (:meth:`transport`);
+        ``setup(step)`` names each step of a build as it starts."""
         step = int(math.floor(max(0.0, depth_min_m) / DEPTH_QUANTUM_M))
-        key = (step, self.lobe.name, self.lobe_terms, self.lobe_falloff(self.lobe))
+        key = (step, self.lobe.name, self.lobe_terms, self.lobe_tolerance,
+               self.lobe_falloff(self.lobe))
         hit = self._ops.get(key)
         if hit is None:
             if setup is not None:
                 setup("light-cone operator" + ("" if self.lobe.lambertian
                                                else f" ({self.lobe.name} lobe)"))
-            lc = LightConeTransport(self.shape, bin_width_s=self.bin_width_s,
-                                    scan_width_m=self.scan_width_m, margin=0,
-                                    depth_min_m=step * DEPTH_QUANTUM_M,
-                                    depth_weight=self.scale, dtype=self.dtype,
-                                    queue=self.queue, scratch=self.scratch, lobe=self.lobe,
-                                    lobe_terms=self.lobe_terms,
-                                    falloff=self.lobe_falloff(self.lobe))
+            lc = self.transport(depth_min_m)
             power = None if setup is None else (
                 lambda k, n: setup(f"step size (power iteration {k}/{n})"))
             hit = (lc, lc.k_min, lipschitz(lc, progress=power))
@@ -375,13 +389,17 @@ class IterativeMethod(Inversion):
 
     @contextmanager
     def iteration_budget(self, iterations: int):
-        """At most ``iterations`` iterations inside the block (a search's reconstructions)."""
-        keep = self.solver.iterations
-        self.solver.iterations = min(keep, int(iterations))
+        """At most ``iterations`` iterations inside the block (a search's reconstructions),
+        each lobe's terms within SEARCH_LOBE_TOLERANCE (the held-out scores compare models:
+        the cheaper terms of INVERSION_LOBE_TOLERANCE are for the reconstruction a lobe is
+        chosen for)."""
+        keep = self.solver.iterations, self.solver.lobe_tolerance
+        self.solver.iterations = min(keep[0], int(iterations))
+        self.solver.lobe_tolerance = SEARCH_LOBE_TOLERANCE
         try:
             yield
         finally:
-            self.solver.iterations = keep
+            self.solver.iterations, self.solver.lobe_tolerance = keep
 
     def predict(self, volume: np.ndarray) -> cla.Array:
         """L rho: the light-cone transport of an albedo volume [z, y, x] on the support of

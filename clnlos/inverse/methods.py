@@ -43,7 +43,7 @@ from typing import TYPE_CHECKING
 
 from clnlos.config import (
     CLOSED_FORM_BRDFS,
-    ITERATIVE_MAX_BINS,
+    ITERATIVE_SUM_BINS_ABOVE,
     METHODS,
     RETROREFLECTIVE_FALLOFF,
     MethodEntry,
@@ -59,7 +59,7 @@ if TYPE_CHECKING:  # annotations only: this module imports no OpenCL code
     import pyopencl.array as cla
 
 # the registry, stated in clnlos.config, read here by the pipeline, the CLI, the study, the bench
-__all__ = ["CLOSED_FORM_BRDFS", "ITERATIVE_MAX_BINS", "METHODS", "RETROREFLECTIVE_FALLOFF", "Inversion", "InversionGrid", "MethodEntry", "auto_snr_rule",
+__all__ = ["CLOSED_FORM_BRDFS", "ITERATIVE_SUM_BINS_ABOVE", "METHODS", "RETROREFLECTIVE_FALLOFF", "Inversion", "InversionGrid", "MethodEntry", "auto_snr_rule",
            "default_falloffs", "method_class", "method_names", "methods_reading", "split_rule"]
 
 

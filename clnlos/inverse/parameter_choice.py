@@ -20,10 +20,12 @@ from clnlos.config import ReconstructionConfig
 from clnlos.inverse.brdf_choice import (
     LOBE_NOT_SEARCHED,
     LOBE_SEARCH_ITERATIONS,
+    block_sums,
     both_margins,
     challenge,
     choose_lobe,
     score_margin,
+    search_factors,
     surface_of,
 )
 from clnlos.inverse.reproducibility import (
@@ -181,9 +183,17 @@ class ParameterSearches:
         search): the lobe of :func:`clnlos.brdf.lobes.auto_ladder` whose reconstruction from
         one half of a binomial split of the counts best predicts the other half, from its
         whole volume and from its surface (:mod:`clnlos.inverse.brdf_choice`); the Lambertian lobe where the capture is not
-        counts or a half is empty (:data:`LOBE_NOT_SEARCHED`)."""
-        halves = self._split(transient) if (noise.photon_counts and not noise.noise_free
-                                            and is_counts(np.asarray(transient))) else None
+        counts or a half is empty (:data:`LOBE_NOT_SEARCHED`). A capture larger than the
+        search's grid is searched on a pipeline of that grid (:meth:`_lobe_search_plan`)."""
+        counts = (noise.photon_counts and not noise.noise_free
+                  and is_counts(np.asarray(transient)))
+        plan = self._lobe_search_plan(transient.shape) if counts else None
+        if plan is not None:
+            small, f = plan
+            y = block_sums(transient, f)
+            lobe, params = small.brdf_lobe(y, small.raw_noise(y), model_snr, setup)
+            return lobe, {**params, "brdf_search_grid": "x".join(str(v) for v in small.shape)}
+        halves = self._split(transient) if counts else None
         if halves is None:
             return RetroLobe.lambert(), {"brdf_rule_used": LOBE_NOT_SEARCHED}
         train, test = halves
@@ -198,10 +208,10 @@ class ParameterSearches:
         def score(cand: RetroLobe) -> float:
             if setup is not None:
                 setup(f"BRDF lobe by thinning: {cand.name}")
-            with self.invert.iteration_budget(LOBE_SEARCH_ITERATIONS):
+            with self.invert.iteration_budget(LOBE_SEARCH_ITERATIONS):  # predicted by the
                 rec = self.run(train, model_snr=model_snr, slab_snr_factor=1.0, lobe=cand)
-            fits[cand.name] = predicted(rec.volume)
-            surface_fits[cand.name] = predicted(surface_of(rec.volume))
+                fits[cand.name] = predicted(rec.volume)  # operator that reconstructed it
+                surface_fits[cand.name] = predicted(surface_of(rec.volume))
             return fitted_residual(fits[cand.name], held, scaled=True)
 
         def margin(new: RetroLobe, best: RetroLobe) -> float:
@@ -217,7 +227,26 @@ class ParameterSearches:
         surface = {c: fitted_residual(q, held, scaled=True) for c, q in surface_fits.items()}
         return chosen, {"brdf_rule_used": "thinning", "brdf_chosen": chosen.name,
                         "brdf_tried": json.dumps([[c, v] for c, v in tried]),
-                        "brdf_tried_surface": json.dumps([[c, surface[c]] for c, _ in tried])}
+                        "brdf_tried_surface": json.dumps([[c, surface[c]] for c, _ in tried]),
+                        "brdf_search_grid": "x".join(str(v) for v in self.shape)}
+
+    def _lobe_search_plan(self, shape_in) -> tuple | None:
+        """(a pipeline of this one's config on the search's grid, the scan points it sums
+        per side) for captures of ``shape_in`` (raw [t, y, x]), built once; None where this
+        pipeline's grid is the search's already (:func:`search_factors`)."""
+        f, ft = search_factors(self.shape)
+        if f == 1 and ft == 1:
+            return None
+        key = (tuple(shape_in), f, ft)
+        if getattr(self, "_lobe_search", (None,))[0] != key:
+            nt_in, ny, nx = shape_in
+            bins = max(1, round(self.shape[0] / ft))
+            small = type(self)((nt_in, ny // f, nx // f), bin_width_s=self.raw_bin_width_s,
+                               start_s=self.raw_start_s, scan_width_m=self.scan_width_m,
+                               config=self.config.replace(bins=bins), dtype=self.dtype,
+                               queue=self.queue)
+            self._lobe_search = (key, (small, f))
+        return self._lobe_search[1]
 
     def _held_out_prediction_target(self, y2: np.ndarray):
         """(the held-out half as the inversion sees it, host; the slab's influence Phi2 that a
@@ -266,12 +295,15 @@ class ParameterSearches:
         """The gate both split searches share: their rule on (``rule_on``), not under
         ``snr_rule = "auto"`` where the slab model is inexact (``model_snr`` finite), an
         "auto" slab SNR, a slab, and a capture of photon counts (``noise``: the raw
-        capture's, :meth:`raw_noise`)."""
+        capture's, :meth:`raw_noise`) with light above its background (the halves of a
+        capture of noise alone agree on nothing: every candidate would be tried for none,
+        the GCV rule stands, and a note says the capture holds no light)."""
         c = self.config
         if not rule_on or (c.snr_rule == "auto" and math.isfinite(model_snr)):
             return False
         return (c.snr == "auto" and self.deconv is not None and noise.photon_counts
-                and not noise.noise_free and is_counts(np.asarray(transient)))
+                and not noise.noise_free and noise.first_arrival_s is not None
+                and is_counts(np.asarray(transient)))
 
     def _split(self, transient: np.ndarray) -> tuple[np.ndarray, np.ndarray] | None:
         """The binomial split of the counts (:func:`clnlos.inverse.thinning.thin_counts`),

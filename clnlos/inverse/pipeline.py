@@ -45,10 +45,14 @@ from clnlos.brdf.lobes import AUTO
 from clnlos.config import ReconstructionConfig
 from clnlos.errors import InputFileError
 from clnlos.forward.blur import blur_time_scales, confocal_lag_energy, confocal_psf, slab_blur
-from clnlos.inverse.brdf_choice import LOBE_NOT_SEARCHED, LOBE_NOT_SEARCHED_REASON
+from clnlos.inverse.brdf_choice import (
+    LOBE_NOT_SEARCHED,
+    LOBE_NOT_SEARCHED_REASON,
+    lobe_choice_note,
+)
 from clnlos.inverse.capture_defaults import format_defaults
 from clnlos.inverse.gcv import GcvBins, binned_power
-from clnlos.inverse.methods import InversionGrid, method_class
+from clnlos.inverse.methods import METHODS, InversionGrid, method_class
 from clnlos.inverse.parameter_choice import (
     SPLIT_EMPTY,
     SPLIT_EMPTY_REASON,
@@ -63,6 +67,7 @@ from clnlos.inverse.preprocessing import (
     GUARD_PEAKS,
     MIN_DEPTH_BINS,
     aligned_window_note,
+    bandwidth_bins,
     bins_for,
     centred_extents,
     cut_level,
@@ -285,6 +290,7 @@ class ReconstructionPipeline(ParameterSearches):
                 t0 = time.perf_counter()
                 lobe, lobe_params = self.brdf_lobe(transient, noise, model_snr, setup)
                 timings["choose_brdf"] = time.perf_counter() - t0
+                lobe_params["brdf_choice_s"] = timings["choose_brdf"]
             self.invert.set_lobe(lobe)
         if slab_snr_factor is None and self._thinning_applies(transient, noise, model_snr):
             t0 = time.perf_counter()
@@ -370,6 +376,8 @@ class ReconstructionPipeline(ParameterSearches):
         notes: list[str] = []
         if (lobe_params or {}).get("brdf_rule_used") == LOBE_NOT_SEARCHED:
             notes.append(f"brdf auto: {LOBE_NOT_SEARCHED_REASON}; the Lambertian lobe")
+        elif "brdf_chosen" in (lobe_params or {}) and snrs is None and slab_snr_factor is None:
+            notes.append(lobe_choice_note(lobe_params))
         if math.isfinite(resampled) and self.deconv is not None:
             params["resampling_snr"] = resampled
             free = auto_snrs(noise, self.config, unbounded, data_snr=data_snr)[0]
@@ -379,7 +387,8 @@ class ReconstructionPipeline(ParameterSearches):
         if named in ("thinning", "reproducibility") and cv is None and (
                 slab_snr_factor is None and snrs is None):
             notes.append(f"snr_rule {named} not applied (it needs an \"auto\" slab SNR, a "
-                         "slab and photon counts): the GCV rule or the configured SNRs")
+                         "slab and photon counts with light above their background): the "
+                         "GCV rule or the configured SNRs")
         if cv is not None and cv.get("snr_rule_used") == SPLIT_EMPTY:
             notes.append(f"no split search ({SPLIT_EMPTY_REASON}): the GCV rule")
         elif cv is not None and cv.get("reproducibility_agreed") is False:
@@ -565,8 +574,9 @@ class ReconstructionPipeline(ParameterSearches):
 
     def _deconvolution_for(self, profile, noise: NoiseEstimate, snr: float, params: dict,
                            notes: list[str]):
-        """The slab deconvolution for this capture: the plain Wiener filter, or where the
-        time window ends before the blur of its latest arrivals has decayed (more than
+        """The slab deconvolution for this capture: the plain Wiener filter (always where no
+        light rises above the capture's background: ``noise.first_arrival_s`` None), or where
+        the time window ends before the blur of its latest arrivals has decayed (more than
         :func:`cut_level` of the peak still arriving in its last ``peak`` bins, and fewer
         than GUARD_PEAKS peak lags of guard bins between the volume's end and the cut) the
         :class:`~clnlos.inverse.tail_fill.TailFilledDeconvolution` on the window padded by the
@@ -575,6 +585,9 @@ class ReconstructionPipeline(ParameterSearches):
         their response only."""
         scales = self.blur_scales
         n_scan = self.shape[1] * self.shape[2]
+        if noise.first_arrival_s is None:  # no light above the floor (not subtracted then):
+            params["window_end_level"] = 0.0  # none arrives at the end, no blur tail to fill
+            return self.deconv
         # the profile was taken after background_subtracted (prepare, _held_out): no floor left
         level = window_end_level(profile, background=0.0, end_bins=scales.peak_lags,
                                  photon_counts=noise.photon_counts, sigma=noise.sigma,
@@ -623,6 +636,13 @@ def reconstruct(capture: Capture, config: ReconstructionConfig, *, dtype=np.floa
                                   config.max_path_m, None)
         config, notes = format_defaults(capture.attrs, config, bins_kept=kept, bin_width_s=bw)
         reader_notes += notes
+        above = METHODS[config.method].sum_bins_above if config.method in METHODS else None
+        if config.bins is None and "bins" not in config.user_fields and above is not None:
+            bins, note = bandwidth_bins(capture.transient, bins_kept=kept, bin_width_s=bw,
+                                        start_s=start, above=above)
+            if bins is not None:
+                config = config.replace(bins=bins)
+                reader_notes.append(note)
     bw, start, sw = resolve_geometry(capture, config)
     queue = get_queue(device)
     key = (capture.transient.shape, bw, start, sw, json.dumps(config.as_attrs(), sort_keys=True),

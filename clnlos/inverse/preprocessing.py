@@ -13,7 +13,7 @@ import numpy as np
 
 from clnlos.config import METHODS, ReconstructionConfig, check_window
 from clnlos.errors import InputFileError, MissingParameterError, ParameterError
-from clnlos.inverse.snr import ARRIVAL_SIGMAS
+from clnlos.inverse.snr import ARRIVAL_SIGMAS, first_recorded_bin, is_counts
 from clnlos.io.capture import Capture
 from clnlos.operators.resample import overlap_matrix
 from clnlos.physics.constants import C0
@@ -84,17 +84,71 @@ def preprocess_bins(nt_in: int, bin_width_s: float, start_s: float,
 
 def bins_for(config: ReconstructionConfig, nt_in: int, bin_width_s: float,
              start_s: float) -> int | None:
-    """The bins the preprocessing rebins to: the config's ``bins``, else for a method with a
-    ``max_bins`` (:class:`clnlos.inverse.methods.MethodEntry`) the kept bins halved (summed in
-    pairs) until at most that many, else None (all of them)."""
-    cap = METHODS[config.method].max_bins if config.method in METHODS else None
-    if config.bins is not None or cap is None:
-        return config.bins
-    n_keep, _ = preprocess_bins(nt_in, bin_width_s, start_s, config.max_path_m, None)
-    n = n_keep
-    while n > cap:
-        n = (n + 1) // 2
-    return None if n == n_keep else n
+    """The bins the preprocessing rebins to: the config's ``bins`` (None: all of them; a
+    method that sums a long capture's noise-only band, :func:`bandwidth_bins`, has set
+    ``bins`` before the pipeline is built)."""
+    return config.bins
+
+
+BAND_COLUMNS = 1024  # scan columns per block of the band test's FFT along t (bounded memory)
+
+
+def band_excess(transient: np.ndarray, rows: tuple[int, int], bin_width_s: float,
+                band_hz: tuple[float, float]) -> float:
+    """How far the photon counts ``transient`` [t, y, x] rise above their Poisson noise in a
+    frequency band along t, in standard deviations: over the rows ``rows`` = (r0, r1), the
+    column power spectrum |F_t[y - mean]|^2 summed over the band (lo, hi] (Hz) and over the
+    columns, less the Poisson floor (the counts of each column, for every frequency), over
+    the floor's standard deviation (sqrt(bins x columns) times the mean floor: each
+    frequency's power of white Poisson noise is exponential about it)."""
+    r0, r1 = rows
+    y = np.asarray(transient)[r0:r1].reshape(r1 - r0, -1)
+    f = np.fft.rfftfreq(r1 - r0, bin_width_s)
+    band = (f > band_hz[0]) & (f <= band_hz[1])
+    if not band.any() or y.shape[1] == 0:
+        return 0.0
+    power = floor = 0.0
+    for c0 in range(0, y.shape[1], BAND_COLUMNS):
+        blk = y[:, c0:c0 + BAND_COLUMNS].astype(np.float64)
+        spec = np.fft.rfft(blk - blk.mean(axis=0), axis=0)[band]
+        power += float(np.sum(spec.real ** 2 + spec.imag ** 2))
+        floor += float(blk.sum()) * int(band.sum())
+    sd = floor / math.sqrt(int(band.sum()) * y.shape[1])
+    return (power - floor) / sd if sd > 0 else 0.0
+
+
+def bandwidth_bins(transient: np.ndarray, *, bins_kept: int, bin_width_s: float,
+                   start_s: float, above: int) -> tuple[int | None, str | None]:
+    """(bins, one note line) for a capture of photon counts whose kept window (``bins_kept``
+    bins of ``bin_width_s`` from t = 0; the capture's axis starts at ``start_s``) holds more
+    than ``above`` bins: halved (bins summed in pairs) while the band each halving removes,
+    (1/(4 dt), 1/(2 dt)] for bins of dt, rises above the counts' Poisson noise by less than
+    ARRIVAL_SIGMAS standard deviations (:func:`band_excess`, over the recorded bins of the
+    window): the sum loses only noise there. (None, None) where nothing is summed: data that
+    are not counts (no noise to tell signal from: a noise-free render keeps every bin), or
+    a band that holds signal."""
+    if above is None or bins_kept <= above or not is_counts(transient):
+        return None, None
+    y = np.asarray(transient)
+    k0 = max(0, int(math.floor(-start_s / bin_width_s)))
+    k1 = min(y.shape[0], k0 + bins_kept)
+    profile = y[k0:k1].reshape(k1 - k0, -1).sum(axis=1, dtype=np.float64)
+    r0 = k0 + first_recorded_bin(profile)
+    n, excess = bins_kept, None
+    while n > above:
+        dt = bins_kept * bin_width_s / n
+        e = band_excess(y, (r0, k1), bin_width_s, (1 / (4 * dt), 1 / (2 * dt)))
+        if e > ARRIVAL_SIGMAS:
+            break
+        n, excess = n // 2, e
+    if n == bins_kept:
+        return None, None
+    dt = bins_kept * bin_width_s / n
+    return n, (f"{n} bins of {dt * 1e12:.3g} ps (the {bins_kept} of "
+               f"{bin_width_s * 1e12:.3g} ps summed in groups of {bins_kept // n}): the "
+               f"capture's counts hold no signal above {1e-9 / (2 * dt):.3g} GHz (the band "
+               f"summed away is at their Poisson noise, {excess:+.1f} sd), and the iterative "
+               f"method's cost is per bin (--bins {bins_kept} / bins={bins_kept} keeps them)")
 
 
 def device_bytes_needed(shape_in, *, bin_width_s: float, start_s: float,

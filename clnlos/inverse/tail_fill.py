@@ -3,13 +3,16 @@ arrivals has decayed: the unseen tail filled from the model (Gerchberg-Papoulis 
 
 from __future__ import annotations
 
+import math
+
 import numpy as np
 import pyopencl.array as cla
 
 from clnlos.forward.blur import BlurTimeScales, slab_blur
 from clnlos.operators.spectral import SpectralFilter
 from clnlos.physics.slab import Slab
-from clnlos.runtime.buffers import copy_rows, fill_zero, host_view
+from clnlos.runtime.buffers import copy_rows, fill_zero
+from clnlos.runtime.device import has_fp64
 
 TAIL_FILL_ITERATIONS = 12    # at most this many fills of the unseen tail
 
@@ -127,24 +130,35 @@ class TailFilledDeconvolution:
         y = cla.empty(self.queue, (self.n_ext,) + self.in_shape[1:], tau_g.dtype)
         copy_rows(self.queue, tau_g, y, rows=n)
         fill_zero(self.queue, y, offset_bytes=n * plane * item)
-        tail_old, first_change = None, None
+        tail = y[n:]  # a view: the rows the fill writes
+        tail_old = cla.empty_like(tail)
+        first_change = None
         self.iterations_run = 0
         for k in range(TAIL_FILL_ITERATIONS - 1):
+            if k:
+                copy_rows(self.queue, tail, tail_old, rows=self.n_ext - n)
             x = self.W(y)
             self.iterations_run = k + 1
             fill_zero(self.queue, x, offset_bytes=self.n_known * plane * item)
             hx = self.H(x)
             copy_rows(self.queue, hx, y, rows=self.n_ext - n, src_row=n, dst_row=n)
-            with host_view(y) as yh:  # the fill's change (small reductions on the host)
-                tail = np.array(yh[n:], dtype=np.float64)
-            if tail_old is not None:
-                scale = max(float(np.linalg.norm(tail)), 1e-300)
-                change = float(np.linalg.norm(tail - tail_old))
-                if not np.isfinite(change) or (first_change is not None
-                                               and change > first_change):
-                    return y, True
-                if change < TAIL_FILL_RTOL * scale:
-                    break
-                first_change = change if first_change is None else first_change
-            tail_old = tail
+            if not k:
+                continue
+            # the fill's change: two reductions on the device, two numbers read back
+            scale, change = tail_change(tail, tail_old)
+            if not np.isfinite(change) or (first_change is not None and change > first_change):
+                return y, True
+            if change < TAIL_FILL_RTOL * max(scale, 1e-300):
+                break
+            first_change = change if first_change is None else first_change
         return y, False
+
+
+def tail_change(tail: cla.Array, old: cla.Array) -> tuple[float, float]:
+    """(||tail||, ||tail - old||) of two device arrays, reduced on the device (float64 where
+    the device has it: the sums of squares of a float32 tail)."""
+    acc = np.float64 if has_fp64(tail.queue.device) else np.float32
+    d = tail - old
+    s2 = float(cla.dot(tail, tail, dtype=acc).get())
+    c2 = float(cla.dot(d, d, dtype=acc).get())
+    return math.sqrt(max(s2, 0.0)), math.sqrt(max(c2, 0.0))

@@ -87,6 +87,20 @@ def multiply_spectrum(kernels, H: cla.Array, X: cla.Array, *, h_scale: float,
     return X
 
 
+def scale_rows(kernels, X: cla.Array, Y: cla.Array, weights: cla.Array, *, rows: int,
+               accumulate: bool, zero_rows: int | None = None) -> cla.Array:
+    """Y[w] <- weights[w] X[w], or added to Y (``accumulate``), for the rows w < ``rows`` of
+    two complex arrays of (n1, n2h) planes (``kernels/wiener.cl``): a real weight per depth
+    row of a spectrum transformed along y and x only; with ``zero_rows`` (not accumulating)
+    Y's rows ``rows`` .. ``zero_rows`` - 1 set to 0 in the same pass (a zero-padded axis)."""
+    n1, n2h = X.shape[1:]
+    n_out = int(rows if zero_rows is None else max(zero_rows, rows))
+    kernels.scale_rows(X.queue, (round_up(n2h, 8), n1, n_out), None, X.data, Y.data,
+                       weights.data, np.int32(accumulate), kernel_int(rows),
+                       kernel_int(n_out), kernel_int(n1), kernel_int(n2h))
+    return Y
+
+
 def kernel_support(kernel: np.ndarray, energy_tol: float) -> tuple[int, ...]:
     """Per axis, the smallest lag s such that the kernel's energy at |lag| > s (lags in wrap
     order on its grid) is at most ``energy_tol`` of the total (read row block by row
@@ -110,14 +124,16 @@ def kernel_support(kernel: np.ndarray, energy_tol: float) -> tuple[int, ...]:
 
 
 def multiply_spectrum_into(kernels, H: cla.Array, X: cla.Array, Y: cla.Array, *,
-                           adjoint: bool, accumulate: bool, h_scale: float = 1.0):
+                           adjoint: bool, accumulate: bool, h_scale: float = 1.0,
+                           folded: bool = False):
     """Y <- (h_scale H) X or its conjugate (``adjoint``), added to Y when ``accumulate``
-    (``kernels/wiener.cl``), on X's (n0, n1, n2h) half-spectrum grid (H stored whole)."""
+    (``kernels/wiener.cl``), on X's (n0, n1, n2h) half-spectrum grid (H whole or
+    ``folded``)."""
     n0, n1, n2h = X.shape
     real = np.float32 if X.dtype == np.complex64 else np.float64
     kernels.spectral_multiply_into(X.queue, (round_up(n2h, 8), n1, n0), None, H.data, X.data,
                                    Y.data, real(h_scale), np.int32(adjoint),
-                                   np.int32(accumulate), np.int32(0), kernel_int(n0),
+                                   np.int32(accumulate), np.int32(folded), kernel_int(n0),
                                    kernel_int(n1), kernel_int(n2h))
     return Y
 

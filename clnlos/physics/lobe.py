@@ -62,6 +62,15 @@ LOBE_TOLERANCE = 1e-3     # weighted relative error of the separable terms (3)
 # ... for a retroreflector's lobe: its entrance profile ends at the acceptance angle with a
 # kink, which (3) converges to slowly (12 terms for 0.6%; 4 terms for 1%, docs/brdf.md)
 RETRO_LOBE_TOLERANCE = 1e-2
+# ... and for the iterative inversion's reconstructions ("auto" brdf_terms, at least the
+# lobe's own): the terms past it change the reconstructions measured by less than half the
+# photons do (docs/brdf.md, "Cost and reading against K"); the operator's default stays
+# LOBE_TOLERANCE (its checks against the renderer, the lobe search's scores)
+INVERSION_LOBE_TOLERANCE = 0.1
+# ... and for the candidates the lobe search of brdf "auto" scores (clnlos.inverse.brdf_choice):
+# between the two, their scores compare models, and with the inversion's one retroreflective
+# term that lobe won a white plate's held-out score
+SEARCH_LOBE_TOLERANCE = 0.03
 MAX_TERMS = 12            # terms of (3) at most
 CELL_SAMPLES_PER_WIDTH = 3.0  # sub-samples of a cell per lobe width (1): the lobe resolved
 MAX_CELL_SAMPLES = 24     # per axis
@@ -292,15 +301,20 @@ class SeparableLobe:
 
 
 def separable_terms(G: np.ndarray, depths_m, pitch_m: float, *, name: str = "",
-                    tolerance: float = LOBE_TOLERANCE, terms: int | None = None
-                    ) -> SeparableLobe:
+                    tolerance: float = LOBE_TOLERANCE, terms: int | None = None,
+                    depth_extent=None) -> SeparableLobe:
     """The fewest terms of (3) whose error on G is under ``tolerance`` (or exactly ``terms``),
     error weighted by the Lambertian response's importance (z / r)^8 through its best
-    separable (rank-one) factor w1(z) w2(d): the SVD of w1 G w2, divided back."""
+    separable (rank-one) factor w1(z) w2(d): the SVD of w1 G w2, divided back. Each row
+    (depth) counts in the error by its ``depth_extent`` (the depth its bin spans, any unit;
+    default 1 each: equal depth bins), so rows sampled unevenly in depth (the light cone's
+    u = z^2 grid) weigh as the depths they stand for."""
     nz, ny, nx = G.shape
     z = np.maximum(np.asarray(depths_m, np.float64), 1e-9)
     d2 = ((np.arange(ny)[:, None] * pitch_m) ** 2 + (np.arange(nx)[None, :] * pitch_m) ** 2)
     W = (z[:, None] ** 2 / (z[:, None] ** 2 + d2.ravel()[None, :])) ** 4
+    if depth_extent is not None:
+        W = W * np.sqrt(np.asarray(depth_extent, np.float64))[:, None]
     uw, sw, vw = np.linalg.svd(W, full_matrices=False)
     w1 = np.abs(uw[:, 0]) * math.sqrt(sw[0]) + 1e-300
     w2 = np.abs(vw[0]) * math.sqrt(sw[0]) + 1e-300

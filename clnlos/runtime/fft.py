@@ -59,7 +59,11 @@ def _workers() -> int:
 def _pocketfft():
     """scipy's pocketfft binding, whose r2c/c2r write into a given array (scipy.fft's public
     functions do not take ``out=``: their result is a 270 MB temporary at 128 x 128 x 512,
-    then copied); None when this scipy does not have it (the public functions are used)."""
+    then copied); None when this scipy does not have it (the public functions are used).
+
+    Where the binding is there, its errors propagate: the pruned transforms write part of
+    their output (and :func:`_c2r_pruned` overwrites its input) before a later pass could
+    fail, so no fallback could start again from what they were given."""
     try:
         from scipy.fft._pocketfft import pypocketfft as pp
     except ImportError:
@@ -67,26 +71,38 @@ def _pocketfft():
     return pp if hasattr(pp, "r2c") and hasattr(pp, "c2r") else None
 
 
-def _r2c_pruned(pp, x: np.ndarray, out: np.ndarray, n0: int, n1: int) -> None:
-    """rfftn of x that is zero outside x[:n0, :n1]: the transform along x only on the rows
-    that hold data, along y only on the planes that do, along t everywhere (a zero-padded
-    grid with data in its 1/8 costs about 0.58 of the full transform)."""
+def _lateral_forward(pp, x: np.ndarray, out: np.ndarray, n0: int, n1: int) -> None:
+    """out[:n0] <- the 2D rfft over (y, x) of the planes x[:n0] that are zero outside
+    x[:n0, :n1] (along x only on the rows that hold data, along y on the n0 planes)."""
     w = _workers()
     pp.r2c(x[:n0, :n1], (2,), True, 0, out[:n0, :n1], w)
     out[:n0, n1:] = 0
     pp.c2c(out[:n0], (1,), True, 0, out[:n0], w)
+
+
+def _lateral_inverse(pp, s: np.ndarray, n2: int, out: np.ndarray, n0: int, n1: int) -> None:
+    """out[:n0, :n1] <- the 2D irfft over (y, x) of the planes s[:n0] (divided by n1' n2,
+    s[:n0] overwritten), computed for the rows out[:n0, :n1] only."""
+    w = _workers()
+    pp.c2c(s[:n0], (1,), False, 2, s[:n0], w)
+    pp.c2r(s[:n0, :n1], (2,), n2, False, 2, out[:n0, :n1], w)
+
+
+def _r2c_pruned(pp, x: np.ndarray, out: np.ndarray, n0: int, n1: int) -> None:
+    """rfftn of x that is zero outside x[:n0, :n1]: the transform along x only on the rows
+    that hold data, along y only on the planes that do, along t everywhere (a zero-padded
+    grid with data in its 1/8 costs about 0.58 of the full transform)."""
+    _lateral_forward(pp, x, out, n0, n1)
     out[n0:] = 0
-    pp.c2c(out, (0,), True, 0, out, w)
+    pp.c2c(out, (0,), True, 0, out, _workers())
 
 
 def _c2r_pruned(pp, s: np.ndarray, n2: int, out: np.ndarray, n0: int, n1: int) -> None:
     """out[:n0, :n1] <- irfftn(s)[:n0, :n1] (s overwritten; the rest of ``out`` untouched):
     the inverse along t everywhere, along y only on the planes kept, along x only on the
     rows kept."""
-    w = _workers()
-    pp.c2c(s, (0,), False, 2, s, w)
-    pp.c2c(s[:n0], (1,), False, 2, s[:n0], w)
-    pp.c2r(s[:n0, :n1], (2,), n2, False, 2, out[:n0, :n1], w)
+    pp.c2c(s, (0,), False, 2, s, _workers())
+    _lateral_inverse(pp, s, n2, out, n0, n1)
 
 
 def _block(shape, block) -> tuple[int, int] | None:
@@ -104,16 +120,12 @@ def host_rfftn(x: np.ndarray, out: np.ndarray, nonzero=None) -> None:
     the transform skips the lines that are zero (:func:`_r2c_pruned`)."""
     pp = _pocketfft()
     block = _block(x.shape, nonzero)
-    if pp is not None:
-        try:
-            if block is None:
-                pp.r2c(x, (0, 1, 2), True, 0, out, _workers())
-            else:
-                _r2c_pruned(pp, x, out, *block)
-            return
-        except TypeError:
-            pass
-    out[...] = sfft.rfftn(x, workers=_workers())
+    if pp is None:
+        out[...] = sfft.rfftn(x, workers=_workers())
+    elif block is None:
+        pp.r2c(x, (0, 1, 2), True, 0, out, _workers())
+    else:
+        _r2c_pruned(pp, x, out, *block)
 
 
 def host_irfftn(s: np.ndarray, shape, out: np.ndarray, needed=None) -> None:
@@ -123,16 +135,12 @@ def host_irfftn(s: np.ndarray, shape, out: np.ndarray, needed=None) -> None:
     block is computed and written (:func:`_c2r_pruned`); ``s`` is then overwritten."""
     pp = _pocketfft()
     block = _block(shape, needed)
-    if pp is not None:
-        try:
-            if block is None:
-                pp.c2r(s, (0, 1, 2), int(shape[-1]), False, 2, out, _workers())
-            else:
-                _c2r_pruned(pp, s, int(shape[-1]), out, *block)
-            return
-        except TypeError:
-            pass
-    out[...] = sfft.irfftn(s, s=shape, axes=(0, 1, 2), workers=_workers())
+    if pp is None:
+        out[...] = sfft.irfftn(s, s=shape, axes=(0, 1, 2), workers=_workers())
+    elif block is None:
+        pp.c2r(s, (0, 1, 2), int(shape[-1]), False, 2, out, _workers())
+    else:
+        _c2r_pruned(pp, s, int(shape[-1]), out, *block)
 
 
 def host_fftn_inplace(a: np.ndarray, forward: bool, block=None) -> None:
@@ -142,15 +150,12 @@ def host_fftn_inplace(a: np.ndarray, forward: bool, block=None) -> None:
     pp = _pocketfft()
     b = _block(a.shape, block)
     if pp is not None and b is not None:
-        try:
-            w, norm = _workers(), 0 if forward else 2
-            n0, n1 = b
-            passes = [(2, a[:n0, :n1]), (1, a[:n0]), (0, a)]  # the forward order
-            for axis, v in (passes if forward else passes[::-1]):
-                pp.c2c(v, (axis,), forward, norm, v, w)
-            return
-        except TypeError:
-            pass
+        w, norm = _workers(), 0 if forward else 2
+        n0, n1 = b
+        passes = [(2, a[:n0, :n1]), (1, a[:n0]), (0, a)]  # the forward order
+        for axis, v in (passes if forward else passes[::-1]):
+            pp.c2c(v, (axis,), forward, norm, v, w)
+        return
     f = sfft.fftn if forward else sfft.ifftn
     _store(a, f(a, workers=_workers(), overwrite_x=True))
 
@@ -161,13 +166,10 @@ LOW_ROWS_BLOCK = 1 << 22  # complex values per block of the zero-padded pass alo
 def _c2c_inverse(v: np.ndarray, axis: int) -> None:
     """v <- ifft(v) along ``axis`` (divided by its length), in place where the binding allows."""
     pp = _pocketfft()
-    if pp is not None:
-        try:
-            pp.c2c(v, (axis,), False, 2, v, _workers())
-            return
-        except TypeError:
-            pass
-    v[...] = sfft.ifft(v, axis=axis, workers=_workers())
+    if pp is None:
+        v[...] = sfft.ifft(v, axis=axis, workers=_workers())
+    else:
+        pp.c2c(v, (axis,), False, 2, v, _workers())
 
 
 def host_ifftn_low_rows(a: np.ndarray, n0: int, needed) -> None:
@@ -238,6 +240,52 @@ class RealFFT3:
         else:
             with host_view(s_g) as s, host_view(out_g, write=True, read=False) as out:
                 host_irfftn(s, self.shape, out, needed)
+        return out_g
+
+
+    @property
+    def split_axes(self) -> bool:
+        """Whether the plan transforms the lateral axes and the time axis apart
+        (:meth:`forward_lateral`, :meth:`time_pass`, :meth:`inverse_lateral`): the host FFT
+        (pocketfft along one axis at a time); a VkFFT plan is the whole 3D transform."""
+        return self._app is None and _pocketfft() is not None
+
+    def _split_host(self, what: str):
+        if self._app is not None:
+            raise ValueError(f"{what} on a VkFFT plan of {self.shape}: the split transforms "
+                             "are the host FFT's (split_axes)")
+        pp = _pocketfft()
+        if pp is None:
+            raise ValueError(f"{what} needs scipy's pocketfft binding (scipy.fft._pocketfft)")
+        return pp
+
+    def forward_lateral(self, x_g: cla.Array, out_g: cla.Array, *, rows: int,
+                        nonzero_y: int) -> cla.Array:
+        """out[:rows] <- the 2D half spectrum over (y, x) of the planes x[:rows] (x real of
+        the plan's shape, zero outside x[:rows, :nonzero_y]; ``out_g`` complex, at least
+        ``rows`` planes of (n1, n2 // 2 + 1)): the first two passes of :meth:`forward`."""
+        pp = self._split_host("forward_lateral")
+        keep = out_g.shape[0] > rows  # planes past ``rows`` kept; else all of it written
+        with host_view(x_g) as x, host_view(out_g, write=True, read=keep) as out:
+            _lateral_forward(pp, x, out, int(rows), int(nonzero_y))
+        return out_g
+
+    def time_pass(self, s_g: cla.Array, *, inverse: bool) -> cla.Array:
+        """s <- its FFT along t (the first axis; the inverse divided by n0), in place, on a
+        half-spectrum array of the plan's spectrum shape: the last pass of :meth:`forward`,
+        the first of :meth:`inverse`."""
+        pp = self._split_host("time_pass")
+        with host_view(s_g, write=True) as s:
+            pp.c2c(s, (0,), not inverse, 2 if inverse else 0, s, _workers())
+        return s_g
+
+    def inverse_lateral(self, s_g: cla.Array, out_g: cla.Array, *, rows: int,
+                        needed_y: int) -> cla.Array:
+        """out[:rows, :needed_y] <- the 2D inverse over (y, x) of the planes s[:rows]
+        (divided by n1 n2; s overwritten there): the last two passes of :meth:`inverse`."""
+        pp = self._split_host("inverse_lateral")
+        with host_view(s_g, write=True) as s, host_view(out_g, write=True) as out:
+            _lateral_inverse(pp, s, self.shape[2], out, int(rows), int(needed_y))
         return out_g
 
 
