@@ -64,7 +64,7 @@ from clnlos.errors import ParameterError
 from clnlos.io.files import atomic_path
 from clnlos.io.outputs import stamp
 from clnlos.io.progress import counter, progress_bar
-from clnlos.study.score.clarity import label_thresholds
+from clnlos.study.score.clarity import label_thresholds, truth_thresholds
 from clnlos.study.samples.render import cpu_workers
 from clnlos.study.findings.summary import (  # noqa: F401 (the names past make_findings: re-exported)
     GAP_CLOSED,
@@ -224,6 +224,14 @@ def run_study(out_dir: Path, opts: StudyOptions, *, workers: int | None = None,
                                 if m["seed_label"] is not None) for g in geometries}
     cnn_agreement = sum(m["cnn_label"] == m["seed_label"] for m in per_material
                         if m["seed_label"] is not None)
+    # labels cut at the seed's split agree with its labels' mix by construction: the same
+    # agreement with cuts fitted to the study's own ground truth instead
+    truth_cut = None if label_metric == "identification" else truth_thresholds(
+        values[label_metric], [results[i]["legibility"] for i in glyph_idx])
+    truth_agreement = None if truth_cut is None else {
+        g["name"]: sum(label_of(m["label_metric_value"], truth_cut) == m["seed_label"]
+                       for m in g["materials"] if m["seed_label"] is not None)
+        for g in geometries}
 
     # -- sweeps
     legibility_rows = sweep_rows(plan, results, "legibility_sweep", chance)
@@ -295,6 +303,8 @@ def run_study(out_dir: Path, opts: StudyOptions, *, workers: int | None = None,
         "seed_figure9_agreement": int(agreement[LEGIBLE_GEOMETRY]),
         "seed_figure9_agreement_by_geometry": agreement,
         "seed_figure9_agreement_cnn": int(cnn_agreement),
+        "seed_figure9_agreement_truth_cut": truth_agreement,
+        "label_thresholds_truth_cut": None if truth_cut is None else list(truth_cut),
         "sweeps": geometry_rows,
         "dataset": {"n": len(results), "iou_median": float(np.median(ious)),
                     "iou_histogram": {"edges": edges.tolist(), "counts": hist.tolist()},
