@@ -44,11 +44,12 @@ from clnlos.io.formats.mat import lct_rect_data
 from clnlos.io.outputs import provenance
 from clnlos.runtime.device import get_queue
 from clnlos.runtime.programs import code_digest, kernel_families
-from clnlos.study.judge.apply import SHIPPED_JUDGE
+from clnlos.study.judge.apply import SHIPPED_JUDGE, judge_from
 from clnlos.study.judge.features import (
     NOISE_CAPTURE_FEATURES,
     NOISE_MIP_FEATURES,
     capture_features,
+    feature_matrix,
     mip_features,
     mip_of,
     pearson_r,
@@ -77,7 +78,7 @@ BOOTSTRAP = 40          # bootstrap refits kept in the judge (its interval)
 # (clnlos.study.judge.model.JudgeModel.fit, clnlos.study.judge.features)
 MODELS = {"capture_features": NOISE_CAPTURE_FEATURES, "volume_features": NOISE_MIP_FEATURES,
           "even_odds": True}
-PER_KIND = 60           # twins per target kind
+PER_KIND = 70           # twins per target kind
 MOCK_FRACTIONS = (1.0, 0.1, 0.01, 1e-3, 1e-4, 1e-5)
 LABEL = ("legible: the rung's reconstruction agrees with its twin's full-photon one (Pearson "
          "r >= 0.8 of the MIPs) where that one shows the target (glyphs and charts: the "
@@ -272,12 +273,13 @@ def judged(path: Path, options: list[str]) -> dict:
     return json.loads(out.strip().splitlines()[-1])
 
 
-def mock_releases(folder: Path, device=None) -> list[dict]:
+def mock_releases(folder: Path, device=None, model: Path | None = None) -> list[dict]:
     """Every mock's ladder through the command line: the capture file judged, its default
     reconstruction (``clnlos reconstruct``) judged, the full capture judged again under the
     name of a shared capture; the reference: the default reconstruction's MIP against the
-    full-photon one's."""
+    full-photon one's. ``model``: another judge (``--model``) instead of the shipped one."""
     rows = []
+    judge_opts = [] if model is None else ["--model", str(model)]
     for m in MOCKS:
         e = mock_entry(m)
         t0 = time.perf_counter()
@@ -288,7 +290,7 @@ def mock_releases(folder: Path, device=None) -> list[dict]:
                         strict=True):
             path = folder / f"{e['name']}_{f:g}.mat"
             write_mock(c, e, path)
-            cap = judged(path, opts)
+            cap = judged(path, opts + judge_opts)
             vol = folder / f"{e['name']}_{f:g}.h5"
             rc, _ = run_cli(["reconstruct", str(path), "-o", str(vol), *opts, "--force"])
             if rc:
@@ -297,7 +299,7 @@ def mock_releases(folder: Path, device=None) -> list[dict]:
                 mip = mip_of(h["volume"][()])
             first = mip if first is None else first
             agree = pearson_r(mip, first)
-            v = judged(vol, [])
+            v = judged(vol, judge_opts)
             row = {"mock": e["name"], "layout": e["layout"], "target": target,
                    "fraction": f, "photons": float(c.sum()), "p_capture": cap["p_legible"],
                    "interval_capture": cap["interval"], "notes_capture": cap["notes"],
@@ -307,7 +309,7 @@ def mock_releases(folder: Path, device=None) -> list[dict]:
             if f == 1.0:  # the same file under a shared capture's name
                 renamed = folder / "letters_ut.mat"
                 shutil.copy(path, renamed)
-                row["p_capture_renamed"] = judged(renamed, opts)["p_legible"]
+                row["p_capture_renamed"] = judged(renamed, opts + judge_opts)["p_legible"]
             rows.append(row)
         print(f"mock {e['name']}: {time.perf_counter() - t0:.0f} s", flush=True)
     return rows
@@ -357,6 +359,33 @@ def loco(rows: list[dict], views: list[dict], seed: int) -> dict:
                               "p_default": [r["p_default"] for r in got],
                               "reference": [r["reference"] for r in got],
                               "reference_default": [r["reference_default"] for r in got]}
+    return out
+
+
+# ------------------------------------------------------------------ another judge
+def compare(other, rows: list[dict], views: list[dict], mocks: bool) -> dict:
+    """Another judge (a study's judge.json: the one before the shipped judge) on the same
+    twins (every decided rung; it saw none of them), real ladders and mock releases."""
+    base = [r for r in rows if r["legible"] is not None and r.get("view") != "ramp"]
+    out = {"source": other.info.get("source"), "twins": {}}
+    for name, sel in (("capture", [r for r in base if not r.get("volume_only")]),
+                      ("volume", base)):
+        model = other.model(name)
+        y = np.array([bool(r["legible"]) for r in sel])
+        p = model.predict_proba(feature_matrix([r["features"] for r in sel], model.features))
+        out["twins"][name] = {"all": balanced_accuracy(y, p >= 0.5), "by_kind": {
+            k: balanced_accuracy(y[[r["kind"] == k for r in sel]],
+                                 p[[r["kind"] == k for r in sel]] >= 0.5)
+            for k in dict.fromkeys(r["kind"] for r in sel)}}
+    if views:
+        real_rows, scores, scores_default = real_scores(views, other)
+        out["real"] = {"rows": [{k: v for k, v in r.items() if not k.startswith("mip")}
+                                for r in real_rows],
+                       "capture": scores, "default_volume": scores_default}
+    if mocks:
+        with tempfile.TemporaryDirectory() as d:
+            got = mock_releases(Path(d), model=Path(other.info["source"]))
+        out["mocks"] = [{k: v for k, v in r.items() if k != "mip"} for r in got]
     return out
 
 
@@ -441,6 +470,9 @@ def main(argv=None) -> int:
     ap.add_argument("--figures", type=Path, default=ROOT / "tools" / "results")
     ap.add_argument("--render-only", action="store_true")
     ap.add_argument("--no-mocks", action="store_true")
+    ap.add_argument("--compare", type=Path, default=None,
+                    help="another judge (a study folder or its judge.json) measured on the "
+                         "same twins, real ladders and mocks (results' \"compare\")")
     args = ap.parse_args(argv)
     t0 = time.process_time()
     plan = broad_plan(args.per_kind, seed=args.seed)
@@ -480,6 +512,8 @@ def main(argv=None) -> int:
         with tempfile.TemporaryDirectory() as d:
             mocks = mock_releases(Path(d))
         result["mocks"] = [{k: v for k, v in r.items() if k != "mip"} for r in mocks]
+    if args.compare is not None:
+        result["compare"] = compare(judge_from(args.compare), rows, views, not args.no_mocks)
     save_figure(twins_figure(plan, rows), args.figures / "legibility_twins.png")
     args.out.parent.mkdir(parents=True, exist_ok=True)
     args.out.with_suffix(".json").write_text(json.dumps(result, indent=1, default=float))
