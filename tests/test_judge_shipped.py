@@ -16,6 +16,7 @@ from scipy import ndimage
 
 import clnlos
 from clnlos.app.cli import main
+from clnlos.errors import InputFileError
 from clnlos.forward.scene import Scene
 from clnlos.io.files import read_capture, write_h5
 from clnlos.study.judge.apply import SHIPPED_JUDGE, shipped_judge
@@ -239,6 +240,11 @@ def test_no_file_name_decides_anything(tmp_path, queue):
     assert p[0].p_legible == p[1].p_legible and p[0].features == p[1].features
     assert p[0].descriptors["scan_width_m"] == 0.6
     assert main(["legibility", str(paths[0]), "--json"]) == 2   # one error line, exit 2
+    # a capture of anything but photon counts (a simulation without a [detector]): no
+    # photons to split into halves, one error naming the way out
+    with pytest.raises(InputFileError, match="photon counts.*its reconstruction"):
+        clnlos.legibility(replace(cap, transient=np.asarray(cap.transient) * 0.5 + 0.25),
+                          device=queue)
 
 
 def test_the_shipped_judge_on_a_real_capture_and_its_ladder(shared_data, queue):

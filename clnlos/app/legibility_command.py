@@ -53,7 +53,8 @@ def legibility_arguments(g, add_device) -> None:
                         "descriptors, features")
     from_file = "(default: from the capture file, else the config's [capture])"
     g.add_argument("--config", help="a reconstruction TOML: the capture's geometry, window "
-                   "and slab are taken from it (the judge's own method and SNR rule run)")
+                   "and slab are taken from it, the judge's own method and SNR rule run "
+                   "(default: none, what the capture file records)")
     g.add_argument("--scan-width", type=float, help=f"side of the scanned area along x (m) "
                    f"{from_file}")
     g.add_argument("--bin-width", type=float, help=f"histogram bin width (s) {from_file}")

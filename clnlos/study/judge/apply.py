@@ -14,9 +14,10 @@ judged by the MIP-only model, its MIP averaged to the recipe's grid
 :func:`clnlos.io.files.read_capture` reads, or a :class:`~clnlos.io.capture.Capture`) is
 reconstructed with the judge's recipe (:func:`clnlos.study.judge.recipe.judge_config`: the
 file's contents and the user's options, never its name) together with two binomial halves
-of its photons and judged by the capture model (its counts are rounded to whole photons for
-the split). Every verdict carries P's interval and the notes of what lies outside the
-judge's training domain (:mod:`clnlos.study.judge.domain`).
+of its photons and judged by the capture model (a capture of anything but photon counts is
+an error naming the way out: judge its reconstruction). Every verdict carries P's interval
+and the notes of what lies outside the judge's training domain
+(:mod:`clnlos.study.judge.domain`).
 """
 
 from __future__ import annotations
@@ -32,6 +33,7 @@ import numpy as np
 
 from clnlos.config import ReconstructionConfig, load_toml, slab_from_table
 from clnlos.errors import InputFileError, ParameterError
+from clnlos.inverse.snr import is_counts
 from clnlos.io.capture import Capture
 from clnlos.io.files import read_capture, read_volume
 from clnlos.runtime.device import get_queue
@@ -147,10 +149,14 @@ def judge_capture(capture: Capture, judge: Judge, source: str = "capture",
                   device=None) -> Verdict:
     """The capture model's verdict on a capture (reconstructed with the judge's recipe,
     ``options`` the user's)."""
+    if not is_counts(capture.transient):
+        raise InputFileError(
+            f"{source}: the judge splits a capture's photons into two halves, and this one "
+            "holds no photon counts (values that are not whole numbers: a simulation without "
+            "a [detector]?); judge its reconstruction (a volume .h5) instead")
     capture = binned_laterally(capture, judge.recipe.get("max_points", JUDGE_MAX_POINTS))
     cfg = judge_config(capture, options, judge.recipe, no_slab=no_slab)
-    counts = np.rint(np.clip(np.asarray(capture.transient, np.float64), 0, None))
-    counted = replace(capture, transient=counts.astype(np.float32))
+    counted = replace(capture, transient=np.asarray(capture.transient, np.float32))
     full, h1, h2 = judge_reconstructions(counted, cfg, get_queue(device))
     f = capture_features(full, h1, h2)
     d = capture_descriptors(counted, cfg)
