@@ -7,7 +7,7 @@ The Python API (:mod:`clnlos.api`, the functions the CLI calls)::
     rec = clnlos.reconstruct(capture, method="lct")  # the recorded slab is deconvolved
     clnlos.plot_volume(rec)                          # matplotlib axes
     clnlos.study.run("out/study")                    # the material study
-    clnlos.legibility("x.mat", model="out/study").p_legible  # its judge on any capture
+    clnlos.legibility("x.mat").p_legible             # the shipped judge (model=: a study's)
 
 The packages follow the physics (docs/architecture.md): :mod:`clnlos.physics` (pure slab,
 grid and light-cone physics), :mod:`clnlos.diffusion` (the slab transmittance, stage 1),

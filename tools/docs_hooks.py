@@ -46,7 +46,7 @@ ROOT = Path(__file__).resolve().parents[1]
 PLACEHOLDER = re.compile(r"\{\{\s*(const|list|falloff|generated|source|oracle):([\w./\-]+)\s*\}\}")
 RESULT_FIGURES = ("slab_calibration.png", "real_cdt_defaults.png", "lct_release_check.png",
                   "lct_release_check_lct.png",
-                  "real_materials.png")
+                  "real_materials.png", "legibility_real_ladders.png", "legibility_twins.png")
 # executed example (docs/examples/NAME.py) -> whether it needs ../shared/data
 EXAMPLES = {"demo_round_trip": False, "ytal_round_trip": False, "real_cdt": True,
             "brdf_texture": True}

@@ -97,6 +97,17 @@ ENTRIES: tuple[tuple[str, str, str, str], ...] = (
      "taken (issue 40); the current numbers are in the study's results.json"),
     ("legibility_thinning_real.png", "clnlos study --quick --real-data ../shared/data (at "
      "bf147bd)", "superseded", "the thinned real captures' MIPs with P(legible) (issue 40)"),
+    ("train_judge.json", "python tools/train_judge.py --real-data ../shared/data --compare "
+     "JUDGE (JUDGE: the judge.json of clnlos study --quick --real-data ../shared/data at "
+     "b75462e)", "current",
+     "the shipped legibility judge's training set, held-out splits, real ladders, leave-one-"
+     "capture-out, mock releases, and the judge before it on the same (docs/validation/"
+     "legibility-judge.md; the judge itself: clnlos/data/legibility_judge.json)"),
+    ("legibility_real_ladders.png", "python tools/train_judge.py --real-data ../shared/data",
+     "current", "every real capture's thinning ladder: its reconstructions and P(legible) as "
+     "a capture and as the default LCT volume (docs/validation/legibility-judge.md)"),
+    ("legibility_twins.png", "python tools/train_judge.py --real-data ../shared/data",
+     "current", "twins of every kind down their ladders, labelled"),
     ("brdf_operator_check.*", "python tools/brdf_operator_check.py", "current",
      "the BRDF-aware inversion's operator against simulate (docs/brdf.md)"),
     ("brdf_evaluate.*", "clnlos brdf evaluate ../shared/data/brdf -o tools/results/"

@@ -61,7 +61,7 @@ def scores(path: Path) -> list[dict]:
     from clnlos.io.capture import without_direct
     from clnlos.io.files import read_capture
     from clnlos.runtime.device import get_queue
-    from clnlos.study.judge.real import binned_laterally
+    from clnlos.study.judge.recipe import binned_laterally
 
     cap, _ = without_direct(binned_laterally(read_capture(path), SCAN_POINTS))
     bins = round(cap.transient.shape[0] * cap.bin_width_s / BIN_WIDTH_S)

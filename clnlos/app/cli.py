@@ -42,7 +42,8 @@ COMMANDS = {
              "fit, tabulate and plot BRDF models"),
     "study": ("clnlos.app.study_command", "study_arguments", "the material study (main job)"),
     "legibility": ("clnlos.app.legibility_command", "legibility_arguments",
-                   "P(legible) of captures or reconstructions by a study's trained judge"),
+                   "P(legible) [interval] of captures or reconstructions by the judge "
+                   "shipped with clnlos (or a study's: --model)"),
     "bench": ("clnlos.app.bench_command", "bench_arguments",
               "accuracy versus time of every kernel knob (bench.json, bench.html)"),
 }

@@ -27,7 +27,7 @@ import numpy as np
 import pyopencl.array as cla
 
 from clnlos.physics.constants import C0
-from clnlos.bench.harness import timed_once, timeit
+from clnlos.bench.harness import timed_once
 from clnlos.brdf.lobes import AUTO, LAMBERTIAN, ladder_lobe, retro_lobe
 from clnlos.config import ReconstructionConfig
 from clnlos.forward.bistatic import face_quadrature

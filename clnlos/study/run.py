@@ -60,13 +60,14 @@ from clnlos.study.samples.identify import (
     TILT_MAX_SHIFT_M,
     chance_of,
     identification_of,
+    label_of,
     render_plan,
     study_resolution,
 )
 from clnlos.study.samples.materials import prepare_materials
 from clnlos.study.samples.render import cpu_workers, sample_pool
 from clnlos.study.samples.resolution import json_ready
-from clnlos.study.score.clarity import label_thresholds
+from clnlos.study.score.clarity import label_thresholds, truth_thresholds
 from clnlos.study.score.quality import METRICS, pearson, validate_metrics
 from clnlos.study.sections import (
     cnn_samples,
@@ -166,6 +167,14 @@ def table_part(study: Study, mats, plan, results, resolution, lateral, out_dir: 
                                 if m["seed_label"] is not None) for g in geometries}
     cnn_agreement = sum(m["cnn_label"] == m["seed_label"] for m in per_material
                         if m["seed_label"] is not None)
+    # labels cut at the seed's split agree with its labels' mix by construction: the same
+    # agreement with cuts fitted to the study's own ground truth instead
+    truth_cut = None if label_metric == "identification" else truth_thresholds(
+        values[label_metric], [results[i]["legibility"] for i in glyph_idx])
+    truth_agreement = None if truth_cut is None else {
+        g["name"]: sum(label_of(m["label_metric_value"], truth_cut) == m["seed_label"]
+                       for m in g["materials"] if m["seed_label"] is not None)
+        for g in geometries}
 
     t0 = time.perf_counter()
     cdt = real_capture_dir(study.real_data) if legibility is not None else None
@@ -182,7 +191,8 @@ def table_part(study: Study, mats, plan, results, resolution, lateral, out_dir: 
             "fft_thresholds": fft_thresholds, "comparison": comparison,
             "classifier": classifier, "judge": judge, "seed_cnn": seed_cnn,
             "labels": labels_arr, "geometries": geometries, "per_material": per_material,
-            "agreement": agreement, "cnn_agreement": cnn_agreement, "real": real, "truth": truth}
+            "agreement": agreement, "cnn_agreement": cnn_agreement, "real": real, "truth": truth,
+            "truth_cut": truth_cut, "truth_agreement": truth_agreement}
 
 
 def _describe(target, scan: float) -> str:
@@ -346,7 +356,10 @@ def table_results(study: Study, table: dict) -> dict:
         "label_counts": {str(k): int((labels == k).sum()) for k in (1, 2, 3)},
         "seed_figure9_agreement": int(table["agreement"][study.table.legible_target]),
         "seed_figure9_agreement_by_geometry": table["agreement"],
-        "seed_figure9_agreement_cnn": int(table["cnn_agreement"])}
+        "seed_figure9_agreement_cnn": int(table["cnn_agreement"]),
+        "seed_figure9_agreement_truth_cut": table["truth_agreement"],
+        "label_thresholds_truth_cut": None if table["truth_cut"] is None
+        else list(table["truth_cut"])}
     comparison = table["comparison"]
     if comparison is not None:
         tc = study.transport

@@ -3,9 +3,12 @@ splits (:mod:`clnlos.study.judge.model`).
 
 Each split is a grouped cross-validation: the reconstructions are grouped by glyph, by
 geometry (scan width, letter height and stroke, depth, slab thickness: :func:`geometry_key`)
-or by material, whole groups are dealt into folds (:func:`group_folds`), and every
-reconstruction is predicted by a model that saw no reconstruction of its group. Reported per
-split, pooled over its folds (every reconstruction tested once):
+or by material (the study's judge, :data:`SPLITS`), or by target kind, by rig (slab or
+none, and the band of the scan width) or by material (the shipped judge,
+:data:`BROAD_SPLITS`; the row keys :data:`SPLIT_KEYS`), whole groups are dealt into folds
+(:func:`group_folds`), and every reconstruction is predicted by a model that saw no
+reconstruction of its group. Reported per split, pooled over its folds (every
+reconstruction tested once):
 
 * balanced accuracy (the mean of the true-positive and true-negative rates; P(legible) >=
   1/2 is "legible"), ROC AUC (Mann-Whitney), the expected calibration error over ECE_BINS
@@ -26,7 +29,11 @@ from scipy.stats import rankdata
 
 from clnlos.physics.slab import CDT_SLAB
 
-SPLITS = ("glyph", "geometry", "material")
+SPLITS = ("glyph", "geometry", "material")        # the study's judge (its glyph twins)
+BROAD_SPLITS = ("kind", "rig", "material")        # the shipped judge (every kind of target)
+# the row key that groups each split (a rig's group: the rig and the band of its scan width)
+SPLIT_KEYS = {"glyph": "glyph", "geometry": "geometry", "kind": "kind", "rig": "rig_group",
+              "material": "material"}
 ECE_BINS = 10
 
 

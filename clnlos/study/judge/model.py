@@ -18,12 +18,24 @@ The model. Features x standardised by the training set's mean and deviation, z, 
 
 (w, b) maximising the class-balanced log likelihood minus JUDGE_L2 |w|^2 / 2 (Newton's
 method), and the intercept then shifted by the training set's log-odds of legible (what
-undoes the balancing; :func:`prior_log_odds`).
+undoes the balancing; :func:`prior_log_odds`) -- or not, for a judge at *even odds*
+(``even_odds``: the shipped one, whose twins' share of legible rungs is set by how many
+rungs of each ladder lie above the cut, not by anything of a user's capture; restored,
+that share moved every verdict towards the twins' majority, and held out by kind the
+model fell below its one-feature baseline: 0.937 against 0.948, at even odds 0.958).
 
-Saved as JSON (:data:`JUDGE_FILE` beside the study's results.json): the feature names, the
-scaler, the weights, the prior and the reconstruction recipe, read back by
-:func:`load_judge` (``clnlos legibility FILE... --model STUDY_DIR``,
-:func:`clnlos.study.legibility_judge.legibility`).
+What it knows (:mod:`clnlos.study.judge.domain`): each model keeps the training domain of
+its features (and, for the capture model, of the captures' descriptors) and its *spread
+models*: bootstrap refits on the training rows resampled by scene and the models of every
+held-out fold; :meth:`Judge.assess` gives P with its interval and one note per way an input
+lies outside the domain.
+
+Saved as JSON (:data:`JUDGE_FILE` beside the study's results.json; the shipped judge:
+:mod:`clnlos.study.judge.shipped`): the feature names, the scaler, the weights, the prior,
+the reconstruction recipe, the spread models and the domain, read back by
+:func:`load_judge` (``clnlos legibility FILE... [--model STUDY_DIR]``,
+:func:`clnlos.study.judge.apply.legibility`). A judge of the first format (no spread, no
+domain) still loads; it gives no interval.
 """
 
 from __future__ import annotations
@@ -34,7 +46,15 @@ from pathlib import Path
 
 import numpy as np
 
+from clnlos.study.judge.domain import (
+    descriptor_domain,
+    descriptor_notes,
+    feature_domain,
+    feature_notes,
+    interval,
+)
 from clnlos.study.judge.heldout import (
+    SPLIT_KEYS,
     SPLITS,
     apply_rule,
     balanced_accuracy,
@@ -49,13 +69,17 @@ from clnlos.study.judge.features import (
     capture_features,
     feature_matrix,
     mip_features,
+    mip_of,
+    pooled,
 )
 
 JUDGE_FILE = "judge.json"
-JUDGE_FORMAT = "clnlos-legibility-judge/1"
+JUDGE_FORMAT = "clnlos-legibility-judge/2"
+READABLE_FORMATS = ("clnlos-legibility-judge/1", JUDGE_FORMAT)
 JUDGE_L2 = 1.0           # the weights' Gaussian prior: penalty JUDGE_L2 |w|^2 / 2
 NEWTON_STEPS = 50
-JUDGE_FOLDS = {"glyph": 4, "geometry": 5, "material": 3}
+JUDGE_FOLDS = {"glyph": 4, "geometry": 5, "material": 3, "kind": 7, "rig": 5}
+MODELS = ("capture", "volume")
 
 
 def prior_log_odds(y) -> float:
@@ -105,12 +129,14 @@ class JudgeModel:
     log_odds: float
 
     @classmethod
-    def fit(cls, X: np.ndarray, y, features) -> JudgeModel:
+    def fit(cls, X: np.ndarray, y, features, l2: float = JUDGE_L2,
+            even_odds: bool = False) -> JudgeModel:
         X = np.asarray(X, np.float64)
         mean, scale = X.mean(axis=0), X.std(axis=0)
         scale = np.where(scale > 0, scale, 1.0)
-        w, b = fit_logistic((X - mean) / scale, y, class_balanced_weights(y))
-        return cls(tuple(features), mean, scale, w, b, prior_log_odds(y))
+        w, b = fit_logistic((X - mean) / scale, y, class_balanced_weights(y), l2)
+        return cls(tuple(features), mean, scale, w, b,
+                   0.0 if even_odds else prior_log_odds(y))
 
     def logit(self, X: np.ndarray) -> np.ndarray:
         z = (np.asarray(X, np.float64).reshape(-1, len(self.features)) - self.mean) / self.scale
@@ -122,7 +148,8 @@ class JudgeModel:
     def state(self) -> dict:
         return {"features": list(self.features), "mean": self.mean.tolist(),
                 "scale": self.scale.tolist(), "weights": self.weights.tolist(),
-                "bias": self.bias, "log_odds": self.log_odds, "model": "sigmoid(w . (x - mean) / scale + bias + log_odds)"}
+                "bias": self.bias, "log_odds": self.log_odds,
+                "model": "sigmoid(w . (x - mean) / scale + bias + log_odds)"}
 
     @classmethod
     def from_state(cls, s: dict) -> JudgeModel:
@@ -132,17 +159,39 @@ class JudgeModel:
 
 
 @dataclass
+class Assessment:
+    """P(legible) of one input by one model, its interval [lo, hi] (None where the judge
+    keeps no spread models) and the notes of what lies outside the judge's domain."""
+
+    p: float
+    interval: list[float] | None
+    notes: list[str]
+
+    @property
+    def outside(self) -> bool:
+        return bool(self.notes)
+
+
+@dataclass
 class Judge:
-    """The two models and how the capture model's reconstructions are made."""
+    """The two models and how the capture model's reconstructions are made; per model
+    (``capture``, ``volume``) its ``spread`` models (``{"bootstrap": [...], "held_out":
+    [...]}``) and its ``domain`` (``{"features": ..., "descriptors": ...}``)."""
 
     capture: JudgeModel
     volume: JudgeModel
     recipe: dict
     info: dict = field(default_factory=dict)
+    spread: dict = field(default_factory=dict)
+    domain: dict = field(default_factory=dict)
+
+    def model(self, name: str) -> JudgeModel:
+        return self.capture if name == "capture" else self.volume
 
     def volume_proba(self, volumes) -> np.ndarray:
-        """P(legible) of each volume [z, y, x] or MIP [y, x] (the MIP-only model)."""
-        rows = [mip_features(v) for v in volumes]
+        """P(legible) of each volume [z, y, x] or MIP [y, x] (the MIP-only model, the MIP
+        averaged to at most POOLED_POINTS a side: :func:`clnlos.study.judge.features.pooled`)."""
+        rows = [mip_features(pooled(mip_of(v))) for v in volumes]
         return self.volume.predict_proba(feature_matrix(rows, self.volume.features))
 
     def predict_proba(self, images) -> np.ndarray:
@@ -154,16 +203,40 @@ class Judge:
         f = capture_features(full, half1, half2)
         return float(self.capture.predict_proba(feature_matrix([f], self.capture.features))[0])
 
+    def assess(self, name: str, features: dict, descriptors: dict | None = None
+               ) -> Assessment:
+        """P of the ``name`` model ("capture" or "volume") from its ``features``, its
+        interval and the notes of what lies outside its domain (``descriptors``: of a
+        capture, :data:`clnlos.study.judge.domain.DESCRIPTORS`)."""
+        m = self.model(name)
+        x = feature_matrix([features], m.features)[0]
+        dom = self.domain.get(name, {})
+        notes = descriptor_notes(descriptors or {}, dom.get("descriptors", {}))
+        if "features" in dom:
+            notes += feature_notes(x, dom["features"])
+        spread = self.spread.get(name, {})
+        return Assessment(float(m.predict_proba(x)[0]),
+                          interval(x, spread.get("bootstrap", []), spread.get("held_out", []),
+                                   dom.get("features"), bool(notes)), notes)
+
     def to_json(self) -> dict:
-        return {"format": JUDGE_FORMAT, "capture": self.capture.state(),
-                "volume": self.volume.state(), "recipe": self.recipe, **self.info}
+        out = {"format": JUDGE_FORMAT, "capture": self.capture.state(),
+               "volume": self.volume.state(), "recipe": self.recipe, **self.info}
+        if self.spread:
+            out["spread"] = {k: {kind: [m.state() for m in ms] for kind, ms in v.items()}
+                             for k, v in self.spread.items()}
+        if self.domain:
+            out["domain"] = self.domain
+        return out
 
     @classmethod
     def from_json(cls, d: dict) -> Judge:
         info = {k: v for k, v in d.items() if k not in ("format", "capture", "volume",
-                                                        "recipe")}
+                                                        "recipe", "spread", "domain")}
+        spread = {k: {kind: [JudgeModel.from_state(m) for m in ms] for kind, ms in v.items()}
+                  for k, v in d.get("spread", {}).items()}
         return cls(JudgeModel.from_state(d["capture"]), JudgeModel.from_state(d["volume"]),
-                   dict(d["recipe"]), info)
+                   dict(d["recipe"]), info, spread, dict(d.get("domain", {})))
 
 
 def load_judge(path) -> Judge:
@@ -172,18 +245,20 @@ def load_judge(path) -> Judge:
     if p.is_dir():
         p = p / JUDGE_FILE
     d = json.loads(p.read_text())
-    if d.get("format") != JUDGE_FORMAT:
+    if d.get("format") not in READABLE_FORMATS:
         raise ValueError(f"{p}: not a legibility judge ({JUDGE_FORMAT})")
     return Judge.from_json(d)
 
 
 # ------------------------------------------------------------------ held-out validation
 def grouped_validation(X: np.ndarray, y, groups: dict[str, np.ndarray], features,
-                       splits=SPLITS, folds=None, seed: int = 0) -> tuple[dict, dict]:
+                       splits=SPLITS, folds=None, seed: int = 0,
+                       models: list | None = None, l2: float = JUDGE_L2,
+                       even_odds: bool = False) -> tuple[dict, dict]:
     """Grouped cross-validation of the model on (X, y) per split (whole groups held out),
     beside the one-feature baseline (each feature thresholded at its best cut on the
     training folds, the best kept) and the majority class; a split of one group is left
-    out. Returns (results.json
+    out; every fold's model is appended to ``models`` where given. Returns (results.json
     ``classifier.splits``: balanced_accuracy, auc, ece, majority, baseline per split; details:
     n, legible, reliability, the baseline's features, per-fold scores)."""
     folds = dict(JUDGE_FOLDS if folds is None else folds)
@@ -199,7 +274,9 @@ def grouped_validation(X: np.ndarray, y, groups: dict[str, np.ndarray], features
         per = []
         for f in range(int(fold.max()) + 1 if n else 0):
             te = fold == f
-            model = JudgeModel.fit(X[~te], y[~te], features)
+            model = JudgeModel.fit(X[~te], y[~te], features, l2, even_odds)
+            if models is not None:
+                models.append(model)
             p[te] = model.predict_proba(X[te])
             rule = one_feature_rule({k: v[~te] for k, v in feats.items()}, y[~te])
             base[te] = apply_rule(rule, {k: v[te] for k, v in feats.items()})
@@ -220,26 +297,72 @@ def grouped_validation(X: np.ndarray, y, groups: dict[str, np.ndarray], features
     return out, details
 
 
-def twin_arrays(rows: list[dict], features) -> tuple[np.ndarray, np.ndarray, dict]:
-    """(X, y, groups) of twin rows (:func:`clnlos.study.judge.twins.render_twins`)."""
+def twin_arrays(rows: list[dict], features, splits=SPLITS) -> tuple[np.ndarray, np.ndarray,
+                                                                    dict]:
+    """(X, y, groups) of twin rows (:func:`clnlos.study.judge.twins.render_twin`; the groups
+    of each split by its row key, :data:`clnlos.study.judge.heldout.SPLIT_KEYS`)."""
     X = feature_matrix([r["features"] for r in rows], features)
     y = np.array([bool(r["legible"]) for r in rows], bool)
-    groups = {k: np.array([r[k] for r in rows]) for k in ("glyph", "geometry", "material")}
+    groups = {k: np.array([r[SPLIT_KEYS[k]] for r in rows]) for k in splits}
     return X, y, groups
 
 
+def bootstrap_models(X: np.ndarray, y, clusters, features, n: int, seed: int = 0,
+                     l2: float = JUDGE_L2, even_odds: bool = False) -> list[JudgeModel]:
+    """``n`` models fitted on the rows resampled with replacement by cluster (a twin's
+    rungs together: they share its target)."""
+    clusters = np.asarray(clusters)
+    names = np.unique(clusters)
+    index = {c: np.flatnonzero(clusters == c) for c in names}
+    rng = np.random.default_rng(seed)
+    out = []
+    for _ in range(n):
+        take = np.concatenate([index[c] for c in rng.choice(names, len(names))])
+        out.append(JudgeModel.fit(X[take], np.asarray(y)[take], features, l2, even_odds))
+    return out
+
+
+def decided(rows) -> list[dict]:
+    """The rows whose label is decided (not None: :func:`clnlos.study.judge.twins.
+    shape_label`)."""
+    return [r for r in rows if r.get("legible") is not None]
+
+
 def train_judge(rows: list[dict], recipe: dict, volume_rows: list[dict] = (),
-                seed: int = 0) -> tuple[Judge, dict]:
-    """The judge from twin rows (and, for the volume model, extra rows of MIP features with
-    labels and groups: the study's own reconstructions of every inversion). Returns (the
-    judge trained on all of it, ``{"capture": (splits, details), "volume": (...)}``)."""
-    Xc, yc, gc = twin_arrays(rows, CAPTURE_FEATURES)
-    both = list(rows) + list(volume_rows)
-    Xv, yv, gv = twin_arrays(both, MIP_FEATURES)
-    validation = {"capture": grouped_validation(Xc, yc, gc, CAPTURE_FEATURES, seed=seed),
-                  "volume": grouped_validation(Xv, yv, gv, MIP_FEATURES, seed=seed)}
-    judge = Judge(JudgeModel.fit(Xc, yc, CAPTURE_FEATURES),
-                  JudgeModel.fit(Xv, yv, MIP_FEATURES), dict(recipe),
+                seed: int = 0, splits=SPLITS, bootstrap: int = 0, l2: float = JUDGE_L2,
+                capture_features=CAPTURE_FEATURES, volume_features=MIP_FEATURES,
+                even_odds: bool = False) -> tuple[Judge, dict]:
+    """The judge from twin rows (rows marked ``volume_only`` -- the rungs' default
+    reconstructions -- and, for the volume model, extra rows of MIP features with labels and
+    groups: the study's own reconstructions of every inversion), validated held out by
+    ``splits``; with ``bootstrap`` > 0 also its spread models (that many bootstrap refits
+    by scene, row key ``scene``, and every held-out fold's model) and its domain; ``l2`` the
+    weights' prior (:func:`fit_logistic`), the models' features and whether they answer at
+    even odds (:meth:`JudgeModel.fit`). Returns (the judge trained on all of it,
+    ``{"capture": (splits, details), "volume": (...)}``)."""
+    both = decided(rows) + decided(volume_rows)
+    rows = [r for r in decided(rows) if not r.get("volume_only")]
+    fit = {"l2": l2, "even_odds": even_odds}
+    Xc, yc, gc = twin_arrays(rows, capture_features, splits)
+    Xv, yv, gv = twin_arrays(both, volume_features, splits)
+    held = {"capture": [], "volume": []}
+    validation = {"capture": grouped_validation(Xc, yc, gc, capture_features, splits,
+                                                seed=seed, models=held["capture"], **fit),
+                  "volume": grouped_validation(Xv, yv, gv, volume_features, splits,
+                                               seed=seed, models=held["volume"], **fit)}
+    judge = Judge(JudgeModel.fit(Xc, yc, capture_features, **fit),
+                  JudgeModel.fit(Xv, yv, volume_features, **fit), dict(recipe),
                   {"n_capture": int(len(yc)), "legible_capture": int(yc.sum()),
-                   "n_volume": int(len(yv)), "legible_volume": int(yv.sum())})
+                   "n_volume": int(len(yv)), "legible_volume": int(yv.sum()),
+                   "splits_held_out": list(splits), **fit})
+    if bootstrap > 0:
+        for name, X, y, rs, feats in (("capture", Xc, yc, rows, capture_features),
+                                      ("volume", Xv, yv, both, volume_features)):
+            clusters = [r.get("scene", f"row{i}") for i, r in enumerate(rs)]
+            judge.spread[name] = {"bootstrap": bootstrap_models(X, y, clusters, feats,
+                                                                bootstrap, seed, **fit),
+                                  "held_out": held[name]}
+            judge.domain[name] = {"features": feature_domain(X, feats)}
+        judge.domain["capture"]["descriptors"] = descriptor_domain(rows)
+        judge.domain["volume"]["descriptors"] = descriptor_domain(both, ("points",))
     return judge, validation

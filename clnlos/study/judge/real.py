@@ -1,13 +1,13 @@
 """The legibility judge on real captures: the family split (trained on simulations only,
 tested on every real capture's thinning ladder) and the judge applied to any capture file.
 
-A real capture is reconstructed with the judge's recipe (:func:`judge_config`: the
-published scan width, window and slab of a shared CDT capture, the capture's own geometry and
-recorded slab otherwise, its time axis rebinned to at most JUDGE_MAX_BINS, its scan
-points summed to at most JUDGE_MAX_POINTS a side (:func:`binned_laterally`); the recipe's
-method and SNR rule) together with two binomial halves
-of its photons, at each rung of a nested binomial thinning (:data:`REAL_FRACTIONS`, down to
-where the image is noise).
+A real capture is reconstructed with the judge's recipe
+(:func:`clnlos.study.judge.recipe.judge_config`: the capture's own geometry and recorded
+slab, and what a user would give for a shared CDT capture, whose files store neither its
+scan width nor its slab: :func:`real_options`) together with two binomial halves of its
+photons, at each rung of a nested binomial thinning (:data:`REAL_FRACTIONS`, down to where
+the image is noise); optionally also with ``clnlos reconstruct``'s defaults, the volume a
+user would judge.
 
 The reference label (testing only, never training). A real capture has no template; its
 published reconstruction shows its content plainly at full photons, so the full-photon
@@ -26,14 +26,28 @@ from pathlib import Path
 import numpy as np
 
 from clnlos.config import ReconstructionConfig
-from clnlos.inverse.preprocessing import setup_slab
+from clnlos.inverse.pipeline import reconstruct
 from clnlos.io.files import read_capture
 from clnlos.runtime.device import get_queue
 from clnlos.study.judge.heldout import balanced_accuracy, roc_auc
-from clnlos.study.judge.features import capture_features, feature_matrix, mip_of, pearson_r
+from clnlos.study.judge.features import (
+    capture_features,
+    mip_features,
+    mip_of,
+    pearson_r,
+    pooled,
+)
 from clnlos.study.real.capture import PUBLISHED_SCAN_WIDTH_M, capture_config
+from clnlos.study.judge.recipe import (
+    JUDGE_MAX_POINTS,
+    JUDGE_METHOD,
+    USER_FIELDS,
+    binned_laterally,
+    capture_descriptors,
+    judge_config,
+    judge_reconstructions,
+)
 from clnlos.study.real.thinning import thinned_series
-from clnlos.study.judge.twins import JUDGE_MAX_BINS, JUDGE_MAX_POINTS, judge_reconstructions
 
 REAL_FRACTIONS = (1.0, 0.3, 0.1, 0.03, 0.01, 3e-3, 1e-3, 1e-4)
 REAL_SEED = 48
@@ -42,32 +56,12 @@ REFERENCE_GONE = 0.3        # below this: the image is gone (reference)
 FAMILIES = ("cdt", "lct")
 
 
-def judge_config(capture, path, recipe: dict) -> ReconstructionConfig:
-    """How the judge reconstructs ``capture`` (read from ``path``): a shared CDT capture
-    with its published settings, any other with its own geometry and recorded slab."""
-    name = Path(path).stem if path is not None else ""
-    if name in PUBLISHED_SCAN_WIDTH_M:
-        return capture_config(name, recipe["method"], snr_rule=recipe["snr_rule"])
-    nt = np.asarray(capture.transient).shape[0]
-    most = int(recipe.get("max_bins", JUDGE_MAX_BINS))
-    cfg = ReconstructionConfig(method=recipe["method"], snr_rule=recipe["snr_rule"],
-                               bins=most if nt > most else None).validate()
-    return setup_slab(cfg, capture)[0]
-
-
-def binned_laterally(capture, most: int = JUDGE_MAX_POINTS):
-    """The capture with its scan points summed in k x k blocks (photon counts kept), k the
-    smallest integer that leaves at most ``most`` points per side (unchanged for k = 1 or
-    a capture whose columns were shifted by its reader)."""
-    t = np.asarray(capture.transient)
-    k = -(-max(t.shape[1:]) // most)
-    if k <= 1 or capture.time_shift_bins is not None:
-        return capture
-    ny, nx = (t.shape[1] // k) * k, (t.shape[2] // k) * k
-    b = t[:, :ny, :nx].reshape(t.shape[0], ny // k, k, nx // k, k).sum(axis=(2, 4))
-    w = None if capture.scan_width_m is None else capture.scan_width_m * nx / t.shape[2]
-    h = None if capture.scan_height_m is None else capture.scan_height_m * ny / t.shape[1]
-    return replace(capture, transient=b.astype(t.dtype), scan_width_m=w, scan_height_m=h)
+def real_options(family: str, path) -> ReconstructionConfig | None:
+    """What a user would give the judge for a shared capture (the study knows which one it
+    reads): a CDT capture's published scan width, window and slab (its data README's
+    table, :func:`clnlos.study.real.capture.capture_config`: the file stores none of them);
+    nothing for the LCT release (its files store their geometry)."""
+    return capture_config(Path(path).stem, JUDGE_METHOD) if family == "cdt" else None
 
 
 def real_capture_paths(root) -> list[tuple[str, Path]]:
@@ -91,40 +85,94 @@ def reference_label(agreement: float) -> str:
 
 
 def judge_ladder(path, judge, fractions=REAL_FRACTIONS, seed: int = REAL_SEED,
-                 device=None, family: str = "") -> list[dict]:
-    """Rows ``{"capture", "family", "fraction", "photons", "features", "p_legible",
-    "p_volume", "agreement", "reference", "mip"}`` of the capture at ``path`` thinned to ``fractions``."""
+                 device=None, family: str = "", options: ReconstructionConfig | None = None,
+                 default_volumes: bool = False) -> list[dict]:
+    """Rows ``{"capture", "family", "fraction", "photons", "features", "descriptors",
+    "p_legible", "interval", "notes", "p_volume", "agreement", "reference", "mip"}`` of the
+    capture at ``path`` thinned to ``fractions`` (:func:`ladder_views` judged by
+    :func:`judged_rows`)."""
+    return judged_rows(ladder_views(path, fractions, seed, device, family, options,
+                                    default_volumes,
+                                    judge.recipe.get("max_points", JUDGE_MAX_POINTS),
+                                    judge.recipe), judge)
+
+
+def ladder_views(path, fractions=REAL_FRACTIONS, seed: int = REAL_SEED, device=None,
+                 family: str = "", options: ReconstructionConfig | None = None,
+                 default_volumes: bool = False, most: int = JUDGE_MAX_POINTS,
+                 recipe: dict | None = None) -> list[dict]:
+    """What any judge reads of the capture at ``path`` thinned to ``fractions`` (its scan
+    points thinned, then summed as the recipe sums them; ``options``: what a user would
+    give, by default :func:`real_options`): per rung its features, descriptors, the
+    reconstruction's MIP (``mip``), its agreement with the full-photon one's and the
+    reference label; with ``default_volumes`` also each rung's default LCT reconstruction
+    (``clnlos reconstruct`` with the options alone: ``mip_default``, ``features_default``,
+    ``agreement_default`` with the full-photon one's)."""
     queue = get_queue(device)
-    cap = binned_laterally(read_capture(path), judge.recipe.get("max_points",
-                                                              JUDGE_MAX_POINTS))
-    cfg = judge_config(cap, path, judge.recipe)
-    rows, full_mip = [], None
-    for f, counts in zip(fractions, thinned_series(cap.transient, fractions, seed),
+    raw = read_capture(path)
+    options = real_options(family, path) if options is None else options
+    cfg = judge_config(binned_laterally(raw, most), options, recipe)
+    default = default_config(options)
+    rows, first = [], {}
+    for f, counts in zip(fractions, thinned_series(raw.transient, fractions, seed),
                          strict=True):
-        full, h1, h2 = judge_reconstructions(replace(cap, transient=counts), cfg, queue)
+        cap = binned_laterally(replace(raw, transient=counts), most)
+        full, h1, h2 = judge_reconstructions(cap, cfg, queue)
         mip = mip_of(full)
-        full_mip = mip if full_mip is None else full_mip
-        agree = pearson_r(mip, full_mip)
-        feats = capture_features(full, h1, h2)
-        rows.append({"capture": Path(path).stem, "family": family, "fraction": float(f),
-                     "photons": float(counts.sum()), "features": feats,
-                     "p_legible": float(judge.capture.predict_proba(
-                         feature_matrix([feats], judge.capture.features))[0]),
-                     "p_volume": float(judge.volume_proba([full])[0]),
-                     "agreement": agree, "reference": reference_label(agree),
-                     "mip": mip.astype(np.float32)})
+        first.setdefault("mip", mip)
+        agree = pearson_r(mip, first["mip"])
+        row = {"capture": Path(path).stem, "family": family, "fraction": float(f),
+               "photons": float(counts.sum()), "features": capture_features(full, h1, h2),
+               "descriptors": capture_descriptors(cap, cfg), "agreement": agree,
+               "reference": reference_label(agree), "mip": mip.astype(np.float32)}
+        if default_volumes:
+            vol = reconstruct(replace(raw, transient=counts), default, device=queue).volume
+            dm = pooled(mip_of(vol), most)
+            first.setdefault("default", dm)
+            agree_d = pearson_r(dm, first["default"])
+            row.update(features_default=mip_features(dm), agreement_default=agree_d,
+                       reference_default=reference_label(agree_d),
+                       mip_default=dm.astype(np.float32))
+        rows.append(row)
     return rows
 
 
+def judged_rows(rows: list[dict], judge) -> list[dict]:
+    """:func:`ladder_views` rows with ``judge``'s verdicts: the capture model's
+    (``p_legible``, ``interval``, ``notes``), the volume model's on the judge's own
+    reconstruction (``p_volume``) and, where the rows hold it, on the default one
+    (``p_default``, ``interval_default``, ``notes_default``)."""
+    out = []
+    for r in rows:
+        a = judge.assess("capture", r["features"], r["descriptors"])
+        row = {**r, "p_legible": a.p, "interval": a.interval, "notes": a.notes,
+               "p_volume": judge.assess("volume", mip_features(r["mip"])).p}
+        if "features_default" in r:
+            v = judge.assess("volume", r["features_default"],
+                             {"points": int(max(r["mip_default"].shape))})
+            row.update(p_default=v.p, interval_default=v.interval, notes_default=v.notes)
+        out.append(row)
+    return out
+
+
+def default_config(options: ReconstructionConfig | None) -> ReconstructionConfig:
+    """``clnlos reconstruct``'s defaults (LCT) with a user's ``options`` (their geometry and
+    slab)."""
+    kw = {} if options is None else {k: getattr(options, k) for k in USER_FIELDS
+                                     if getattr(options, k) is not None}
+    return ReconstructionConfig(method=JUDGE_METHOD, **kw).validate()
+
+
 def family_split(root, judge, fractions=REAL_FRACTIONS, device=None,
-                 progress=None) -> list[dict]:
+                 progress=None, default_volumes: bool = False) -> list[dict]:
     """:func:`judge_ladder` of every real capture under ``root``; ``progress(done, total)``
     after each capture. A capture clnlos cannot read is skipped with its reason."""
     paths = real_capture_paths(root)
     rows = []
     for k, (fam, p) in enumerate(paths):
         try:
-            rows += judge_ladder(p, judge, fractions, device=device, family=fam)
+            rows += judge_ladder(p, judge, fractions, device=device, family=fam,
+                                 default_volumes=default_volumes)
         except Exception as exc:  # noqa: BLE001 - an unreadable capture is reported, not fatal
             rows.append({"capture": p.stem, "family": fam, "error": str(exc).splitlines()[0]})
         if progress is not None:

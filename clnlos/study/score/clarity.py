@@ -9,7 +9,12 @@ attenuates every frequency, so the score falls monotonically as the image blurs.
 
 Labels: 1 clear, 2 clearer (medium), 3 fuzzy, by thresholds on the score taken from the
 dataset itself at the quantiles that reproduce the seed's split of 193 / 514 / 293 in 1000:
-score >= q(0.807) -> 1, q(0.293) <= score < q(0.807) -> 2, score < q(0.293) -> 3.
+score >= q(0.807) -> 1, q(0.293) <= score < q(0.807) -> 2, score < q(0.293) -> 3. Cut so,
+the labels' mix is the seed's by construction, and their agreement with the seed's
+published labels is not evidence. :func:`truth_thresholds` cuts the same score where its
+labels best match the study's own ground truth instead (each glyph reconstruction's
+legibility class): the cut the study's agreement with the seed's labels is also reported
+at.
 """
 
 from __future__ import annotations
@@ -39,6 +44,28 @@ def label_thresholds(scores) -> tuple[float, float]:
     """(t_clear, t_fuzzy): label 1 at or above t_clear, 3 below t_fuzzy."""
     s = np.asarray(scores, float)
     return (float(np.quantile(s, 1 - SEED_SPLIT[0])), float(np.quantile(s, SEED_SPLIT[2])))
+
+
+THRESHOLD_GRID = 41   # candidate cuts: between the scores' quantiles at 0, 1/40, ..., 1
+
+
+def truth_thresholds(scores, classes) -> tuple[float, float]:
+    """(t_clear, t_fuzzy) not fitted to the seed's split: of the cuts t_fuzzy <= t_clear
+    midway between consecutive THRESHOLD_GRID quantiles of the scores (and beyond both
+    ends), the pair whose labels (:func:`clarity_label`) equal the samples' ground-truth
+    ``classes`` (1, 2, 3) most often (the first such pair in the grid's order)."""
+    s = np.asarray(scores, float)
+    c = np.asarray(classes, int)
+    q = np.unique(np.quantile(s, np.linspace(0.0, 1.0, THRESHOLD_GRID)))
+    grid = np.concatenate([[q[0] - 1.0], (q[1:] + q[:-1]) / 2, [q[-1] + 1.0]])
+    best, pair = -1, (float(grid[-1]), float(grid[0]))
+    for i, fuzzy in enumerate(grid):
+        for clear in grid[i:]:
+            labels = np.where(s >= clear, 1, np.where(s < fuzzy, 3, 2))
+            hits = int((labels == c).sum())
+            if hits > best:
+                best, pair = hits, (float(clear), float(fuzzy))
+    return pair
 
 
 def clarity_label(score: float, thresholds: tuple[float, float]) -> int:
