@@ -10,10 +10,12 @@ from clnlos.study.findings.exposure import (
     BELOW,
     BEYOND,
     BRACKETED,
+    allowed_failures,
     exposure_needed,
     isotonic,
     need_order,
     refinement,
+    rungs_to_render,
 )
 from clnlos.study.real.check import ratio_of
 from clnlos.study.real.ladder import AT_MOST, series_crossing, series_summary
@@ -109,3 +111,32 @@ def test_series_that_keeps_its_image_is_a_bound_and_bounds_stay_bounds():
     assert ratio_of(val, val) == (1.0, None)
     assert ratio_of(bound, val)[1] == "<=" and ratio_of(val, bound)[1] == ">="
     assert ratio_of(bound, bound)[1] == "unknown"
+
+
+def test_curtailed_realisations_render_what_decides_the_answer():
+    """Every rung once; then the two lowest rungs that can still read, realisation by
+    realisation, until the lowest holds all of its; a rung with more failures than the
+    level allows stops; the rungs above the one that reads keep their first."""
+    assert allowed_failures(4, 0.9) == 0 and allowed_failures(4, 0.5) == 2
+    assert allowed_failures(10, 0.9) == 1
+    c = ("curve",)
+    rung = {e: (c, e) for e in (1e-6, 1e-5, 1e-4, 1e-3)}
+    state = {rung[e]: (0, 0, 4) for e in rung}
+    assert set(rungs_to_render(state, 0.9)) == set(rung.values())   # each rung first
+    # after one each: 1e-6 failed (stops), the rest read
+    state = {rung[1e-6]: (1, 1, 4), rung[1e-5]: (1, 0, 4), rung[1e-4]: (1, 0, 4),
+             rung[1e-3]: (1, 0, 4)}
+    assert rungs_to_render(state, 0.9) == [rung[1e-5], rung[1e-4]]
+    # 1e-5 fails its second: 1e-4 and 1e-3 go on
+    state.update({rung[1e-5]: (2, 1, 4), rung[1e-4]: (2, 0, 4)})
+    assert rungs_to_render(state, 0.9) == [rung[1e-4], rung[1e-3]]
+    # 1e-4 complete and read: the curve is decided, 1e-3 keeps what it has
+    state.update({rung[1e-4]: (4, 0, 4), rung[1e-3]: (3, 0, 4)})
+    assert rungs_to_render(state, 0.9) == []
+    # at level 0.5 the same failures do not stop a rung
+    state = {rung[1e-6]: (1, 1, 4), rung[1e-5]: (1, 0, 4)}
+    assert rungs_to_render(state, 0.5) == [rung[1e-6], rung[1e-5]]
+    # two curves are independent
+    d = ("other",)
+    state = {rung[1e-6]: (4, 0, 4), (d, 1e-6): (1, 0, 2), (d, 1e-5): (2, 0, 2)}
+    assert rungs_to_render(state, 0.9) == [(d, 1e-6)]

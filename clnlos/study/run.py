@@ -9,8 +9,9 @@ A study is file -> plan -> samples -> judgement -> report:
    (:mod:`clnlos.study.samples.materials`);
 3. the samples (:mod:`clnlos.study.samples`): each distinct scene simulated, reconstructed and
    scored once (cached on disk; serially or on Dask), every reconstruction judged against its
-   target (:mod:`clnlos.study.samples.identify`); the exposure curves refined where the
-   exposure needed is not yet bracketed finely enough;
+   target (:mod:`clnlos.study.samples.identify`), the realisations of an exposure rung
+   curtailed once they cannot change the answer (:func:`render_curtailed`); the exposure
+   curves refined where the exposure needed is not yet bracketed finely enough;
 4. the judgement (:mod:`clnlos.study.findings`): the exposure and photons needed per
    material x target x inversion (results.json ``plan``), the smallest legible letter, the
    sweeps' tables; with a ``[table]`` the seed's material table at each of its targets, the
@@ -38,9 +39,12 @@ from clnlos.io.progress import counter, progress_bar
 from clnlos.study.file.spec import Study, load_study
 from clnlos.study.findings.exposure import (
     MAX_REFINEMENTS,
+    allowed_failures,
     exposure_curves,
     plan_rows,
     refinement,
+    rung_key,
+    rungs_to_render,
     smallest_letters,
 )
 from clnlos.study.findings.summary import make_findings, plan_statement
@@ -98,10 +102,48 @@ def refine_exposures(study: Study, mats, plan, results, cache: Path, gamma, late
             new += refined_entries(study, mats, {
                 "sweep": sweep, "at": dict(at), "target": target, "material": material,
                 "method": method, "inversion": refl}, exposures)
-        res = render_plan(new, study.grid, cache, desc="refining the exposure needed", **kw)
-        identification_of(new, res, study, gamma, lateral)
+        new, res = render_curtailed(new, study, cache, gamma, lateral,
+                                    "refining the exposure needed", **kw)
         plan, results = plan + new, results + res
     return plan, results
+
+
+def render_curtailed(plan, study: Study, cache: Path, gamma, lateral, desc: str,
+                     **kw) -> tuple[list, list]:
+    """(the entries rendered, their identified results): the entries off an exposure curve
+    and the first realisation of every rung at once, then the realisations
+    :func:`clnlos.study.findings.exposure.rungs_to_render` asks for, round by round (one
+    progress bar; its total: the realisations still possible)."""
+    rungs: dict = {}
+    for entry in plan:
+        key = rung_key(entry[0])
+        if key is not None:
+            rungs.setdefault(key, []).append(entry)
+    for entries in rungs.values():
+        entries.sort(key=lambda e: e[0].get("k", 0))  # in the order of their noise seeds
+    state = {key: (0, 0, len(entries)) for key, entries in rungs.items()}
+    batch = [e for e in plan if rung_key(e[0]) is None]
+    done_plan: list = []
+    done: list = []
+    with progress_bar(len(plan), desc, "sample") as bar:
+        while True:
+            todo = rungs_to_render(state, study.legible_fraction)
+            batch += [rungs[key][state[key][0]] for key in todo]
+            if not batch:
+                break
+            res = render_plan(batch, study.grid, cache, bar=bar, **kw)
+            identification_of(batch, res, study, gamma, lateral)
+            for (meta, _), r in zip(batch, res, strict=True):
+                key = rung_key(meta)
+                if key is not None:
+                    m, f, n = state[key]
+                    state[key] = (m + 1, f + (not r["identified"]), n)
+            done_plan, done, batch = done_plan + batch, done + res, []
+            bar.total = len(done) + sum(  # what can still be asked for
+                n - m for key, (m, f, n) in state.items()
+                if f <= allowed_failures(n, study.legible_fraction))
+            bar.refresh()
+    return done_plan, done
 
 
 def table_part(study: Study, mats, plan, results, resolution, lateral, out_dir: Path,
@@ -230,14 +272,12 @@ def _run_study(out_dir: Path, study: Study, cache: Path, nw: int, labels: str, *
     plan, left_out = study_plan(study, mats)
     timings["materials_s"] = time.perf_counter() - t0
     t0 = time.perf_counter()
-    results = render_plan(plan, study.grid, cache, desc="study samples", **kw)
-    timings["samples_s"] = time.perf_counter() - t0
-
-    t0 = time.perf_counter()
     resolution, lateral = study_resolution(study, device)
     gamma = resolution["effective_temporal_fwhm_s"] if resolution else None
-    identification_of(plan, results, study, gamma, lateral)
     timings["resolution_s"] = time.perf_counter() - t0
+    t0 = time.perf_counter()
+    plan, results = render_curtailed(plan, study, cache, gamma, lateral, "study samples", **kw)
+    timings["samples_s"] = time.perf_counter() - t0
     t0 = time.perf_counter()
     plan, results = refine_exposures(study, mats, plan, results, cache, gamma, lateral, **kw)
     timings["refine_s"] = time.perf_counter() - t0

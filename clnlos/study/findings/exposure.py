@@ -18,6 +18,15 @@ bound). No number beyond the sweep is made up.
 
 The bracket is refined (:func:`refinement`): rungs are added inside it, evenly in log
 exposure, until its ends are within the study's ``refine_ratio`` (1.5) of each other.
+
+Curtailed realisations (:func:`rungs_to_render`): every rung gets its first realisation;
+then, realisation by realisation in the order of their noise seeds, only the two lowest rungs
+of a curve whose share can still reach L, until the lowest of them holds all its
+realisations. A rung stops once its failures f exceed n - ceil(L n) (its share can no longer
+reach L whatever the rest read), and the rungs above the one that reads keep their first
+realisation (the fit takes a longer exposure to read at least as well). A point holds the
+realisations rendered (k of n' <= n, the Wilson interval of those): the rungs that decide
+the answer hold all n.
 """
 
 from __future__ import annotations
@@ -39,6 +48,39 @@ def curve_key(meta: dict) -> tuple:
     at = tuple(sorted(meta.get("at", {}).items()))
     return (meta["sweep"], at, meta["target"], meta["material"], meta["method"],
             meta["inversion"])
+
+
+def rung_key(meta: dict) -> tuple | None:
+    """The exposure rung an entry is a realisation of (its curve and exposure); None for an
+    entry on no exposure curve."""
+    if meta.get("variable") != "exposure_s" or "sweep" not in meta:
+        return None
+    return curve_key(meta), float(meta["value"])
+
+
+def allowed_failures(planned: int, level: float) -> int:
+    """Failures a rung of ``planned`` realisations can hold and still reach ``level``."""
+    return planned - math.ceil(level * planned - 1e-9)
+
+
+def rungs_to_render(state: dict, level: float) -> list:
+    """The rungs whose next realisation is rendered (the module docstring): ``state`` {rung
+    key: (rendered, failures, planned)}. Every rung without one; else, per curve, the two
+    lowest rungs still able to reach ``level`` that are incomplete, unless the lowest of
+    them is complete (the curve is decided)."""
+    fresh = [key for key, (m, _, _) in state.items() if m == 0]
+    if fresh:
+        return fresh
+    curves: dict = {}
+    for key, (_, f, n) in state.items():
+        if f <= allowed_failures(n, level):
+            curves.setdefault(key[0], []).append(key)
+    out = []
+    for keys in curves.values():
+        low = sorted(keys, key=lambda k: k[1])[:2]
+        if state[low[0]][0] < state[low[0]][2]:
+            out += [k for k in low if state[k][0] < state[k][2]]
+    return out
 
 
 def exposure_curves(plan, results, study) -> dict[tuple, list[dict]]:

@@ -37,7 +37,6 @@ from importlib import resources
 from pathlib import Path
 
 import numpy as np
-from tqdm import tqdm
 
 from clnlos.physics.constants import C0
 from clnlos.version import __version__
@@ -52,6 +51,7 @@ from clnlos.inverse.preprocessing import bins_for
 from clnlos.io.capture import Capture
 from clnlos.io.files import atomic_path
 from clnlos.io.outputs import install_sigterm_cleanup
+from clnlos.io.progress import progress_bar
 from clnlos.runtime.caches import CACHES
 from clnlos.runtime.device import get_queue
 from clnlos.runtime.programs import code_digest, kernel_families
@@ -441,25 +441,35 @@ def _dask_pool(workers: int, scheduler: str | None) -> SamplePool:
 
 def run_samples(samples: list[dict], grid: StudyGrid, cache: Path, *, workers: int = 1,
                 scheduler: str | None = None, device: str | None = None,
-                desc: str = "samples", pool: SamplePool | None = None) -> list[dict]:
+                desc: str = "samples", pool: SamplePool | None = None,
+                bar=None) -> list[dict]:
     """Render every sample (cached) in ``pool``, else in a pool of its own (serially, on
-    local Dask processes, or on an existing cluster)."""
+    local Dask processes, or on an existing cluster); ``bar``: a progress bar to move (one
+    of its own, ``desc``, otherwise)."""
     if pool is None:
         with sample_pool(workers, scheduler) as own:
-            return run_samples(samples, grid, cache, device=device, desc=desc, pool=own)
+            return run_samples(samples, grid, cache, device=device, desc=desc, pool=own,
+                               bar=bar)
+    if bar is None:
+        with progress_bar(len(samples), desc, "sample") as own_bar:
+            return run_samples(samples, grid, cache, device=device, pool=pool, bar=own_bar)
     cache.mkdir(parents=True, exist_ok=True)
     version = code_version()
     if pool.client is None:
-        return _report([_cached(s, grid, cache, version, device)
-                        for s in tqdm(samples, desc=desc, unit="sample")])
+        out = []
+        for s in samples:
+            out.append(_cached(s, grid, cache, version, device))
+            bar.update(1)
+        return _report(out)
     from dask.distributed import as_completed  # optional: the study extra
 
     futs = [pool.client.submit(_cached, s, grid, cache, version, device, pure=False)
             for s in samples]
     index = {f.key: i for i, f in enumerate(futs)}
     out: list = [None] * len(samples)
-    for f in tqdm(as_completed(futs), total=len(futs), desc=desc, unit="sample"):
+    for f in as_completed(futs):
         out[index[f.key]] = f.result()
+        bar.update(1)
     return _report(out)
 
 
