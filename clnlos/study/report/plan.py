@@ -111,7 +111,8 @@ def curves_panel(ax, rows: list[dict], level: float) -> None:
     ax.set_xscale("log")
     ax.set(ylim=(-0.03, 1.03), xlabel="exposure per scan point (s)",
            ylabel="share of realisations legible",
-           title="the curves: legible share (Wilson 95%), its monotone fit")
+           title="the curves: legible share (Wilson 95%), its monotone fit\n"
+                 "(a rung's realisations stop once they cannot change the answer)")
     ax.title.set_fontsize(9)
     ax.grid(True, which="major", lw=0.3, alpha=0.5)
     ax.legend(fontsize=6, loc="lower right", frameon=False)
