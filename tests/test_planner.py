@@ -15,6 +15,7 @@ from clnlos.study.findings.exposure import (
     isotonic,
     need_order,
     refinement,
+    rung_stopped,
     rungs_to_render,
 )
 from clnlos.study.real.check import ratio_of
@@ -114,11 +115,15 @@ def test_series_that_keeps_its_image_is_a_bound_and_bounds_stay_bounds():
 
 
 def test_curtailed_realisations_render_what_decides_the_answer():
-    """Every rung once; then the two lowest rungs that can still read, realisation by
-    realisation, until the lowest holds all of its; a rung with more failures than the
-    level allows stops; the rungs above the one that reads keep their first."""
+    """Every rung once; then the two lowest rungs not stopped, realisation by realisation,
+    until the lowest holds all of its; a rung stops once it cannot reach the level and its
+    Wilson interval rules the level out; the rungs above the one that reads keep their
+    first."""
     assert allowed_failures(4, 0.9) == 0 and allowed_failures(4, 0.5) == 2
     assert allowed_failures(10, 0.9) == 1
+    # 0 of 1 and 1 of 3 rule out 0.9; 1 of 2 cannot (Wilson upper 0.905)
+    assert rung_stopped(1, 1, 4, 0.9) and rung_stopped(3, 2, 4, 0.9)
+    assert not rung_stopped(2, 1, 4, 0.9) and not rung_stopped(1, 1, 4, 0.5)
     c = ("curve",)
     rung = {e: (c, e) for e in (1e-6, 1e-5, 1e-4, 1e-3)}
     state = {rung[e]: (0, 0, 4) for e in rung}
@@ -127,8 +132,11 @@ def test_curtailed_realisations_render_what_decides_the_answer():
     state = {rung[1e-6]: (1, 1, 4), rung[1e-5]: (1, 0, 4), rung[1e-4]: (1, 0, 4),
              rung[1e-3]: (1, 0, 4)}
     assert rungs_to_render(state, 0.9) == [rung[1e-5], rung[1e-4]]
-    # 1e-5 fails its second: 1e-4 and 1e-3 go on
+    # 1e-5 fails its second (1 of 2 cannot rule 0.9 out): it goes on
     state.update({rung[1e-5]: (2, 1, 4), rung[1e-4]: (2, 0, 4)})
+    assert rungs_to_render(state, 0.9) == [rung[1e-5], rung[1e-4]]
+    # ... and its third (1 of 3): stopped; 1e-4 and 1e-3 go on
+    state.update({rung[1e-5]: (3, 2, 4), rung[1e-4]: (3, 0, 4)})
     assert rungs_to_render(state, 0.9) == [rung[1e-4], rung[1e-3]]
     # 1e-4 complete and read: the curve is decided, 1e-3 keeps what it has
     state.update({rung[1e-4]: (4, 0, 4), rung[1e-3]: (3, 0, 4)})

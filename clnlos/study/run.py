@@ -39,11 +39,11 @@ from clnlos.io.progress import counter, progress_bar
 from clnlos.study.file.spec import Study, load_study
 from clnlos.study.findings.exposure import (
     MAX_REFINEMENTS,
-    allowed_failures,
     exposure_curves,
     plan_rows,
     refinement,
     rung_key,
+    rung_stopped,
     rungs_to_render,
     smallest_letters,
 )
@@ -113,16 +113,22 @@ def render_curtailed(plan, study: Study, cache: Path, gamma, lateral, desc: str,
     """(the entries rendered, their identified results): the entries off an exposure curve
     and the first realisation of every rung at once, then the realisations
     :func:`clnlos.study.findings.exposure.rungs_to_render` asks for, round by round (one
-    progress bar; its total: the realisations still possible)."""
+    progress bar; its total: the realisations still possible). A sweep of letter heights
+    keeps every realisation: its smallest legible letter reads each exposure whole."""
+    def curtailed(meta) -> tuple | None:
+        key = rung_key(meta)
+        heights = key is not None and "letter_height_m" in study.sweeps[meta["sweep"]].variables
+        return None if heights else key
+
     rungs: dict = {}
     for entry in plan:
-        key = rung_key(entry[0])
+        key = curtailed(entry[0])
         if key is not None:
             rungs.setdefault(key, []).append(entry)
     for entries in rungs.values():
         entries.sort(key=lambda e: e[0].get("k", 0))  # in the order of their noise seeds
     state = {key: (0, 0, len(entries)) for key, entries in rungs.items()}
-    batch = [e for e in plan if rung_key(e[0]) is None]
+    batch = [e for e in plan if curtailed(e[0]) is None]
     done_plan: list = []
     done: list = []
     with progress_bar(len(plan), desc, "sample") as bar:
@@ -134,14 +140,14 @@ def render_curtailed(plan, study: Study, cache: Path, gamma, lateral, desc: str,
             res = render_plan(batch, study.grid, cache, bar=bar, **kw)
             identification_of(batch, res, study, gamma, lateral)
             for (meta, _), r in zip(batch, res, strict=True):
-                key = rung_key(meta)
+                key = curtailed(meta)
                 if key is not None:
                     m, f, n = state[key]
                     state[key] = (m + 1, f + (not r["identified"]), n)
             done_plan, done, batch = done_plan + batch, done + res, []
             bar.total = len(done) + sum(  # what can still be asked for
-                n - m for key, (m, f, n) in state.items()
-                if f <= allowed_failures(n, study.legible_fraction))
+                n - m for m, f, n in state.values()
+                if not rung_stopped(m, f, n, study.legible_fraction))
             bar.refresh()
     return done_plan, done
 

@@ -347,7 +347,7 @@ def parse_material(i: int, t: dict, base: Path) -> Material:
     if not isinstance(spec, str) or not spec.strip():
         raise ParameterError(f"{sec}.brdf", spec, "a preset name or a BRDF file")
     if spec.lower().endswith(BRDF_FILE_SUFFIXES):
-        path = _file(base, f"{sec}.brdf", spec, "BRDF file", BRDF_FILE_SUFFIXES)
+        path = _file(base, f"{sec}.brdf", spec, "BRDF", BRDF_FILE_SUFFIXES)
         if path.suffix.lower() == ".csv":
             read_gonio_csv(path)  # the columns of ../shared/data/brdf, checked now
             kind = "measured"
@@ -588,7 +588,7 @@ def parse_real(i: int, t: dict, base: Path, materials: dict[str, Material],
         if k not in t:
             raise ParameterError(f"{sec}.{k}", None, "a capture file" if k == "capture" else
                                  "a [[materials]] name or a brdf value")
-    path = _file(base, f"{sec}.capture", t["capture"], "capture file")
+    path = _file(base, f"{sec}.capture", t["capture"], "capture")
     m = t["material"]
     if isinstance(m, str) and m in materials:
         mat = materials[m]

@@ -20,13 +20,14 @@ The bracket is refined (:func:`refinement`): rungs are added inside it, evenly i
 exposure, until its ends are within the study's ``refine_ratio`` (1.5) of each other.
 
 Curtailed realisations (:func:`rungs_to_render`): every rung gets its first realisation;
-then, realisation by realisation in the order of their noise seeds, only the two lowest rungs
-of a curve whose share can still reach L, until the lowest of them holds all its
-realisations. A rung stops once its failures f exceed n - ceil(L n) (its share can no longer
-reach L whatever the rest read), and the rungs above the one that reads keep their first
-realisation (the fit takes a longer exposure to read at least as well). A point holds the
-realisations rendered (k of n' <= n, the Wilson interval of those): the rungs that decide
-the answer hold all n.
+then, realisation by realisation in the order of their noise seeds, only the two lowest
+rungs of a curve not stopped, until the lowest of them holds all its realisations. A rung
+stops once its failures f exceed n - ceil(L n) (its share can no longer reach L whatever the
+rest read) and the Wilson interval of what it read ends below L (so it rules out the level
+as the whole rung would: 0 of 1, 1 of 3, 2 of 4 at L = 0.9), and the rungs above the one
+that reads keep their first realisation (the fit takes a longer exposure to read at least as
+well). A point holds the realisations rendered (k of n' <= n, the Wilson interval of those):
+the rungs that decide the answer hold all n.
 """
 
 from __future__ import annotations
@@ -63,17 +64,26 @@ def allowed_failures(planned: int, level: float) -> int:
     return planned - math.ceil(level * planned - 1e-9)
 
 
+def rung_stopped(rendered: int, failures: int, planned: int, level: float) -> bool:
+    """A rung whose share can no longer reach ``level`` (more failures than
+    :func:`allowed_failures`) and whose realisations so far rule the level out (their Wilson
+    interval ends below it): what a rung stopped early leaves is what the whole rung would
+    say of the exposure needed's interval."""
+    return (failures > allowed_failures(planned, level)
+            and wilson_interval(rendered - failures, rendered)[1] < level)
+
+
 def rungs_to_render(state: dict, level: float) -> list:
     """The rungs whose next realisation is rendered (the module docstring): ``state`` {rung
     key: (rendered, failures, planned)}. Every rung without one; else, per curve, the two
-    lowest rungs still able to reach ``level`` that are incomplete, unless the lowest of
+    lowest rungs not stopped (:func:`rung_stopped`) that are incomplete, unless the lowest of
     them is complete (the curve is decided)."""
     fresh = [key for key, (m, _, _) in state.items() if m == 0]
     if fresh:
         return fresh
     curves: dict = {}
-    for key, (_, f, n) in state.items():
-        if f <= allowed_failures(n, level):
+    for key, (m, f, n) in state.items():
+        if not rung_stopped(m, f, n, level):
             curves.setdefault(key[0], []).append(key)
     out = []
     for keys in curves.values():

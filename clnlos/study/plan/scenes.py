@@ -96,7 +96,7 @@ def bistatic_table(rings: int, angles: int) -> dict:
     return {"model": "bistatic", "face_rings": int(rings), "face_angles": int(angles)}
 
 
-BINS_PER_FWHM = 4  # the inversions' bins per temporal FWHM of the rig, where the study sets them
+BINS_PER_FWHM = 2  # the inversions' bins per temporal FWHM of the rig (docs/study-file.md)
 
 
 def rig_temporal_fwhm_s(grid: StudyGrid) -> float:

@@ -216,9 +216,9 @@ def sample_config(sample: dict, grid: StudyGrid, slab) -> ReconstructionConfig:
 
 def study_bins(cfg: ReconstructionConfig, sample: dict, grid: StudyGrid) -> int | None:
     """The bins a sample's inversion runs on where the study sets them: the
-    ``[reconstruction] bin_width_s``, else a quarter of the rig's temporal FWHM (pulse and
-    bin in quadrature; the published LCT code's 16 ps for its 4 ps bins and ~60 ps system)
-    where the method's own default is finer (None: the method's default)."""
+    ``[reconstruction] bin_width_s``, else the rig's temporal FWHM (pulse and bin in
+    quadrature) over BINS_PER_FWHM where the method's own default is finer (None: the
+    method's default)."""
     window = cfg.max_path_m
     bw = grid.reconstruction_bin_width_s or rig_temporal_fwhm_s(grid) / BINS_PER_FWHM
     if bw <= grid.bin_width_s:
