@@ -141,6 +141,10 @@ def test_curtailed_realisations_render_what_decides_the_answer():
     # 1e-4 complete and read: the curve is decided, 1e-3 keeps what it has
     state.update({rung[1e-4]: (4, 0, 4), rung[1e-3]: (3, 0, 4)})
     assert rungs_to_render(state, 0.9) == []
+    # a rung complete below the level (3 of 4: not stopped, its interval reaches 0.9) does
+    # not decide the curve: the rungs above it go on
+    state = {rung[1e-6]: (4, 1, 4), rung[1e-5]: (1, 0, 4), rung[1e-4]: (1, 0, 4)}
+    assert rungs_to_render(state, 0.9) == [rung[1e-5], rung[1e-4]]
     # at level 0.5 the same failures do not stop a rung
     state = {rung[1e-6]: (1, 1, 4), rung[1e-5]: (1, 0, 4)}
     assert rungs_to_render(state, 0.5) == [rung[1e-6], rung[1e-5]]

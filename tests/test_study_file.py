@@ -104,13 +104,16 @@ def test_a_method_that_cannot_assume_a_lobe_is_left_out_with_a_note(tmp_path):
 BAD = [
     (lambda d: d.update(colour="red"), "colour"),
     (lambda d: d["materials"][0].update(brdf="unobtainium"), r"materials\[0\].brdf"),
-    (lambda d: d["materials"][0].update(brdf="missing.csv"), r"materials\[0\].brdf.*no such"),
+    (lambda d: d["materials"][0].update(brdf="missing.csv"),
+     r"materials\[0\].brdf.*no such BRDF file$"),
     (lambda d: d["sweep"].update(exposure_s=[-1e-3, 1e-3]), "sweep.exposure_s"),
     (lambda d: d["sweep"].update(exposure_s=[]), "sweep.exposure_s"),
     (lambda d: d.update(targets=[{"mask": "missing.png", "width_m": 0.2, "depth_m": 1.0}]),
      r"targets\[0\].mask"),
     (lambda d: d.update(targets=[{"mask": "dark.png", "width_m": 0.2, "depth_m": 1.0}]),
      "no shape"),
+    (lambda d: d.update(targets=[{"mask": "garbage.png", "width_m": 0.2, "depth_m": 1.0}]),
+     r"targets\[0\].mask: .*garbage.png: unreadable"),
     (lambda d: d["targets"][0].pop("depth_m"), r"targets\[0\].depth_m"),
     (lambda d: d["targets"][0].update(text="E!"), r"targets\[0\].text"),
     (lambda d: d["inversions"].update(methods=["backprojection"]), "inversions.methods"),
@@ -132,6 +135,7 @@ def test_a_bad_study_file_is_one_line_exit_2_before_any_work(tmp_path, capsys, m
     from PIL import Image
 
     Image.fromarray(np.zeros((8, 8), np.uint8)).save(tmp_path / "dark.png")
+    (tmp_path / "garbage.png").write_text("not an image")
     d = json.loads(json.dumps(GOOD))
     mutate(d)
     path = tmp_path / "bad.toml"

@@ -12,7 +12,7 @@ from pathlib import Path
 
 import numpy as np
 
-from clnlos.app.flags import DTYPES, add_force, add_precision
+from clnlos.app.flags import DTYPES, add_force, add_precision, add_slab_flags
 from clnlos.app.reconstruct import reconstruct_to_files
 from clnlos.app.simulate import figure_path, simulate_to_file
 from clnlos.config import (
@@ -281,15 +281,9 @@ def reconstruct_arguments(r, add_device) -> None:
                         "along t per operator apply), or auto: the fewest within a weighted "
                         f"relative error of {INVERSION_LOBE_TOLERANCE:g} (default "
                         f"{C.brdf_terms})")
-    slab = ("(default: the config's [slab]; with no slab flag and no [slab], the slab a "
-            "clnlos capture recorded)")
-    r.add_argument("--slab-thickness", type=float, help=f"slab thickness (m) {slab}")
-    r.add_argument("--mu-a", type=float, help=f"slab absorption coefficient (1/m) {slab}")
-    r.add_argument("--mu-s-prime", type=float,
-                   help=f"slab reduced scattering coefficient (1/m) {slab}")
-    r.add_argument("--n", type=float, help=f"slab refractive index (relative) {slab}")
-    r.add_argument("--no-slab", action="store_true",
-                   help="skip the slab deconvolution (also of a slab the capture recorded)")
+    add_slab_flags(r, "(default: the config's [slab]; with no slab flag and no [slab], the "
+                      "slab a clnlos capture recorded)",
+                   "skip the slab deconvolution (also of a slab the capture recorded)")
     add_force(r)
     add_precision(r)
     add_device(r)

@@ -1,5 +1,5 @@
-"""What several sub-commands share: the precision and --force flags, and the one-line check
-of an optional dependency before any work."""
+"""What several sub-commands share: the precision, --force and slab flags, and the one-line
+check of an optional dependency before any work."""
 
 from __future__ import annotations
 
@@ -36,3 +36,15 @@ def add_force(p) -> None:
 def add_precision(p) -> None:
     p.add_argument("--dtype", choices=sorted(DTYPES), default="float32",
                    help="kernel precision (default %(default)s)")
+
+
+def add_slab_flags(p, default: str, no_slab: str) -> None:
+    """The slab's flags (``--slab-thickness``, ``--mu-a``, ``--mu-s-prime``, ``--n``,
+    ``--no-slab``); ``default`` says where an absent one comes from, ``no_slab`` what
+    ``--no-slab`` does."""
+    p.add_argument("--slab-thickness", type=float, help=f"slab thickness (m) {default}")
+    p.add_argument("--mu-a", type=float, help=f"slab absorption coefficient (1/m) {default}")
+    p.add_argument("--mu-s-prime", type=float,
+                   help=f"slab reduced scattering coefficient (1/m) {default}")
+    p.add_argument("--n", type=float, help=f"slab refractive index (relative) {default}")
+    p.add_argument("--no-slab", action="store_true", help=no_slab)

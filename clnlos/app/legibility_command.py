@@ -8,6 +8,7 @@ import sys
 from pathlib import Path
 
 from clnlos.app.commands import SLAB_FLAGS, config_from_args
+from clnlos.app.flags import add_slab_flags
 from clnlos.errors import InputFileError
 from clnlos.study.judge.apply import judge_from, legibility
 
@@ -66,13 +67,7 @@ def legibility_arguments(g, add_device) -> None:
                         "window)")
     g.add_argument("--bins", type=int, help="rebin the kept window to this many bins "
                    "(default: at most the judge's 256)")
-    slab = "(default: the config's [slab], else the slab a clnlos capture recorded)"
-    g.add_argument("--slab-thickness", type=float, help=f"slab thickness (m) {slab}")
-    g.add_argument("--mu-a", type=float, help=f"slab absorption coefficient (1/m) {slab}")
-    g.add_argument("--mu-s-prime", type=float,
-                   help=f"slab reduced scattering coefficient (1/m) {slab}")
-    g.add_argument("--n", type=float, help=f"slab refractive index (relative) {slab}")
-    g.add_argument("--no-slab", action="store_true",
-                   help="no slab deconvolution (also of a slab the capture recorded)")
+    add_slab_flags(g, "(default: the config's [slab], else the slab a clnlos capture "
+                      "recorded)", "no slab deconvolution (also of a slab the capture recorded)")
     add_device(g)
     g.set_defaults(func=cmd_legibility, method=None)

@@ -396,7 +396,10 @@ def parse_target(i: int | str, t: dict, base: Path, scan_width_m: float | None) 
     kw: dict = {"kind": kind, "depth_m": depth, "tilt_deg": tilt, "scan_width_m": scan}
     if kind == "mask":
         path = _file(base, f"{sec}.mask", t["mask"], "mask image", MASK_FORMATS)
-        m = read_mask(path)
+        try:
+            m = read_mask(path)
+        except InputFileError as exc:
+            raise InputFileError(f"{sec}.mask: {exc}") from None
         if "width_m" not in t:
             raise ParameterError(f"{sec}.width_m", None, "the mask's width (m) with mask")
         width = positive(f"{sec}.width_m", t["width_m"], upper=100.0)

@@ -75,15 +75,17 @@ def rung_stopped(rendered: int, failures: int, planned: int, level: float) -> bo
 
 def rungs_to_render(state: dict, level: float) -> list:
     """The rungs whose next realisation is rendered (the module docstring): ``state`` {rung
-    key: (rendered, failures, planned)}. Every rung without one; else, per curve, the two
-    lowest rungs not stopped (:func:`rung_stopped`) that are incomplete, unless the lowest of
-    them is complete (the curve is decided)."""
+    key: (rendered, failures, planned)}. Every rung without one; else, per curve, of its
+    rungs neither stopped (:func:`rung_stopped`) nor complete below the level, the two
+    lowest where incomplete, unless the lowest of them is complete (it reads: the curve is
+    decided)."""
     fresh = [key for key, (m, _, _) in state.items() if m == 0]
     if fresh:
         return fresh
     curves: dict = {}
     for key, (m, f, n) in state.items():
-        if not rung_stopped(m, f, n, level):
+        below = f > allowed_failures(n, level)  # complete or not, it does not read
+        if not rung_stopped(m, f, n, level) and not (below and m == n):
             curves.setdefault(key[0], []).append(key)
     out = []
     for keys in curves.values():
