@@ -115,37 +115,38 @@ def test_series_that_keeps_its_image_is_a_bound_and_bounds_stay_bounds():
 
 
 def test_curtailed_realisations_render_what_decides_the_answer():
-    """Every rung once; then the two lowest rungs not stopped, realisation by realisation,
-    until the lowest holds all of its; a rung stops once it cannot reach the level and its
-    Wilson interval rules the level out; the rungs above the one that reads keep their
-    first."""
+    """Every rung once; then the two lowest live rungs, one realisation at a time, until the
+    lowest is complete and reads; a rung stops once even its best completion rules the
+    level out; rungs above the decided one that read a failure are completed."""
     assert allowed_failures(4, 0.9) == 0 and allowed_failures(4, 0.5) == 2
     assert allowed_failures(10, 0.9) == 1
-    # 0 of 1 and 1 of 3 rule out 0.9; 1 of 2 cannot (Wilson upper 0.905)
-    assert rung_stopped(1, 1, 4, 0.9) and rung_stopped(3, 2, 4, 0.9)
-    assert not rung_stopped(2, 1, 4, 0.9) and not rung_stopped(1, 1, 4, 0.5)
+    # the best completion of 1 failure in 4 is 3 of 4 (Wilson upper 0.954): not ruled out;
+    # of 2 failures 2 of 4 (0.85): ruled out, whatever order they came in
+    assert not rung_stopped(1, 4, 0.9) and rung_stopped(2, 4, 0.9)
+    assert not rung_stopped(2, 4, 0.5) and rung_stopped(3, 10, 0.9)
     c = ("curve",)
     rung = {e: (c, e) for e in (1e-6, 1e-5, 1e-4, 1e-3)}
     state = {rung[e]: (0, 0, 4) for e in rung}
     assert set(rungs_to_render(state, 0.9)) == set(rung.values())   # each rung first
-    # after one each: 1e-6 failed (stops), the rest read
+    # after one each: 1e-6 failed once (not yet ruled out), the rest read
     state = {rung[1e-6]: (1, 1, 4), rung[1e-5]: (1, 0, 4), rung[1e-4]: (1, 0, 4),
              rung[1e-3]: (1, 0, 4)}
+    assert rungs_to_render(state, 0.9) == [rung[1e-6], rung[1e-5]]
+    # 1e-6 fails again: stopped; 1e-5 fails its second: 1e-5 and 1e-4 go on
+    state.update({rung[1e-6]: (2, 2, 4), rung[1e-5]: (2, 1, 4)})
     assert rungs_to_render(state, 0.9) == [rung[1e-5], rung[1e-4]]
-    # 1e-5 fails its second (1 of 2 cannot rule 0.9 out): it goes on
-    state.update({rung[1e-5]: (2, 1, 4), rung[1e-4]: (2, 0, 4)})
-    assert rungs_to_render(state, 0.9) == [rung[1e-5], rung[1e-4]]
-    # ... and its third (1 of 3): stopped; 1e-4 and 1e-3 go on
-    state.update({rung[1e-5]: (3, 2, 4), rung[1e-4]: (3, 0, 4)})
+    # 1e-5 complete at 3 of 4 (below the level, not stopped): it decides nothing
+    state.update({rung[1e-5]: (4, 1, 4), rung[1e-4]: (2, 0, 4)})
     assert rungs_to_render(state, 0.9) == [rung[1e-4], rung[1e-3]]
-    # 1e-4 complete and read: the curve is decided, 1e-3 keeps what it has
-    state.update({rung[1e-4]: (4, 0, 4), rung[1e-3]: (3, 0, 4)})
+    # 1e-4 complete and read: the curve is decided, 1e-3 (read once) keeps what it has
+    state.update({rung[1e-4]: (4, 0, 4)})
     assert rungs_to_render(state, 0.9) == []
-    # a rung complete below the level (3 of 4: not stopped, its interval reaches 0.9) does
-    # not decide the curve: the rungs above it go on
-    state = {rung[1e-6]: (4, 1, 4), rung[1e-5]: (1, 0, 4), rung[1e-4]: (1, 0, 4)}
-    assert rungs_to_render(state, 0.9) == [rung[1e-5], rung[1e-4]]
-    # at level 0.5 the same failures do not stop a rung
+    # ... unless a rung above read a failure: it is completed, stopped or not
+    state.update({rung[1e-3]: (1, 1, 4)})
+    assert rungs_to_render(state, 0.9) == [rung[1e-3]]
+    state.update({rung[1e-3]: (4, 2, 4)})
+    assert rungs_to_render(state, 0.9) == []
+    # at level 0.5 one failure in 4 leaves a rung live
     state = {rung[1e-6]: (1, 1, 4), rung[1e-5]: (1, 0, 4)}
     assert rungs_to_render(state, 0.5) == [rung[1e-6], rung[1e-5]]
     # two curves are independent

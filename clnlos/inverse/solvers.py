@@ -100,8 +100,11 @@ def power_norm(op: LinearOperator, x: cla.Array, iterations: int,
     window whose support reaches the scan plane, though A x and A^T y of the solve do not."""
     est = 0.0
     nx = device_norm(x)
-    if nx == 0 or not math.isfinite(nx):
-        return (0.0 if nx == 0 else float("nan")), x
+    if not math.isfinite(nx):
+        raise FloatingPointError(f"the power iteration of {op.name} starts from a vector that "
+                                 f"is not finite (||x|| ~ {nx})")
+    if nx == 0:
+        return 0.0, x
     x = x * op.dtype.type(1.0 / nx)
     for k in range(iterations):
         if progress is not None:

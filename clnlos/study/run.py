@@ -126,7 +126,7 @@ def render_curtailed(plan, study: Study, cache: Path, gamma, lateral, desc: str,
         if key is not None:
             rungs.setdefault(key, []).append(entry)
     for entries in rungs.values():
-        entries.sort(key=lambda e: e[0].get("k", 0))  # in the order of their noise seeds
+        entries.sort(key=lambda e: e[0].get("k", 0))  # by realisation index
     state = {key: (0, 0, len(entries)) for key, entries in rungs.items()}
     batch = [e for e in plan if curtailed(e[0]) is None]
     done_plan: list = []
@@ -145,10 +145,12 @@ def render_curtailed(plan, study: Study, cache: Path, gamma, lateral, desc: str,
                     m, f, n = state[key]
                     state[key] = (m + 1, f + (not r["identified"]), n)
             done_plan, done, batch = done_plan + batch, done + res, []
-            bar.total = len(done) + sum(  # what can still be asked for
+            bar.total = bar.n + sum(  # what can still be asked for
                 n - m for m, f, n in state.values()
-                if not rung_stopped(m, f, n, study.legible_fraction))
+                if not rung_stopped(f, n, study.legible_fraction))
             bar.refresh()
+        bar.total = bar.n
+        bar.refresh()
     return done_plan, done
 
 

@@ -20,14 +20,18 @@ The bracket is refined (:func:`refinement`): rungs are added inside it, evenly i
 exposure, until its ends are within the study's ``refine_ratio`` (1.5) of each other.
 
 Curtailed realisations (:func:`rungs_to_render`): every rung gets its first realisation;
-then, realisation by realisation in the order of their noise seeds, only the two lowest
-rungs of a curve not stopped, until the lowest of them holds all its realisations. A rung
-stops once its failures f exceed n - ceil(L n) (its share can no longer reach L whatever the
-rest read) and the Wilson interval of what it read ends below L (so it rules out the level
-as the whole rung would: 0 of 1, 1 of 3, 2 of 4 at L = 0.9), and the rungs above the one
-that reads keep their first realisation (the fit takes a longer exposure to read at least as
-well). A point holds the realisations rendered (k of n' <= n, the Wilson interval of those):
-the rungs that decide the answer hold all n.
+then, one at a time in the order of their realisation index, only the two lowest rungs of a
+curve that are neither stopped nor complete below L, until the lowest of them is complete
+and reads (the curve is decided); then every rung above it that read a failure is completed,
+so the fit pools full rungs where the data are not monotone. A rung stops once even its best
+completion rules L out (the Wilson interval of n - f of n ends below L: f = 2 of 4 at L =
+0.9), so a stopped rung says of the interval what the whole rung would, whatever the order
+its realisations came in; the rungs above the decided one that read every time keep what
+they have (their first realisation, weight 1 in the fit). A point holds the realisations
+rendered (k of n' <= n, the Wilson interval of those): the rung that decides the answer
+holds all n. The interpolated exposure uses the share of the rung below the bracket as
+rendered (a stopped rung's share, biased low by its stop, moves the estimate within the
+bracket).
 """
 
 from __future__ import annotations
@@ -64,34 +68,37 @@ def allowed_failures(planned: int, level: float) -> int:
     return planned - math.ceil(level * planned - 1e-9)
 
 
-def rung_stopped(rendered: int, failures: int, planned: int, level: float) -> bool:
-    """A rung whose share can no longer reach ``level`` (more failures than
-    :func:`allowed_failures`) and whose realisations so far rule the level out (their Wilson
-    interval ends below it): what a rung stopped early leaves is what the whole rung would
-    say of the exposure needed's interval."""
-    return (failures > allowed_failures(planned, level)
-            and wilson_interval(rendered - failures, rendered)[1] < level)
+def rung_stopped(failures: int, planned: int, level: float) -> bool:
+    """A rung that rules ``level`` out whatever its other realisations read: the Wilson
+    interval of its best completion (planned - failures legible of planned) ends below it.
+    So a rung stopped early says of the exposure needed's interval what the whole rung
+    would, whatever the order its realisations came in."""
+    return wilson_interval(planned - failures, planned)[1] < level
 
 
 def rungs_to_render(state: dict, level: float) -> list:
     """The rungs whose next realisation is rendered (the module docstring): ``state`` {rung
     key: (rendered, failures, planned)}. Every rung without one; else, per curve, of its
     rungs neither stopped (:func:`rung_stopped`) nor complete below the level, the two
-    lowest where incomplete, unless the lowest of them is complete (it reads: the curve is
-    decided)."""
+    lowest where incomplete; once the lowest of them is complete (it reads: the curve is
+    decided), every rung above it that read a failure, to its end (the fit pools them)."""
     fresh = [key for key, (m, _, _) in state.items() if m == 0]
     if fresh:
         return fresh
     curves: dict = {}
-    for key, (m, f, n) in state.items():
-        below = f > allowed_failures(n, level)  # complete or not, it does not read
-        if not rung_stopped(m, f, n, level) and not (below and m == n):
-            curves.setdefault(key[0], []).append(key)
+    for key in sorted(state, key=lambda k: k[1]):
+        curves.setdefault(key[0], []).append(key)
     out = []
     for keys in curves.values():
-        low = sorted(keys, key=lambda k: k[1])[:2]
-        if state[low[0]][0] < state[low[0]][2]:
-            out += [k for k in low if state[k][0] < state[k][2]]
+        incomplete = [k for k in keys if state[k][0] < state[k][2]]
+        live = [k for k in keys if not rung_stopped(state[k][1], state[k][2], level) and not (
+            state[k][1] > allowed_failures(state[k][2], level) and k not in incomplete)]
+        if not live:
+            continue
+        if live[0] in incomplete:
+            out += [k for k in live[:2] if k in incomplete]
+        else:
+            out += [k for k in incomplete if k[1] > live[0][1] and state[k][1] > 0]
     return out
 
 

@@ -112,7 +112,7 @@ def curves_panel(ax, rows: list[dict], level: float) -> None:
     ax.set(ylim=(-0.03, 1.03), xlabel="exposure per scan point (s)",
            ylabel="share of realisations legible",
            title="the curves: legible share (Wilson 95%), its monotone fit\n"
-                 "(a rung's realisations stop once they cannot change the answer)")
+                 "(a rung's realisations stop once they rule the level out)")
     ax.title.set_fontsize(9)
     ax.grid(True, which="major", lw=0.3, alpha=0.5)
     ax.legend(fontsize=6, loc="lower right", frameon=False)
