@@ -7,10 +7,10 @@ measured capture gets the GCV rule with the model's accuracy MEASURED_MODEL_SNR 
 (:func:`clnlos.inverse.parameter_choice.model_snr_for`): this tool runs that rule on the
 oracle's own captures (the config's ``model_snr`` set to MEASURED_MODEL_SNR, everything else
 the defaults) and sets its IoU beside the stored rows of the same captures and seeds: the
-default's (``stored_auto_iou``; ``auto_iou`` the default rerun on this commit), the GCV rule with an exact model (``gcv_rule_iou``) and the oracle
-grid's best (``oracle_iou``). Writes tools/results/measured_rule_check.{csv,json} (one row per
-capture, seed and method) and prints per method the mean IoU and the rows more than 0.08
-below the oracle.
+default's (``stored_auto_iou``; ``auto_iou`` the default rerun on this commit), the GCV rule
+with an exact model (``gcv_rule_iou``) and the oracle grid's best (``oracle_iou``). Writes
+tools/results/measured_rule_check.{csv,json} (one row per capture, seed and method) and prints per
+method the mean IoU and the rows more than 0.08 below the oracle.
 
     .venv/bin/python tools/measured_rule_check.py [--holdout] [--methods lct fk iterative]
 """

@@ -328,7 +328,7 @@ def iteration_rows(b) -> None:
     fns["fft pair"] = lambda: fft.inverse(fft.forward(buf, spec), buf)
     t = interleaved(fns, b.q, b.repeat)
     pair, lam = t.pop("fft pair")["min_s"], t[LAMBERTIAN]["min_s"]
-    del buf, spec, fft
+    buf = spec = fft = None  # the FFT pair's buffers freed before the solves
     solves = interleaved({n: (lambda c=c: reconstruct(cap, c, device=b.q))
                           for n, c in configs.items()}, b.q,
                          1 if b.size == "tiny" else SOLVE_ROUNDS)

@@ -59,8 +59,9 @@ if TYPE_CHECKING:  # annotations only: this module imports no OpenCL code
     import pyopencl.array as cla
 
 # the registry, stated in clnlos.config, read here by the pipeline, the CLI, the study, the bench
-__all__ = ["CLOSED_FORM_BRDFS", "ITERATIVE_SUM_BINS_ABOVE", "METHODS", "RETROREFLECTIVE_FALLOFF", "Inversion", "InversionGrid", "MethodEntry", "auto_snr_rule",
-           "default_falloffs", "method_class", "method_names", "methods_reading", "split_rule"]
+__all__ = ["CLOSED_FORM_BRDFS", "ITERATIVE_SUM_BINS_ABOVE", "METHODS", "RETROREFLECTIVE_FALLOFF",
+           "Inversion", "InversionGrid", "MethodEntry", "auto_snr_rule", "default_falloffs",
+           "method_class", "method_names", "methods_reading", "split_rule"]
 
 
 @dataclass(frozen=True)

@@ -182,9 +182,10 @@ class ParameterSearches:
         """(the retro lobe ``brdf = "auto"`` takes for this capture, the params recording the
         search): the lobe of :func:`clnlos.brdf.lobes.auto_ladder` whose reconstruction from
         one half of a binomial split of the counts best predicts the other half, from its
-        whole volume and from its surface (:mod:`clnlos.inverse.brdf_choice`); the Lambertian lobe where the capture is not
-        counts or a half is empty (:data:`LOBE_NOT_SEARCHED`). A capture larger than the
-        search's grid is searched on a pipeline of that grid (:meth:`_lobe_search_plan`)."""
+        whole volume and from its surface (:mod:`clnlos.inverse.brdf_choice`); the Lambertian
+        lobe where the capture is not counts or a half is empty (:data:`LOBE_NOT_SEARCHED`).
+        A capture larger than the search's grid is searched on a pipeline of that grid
+        (:meth:`_lobe_search_plan`)."""
         counts = (noise.photon_counts and not noise.noise_free
                   and is_counts(np.asarray(transient)))
         plan = self._lobe_search_plan(transient.shape) if counts else None

@@ -7,11 +7,10 @@ runs them)."""
 from __future__ import annotations
 
 import math
-import time
 
 import numpy as np
 
-from clnlos.config import METHODS, ReconstructionConfig, check_window
+from clnlos.config import ReconstructionConfig, check_window
 from clnlos.errors import InputFileError, MissingParameterError, ParameterError
 from clnlos.inverse.snr import ARRIVAL_SIGMAS, first_recorded_bin, is_counts
 from clnlos.io.capture import Capture
