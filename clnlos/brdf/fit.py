@@ -294,11 +294,12 @@ def quality_warning(model_name: str, quality: dict, better: list[tuple[str, floa
             f"{USABLE_PEAK_RATIO:g}, docs/brdf.md): {hint}")
 
 
-def validation_split(train: BRDFSamples, seed: int) -> tuple[BRDFSamples, BRDFSamples]:
-    """(fit part, held-out part) of the training samples: AUTO_VALIDATION_FRACTION of them
-    at random (numpy Generator seeded with ``seed``) held out."""
+def validation_split(train: BRDFSamples, seed: int, fraction: float = AUTO_VALIDATION_FRACTION
+                     ) -> tuple[BRDFSamples, BRDFSamples]:
+    """(fit part, held-out part) of the training samples: ``fraction`` of them at random
+    (numpy Generator seeded with ``seed``) held out."""
     order = np.random.default_rng(seed).permutation(len(train))
-    n_held = max(1, int(round(AUTO_VALIDATION_FRACTION * len(train))))
+    n_held = max(1, int(round(fraction * len(train))))
     return train.subset(np.sort(order[n_held:])), train.subset(np.sort(order[:n_held]))
 
 

@@ -118,7 +118,8 @@ def power_norm(op: LinearOperator, x: cla.Array, iterations: int,
         if not math.isfinite(na):
             est = na
             break
-        y = op.adjoint_device(ax * op.dtype.type(1.0 / na))
+        ax *= op.dtype.type(1.0 / na)
+        y = op.adjoint_device(ax)
         ny = device_norm(y)
         est = na * ny
         if ny == 0 or not math.isfinite(ny):

@@ -128,6 +128,7 @@ def render_curtailed(plan, study: Study, cache: Path, gamma, lateral, desc: str,
     for entries in rungs.values():
         entries.sort(key=lambda e: e[0].get("k", 0))  # by realisation index
     state = {key: (0, 0, len(entries)) for key, entries in rungs.items()}
+    templates: dict = {}  # drawn once for every round
     batch = [e for e in plan if curtailed(e[0]) is None]
     done_plan: list = []
     done: list = []
@@ -138,7 +139,7 @@ def render_curtailed(plan, study: Study, cache: Path, gamma, lateral, desc: str,
             if not batch:
                 break
             res = render_plan(batch, study.grid, cache, bar=bar, **kw)
-            identification_of(batch, res, study, gamma, lateral)
+            identification_of(batch, res, study, gamma, lateral, templates)
             for (meta, _), r in zip(batch, res, strict=True):
                 key = curtailed(meta)
                 if key is not None:

@@ -199,12 +199,14 @@ def detail_sigma_cells(target: Target, height_m: float, pitch_m: float) -> float
 
 
 def identification_of(plan, results, study: Study, gamma_s: float | None,
-                      lateral: dict[str, float]) -> None:
+                      lateral: dict[str, float], templates: dict | None = None) -> None:
     """Adds ``identified`` (read right; a mask: its IoU beats the box), ``identified_as``,
     ``margin``, ``legibility`` and, for letters and charts, the true candidate's NCC margin
-    and the time-integrated measurement read the same way, to every result of a target."""
+    and the time-integrated measurement read the same way, to every result of a target.
+    ``templates``: the drawn templates of earlier calls with the same ``gamma_s`` and
+    ``lateral`` (filled here; by default drawn afresh)."""
     gamma = gamma_s if gamma_s is not None else rig_temporal_fwhm_s(study.grid)
-    templates: dict = {}
+    templates = {} if templates is None else templates
     for (meta, s), r in zip(plan, results, strict=True):
         if meta["set"] == "dataset":
             continue

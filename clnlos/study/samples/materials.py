@@ -11,11 +11,10 @@ from __future__ import annotations
 import warnings
 from pathlib import Path
 
-import numpy as np
 
 from clnlos.brdf.catalog import ANALYTIC_PRESETS, LAMBERTIAN, RETROREFLECTIVE, preset_table
-from clnlos.brdf.data import BRDFSamples, read_gonio_csv
-from clnlos.brdf.fit import AUTO, fit_to_file
+from clnlos.brdf.data import read_gonio_csv
+from clnlos.brdf.fit import AUTO, fit_to_file, validation_split
 from clnlos.brdf.lobes import retro_lobe
 from clnlos.brdf.models import model_spec
 from clnlos.brdf.store import load_model
@@ -24,13 +23,6 @@ from clnlos.study.file.spec import Material, Study
 from clnlos.study.plan.entries import MaterialKeys
 
 HELD_OUT_FRACTION = 0.2     # of a measured CSV's rows, held out to say how good its fit is
-
-
-def split_samples(s: BRDFSamples, seed: int) -> tuple[BRDFSamples, BRDFSamples]:
-    """A seeded split of measured samples: (training, held-out HELD_OUT_FRACTION)."""
-    idx = np.random.default_rng(seed).permutation(len(s))
-    n_test = max(1, int(round(HELD_OUT_FRACTION * len(s))))
-    return s.subset(np.sort(idx[n_test:])), s.subset(np.sort(idx[:n_test]))
 
 
 def _made(out_dir: Path, m: Material, what: str) -> Path:
@@ -51,7 +43,7 @@ def _fit_file(m: Material, out_dir: Path, seed: int) -> tuple[Path, dict]:
     metrics (``fit_quality``: the held-out agreement and peak error, whether it is usable)."""
     path = _made(out_dir, m, "model")
     if not path.is_file():
-        train, test = split_samples(read_gonio_csv(m.brdf), seed)
+        train, test = validation_split(read_gonio_csv(m.brdf), seed, HELD_OUT_FRACTION)
         path.parent.mkdir(parents=True, exist_ok=True)
         fit_to_file(AUTO, train, test, path, seed=seed)
     return path, load_model(path)[1]["metrics"]
