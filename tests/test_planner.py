@@ -18,8 +18,7 @@ from clnlos.study.findings.exposure import (
     rung_stopped,
     rungs_to_render,
 )
-from clnlos.study.real.check import ratio_of
-from clnlos.study.real.ladder import AT_MOST, series_crossing, series_summary
+from clnlos.study.real.ladder import AT_MOST, bounded_ratio, series_crossing, series_summary
 from clnlos.study.score.legibility import wilson_interval
 
 
@@ -109,9 +108,9 @@ def test_series_that_keeps_its_image_is_a_bound_and_bounds_stay_bounds():
     assert summary["status"] == AT_MOST and summary["interval"][0] is None
     val = {"photons_needed": 10.0, "status": "bracketed"}
     bound = {"photons_needed": 10.0, "status": AT_MOST}
-    assert ratio_of(val, val) == (1.0, None)
-    assert ratio_of(bound, val)[1] == "<=" and ratio_of(val, bound)[1] == ">="
-    assert ratio_of(bound, bound)[1] == "unknown"
+    assert bounded_ratio(val, val) == (1.0, None)
+    assert bounded_ratio(bound, val)[1] == "<=" and bounded_ratio(val, bound)[1] == ">="
+    assert bounded_ratio(bound, bound)[1] == "unknown"
 
 
 def test_curtailed_realisations_render_what_decides_the_answer():

@@ -477,16 +477,19 @@ def parse_rig(d: dict, base: Path) -> StudyGrid:
                                  f"time.bin_width_s = {scene.bin_width_s:g} s (bins are "
                                  "summed, never split)")
     det = scene.detector or Detector()
-    kw = {} if scene.detector is not None else {"exposure_s": 0.1, "etendue_m2_sr": 1e-9,
-                                                "dark_count_rate_hz": 1000.0}
+    kw = {} if scene.detector is not None else {
+        "exposure_s": StudyGrid.exposure_s, "etendue_m2_sr": StudyGrid.etendue_m2_sr,
+        "dark_count_rate_hz": StudyGrid.dark_count_rate_hz}
     return StudyGrid(
         scan_width_m=scene.width_m, points=scene.points, bin_width_s=scene.bin_width_s,
         bins=scene.bins if "bins" in time else None, start_s=scene.start_s,
-        max_path_m=positive("reconstruction.max_path_m", recon.get("max_path_m", 1.6),
-                            upper=1e4),
+        max_path_m=positive("reconstruction.max_path_m",
+                            recon.get("max_path_m", StudyGrid.max_path_m), upper=1e4),
         density_per_m2=scene.density_per_m2,
-        iterations=integer("reconstruction.iterations", recon.get("iterations", 30), 1, 10000),
-        snr_rule=choice("reconstruction.snr_rule", recon.get("snr_rule", "gcv"), SNR_RULES),
+        iterations=integer("reconstruction.iterations",
+                           recon.get("iterations", StudyGrid.iterations), 1, 10000),
+        snr_rule=choice("reconstruction.snr_rule",
+                        recon.get("snr_rule", StudyGrid.snr_rule), SNR_RULES),
         reconstruction_bin_width_s=rbw,
         pulse_width_s=scene.pulse_width_s, power_w=det.power_w, rep_rate_hz=det.rep_rate_hz,
         wavelength_m=det.wavelength_m, efficiency=det.efficiency,

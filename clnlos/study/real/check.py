@@ -50,6 +50,7 @@ from clnlos.study.real.materials import (
     KEEP_LEVEL,
     TWIN_DENSITY_PER_M2,
     binned_scan,
+    counts_front,
     direct_reflection_fwhm,
     front_view,
     image_score,
@@ -71,9 +72,7 @@ class Variant:
     config: ReconstructionConfig
 
     def front(self, cap: Capture, counts: np.ndarray, queue) -> np.ndarray:
-        c = Capture(counts, cap.bin_width_s, cap.start_s, cap.scan_width_m, cap.source,
-                    {k: v for k, v in cap.attrs.items() if k != "direct_end_s"})
-        return front_view(reconstruct(c, self.config, device=queue).volume)
+        return counts_front(cap, counts, self.config, queue)
 
 
 def variant_of(entry: RealEntry, mat: MaterialKeys, base: ReconstructionConfig) -> Variant:
@@ -215,7 +214,7 @@ def check_capture(entry: RealEntry, mat: MaterialKeys, study: Study, out_dir: Pa
     twin = Capture(np.random.default_rng(TWIN_SEED).poisson(expected).astype(np.float32),
                    cap.bin_width_s, cap.start_s, cap.scan_width_m, "simulated twin", {})
     predicted = photons_needed(twin, variant, queue, progress=progress)
-    ratio, bound = ratio_of(predicted, measured)
+    ratio, bound = bounded_ratio(predicted, measured)
     return {"capture": entry.capture, "name": entry.label, "material": mat.name,
             "method": entry.method, "reflectance": variant.config.brdf,
             "photons": measured["photons"], "signal_photons": signal,
@@ -249,12 +248,6 @@ def matched_expectation(cap: Capture, tau: np.ndarray, sigma) -> tuple[np.ndarra
     lam = np.zeros_like(y)
     lam[first:] = a * t + floor + np.maximum(gaussian_filter(above - a * t, sigma), 0.0)
     return lam, a * float(t.sum()), floor
-
-
-def ratio_of(predicted: dict, measured: dict) -> tuple[float, str | None]:
-    """predicted / measured photons needed, a bound where either is one
-    (:func:`clnlos.study.real.ladder.bounded_ratio`)."""
-    return bounded_ratio(predicted, measured)
 
 
 def real_check(study: Study, mats: dict, out_dir: Path, queue=None, progress=None) -> list:

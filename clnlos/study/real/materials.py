@@ -183,7 +183,10 @@ def blob_control(reference: np.ndarray) -> float:
                        reference)
 
 
-def _front(cap: Capture, counts: np.ndarray, cfg: ReconstructionConfig, queue) -> np.ndarray:
+def counts_front(cap: Capture, counts: np.ndarray, cfg: ReconstructionConfig,
+                 queue) -> np.ndarray:
+    """The front view of ``counts`` (a thinning of ``cap``'s, its direct cut left to the
+    config) reconstructed by ``cfg``."""
     c = Capture(counts, cap.bin_width_s, cap.start_s, cap.scan_width_m, cap.source,
                 {k: v for k, v in cap.attrs.items() if k != "direct_end_s"})
     return front_view(reconstruct(c, cfg, device=queue).volume)
@@ -214,9 +217,9 @@ def ladder_rows(cap: Capture, base: ReconstructionConfig, plan: RealPlan, invers
     other = counts - half
     agree, full = {}, {}
     for v in var:
-        agree[v] = image_score(_front(cap, half, cfgs[v], queue),
-                               _front(cap, other, cfgs[v], queue))
-        full[v] = _front(cap, counts, cfgs[v], queue)
+        agree[v] = image_score(counts_front(cap, half, cfgs[v], queue),
+                               counts_front(cap, other, cfgs[v], queue))
+        full[v] = counts_front(cap, counts, cfgs[v], queue)
         if progress:
             progress()
     best = max(var, key=lambda v: agree[v])
@@ -224,7 +227,7 @@ def ladder_rows(cap: Capture, base: ReconstructionConfig, plan: RealPlan, invers
     rows = []
     for v in var:
         def score(y, v=v):
-            s = image_score(_front(cap, y, cfgs[v], queue), ref)
+            s = image_score(counts_front(cap, y, cfgs[v], queue), ref)
             if progress:
                 progress()
             return s
