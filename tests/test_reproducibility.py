@@ -324,3 +324,29 @@ def test_candidates_share_each_half_prepared_once(small_capture, queue, monkeypa
         fresh = pipe.run(halves[0], snrs=cand).volume
         assert np.array_equal(shared, fresh), cand
     assert len(prepared.deconvolved) <= DECONVOLVED_KEPT
+
+
+def test_a_large_capture_is_searched_on_block_sums(small_capture, queue, monkeypatch):
+    """A capture of more scan points per side than REPRODUCIBILITY_SEARCH_POINTS (here 8,
+    against the 16-point capture) is searched on its counts summed over 2 x 2 blocks: the
+    params name that grid, the choice is the search of a pipeline built on the block sums
+    themselves (the same candidates, kappas and SNRs), and the chosen SNRs then run on the
+    capture's own grid (its volume keeps all 16 x 16 columns)."""
+    import clnlos.inverse.parameter_choice as pc
+    from clnlos.inverse.brdf_choice import block_sums
+
+    cap, _ = small_capture
+    cfg = _config(cap, method="lct")
+    monkeypatch.setattr(pc, "REPRODUCIBILITY_SEARCH_POINTS", 8)
+    rec = reconstruct(cap, cfg, device=queue)
+    p = rec.params
+    nt = rec.volume.shape[0]
+    assert p["reproducibility_grid"] == f"{nt}x8x8" and rec.volume.shape[1:] == (16, 16)
+    bw, start, sw = resolve_geometry(cap, cfg)
+    small = ReconstructionPipeline((cap.transient.shape[0], 8, 8), bin_width_s=bw,
+                                   start_s=start, scan_width_m=sw, config=cfg, queue=queue)
+    chosen, params = small.reproducibility_snrs(block_sums(np.asarray(cap.transient), 2))
+    assert params["reproducibility_tried"] == p["reproducibility_tried"]
+    assert (p["snr_used"], p["inversion_snr_used"]) == chosen
+    given = reconstruct(cap, cfg.replace(snr=chosen[0], inversion_snr=chosen[1]), device=queue)
+    assert np.array_equal(given.volume, rec.volume)

@@ -30,6 +30,7 @@ from clnlos.inverse.brdf_choice import (
 )
 from clnlos.inverse.reproducibility import (
     LIGHTCONE_SNRS,
+    REPRODUCIBILITY_SEARCH_POINTS,
     candidate_order,
     first_reproducible,
     kappa_min,
@@ -232,22 +233,38 @@ class ParameterSearches:
                         "brdf_search_grid": "x".join(str(v) for v in self.shape)}
 
     def _lobe_search_plan(self, shape_in) -> tuple | None:
-        """(a pipeline of this one's config on the search's grid, the scan points it sums
-        per side) for captures of ``shape_in`` (raw [t, y, x]), built once; None where this
+        """(a pipeline of this one's config on the lobe search's grid, the scan points it
+        sums per side) for captures of ``shape_in`` (raw [t, y, x]); None where this
         pipeline's grid is the search's already (:func:`search_factors`)."""
-        f, ft = search_factors(self.shape)
+        return self._search_plan(shape_in, *search_factors(self.shape))
+
+    def _split_search_plan(self, shape_in) -> tuple | None:
+        """:meth:`_lobe_search_plan` for the reproducibility search: at most
+        REPRODUCIBILITY_SEARCH_POINTS scan points per side, the time axis kept."""
+        return self._search_plan(shape_in, *search_factors(
+            self.shape, REPRODUCIBILITY_SEARCH_POINTS, None))
+
+    def _drop_search_plans(self) -> None:
+        """Free the search grids' pipelines (:meth:`_search_plan`; rebuilt on next use)."""
+        self.__dict__.pop("_search_plans", None)
+
+    def _search_plan(self, shape_in, f: int, ft: int) -> tuple | None:
+        """(a pipeline of this one's config for captures of ``shape_in`` (raw [t, y, x]) with
+        their scan points summed in f x f blocks and ft bins per bin, f), built once per
+        grid; None where f = ft = 1 (this pipeline is that grid)."""
         if f == 1 and ft == 1:
             return None
         key = (tuple(shape_in), f, ft)
-        if getattr(self, "_lobe_search", (None,))[0] != key:
+        plans = self.__dict__.setdefault("_search_plans", {})
+        if key not in plans:
             nt_in, ny, nx = shape_in
             bins = max(1, round(self.shape[0] / ft))
-            small = type(self)((nt_in, ny // f, nx // f), bin_width_s=self.raw_bin_width_s,
-                               start_s=self.raw_start_s, scan_width_m=self.scan_width_m,
-                               config=self.config.replace(bins=bins), dtype=self.dtype,
-                               queue=self.queue)
-            self._lobe_search = (key, (small, f))
-        return self._lobe_search[1]
+            config = self.config if ft == 1 else self.config.replace(bins=bins)
+            plans[key] = (type(self)((nt_in, ny // f, nx // f),
+                                     bin_width_s=self.raw_bin_width_s,
+                                     start_s=self.raw_start_s, scan_width_m=self.scan_width_m,
+                                     config=config, dtype=self.dtype, queue=self.queue), f)
+        return plans[key]
 
     def _held_out_prediction_target(self, y2: np.ndarray):
         """(the held-out half as the inversion sees it, host; the slab's influence Phi2 that a
@@ -333,7 +350,19 @@ class ParameterSearches:
         reproducible candidate (:mod:`clnlos.inverse.reproducibility`; a note says so). The
         candidates are used as given: on a measured capture (``snr_rule`` by name) the
         model's accuracy is not combined with them. Where a half holds no counts in the
-        window, the method's GCV rule stands (None, and a note)."""
+        window, the method's GCV rule stands (None, and a note). A capture of more than
+        REPRODUCIBILITY_SEARCH_POINTS scan points per side is searched on a pipeline of its
+        counts summed over blocks of scan points (:meth:`_split_search_plan`; the params
+        record ``reproducibility_grid``)."""
+        plan = self._split_search_plan(transient.shape)
+        if plan is not None:
+            small, f = plan
+            snrs, cv = small.reproducibility_snrs(block_sums(transient, f), model_snr, setup,
+                                                  resampled=resampled)
+            del small, plan
+            self._drop_search_plans()  # its buffers freed before the capture's own stages
+            return snrs, {**cv, "reproducibility_grid": "x".join(
+                str(v) for v in (self.shape[0], self.shape[1] // f, self.shape[2] // f))}
         halves = self._split(transient)
         if halves is None:
             return None, {"snr_rule_used": SPLIT_EMPTY}

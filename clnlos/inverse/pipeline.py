@@ -456,6 +456,7 @@ class ReconstructionPipeline(ParameterSearches):
                 out = self._timed(timings, "deconvolve", deconv, prep.tau, prep.fills)
                 added["tail_fill_snr"] = deconv.fill_snr  # the fill's SNR (tail_fill)
                 added["tail_filled_snr_applied"] = deconv.applied_snr  # its final filter's
+                added["tail_fill_block"] = deconv.block  # scan cells per side it summed
             else:
                 out = self._timed(timings, "deconvolve", deconv, prep.tau)
             if self.n_guard:
@@ -596,8 +597,9 @@ class ReconstructionPipeline(ParameterSearches):
         if level <= cut_level(snr) or self.n_guard >= GUARD_PEAKS * scales.peak_lags:
             return self.deconv
         if self._tail_deconv is None:
-            self._tail_deconv = TailFilledDeconvolution(self.config.slab, (profile.size,)
-                                                        + self.shape[1:], **self._deconv_args)
+            self._tail_deconv = TailFilledDeconvolution(
+                self.config.slab, (profile.size,) + self.shape[1:], window_filter=self.deconv,
+                **self._deconv_args)
         dt, dz = self.bin_width_s, C0 * self.bin_width_s / 2
         n_data, n_out = profile.size, self.shape[0]
         params["tail_fill_bins"] = scales.reach_lags

@@ -15,7 +15,9 @@ of the two SNRs, at equal products the deeper slab deconvolution first); the fir
 halves agree with kappa >= :func:`kappa_min` (KAPPA_MIN with a light-cone filter, LCT;
 KAPPA_MIN_SLAB_ONLY without, f-k) is used on the whole capture, else the most reproducible.
 Cost: two reconstructions of half the data per candidate tried (at most 18 for LCT, 8 for
-f-k). How the bars and candidate grids were chosen, and what they measured:
+f-k), on a grid of at most REPRODUCIBILITY_SEARCH_POINTS scan points per side (a larger
+capture's counts summed over blocks of scan points; the chosen SNRs then run on the capture's
+own grid: docs/validation/parameter-rules.md, "The search's grid"). How the bars and candidate grids were chosen, and what they measured:
 docs/validation/parameter-rules.md.
 """
 
@@ -39,6 +41,11 @@ KAPPA_MIN_SLAB_ONLY = 0.8
 SLAB_SNRS = tuple(10.0 ** k for k in range(math.floor(math.log10(CLOSED_FORM_SLAB_SNR_MIN)), 8))
 SLAB_SNRS_SLAB_ONLY = SLAB_SNRS + (1e8,)
 LIGHTCONE_SNRS = (1e2, 1e3, 1e4)
+# the halves are reconstructed on at most this many scan points per side (a larger capture's
+# counts summed over blocks of scan points: still Poisson counts, the same SNR per spatial
+# frequency both grids hold; what it changes against the capture's own grid:
+# docs/validation/parameter-rules.md, "The search's grid")
+REPRODUCIBILITY_SEARCH_POINTS = 64
 
 
 def otsu_threshold(img: np.ndarray, bins: int = 256) -> float:

@@ -11,7 +11,7 @@ import pyopencl.array as cla
 from clnlos.forward.blur import BlurTimeScales, slab_blur
 from clnlos.operators.spectral import SpectralFilter
 from clnlos.physics.slab import Slab
-from clnlos.runtime.buffers import copy_rows, fill_zero
+from clnlos.runtime.buffers import Scratch, copy_rows, fill_zero
 from clnlos.runtime.device import has_fp64
 
 TAIL_FILL_ITERATIONS = 12    # at most this many fills of the unseen tail
@@ -21,6 +21,11 @@ TAIL_FILL_RTOL = 1e-3        # ... stopping when the fill changes by less than t
 TAIL_FILL_SNR = 1e4          # the fill's Wiener SNR at most (see TailFilledDeconvolution)
 TAIL_FILL_SNR_MIN = 1e2      # ... lowered 10x at a time while the fill diverges, to this
 TAIL_FILLED_SNR_MAX = 1e8    # the final deconvolution of a filled window's SNR at most
+# the fill runs on scan cells summed in f x f blocks, f * pitch at most this fraction of the
+# slab's diffuse spot scale d + 2 z_e (the tail is the blur of arrivals at lags past its
+# peak, laterally as wide as that spot), the grid kept at TAIL_FILL_POINTS_MIN per side
+TAIL_FILL_CELL_OF_SPOT = 2.0
+TAIL_FILL_POINTS_MIN = 16
 
 
 class TailFilledDeconvolution:
@@ -58,6 +63,19 @@ class TailFilledDeconvolution:
     its first), its SNR is lowered tenfold and the fill restarted, down to
     TAIL_FILL_SNR_MIN (diverging there too, the tail is left zero); ``fill_snr`` records
     the SNR the fill ran at.
+
+    The fill runs on a coarser scan grid (:func:`fill_block`: f x f scan cells summed, f *
+    pitch at most TAIL_FILL_CELL_OF_SPOT times the slab's diffuse spot scale d + 2 z_e): the
+    tail is H P x at lags past the blur's peak, as wide laterally as the slab's diffuse spot,
+    so f x f blocks carry it, and the iteration costs 1/f^2 of the capture's grid (measured:
+    docs/performance.md, "The tail fill on blocks"). W is linear, so the final deconvolution
+    of the filled window is
+
+        x = [W (tau, tail)]_{t < n} = W_n tau + [W (0, tail)]_{t < n},
+
+    W_n the plain Wiener filter of the window (``window_filter``: the pipeline's own, shared)
+    and the tail's response computed on the fill's grid, divided by f^2 and interpolated
+    (bilinear between block centres) onto the scan grid. ``block`` records f.
     """
 
     name = "tail_filled_wiener"
@@ -65,18 +83,23 @@ class TailFilledDeconvolution:
     def __init__(self, slab: Slab, shape, *, bin_width_s: float, pitch_m: float,
                  scales: BlurTimeScales, snr: float = 1.0, n_dipoles=None,
                  lateral_pad: str = "zero", dtype=np.float32, queue=None, scratch=None,
-                 cache=None):
+                 cache=None, window_filter: SpectralFilter | None = None):
         n, ny, nx = (int(v) for v in shape)
         self.in_shape = self.out_shape = (n, ny, nx)
         self.scales = scales
         self.n_ext = n + scales.reach_lags
         self.n_known = max(0, n - scales.peak_lags)  # arrivals the window determines
-        self.W = slab_blur(slab, (self.n_ext, ny, nx), bin_width_s=bin_width_s,
-                           pitch_m=pitch_m, mode="wiener", snr=snr, n_dipoles=n_dipoles,
-                           lateral_pad=lateral_pad, dtype=dtype, queue=queue,
-                           scratch=scratch, cache=cache)
-        self.H = SpectralFilter.from_spectrum(self.W, self.W.H, mode="convolve")
+        blur = dict(bin_width_s=bin_width_s, mode="wiener", snr=snr, n_dipoles=n_dipoles,
+                    lateral_pad=lateral_pad, dtype=dtype, queue=queue, cache=cache)
+        self.W = window_filter if window_filter is not None else slab_blur(
+            slab, self.in_shape, pitch_m=pitch_m, scratch=scratch, **blur)
         self.queue = self.W.queue
+        self.block = f = fill_block(slab, ny, nx, pitch_m)
+        self.fill_shape = (self.n_ext, ny // f, nx // f)
+        # the fill's grid: its own work buffers (another shape than the window's)
+        self.W_fill = slab_blur(slab, self.fill_shape, pitch_m=pitch_m * f,
+                                scratch=Scratch(self.queue), **blur)
+        self.H = SpectralFilter.from_spectrum(self.W_fill, self.W_fill.H, mode="convolve")
         self.snr = float(snr)
         self.fill_snr = min(self.snr, TAIL_FILL_SNR)
         self.iterations_run = 0
@@ -95,39 +118,86 @@ class TailFilledDeconvolution:
         caller for this one input): the fills by fill SNR, computed once (the fill depends
         on the SNR only through min(snr, TAIL_FILL_SNR): the slab SNRs a search tries share
         it)."""
-        n = self.in_shape[0]
         plane = self.in_shape[1] * self.in_shape[2]
         item = tau_g.dtype.itemsize
         fill_snr = min(self.snr, TAIL_FILL_SNR)
         memo = {} if memo is None else memo
         while True:
             if fill_snr not in memo:
-                memo[fill_snr] = self._fill(tau_g, fill_snr)
-            y, diverged = memo[fill_snr]
+                memo[fill_snr] = self._fill(self._fill_input(tau_g), fill_snr)
+            tail, diverged = memo[fill_snr]
             if not diverged:
                 break
             if fill_snr <= TAIL_FILL_SNR_MIN:  # no fill to trust: the window as it is
-                fill_zero(self.queue, y, offset_bytes=n * plane * item)
+                tail = None
                 break
             fill_snr = max(fill_snr / 10.0, TAIL_FILL_SNR_MIN)
         self.fill_snr = fill_snr
-        self.W.set_snr(self.applied_snr)
-        x = self.W(y)
+        if tail is not None and self.block == 1:  # the fill's grid is the window's: W of
+            x = self._filled_window_filtered(tau_g, tail)  # the filled window, one filter
+        else:
+            self.W.set_snr(self.applied_snr)
+            x = self.W(tau_g)
+            if tail is not None:
+                x += self._tail_response(tail)
         # arrivals past n - peak are seen only by the rise of their response: not determined
         fill_zero(self.queue, x, offset_bytes=self.n_known * plane * item)
-        return x[:n]
+        return x
+
+    def _filled_window_filtered(self, tau_g: cla.Array, tail: cla.Array) -> cla.Array:
+        """[W (tau, tail)]_{t < n} on the fill's grid (the scan grid where f = 1)."""
+        n = self.in_shape[0]
+        y = cla.empty(self.queue, self.fill_shape, tau_g.dtype)
+        copy_rows(self.queue, tau_g, y, rows=n)
+        copy_rows(self.queue, tail, y, rows=self.n_ext - n, dst_row=n)
+        self.W_fill.set_snr(self.applied_snr)
+        return self.W_fill(y)[:n]
+
+    def _tail_response(self, tail: cla.Array) -> cla.Array:
+        """[W (0, tail)]_{t < n} on the scan grid: the filled tail's part of the final
+        deconvolution (class docstring), at :attr:`applied_snr`, on the fill's grid."""
+        n = self.in_shape[0]
+        plane = self.fill_shape[1] * self.fill_shape[2]
+        y = cla.empty(self.queue, self.fill_shape, tail.dtype)
+        fill_zero(self.queue, y, nbytes=n * plane * tail.dtype.itemsize)
+        copy_rows(self.queue, tail, y, rows=self.n_ext - n, dst_row=n)
+        self.W_fill.set_snr(self.applied_snr)
+        return self._on_scan_grid(self.W_fill(y)[:self.n_known])
+
+    def _fill_input(self, tau_g: cla.Array) -> cla.Array:
+        """The window on the fill's grid: ``tau_g`` with its scan cells summed in blocks of
+        :attr:`block` per side (itself where the block is one cell)."""
+        f = self.block
+        if f == 1:
+            return tau_g
+        n, ny, nx = self.in_shape
+        a = tau_g.get().reshape(n, ny // f, f, nx // f, f).sum(axis=(2, 4))
+        return cla.to_device(self.queue, np.ascontiguousarray(a, tau_g.dtype))
+
+    def _on_scan_grid(self, part: cla.Array) -> cla.Array:
+        """Rows [t, y', x'] of the fill's grid on the scan grid, padded with zero rows to the
+        window's n: per cell, divided by the cells a block sums, interpolated bilinearly
+        between block centres (held at the border)."""
+        f = self.block
+        n, ny, nx = self.in_shape
+        fine = np.zeros((n, ny, nx), part.dtype)
+        rows = part.shape[0]
+        fine[:rows] = part.get() if f == 1 else block_interpolated(part.get(), f) / (f * f)
+        return cla.to_device(self.queue, fine)
 
     def _fill(self, tau_g: cla.Array, fill_snr: float) -> tuple[cla.Array, bool]:
-        """(the window ``tau_g`` extended by its model-predicted tail, diverged): the fill
-        iteration of the class docstring with W at ``fill_snr``; diverged when a change of
-        the fill exceeds its first change (a contracting iteration's changes stay below it,
-        down to float32's plateau; a diverging one's grow by the spectral radius, 49x at
-        85 bins of 96 ps and SNR 1e10)."""
+        """(the model-predicted tail of the window ``tau_g`` on the fill's grid, rows n ...
+        n + reach, diverged): the fill iteration of the class docstring with W at
+        ``fill_snr``; diverged when a change of the fill exceeds its first change (a
+        contracting iteration's changes stay below it, down to float32's plateau; a
+        diverging one's grow by the spectral radius, 49x at 85 bins of 96 ps and SNR
+        1e10)."""
         n = self.in_shape[0]
-        plane = self.in_shape[1] * self.in_shape[2]
+        plane = self.fill_shape[1] * self.fill_shape[2]
         item = tau_g.dtype.itemsize
-        self.W.set_snr(fill_snr)
-        y = cla.empty(self.queue, (self.n_ext,) + self.in_shape[1:], tau_g.dtype)
+        W = self.W_fill
+        W.set_snr(fill_snr)
+        y = cla.empty(self.queue, self.fill_shape, tau_g.dtype)
         copy_rows(self.queue, tau_g, y, rows=n)
         fill_zero(self.queue, y, offset_bytes=n * plane * item)
         tail = y[n:]  # a view: the rows the fill writes
@@ -137,7 +207,7 @@ class TailFilledDeconvolution:
         for k in range(TAIL_FILL_ITERATIONS - 1):
             if k:
                 copy_rows(self.queue, tail, tail_old, rows=self.n_ext - n)
-            x = self.W(y)
+            x = W(y)
             self.iterations_run = k + 1
             fill_zero(self.queue, x, offset_bytes=self.n_known * plane * item)
             hx = self.H(x)
@@ -147,11 +217,41 @@ class TailFilledDeconvolution:
             # the fill's change: two reductions on the device, two numbers read back
             scale, change = tail_change(tail, tail_old)
             if not np.isfinite(change) or (first_change is not None and change > first_change):
-                return y, True
+                return tail, True
             if change < TAIL_FILL_RTOL * max(scale, 1e-300):
                 break
             first_change = change if first_change is None else first_change
-        return y, False
+        return tail, False
+
+
+def fill_block(slab: Slab, ny: int, nx: int, pitch_m: float) -> int:
+    """Scan cells per side the tail fill sums (:class:`TailFilledDeconvolution`): the largest
+    f dividing ``ny`` and ``nx`` with f * ``pitch_m`` <= TAIL_FILL_CELL_OF_SPOT (d + 2 z_e)
+    and at least TAIL_FILL_POINTS_MIN blocks per side (1 where none does)."""
+    spot = TAIL_FILL_CELL_OF_SPOT * (slab.thickness_m + 2.0 * slab.ze)
+    best = 1
+    for f in range(2, min(ny, nx) // TAIL_FILL_POINTS_MIN + 1):
+        if ny % f == 0 and nx % f == 0 and f * pitch_m <= spot:
+            best = f
+    return best
+
+
+def block_interpolated(a: np.ndarray, f: int) -> np.ndarray:
+    """[t, Y, X] of block values -> [t, f Y, f X]: bilinear between the blocks' centres (at
+    fine-cell coordinates f j + (f - 1) / 2), constant past the outermost centres."""
+    out = a
+    for axis in (1, 2):
+        m = out.shape[axis]
+        pos = (np.arange(m * f) - (f - 1) / 2.0) / f  # fine-cell centres in block units
+        pos = np.clip(pos, 0.0, m - 1.0)
+        lo = np.minimum(np.floor(pos).astype(int), max(m - 2, 0))
+        w = (pos - lo).astype(a.dtype)
+        hi = np.minimum(lo + 1, m - 1)
+        shape = [1, 1, 1]
+        shape[axis] = m * f
+        w = w.reshape(shape)
+        out = np.take(out, lo, axis=axis) * (1 - w) + np.take(out, hi, axis=axis) * w
+    return np.ascontiguousarray(out, a.dtype)
 
 
 def tail_change(tail: cla.Array, old: cla.Array) -> tuple[float, float]:
