@@ -17,8 +17,8 @@ KAPPA_MIN_SLAB_ONLY without, f-k) is used on the whole capture, else the most re
 Cost: two reconstructions of half the data per candidate tried (at most 18 for LCT, 8 for
 f-k), on a grid of at most REPRODUCIBILITY_SEARCH_POINTS scan points per side (a larger
 capture's counts summed over blocks of scan points; the chosen SNRs then run on the capture's
-own grid: docs/validation/parameter-rules.md, "The search's grid"). How the bars and candidate grids were chosen, and what they measured:
-docs/validation/parameter-rules.md.
+own grid). How the bars, the candidate grids and the search's grid were chosen, and what
+they measured: docs/validation/parameter-rules.md.
 """
 
 from __future__ import annotations
