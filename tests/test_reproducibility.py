@@ -350,3 +350,22 @@ def test_a_large_capture_is_searched_on_block_sums(small_capture, queue, monkeyp
     assert (p["snr_used"], p["inversion_snr_used"]) == chosen
     given = reconstruct(cap, cfg.replace(snr=chosen[0], inversion_snr=chosen[1]), device=queue)
     assert np.array_equal(given.volume, rec.volume)
+
+
+def test_no_agreement_on_block_sums_is_decided_on_the_capture_grid(small_capture, queue,
+                                                                   monkeypatch):
+    """Where no candidate agrees on the block sums (here: a bar above 1), the search runs
+    again on the capture's own grid, which decides the most reproducible candidate: the
+    params name that grid and its kappas are those of the search without block sums."""
+    import clnlos.inverse.parameter_choice as pc
+
+    cap, _ = small_capture
+    cfg = _config(cap, method="fk")
+    monkeypatch.setattr(pc, "kappa_min", lambda lightcone_filter: 1.01)
+    own = reconstruct(cap, cfg, device=queue).params
+    monkeypatch.setattr(pc, "REPRODUCIBILITY_SEARCH_POINTS", 8)
+    p = reconstruct(cap, cfg, device=queue).params
+    nt = int(p["reproducibility_grid"].split("x")[0])
+    assert p["reproducibility_grid"] == own["reproducibility_grid"] == f"{nt}x16x16"
+    assert p["reproducibility_tried"] == own["reproducibility_tried"]
+    assert p["reproducibility_agreed"] is False and p["snr_used"] == own["snr_used"]

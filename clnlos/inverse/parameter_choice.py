@@ -353,7 +353,9 @@ class ParameterSearches:
         window, the method's GCV rule stands (None, and a note). A capture of more than
         REPRODUCIBILITY_SEARCH_POINTS scan points per side is searched on a pipeline of its
         counts summed over blocks of scan points (:meth:`_split_search_plan`; the params
-        record ``reproducibility_grid``)."""
+        record ``reproducibility_grid``), and again on its own grid where no candidate's
+        halves agreed there (the fallback, the most reproducible candidate, is decided on
+        the capture's own grid)."""
         plan = self._split_search_plan(transient.shape)
         if plan is not None:
             small, f = plan
@@ -361,8 +363,12 @@ class ParameterSearches:
                                                   resampled=resampled)
             del small, plan
             self._drop_search_plans()  # its buffers freed before the capture's own stages
-            return snrs, {**cv, "reproducibility_grid": "x".join(
-                str(v) for v in (self.shape[0], self.shape[1] // f, self.shape[2] // f))}
+            grid = "x".join(str(v) for v in (self.shape[0], self.shape[1] // f,
+                                             self.shape[2] // f))
+            if cv.get("reproducibility_agreed") is not False:
+                return snrs, {**cv, "reproducibility_grid": grid}
+            # no candidate agreed on the block sums: the most reproducible one is chosen
+            # among kappas that all fall short, which the capture's own grid decides
         halves = self._split(transient)
         if halves is None:
             return None, {"snr_rule_used": SPLIT_EMPTY}
@@ -384,6 +390,7 @@ class ParameterSearches:
         return chosen, {"snr_rule_used": "reproducibility", "reproducibility_kappa": kappa,
                         "reproducibility_kappa_min": bar,
                         "reproducibility_agreed": agreed,
+                        "reproducibility_grid": "x".join(str(v) for v in self.shape),
                         "reproducibility_tried": json.dumps([[c[0], c[1], k]
                                                              for c, k in tried])}
 
