@@ -238,20 +238,27 @@ def fill_block(slab: Slab, ny: int, nx: int, pitch_m: float) -> int:
 
 def block_interpolated(a: np.ndarray, f: int) -> np.ndarray:
     """[t, Y, X] of block values -> [t, f Y, f X]: bilinear between the blocks' centres (at
-    fine-cell coordinates f j + (f - 1) / 2), constant past the outermost centres."""
-    out = a
-    for axis in (1, 2):
-        m = out.shape[axis]
-        pos = (np.arange(m * f) - (f - 1) / 2.0) / f  # fine-cell centres in block units
-        pos = np.clip(pos, 0.0, m - 1.0)
-        lo = np.minimum(np.floor(pos).astype(int), max(m - 2, 0))
-        w = (pos - lo).astype(a.dtype)
-        hi = np.minimum(lo + 1, m - 1)
-        shape = [1, 1, 1]
-        shape[axis] = m * f
-        w = w.reshape(shape)
-        out = np.take(out, lo, axis=axis) * (1 - w) + np.take(out, hi, axis=axis) * w
-    return np.ascontiguousarray(out, a.dtype)
+    fine-cell coordinates f j + (f - 1) / 2), constant past the outermost centres; applied
+    as M_y a[t] M_x^T with the (f m, m) interpolation matrices of :func:`linear_weights`."""
+    if f == 1:
+        return np.asarray(a)
+    my = linear_weights(a.shape[1], f).astype(a.dtype)
+    mx = linear_weights(a.shape[2], f).astype(a.dtype)
+    return np.ascontiguousarray(np.matmul(np.matmul(my, a), mx.T), a.dtype)
+
+
+def linear_weights(m: int, f: int) -> np.ndarray:
+    """(f m, m) matrix of linear interpolation from m block centres (at f j + (f - 1) / 2
+    in fine-cell units) to the f m fine cells, held constant past the outermost centres."""
+    pos = np.clip((np.arange(m * f) - (f - 1) / 2.0) / f, 0.0, m - 1.0)
+    lo = np.minimum(np.floor(pos).astype(int), max(m - 2, 0))
+    hi = np.minimum(lo + 1, m - 1)
+    w = pos - lo
+    out = np.zeros((m * f, m))
+    rows = np.arange(m * f)
+    np.add.at(out, (rows, lo), 1.0 - w)
+    np.add.at(out, (rows, hi), w)
+    return out
 
 
 def tail_change(tail: cla.Array, old: cla.Array) -> tuple[float, float]:
