@@ -13,12 +13,13 @@ import clnlos.runtime.fft as fft
 from clnlos.brdf.lobes import retro_lobe
 from clnlos.config import ReconstructionConfig
 from clnlos.forward.transport import LightConeTransport
-from clnlos.inverse.brdf_choice import block_sums, search_factors
+from clnlos.inverse.brdf_choice import search_factors
 from clnlos.inverse.pipeline import ReconstructionPipeline, reconstruct
 from clnlos.inverse.preprocessing import resolve_geometry
 from clnlos.io.capture import Capture
 from clnlos.operators.base import dot_test
 from clnlos.operators.spectral import scale_rows
+from clnlos.physics.grid import block_sums
 from clnlos.runtime.programs import get_kernels, real_defines
 
 

@@ -29,6 +29,7 @@ from clnlos.inverse.reproducibility import (
 from clnlos.inverse.snr import MEASURED_MODEL_SNR
 from clnlos.inverse.tail_fill import TAIL_FILL_SNR, TailFilledDeconvolution
 from clnlos.inverse.thinning import thin_counts
+from clnlos.physics.grid import block_sums
 from clnlos.study.score.metrics import mip_iou
 
 # 'UT' 0.3 m tall 0.5 m behind the CDT slab, 16 x 16 scan of 0.6 m, 128 bins of 64 ps,
@@ -326,22 +327,45 @@ def test_candidates_share_each_half_prepared_once(small_capture, queue, monkeypa
     assert len(prepared.deconvolved) <= DECONVOLVED_KEPT
 
 
+def test_search_block_keeps_the_search_grid_between_its_bounds():
+    """The scan points per side a capture is searched on the sums of: none within
+    REPRODUCIBILITY_SEARCH_POINTS (64) a side; else the fewest f dividing both sides that
+    brings the longer within 64 while the shorter keeps at least 48; the capture's own grid
+    where none does (130 = 2 x 5 x 13: 65 or 26 a side; 128 x 72: 64 x 36)."""
+    from clnlos.inverse.reproducibility import (
+        REPRODUCIBILITY_SEARCH_POINTS,
+        REPRODUCIBILITY_SEARCH_POINTS_MIN,
+        search_block,
+    )
+
+    assert (REPRODUCIBILITY_SEARCH_POINTS, REPRODUCIBILITY_SEARCH_POINTS_MIN) == (64, 48)
+    cases = {(16, 16): 1, (40, 40): 1, (64, 64): 1, (66, 66): 1, (96, 96): 2, (100, 100): 2,
+             (128, 128): 2, (256, 256): 4, (192, 128): 1, (128, 96): 2, (130, 130): 1,
+             (128, 72): 1, (127, 127): 1}
+    assert {k: search_block(*k) for k in cases} == cases
+
+
+def _search_bounds(monkeypatch, points: int, least: int) -> None:
+    import clnlos.inverse.reproducibility as rp
+
+    monkeypatch.setattr(rp, "REPRODUCIBILITY_SEARCH_POINTS", points)
+    monkeypatch.setattr(rp, "REPRODUCIBILITY_SEARCH_POINTS_MIN", least)
+
+
 def test_a_large_capture_is_searched_on_block_sums(small_capture, queue, monkeypatch):
-    """A capture of more scan points per side than REPRODUCIBILITY_SEARCH_POINTS (here 8,
+    """A capture of more scan points per side than the search's grid (here at most 8,
     against the 16-point capture) is searched on its counts summed over 2 x 2 blocks: the
     params name that grid, the choice is the search of a pipeline built on the block sums
     themselves (the same candidates, kappas and SNRs), and the chosen SNRs then run on the
     capture's own grid (its volume keeps all 16 x 16 columns)."""
-    import clnlos.inverse.parameter_choice as pc
-    from clnlos.inverse.brdf_choice import block_sums
-
     cap, _ = small_capture
     cfg = _config(cap, method="lct")
-    monkeypatch.setattr(pc, "REPRODUCIBILITY_SEARCH_POINTS", 8)
+    _search_bounds(monkeypatch, 8, 8)
     rec = reconstruct(cap, cfg, device=queue)
     p = rec.params
     nt = rec.volume.shape[0]
     assert p["reproducibility_grid"] == f"{nt}x8x8" and rec.volume.shape[1:] == (16, 16)
+    assert "reproducibility_block_grid" not in p
     bw, start, sw = resolve_geometry(cap, cfg)
     small = ReconstructionPipeline((cap.transient.shape[0], 8, 8), bin_width_s=bw,
                                    start_s=start, scan_width_m=sw, config=cfg, queue=queue)
@@ -356,16 +380,21 @@ def test_no_agreement_on_block_sums_is_decided_on_the_capture_grid(small_capture
                                                                    monkeypatch):
     """Where no candidate agrees on the block sums (here: a bar above 1), the search runs
     again on the capture's own grid, which decides the most reproducible candidate: the
-    params name that grid and its kappas are those of the search without block sums."""
+    params name that grid and its kappas are those of the search without block sums; the
+    block sums' search is recorded beside it (every candidate tried there too)."""
     import clnlos.inverse.parameter_choice as pc
 
     cap, _ = small_capture
     cfg = _config(cap, method="fk")
     monkeypatch.setattr(pc, "kappa_min", lambda lightcone_filter: 1.01)
     own = reconstruct(cap, cfg, device=queue).params
-    monkeypatch.setattr(pc, "REPRODUCIBILITY_SEARCH_POINTS", 8)
+    _search_bounds(monkeypatch, 8, 8)
     p = reconstruct(cap, cfg, device=queue).params
     nt = int(p["reproducibility_grid"].split("x")[0])
     assert p["reproducibility_grid"] == own["reproducibility_grid"] == f"{nt}x16x16"
     assert p["reproducibility_tried"] == own["reproducibility_tried"]
     assert p["reproducibility_agreed"] is False and p["snr_used"] == own["snr_used"]
+    assert p["reproducibility_block_grid"] == f"{nt}x8x8"
+    block = json.loads(p["reproducibility_block_tried"])
+    assert len(block) == len(SLAB_SNRS_SLAB_ONLY) and all(k < 1.01 for *_, k in block)
+    assert block != json.loads(p["reproducibility_tried"])  # the kappas of other masks

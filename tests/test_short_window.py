@@ -5,6 +5,7 @@ the
 window's end as a step to zero, which the inverse filter turned into the brightest voxels of
 the volume (the demo's "UT" at 0.5 m was placed at 0.757 m with 320 bins)."""
 
+import json
 import tomllib
 
 import numpy as np
@@ -362,3 +363,110 @@ def test_tail_fill_on_blocks_recovers_the_full_window_deconvolution(queue, monke
     whole = TailFilledDeconvolution(CDT_SLAB, short.shape, scales=sc, snr=snr, **kw)
     x1 = whole(cla.to_device(queue, short)).get()
     assert whole.block == 1 and _rel(x[:known], x1[:known]) < 0.005
+
+
+@pytest.fixture(scope="module")
+def wide_patch(queue):
+    """A 6 cm patch 0.5 m behind the CDT slab seen by a 64 x 32 scan of 0.6 x 0.3 m (512
+    bins of 16 ps), blurred in the device's best precision; (transient, pitch)."""
+    n, width = 64, 0.6
+    pts, w = patch_points((0.02, -0.01, 0.5), 0.06)
+    tau = points_transient(pts, w, 512, n, width, DT)[:, :, :32]
+    dt = _best(queue)
+    op = slab_blur(CDT_SLAB, tau.shape, bin_width_s=DT, pitch_m=width / n, dtype=dt,
+                   queue=queue)
+    return np.maximum(op(np.ascontiguousarray(tau, dt)), 0.0).astype(np.float32), width / n
+
+
+def test_tail_fill_on_blocks_of_a_rectangular_scan(queue, wide_patch, monkeypatch):
+    """A 64 x 32 scan filled on 4 x 4 blocks (16 x 8 of them) agrees with the fill on the
+    scan grid to 0.5% on the determined arrivals."""
+    import clnlos.inverse.tail_fill as tf
+
+    tau, pitch = wide_patch
+    kw = dict(bin_width_s=DT, pitch_m=pitch, lateral_pad="mirror", queue=queue, snr=1e4)
+    sc = blur_time_scales(CDT_SLAB, bin_width_s=DT, queue=queue)
+    short = np.ascontiguousarray(tau[:320])
+    known = 320 - sc.peak_lags
+    out = {}
+    for f in (4, 1):
+        monkeypatch.setattr(tf, "fill_block", lambda *a, f=f: f)
+        fill = TailFilledDeconvolution(CDT_SLAB, short.shape, scales=sc, **kw)
+        assert fill.fill_shape[1:] == (64 // f, 32 // f)
+        out[f] = fill(cla.to_device(queue, short)).get()
+    assert _rel(out[4][:known], out[1][:known]) < 0.005
+
+
+def test_a_fill_that_diverges_on_blocks_leaves_the_window_as_it_is(queue, wide_patch,
+                                                                    monkeypatch):
+    """Where the fill diverges at every SNR down to TAIL_FILL_SNR_MIN (forced here), the tail
+    is left zero: the result is the window's own Wiener filter, the undetermined rows
+    zero, and the fill tried each SNR once (memo)."""
+    import clnlos.inverse.tail_fill as tf
+
+    tau, pitch = wide_patch
+    sc = blur_time_scales(CDT_SLAB, bin_width_s=DT, queue=queue)
+    short = np.ascontiguousarray(tau[:320])
+    window = slab_blur(CDT_SLAB, short.shape, bin_width_s=DT, pitch_m=pitch, mode="wiener",
+                       snr=1e4, lateral_pad="mirror", queue=queue)
+    monkeypatch.setattr(tf, "tail_change", lambda tail, old: (1.0, float("inf")))
+    fill = TailFilledDeconvolution(CDT_SLAB, short.shape, scales=sc, snr=1e4, bin_width_s=DT,
+                                   pitch_m=pitch, lateral_pad="mirror", queue=queue,
+                                   window_filter=window)
+    assert fill.block == 2 and fill.W is window
+    memo: dict = {}
+    x = fill(cla.to_device(queue, short), memo).get()
+    assert fill.fill_snr == tf.TAIL_FILL_SNR_MIN and all(d for _, d in memo.values())
+    assert sorted(memo) == [1e2, 1e3, 1e4]
+    window.set_snr(1e4)
+    plain = window(short)
+    known = fill.n_known
+    assert np.array_equal(x[:known], plain[:known]) and not np.any(x[known:])
+    with pytest.raises(Exception, match="window filter"):
+        TailFilledDeconvolution(CDT_SLAB, (300,) + short.shape[1:], scales=sc, bin_width_s=DT,
+                                pitch_m=pitch, queue=queue, window_filter=window)
+
+
+def test_the_pipeline_fills_on_blocks_and_searches_with_the_memo(queue, monkeypatch):
+    """A 64 x 64 capture of 96 bins of 64 ps (the window cut on the blur's fall: 7% of the
+    peak still arriving) behind the slab: the pipeline fills its tail on 4 x 4 blocks
+    (params), the volume within 0.5% of the fill on the scan grid; with LCT's default a
+    split search shares each half's fill across its slab SNRs (one fill per half and fill
+    SNR) and a candidate's volume from a prepared half equals a fresh run of that half."""
+    import clnlos.inverse.tail_fill as tf
+    from clnlos.bench.oracle import OracleCase, simulate_case
+    from clnlos.inverse.pipeline import ReconstructionPipeline
+    from clnlos.inverse.preprocessing import resolve_geometry
+    from clnlos.inverse.thinning import thin_counts
+    from clnlos.runtime.caches import PIPELINES
+
+    case = OracleCase("cut UT", "UT", 0.3, 0.5, 0.6, 0.1, points=64, bins=96,
+                      bin_width_s=64e-12, seed=4)
+    cap, _ = simulate_case(case, queue=queue)
+    cfg = ReconstructionConfig(slab=cap.recorded_slab()[0], method="fk", snr=1e8).validate()
+    PIPELINES.clear()
+    rec = reconstruct(cap, cfg, device=queue)
+    assert rec.params["tail_fill_block"] == 4 and rec.params["window_end_level"] > 0.05
+    monkeypatch.setattr(tf, "fill_block", lambda *a: 1)
+    PIPELINES.clear()
+    whole = reconstruct(cap, cfg, device=queue)
+    assert whole.params["tail_fill_block"] == 1
+    assert _rel(rec.volume, whole.volume) < 0.005
+    monkeypatch.undo()
+    lct = ReconstructionConfig(slab=cap.recorded_slab()[0], method="lct").validate()
+    bw, start, sw = resolve_geometry(cap, lct)
+    pipe = ReconstructionPipeline(cap.transient.shape, bin_width_s=bw, start_s=start,
+                                  scan_width_m=sw, config=lct, queue=queue)
+    fills = []
+    monkeypatch.setattr(TailFilledDeconvolution, "_fill",
+                        lambda self, *a, _f=TailFilledDeconvolution._fill:
+                        fills.append(a[1]) or _f(self, *a))
+    chosen, params = pipe.reproducibility_snrs(cap.transient)
+    tried = json.loads(params["reproducibility_tried"])
+    assert len({s for s, _, _ in tried}) >= 2  # several slab SNRs, one fill SNR
+    assert fills == [tf.TAIL_FILL_SNR] * 2  # once per half
+    half = pipe.prepare(thin_counts(np.asarray(cap.transient))[0])
+    for s, c, _ in tried[::-1] + tried:
+        shared = pipe._reconstruct(half, {}, snrs=(s, c)).volume
+        fresh = pipe.run(thin_counts(np.asarray(cap.transient))[0], snrs=(s, c)).volume
+        assert np.array_equal(shared, fresh), (s, c)

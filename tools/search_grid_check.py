@@ -36,7 +36,7 @@ def draws(spec: list[str]) -> list[tuple[int, int, float]]:
 
 
 def main(argv=None) -> int:
-    import clnlos.inverse.parameter_choice as choice
+    import clnlos.inverse.reproducibility as choice
     from clnlos.bench.oracle import random_cases, simulate_case, write_rows
     from clnlos.config import ReconstructionConfig
     from clnlos.inverse.pipeline import reconstruct

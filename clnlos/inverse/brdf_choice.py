@@ -132,30 +132,16 @@ def challenge(best: RetroLobe, tried: list[tuple[str, float]], challengers: Sequ
     return best, tried
 
 
-def search_factors(shape: tuple[int, int, int], points: int | None = None,
-                   bins: int | None | str = "lobe") -> tuple[int, int]:
+def search_factors(shape: tuple[int, int, int]) -> tuple[int, int]:
     """(scan points summed per side, time bins per search bin) that bring an inverted grid
-    ``shape`` [t, y, x] within ``points`` per side and ``bins`` bins (defaults the lobe
-    search's LOBE_SEARCH_POINTS and LOBE_SEARCH_BINS; ``bins`` None: the time axis kept):
-    the fewest points per block that divide both sides, up to twice the fewest that would
-    do (1: none summed, where none does), and the fewest bins per search bin (the
+    ``shape`` [t, y, x] within LOBE_SEARCH_POINTS per side and LOBE_SEARCH_BINS bins: the
+    fewest points per block that divide both sides, up to twice the fewest that would do
+    (1: none summed, where none does), and the fewest bins per search bin (the
     preprocessing rebins the kept window to the rest)."""
-    points = LOBE_SEARCH_POINTS if points is None else points
-    bins = LOBE_SEARCH_BINS if bins == "lobe" else bins
     nt, ny, nx = (int(v) for v in shape)
-    need = max(1, -(-max(ny, nx) // points))
+    need = max(1, -(-max(ny, nx) // LOBE_SEARCH_POINTS))
     f = next((f for f in range(need, 2 * need + 1) if not (ny % f or nx % f)), 1)
-    return f, 1 if bins is None else max(1, -(-nt // bins))
-
-
-def block_sums(transient: np.ndarray, f: int) -> np.ndarray:
-    """A capture [t, y, x] with its scan points summed over f x f blocks (counts stay
-    counts: a sum of Poisson counts is Poisson)."""
-    if f == 1:
-        return np.asarray(transient)
-    t, ny, nx = transient.shape
-    a = np.asarray(transient)
-    return a.reshape(t, ny // f, f, nx // f, f).sum(axis=(2, 4), dtype=a.dtype)
+    return f, max(1, -(-nt // LOBE_SEARCH_BINS))
 
 
 def lobe_choice_note(params: dict) -> str:

@@ -20,7 +20,6 @@ from clnlos.config import ReconstructionConfig
 from clnlos.inverse.brdf_choice import (
     LOBE_NOT_SEARCHED,
     LOBE_SEARCH_ITERATIONS,
-    block_sums,
     both_margins,
     challenge,
     choose_lobe,
@@ -30,12 +29,12 @@ from clnlos.inverse.brdf_choice import (
 )
 from clnlos.inverse.reproducibility import (
     LIGHTCONE_SNRS,
-    REPRODUCIBILITY_SEARCH_POINTS,
     candidate_order,
     first_reproducible,
     kappa_min,
     mask_agreement,
     otsu_mask,
+    search_block,
     slab_snrs,
 )
 from clnlos.inverse.snr import (
@@ -59,6 +58,7 @@ from clnlos.inverse.thinning import (
     thin_counts,
 )
 from clnlos.io.capture import Capture
+from clnlos.physics.grid import block_sums, grid_label
 from clnlos.physics.lobe import RetroLobe
 
 
@@ -194,7 +194,7 @@ class ParameterSearches:
             small, f = plan
             y = block_sums(transient, f)
             lobe, params = small.brdf_lobe(y, small.raw_noise(y), model_snr, setup)
-            return lobe, {**params, "brdf_search_grid": "x".join(str(v) for v in small.shape)}
+            return lobe, {**params, "brdf_search_grid": grid_label(small.shape)}
         halves = self._split(transient) if counts else None
         if halves is None:
             return RetroLobe.lambert(), {"brdf_rule_used": LOBE_NOT_SEARCHED}
@@ -230,7 +230,7 @@ class ParameterSearches:
         return chosen, {"brdf_rule_used": "thinning", "brdf_chosen": chosen.name,
                         "brdf_tried": json.dumps([[c, v] for c, v in tried]),
                         "brdf_tried_surface": json.dumps([[c, surface[c]] for c, _ in tried]),
-                        "brdf_search_grid": "x".join(str(v) for v in self.shape)}
+                        "brdf_search_grid": grid_label(self.shape)}
 
     def _lobe_search_plan(self, shape_in) -> tuple | None:
         """(a pipeline of this one's config on the lobe search's grid, the scan points it
@@ -239,10 +239,10 @@ class ParameterSearches:
         return self._search_plan(shape_in, *search_factors(self.shape))
 
     def _split_search_plan(self, shape_in) -> tuple | None:
-        """:meth:`_lobe_search_plan` for the reproducibility search: at most
-        REPRODUCIBILITY_SEARCH_POINTS scan points per side, the time axis kept."""
-        return self._search_plan(shape_in, *search_factors(
-            self.shape, REPRODUCIBILITY_SEARCH_POINTS, None))
+        """:meth:`_lobe_search_plan` for the reproducibility search: the scan points summed
+        per side by :func:`clnlos.inverse.reproducibility.search_block`, the time axis
+        kept."""
+        return self._search_plan(shape_in, search_block(*self.shape[1:]), 1)
 
     def _drop_search_plans(self) -> None:
         """Free the search grids' pipelines (:meth:`_search_plan`; rebuilt on next use)."""
@@ -350,12 +350,13 @@ class ParameterSearches:
         reproducible candidate (:mod:`clnlos.inverse.reproducibility`; a note says so). The
         candidates are used as given: on a measured capture (``snr_rule`` by name) the
         model's accuracy is not combined with them. Where a half holds no counts in the
-        window, the method's GCV rule stands (None, and a note). A capture of more than
-        REPRODUCIBILITY_SEARCH_POINTS scan points per side is searched on a pipeline of its
-        counts summed over blocks of scan points (:meth:`_split_search_plan`; the params
-        record ``reproducibility_grid``), and again on its own grid where no candidate's
-        halves agreed there (the fallback, the most reproducible candidate, is decided on
-        the capture's own grid)."""
+        window, the method's GCV rule stands (None, and a note). A capture larger than the
+        search's grid (:func:`clnlos.inverse.reproducibility.search_block`) is searched on a
+        pipeline of its counts summed over blocks of scan points (:meth:`_split_search_plan`;
+        the params record ``reproducibility_grid``), and again on its own grid where no
+        candidate's halves agreed there (the fallback, the most reproducible candidate, is
+        decided on the capture's own grid; ``reproducibility_block_grid`` and
+        ``reproducibility_block_tried`` record the block sums' search)."""
         plan = self._split_search_plan(transient.shape)
         if plan is not None:
             small, f = plan
@@ -363,15 +364,17 @@ class ParameterSearches:
                                                   resampled=resampled)
             del small, plan
             self._drop_search_plans()  # its buffers freed before the capture's own stages
-            grid = "x".join(str(v) for v in (self.shape[0], self.shape[1] // f,
-                                             self.shape[2] // f))
             if cv.get("reproducibility_agreed") is not False:
-                return snrs, {**cv, "reproducibility_grid": grid}
+                return snrs, cv
             # no candidate agreed on the block sums: the most reproducible one is chosen
             # among kappas that all fall short, which the capture's own grid decides
+            block = {"reproducibility_block_grid": cv["reproducibility_grid"],
+                     "reproducibility_block_tried": cv["reproducibility_tried"]}
+        else:
+            block = {}
         halves = self._split(transient)
         if halves is None:
-            return None, {"snr_rule_used": SPLIT_EMPTY}
+            return None, {"snr_rule_used": SPLIT_EMPTY, **block}
         prepared = [self.prepare(h) for h in halves]
 
         def agreement(cand: tuple[float, float | None]) -> float:
@@ -390,9 +393,9 @@ class ParameterSearches:
         return chosen, {"snr_rule_used": "reproducibility", "reproducibility_kappa": kappa,
                         "reproducibility_kappa_min": bar,
                         "reproducibility_agreed": agreed,
-                        "reproducibility_grid": "x".join(str(v) for v in self.shape),
+                        "reproducibility_grid": grid_label(self.shape),
                         "reproducibility_tried": json.dumps([[c[0], c[1], k]
-                                                             for c, k in tried])}
+                                                             for c, k in tried]), **block}
 
     def thinning_factor(self, transient: np.ndarray, model_snr: float = math.inf,
                         setup=None, *, resampled: float = math.inf) -> tuple[float, dict]:

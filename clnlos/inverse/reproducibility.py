@@ -41,11 +41,28 @@ KAPPA_MIN_SLAB_ONLY = 0.8
 SLAB_SNRS = tuple(10.0 ** k for k in range(math.floor(math.log10(CLOSED_FORM_SLAB_SNR_MIN)), 8))
 SLAB_SNRS_SLAB_ONLY = SLAB_SNRS + (1e8,)
 LIGHTCONE_SNRS = (1e2, 1e3, 1e4)
-# the halves are reconstructed on at most this many scan points per side (a larger capture's
-# counts summed over blocks of scan points: still Poisson counts, the same SNR per spatial
-# frequency both grids hold; what it changes against the capture's own grid:
-# docs/validation/parameter-rules.md, "The search's grid")
+# the halves are reconstructed on block sums of at most this many scan points per side, and
+# at least REPRODUCIBILITY_SEARCH_POINTS_MIN on the shorter side (else on the capture's grid):
+# a sum of Poisson counts is Poisson, and the SNR per spatial frequency both grids hold is the
+# same; what the grid changes: docs/validation/parameter-rules.md, "The search's grid" (40
+# points a side were tried and changed a choice)
 REPRODUCIBILITY_SEARCH_POINTS = 64
+REPRODUCIBILITY_SEARCH_POINTS_MIN = 48
+
+
+def search_block(ny: int, nx: int) -> int:
+    """Scan points per side a capture of ny x nx points is searched on the sums of: the
+    fewest f dividing both sides that brings the longer within REPRODUCIBILITY_SEARCH_POINTS
+    and keeps the shorter at REPRODUCIBILITY_SEARCH_POINTS_MIN or more; 1 (the capture's own
+    grid) where none does."""
+    lo, hi = sorted((int(ny), int(nx)))
+    if hi <= REPRODUCIBILITY_SEARCH_POINTS:
+        return 1
+    for f in range(2, lo + 1):
+        if ny % f or nx % f or hi > f * REPRODUCIBILITY_SEARCH_POINTS:
+            continue
+        return f if lo >= f * REPRODUCIBILITY_SEARCH_POINTS_MIN else 1
+    return 1
 
 
 def otsu_threshold(img: np.ndarray, bins: int = 256) -> float:

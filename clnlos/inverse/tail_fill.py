@@ -10,8 +10,10 @@ import pyopencl.array as cla
 
 from clnlos.forward.blur import BlurTimeScales, slab_blur
 from clnlos.operators.spectral import SpectralFilter
+from clnlos.errors import ShapeError
+from clnlos.physics.grid import block_sums
 from clnlos.physics.slab import Slab
-from clnlos.runtime.buffers import Scratch, copy_rows, fill_zero
+from clnlos.runtime.buffers import Scratch, copy_rows, download, fill_zero
 from clnlos.runtime.device import has_fp64
 
 TAIL_FILL_ITERATIONS = 12    # at most this many fills of the unseen tail
@@ -21,9 +23,9 @@ TAIL_FILL_RTOL = 1e-3        # ... stopping when the fill changes by less than t
 TAIL_FILL_SNR = 1e4          # the fill's Wiener SNR at most (see TailFilledDeconvolution)
 TAIL_FILL_SNR_MIN = 1e2      # ... lowered 10x at a time while the fill diverges, to this
 TAIL_FILLED_SNR_MAX = 1e8    # the final deconvolution of a filled window's SNR at most
-# the fill runs on scan cells summed in f x f blocks, f * pitch at most this fraction of the
+# the fill runs on scan cells summed in f x f blocks, f * pitch at most this multiple of the
 # slab's diffuse spot scale d + 2 z_e (the tail is the blur of arrivals at lags past its
-# peak, laterally as wide as that spot), the grid kept at TAIL_FILL_POINTS_MIN per side
+# peak, laterally as wide as that spot), at least TAIL_FILL_POINTS_MIN blocks per side
 TAIL_FILL_CELL_OF_SPOT = 2.0
 TAIL_FILL_POINTS_MIN = 16
 
@@ -68,14 +70,18 @@ class TailFilledDeconvolution:
     pitch at most TAIL_FILL_CELL_OF_SPOT times the slab's diffuse spot scale d + 2 z_e): the
     tail is H P x at lags past the blur's peak, as wide laterally as the slab's diffuse spot,
     so f x f blocks carry it, and the iteration costs 1/f^2 of the capture's grid (measured:
-    docs/performance.md, "The tail fill on blocks"). W is linear, so the final deconvolution
-    of the filled window is
+    docs/performance.md, "f-k and LCT at 128^3 behind the slab"). W is linear, so the final
+    deconvolution of the filled window splits,
 
-        x = [W (tau, tail)]_{t < n} = W_n tau + [W (0, tail)]_{t < n},
+        x = [W (tau, tail)]_{t < n} ~ W_n tau + [W (0, tail)]_{t < n},
 
-    W_n the plain Wiener filter of the window (``window_filter``: the pipeline's own, shared)
-    and the tail's response computed on the fill's grid, divided by f^2 and interpolated
-    (bilinear between block centres) onto the scan grid. ``block`` records f.
+    W_n the plain Wiener filter of the window (``window_filter``: the pipeline's own, shared;
+    every user of it sets its SNR before a call, as this class does) and the tail's response
+    computed on the fill's grid, divided by f^2 and interpolated (bilinear between block
+    centres) onto the scan grid: approximately, as W_n pads the n rows and the fill's W the
+    n + reach rows each to its own grid, and the fill's grid holds the tail's lateral
+    frequencies up to its blocks' (the errors measured there). With f = 1 the filled window
+    is filtered as it is, on the n + reach grid. ``block`` records f.
     """
 
     name = "tail_filled_wiener"
@@ -93,12 +99,15 @@ class TailFilledDeconvolution:
                     lateral_pad=lateral_pad, dtype=dtype, queue=queue, cache=cache)
         self.W = window_filter if window_filter is not None else slab_blur(
             slab, self.in_shape, pitch_m=pitch_m, scratch=scratch, **blur)
+        if self.W.in_shape != self.in_shape:
+            raise ShapeError(f"tail fill: a window filter of {self.W.in_shape} for windows of "
+                             f"{self.in_shape}")
         self.queue = self.W.queue
         self.block = f = fill_block(slab, ny, nx, pitch_m)
         self.fill_shape = (self.n_ext, ny // f, nx // f)
-        # the fill's grid: its own work buffers (another shape than the window's)
+        # on blocks, work buffers of its own: the pipeline's stay sized for the scan grid
         self.W_fill = slab_blur(slab, self.fill_shape, pitch_m=pitch_m * f,
-                                scratch=Scratch(self.queue), **blur)
+                                scratch=scratch if f == 1 else Scratch(self.queue), **blur)
         self.H = SpectralFilter.from_spectrum(self.W_fill, self.W_fill.H, mode="convolve")
         self.snr = float(snr)
         self.fill_snr = min(self.snr, TAIL_FILL_SNR)
@@ -144,35 +153,41 @@ class TailFilledDeconvolution:
         fill_zero(self.queue, x, offset_bytes=self.n_known * plane * item)
         return x
 
+    def _extended(self, head: cla.Array | None, tail: cla.Array | None,
+                  dtype) -> cla.Array:
+        """The fill's grid [n + reach, y', x']: ``head`` in rows 0..n (zero where None), ``tail``
+        in rows n.. (zero where None)."""
+        n = self.in_shape[0]
+        row = self.fill_shape[1] * self.fill_shape[2] * np.dtype(dtype).itemsize
+        y = cla.empty(self.queue, self.fill_shape, dtype)
+        if head is None:
+            fill_zero(self.queue, y, nbytes=n * row)
+        else:
+            copy_rows(self.queue, head, y, rows=n)
+        if tail is None:
+            fill_zero(self.queue, y, offset_bytes=n * row)
+        else:
+            copy_rows(self.queue, tail, y, rows=self.n_ext - n, dst_row=n)
+        return y
+
     def _filled_window_filtered(self, tau_g: cla.Array, tail: cla.Array) -> cla.Array:
         """[W (tau, tail)]_{t < n} on the fill's grid (the scan grid where f = 1)."""
-        n = self.in_shape[0]
-        y = cla.empty(self.queue, self.fill_shape, tau_g.dtype)
-        copy_rows(self.queue, tau_g, y, rows=n)
-        copy_rows(self.queue, tail, y, rows=self.n_ext - n, dst_row=n)
         self.W_fill.set_snr(self.applied_snr)
-        return self.W_fill(y)[:n]
+        return self.W_fill(self._extended(tau_g, tail, tau_g.dtype))[:self.in_shape[0]]
 
     def _tail_response(self, tail: cla.Array) -> cla.Array:
         """[W (0, tail)]_{t < n} on the scan grid: the filled tail's part of the final
         deconvolution (class docstring), at :attr:`applied_snr`, on the fill's grid."""
-        n = self.in_shape[0]
-        plane = self.fill_shape[1] * self.fill_shape[2]
-        y = cla.empty(self.queue, self.fill_shape, tail.dtype)
-        fill_zero(self.queue, y, nbytes=n * plane * tail.dtype.itemsize)
-        copy_rows(self.queue, tail, y, rows=self.n_ext - n, dst_row=n)
         self.W_fill.set_snr(self.applied_snr)
-        return self._on_scan_grid(self.W_fill(y)[:self.n_known])
+        return self._on_scan_grid(self.W_fill(self._extended(None, tail, tail.dtype))
+                                  [:self.n_known])
 
     def _fill_input(self, tau_g: cla.Array) -> cla.Array:
         """The window on the fill's grid: ``tau_g`` with its scan cells summed in blocks of
         :attr:`block` per side (itself where the block is one cell)."""
-        f = self.block
-        if f == 1:
+        if self.block == 1:
             return tau_g
-        n, ny, nx = self.in_shape
-        a = tau_g.get().reshape(n, ny // f, f, nx // f, f).sum(axis=(2, 4))
-        return cla.to_device(self.queue, np.ascontiguousarray(a, tau_g.dtype))
+        return cla.to_device(self.queue, block_sums(download(tau_g), self.block))
 
     def _on_scan_grid(self, part: cla.Array) -> cla.Array:
         """Rows [t, y', x'] of the fill's grid on the scan grid, padded with zero rows to the
@@ -182,7 +197,7 @@ class TailFilledDeconvolution:
         n, ny, nx = self.in_shape
         fine = np.zeros((n, ny, nx), part.dtype)
         rows = part.shape[0]
-        fine[:rows] = part.get() if f == 1 else block_interpolated(part.get(), f) / (f * f)
+        fine[:rows] = block_interpolated(download(part), f) / (f * f)
         return cla.to_device(self.queue, fine)
 
     def _fill(self, tau_g: cla.Array, fill_snr: float) -> tuple[cla.Array, bool]:
@@ -197,9 +212,7 @@ class TailFilledDeconvolution:
         item = tau_g.dtype.itemsize
         W = self.W_fill
         W.set_snr(fill_snr)
-        y = cla.empty(self.queue, self.fill_shape, tau_g.dtype)
-        copy_rows(self.queue, tau_g, y, rows=n)
-        fill_zero(self.queue, y, offset_bytes=n * plane * item)
+        y = self._extended(tau_g, None, tau_g.dtype)
         tail = y[n:]  # a view: the rows the fill writes
         tail_old = cla.empty_like(tail)
         first_change = None
@@ -217,7 +230,7 @@ class TailFilledDeconvolution:
             # the fill's change: two reductions on the device, two numbers read back
             scale, change = tail_change(tail, tail_old)
             if not np.isfinite(change) or (first_change is not None and change > first_change):
-                return tail, True
+                return None, True
             if change < TAIL_FILL_RTOL * max(scale, 1e-300):
                 break
             first_change = change if first_change is None else first_change

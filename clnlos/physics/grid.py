@@ -49,3 +49,18 @@ def row_blocks(shape, values: int = BLOCK_VALUES) -> list[tuple[int, int]]:
     n0 = int(shape[0])
     step = max(1, values // max(1, int(np.prod(shape[1:]))))
     return [(r0, min(n0, r0 + step)) for r0 in range(0, n0, step)]
+
+
+def block_sums(transient: np.ndarray, f: int) -> np.ndarray:
+    """A capture [t, y, x] with its scan points summed over f x f blocks (counts stay
+    counts: a sum of Poisson counts is Poisson); f divides both scan sides."""
+    if f == 1:
+        return np.asarray(transient)
+    t, ny, nx = transient.shape
+    a = np.asarray(transient)
+    return a.reshape(t, ny // f, f, nx // f, f).sum(axis=(2, 4), dtype=a.dtype)
+
+
+def grid_label(shape) -> str:
+    """A grid's shape as the params record it: "512x64x64"."""
+    return "x".join(str(int(v)) for v in shape)
