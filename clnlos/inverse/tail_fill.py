@@ -8,9 +8,9 @@ import math
 import numpy as np
 import pyopencl.array as cla
 
+from clnlos.errors import ShapeError
 from clnlos.forward.blur import BlurTimeScales, slab_blur
 from clnlos.operators.spectral import SpectralFilter
-from clnlos.errors import ShapeError
 from clnlos.physics.grid import block_sums
 from clnlos.physics.slab import Slab
 from clnlos.runtime.buffers import Scratch, copy_rows, download, fill_zero
