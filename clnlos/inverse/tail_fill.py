@@ -147,8 +147,8 @@ class TailFilledDeconvolution:
         else:
             self.W.set_snr(self.applied_snr)
             x = self.W(tau_g)
-            if tail is not None:
-                x += self._tail_response(tail)
+            if tail is not None and self.n_known:
+                x[:self.n_known] += self._tail_response(tail)
         # arrivals past n - peak are seen only by the rise of their response: not determined
         fill_zero(self.queue, x, offset_bytes=self.n_known * plane * item)
         return x
@@ -176,8 +176,9 @@ class TailFilledDeconvolution:
         return self.W_fill(self._extended(tau_g, tail, tau_g.dtype))[:self.in_shape[0]]
 
     def _tail_response(self, tail: cla.Array) -> cla.Array:
-        """[W (0, tail)]_{t < n} on the scan grid: the filled tail's part of the final
-        deconvolution (class docstring), at :attr:`applied_snr`, on the fill's grid."""
+        """[W (0, tail)]_{t < n - peak} on the scan grid: the filled tail's part of the final
+        deconvolution (class docstring) on the rows it keeps, at :attr:`applied_snr`, on the
+        fill's grid."""
         self.W_fill.set_snr(self.applied_snr)
         return self._on_scan_grid(self.W_fill(self._extended(None, tail, tail.dtype))
                                   [:self.n_known])
@@ -190,15 +191,11 @@ class TailFilledDeconvolution:
         return cla.to_device(self.queue, block_sums(download(tau_g), self.block))
 
     def _on_scan_grid(self, part: cla.Array) -> cla.Array:
-        """Rows [t, y', x'] of the fill's grid on the scan grid, padded with zero rows to the
-        window's n: per cell, divided by the cells a block sums, interpolated bilinearly
-        between block centres (held at the border)."""
+        """Rows [t, y', x'] of the fill's grid on the scan grid: per cell, divided by the
+        cells a block sums, interpolated bilinearly between block centres (held at the
+        border)."""
         f = self.block
-        n, ny, nx = self.in_shape
-        fine = np.zeros((n, ny, nx), part.dtype)
-        rows = part.shape[0]
-        fine[:rows] = block_interpolated(download(part), f) / (f * f)
-        return cla.to_device(self.queue, fine)
+        return cla.to_device(self.queue, block_interpolated(download(part), f) / (f * f))
 
     def _fill(self, tau_g: cla.Array, fill_snr: float) -> tuple[cla.Array, bool]:
         """(the model-predicted tail of the window ``tau_g`` on the fill's grid, rows n ...
