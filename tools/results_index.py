@@ -55,6 +55,9 @@ ENTRIES: tuple[tuple[str, str, str, str], ...] = (
      "the iterative method on the LCT release, defaults and brdf auto, after issue 47's "
      "SNR-matched stop and falloff hint (docs/validation/lct-release.md; its iterative rows "
      "supersede lct_release_check.*'s)"),
+    ("experiments/power_iterations/power_iterations.*", "python tools/power_iteration_check.py",
+     "current", "the step size's power iteration after 4-15 iterations against 60, per grid and "
+     "lobe the iterative method builds (docs/performance.md)"),
     ("experiments/search_grid/search_grid.*", "python tools/search_grid_check.py", "current",
      "the reproducibility search on block sums against the search on the capture's grid, "
      "random 128^3 captures behind the slab (docs/validation/parameter-rules.md)"),
