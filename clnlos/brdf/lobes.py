@@ -17,6 +17,7 @@ anode plate's 11.6 deg), a factor of about three apart.
 
 from __future__ import annotations
 
+from collections.abc import Sequence
 from functools import lru_cache
 from pathlib import Path
 
@@ -92,9 +93,34 @@ def lobe_by_name(name: str) -> RetroLobe:
     return retro_lobe(name)
 
 
-def auto_ladder() -> list[RetroLobe]:
-    """The lobes ``"auto"`` chooses among: the Lambertian, then ever sharper lobes."""
-    return [RetroLobe.lambert(), *(ladder_lobe(a) for a in sorted(AUTO_ALPHAS, reverse=True))]
+class AutoLadder(Sequence):
+    """The Lambertian lobe, then GGX lobes of ever smaller roughness (AUTO_ALPHAS), each built
+    when first indexed (:func:`ladder_lobe`, cached per process): the lobe search's walk
+    stops at the first lobe that gains nothing, and a GGX lobe costs about 0.2 s to tabulate,
+    so the lobes past it are not built."""
+
+    _alphas = tuple(sorted(AUTO_ALPHAS, reverse=True))
+
+    def __init__(self):
+        self._lambert = RetroLobe.lambert()  # one object per ladder, as the GGX lobes are
+
+    def __len__(self) -> int:
+        return 1 + len(self._alphas)
+
+    def __getitem__(self, k):
+        if isinstance(k, slice):
+            return [self[i] for i in range(*k.indices(len(self)))]
+        i = range(len(self))[k]  # IndexError past either end, negative indices from the end
+        return self._lambert if i == 0 else ladder_lobe(self._alphas[i - 1])
+
+    def __add__(self, other) -> list[RetroLobe]:
+        return list(self) + list(other)
+
+
+def auto_ladder() -> AutoLadder:
+    """The lobes ``"auto"`` chooses among: the Lambertian, then ever sharper lobes (built as
+    they are reached, :class:`AutoLadder`)."""
+    return AutoLadder()
 
 
 def auto_challengers() -> list[RetroLobe]:
@@ -104,4 +130,4 @@ def auto_challengers() -> list[RetroLobe]:
     return [named_lobe(RETROREFLECTIVE)]
 
 
-__all__ = ["AUTO", "LAMBERTIAN", "auto_challengers", "auto_ladder", "check_brdf_spec", "lobe_by_name", "retro_lobe"]
+__all__ = ["AUTO", "AutoLadder", "LAMBERTIAN", "auto_challengers", "auto_ladder", "check_brdf_spec", "lobe_by_name", "retro_lobe"]

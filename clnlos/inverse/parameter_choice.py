@@ -200,6 +200,7 @@ class ParameterSearches:
             return RetroLobe.lambert(), {"brdf_rule_used": LOBE_NOT_SEARCHED}
         train, test = halves
         held, phi, noise_runs = self._held_out_prediction_target(test)
+        prep = self.prepare(train)  # once: every lobe reconstructs the same half
         fits: dict[str, np.ndarray] = {}
         surface_fits: dict[str, np.ndarray] = {}
 
@@ -210,8 +211,10 @@ class ParameterSearches:
         def score(cand: RetroLobe) -> float:
             if setup is not None:
                 setup(f"BRDF lobe by thinning: {cand.name}")
+            self.invert.set_lobe(cand)
             with self.invert.iteration_budget(LOBE_SEARCH_ITERATIONS):  # predicted by the
-                rec = self.run(train, model_snr=model_snr, slab_snr_factor=1.0, lobe=cand)
+                rec = self._reconstruct(prep, {}, model_snr=model_snr, slab_snr_factor=1.0,
+                                        resampled=self.resampling_snr(None))
                 fits[cand.name] = predicted(rec.volume)  # operator that reconstructed it
                 surface_fits[cand.name] = predicted(surface_of(rec.volume))
             return fitted_residual(fits[cand.name], held, scaled=True)
