@@ -343,7 +343,8 @@ def fista(op: LinearOperator, y: cla.Array, x0: cla.Array, *, l1: float = 0.0,
             if converged:
                 break
             continue
-        new_step, restore = rounds.update(k + 1, x, data, converged, out)
+        new_step, restore = rounds.update(k + 1, x, data, converged, out,
+                                          last=k + 1 == iterations)
         if new_step is None:
             break  # converged on S with no KKT violation outside it
         if new_step != step or restore is not None:  # a new round: the momentum restarts
@@ -376,12 +377,13 @@ class _Rounds:
         self.vec: cla.Array | None = None  # the power iteration's last vector
         self.L_ws = L
 
-    def update(self, k: int, x, data_term: float, converged: bool, out: FistaResult
-               ) -> tuple[float | None, cla.Array | None]:
+    def update(self, k: int, x, data_term: float, converged: bool, out: FistaResult,
+               last: bool = False) -> tuple[float | None, cla.Array | None]:
         """At the check after iteration k (``data_term`` there, ``converged``: the stopping
         rule met on S): (the step to go on with, None where the solver has converged; a
         point to restore, where the round diverged). A step other than the last one starts
-        a new round."""
+        a new round. ``last``: no iteration follows (the divergence check only: a new set
+        and its power iteration would go unused)."""
         if self.anchor is not None and (data_term > self.anchor_data + WORKING_SET_DIVERGENCE
                                         * abs(self.anchor_data)):
             self.L_ws = min(self.L, 2.0 * self.L_ws)  # L_S underestimated: it diverged
@@ -390,6 +392,8 @@ class _Rounds:
             return 1.0 / self.L_ws, self.anchor
         first = self.ws is None
         step = 1.0 / (self.L if first else self.L_ws)
+        if last:
+            return step, None
         if not (converged or first or k - self.start >= WORKING_SET_ROUND):
             return step, None
         g, data = self.objective.gradient(x)
