@@ -2,4 +2,4 @@
 one, re-exported at the package top); modules inside the package import it from here, never
 from the package's face."""
 
-__version__ = "0.4.1"
+__version__ = "0.4.2"

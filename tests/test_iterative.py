@@ -460,6 +460,31 @@ def test_working_set_solves_a_sparse_problem_in_fewer_steps(queue):
     assert all(0 < fr < 1 for _, fr, _, _ in runs[True].rounds)
 
 
+@pytest.mark.fp64
+def test_no_working_set_update_after_the_last_iteration(queue):
+    """A solve capped where a working-set round would end (CHECK_EVERY + WORKING_SET_ROUND
+    iterations) records no round there: no gradient or power iteration after the last step."""
+    from clnlos.inverse.solvers import CHECK_EVERY, WORKING_SET_ROUND
+    n = 60
+    t = np.arange(n)
+    A = np.exp(-0.5 * ((t[:, None] - t[None, :]) / 3.0) ** 2)
+    x_true = np.zeros(n)
+    x_true[[12, 30, 44]] = [1.0, 0.6, 0.8]
+    y = A @ x_true
+    op = _matrix_operator(queue, A, np.float64)
+    cap = CHECK_EVERY + WORKING_SET_ROUND
+    applied = []
+    apply = op.apply_device
+    op.apply_device = lambda x: applied.append(1) or apply(x)
+    res = fista(op, _dev(queue, y.reshape(n, 1, 1), np.float64),
+                cla.zeros(queue, (n, 1, 1), np.float64), l1=1e-4, iterations=cap, tol=0.0,
+                lipschitz_const=float(np.linalg.norm(A, 2) ** 2), working_set=True)
+    assert res.iterations == cap and [k for k, *_ in res.rounds] == [CHECK_EVERY]
+    # the solve's own applications, the first round's gradient and its power iterations
+    from clnlos.inverse.solvers import WORKING_SET_POWER_ITERATIONS
+    assert len(applied) == cap + 1 + WORKING_SET_POWER_ITERATIONS
+
+
 def test_slab_model_is_a_checked_choice():
     assert ReconstructionConfig().validate().slab_model == "influence"
     with pytest.raises(ParameterError, match="slab_model"):

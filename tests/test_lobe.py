@@ -104,6 +104,42 @@ def test_separable_terms_converge_and_a_lambertian_needs_one():
     assert one.terms == 1 and np.allclose(np.einsum("kz,kyx->zyx", one.a, one.b), 0.35)
 
 
+def test_leading_svd_is_the_full_svd_truncated():
+    """The truncated SVD of the separable terms against numpy's full SVD: the leading
+    singular values and the rank-k reconstructions agree (a smooth table like the lobes' and
+    a random one); a k near the smaller side takes the full SVD."""
+    from clnlos.physics.lobe import leading_svd
+    rng = np.random.default_rng(3)
+    z = np.linspace(0.2, 2.0, 300)[:, None]
+    d = np.linspace(0.0, 1.0, 400)[None, :]
+    smooth = (z / np.hypot(z, d)) ** 8 * (1 + 0.3 * np.cos(7 * d * z))
+    for A in (smooth, rng.standard_normal((300, 400))):
+        U0, S0, V0 = np.linalg.svd(A, full_matrices=False)
+        U, S, Vt = leading_svd(A, 12)
+        assert U.shape == (300, 12) and Vt.shape == (12, 400)
+        assert np.allclose(S, S0[:12], rtol=1e-9, atol=1e-12 * S0[0])
+        for k in (1, 5, 12):
+            ref = (U0[:, :k] * S0[:k]) @ V0[:k]
+            assert np.abs((U[:, :k] * S[:k]) @ Vt[:k] - ref).max() < 1e-8 * np.abs(A).max()
+    U, S, Vt = leading_svd(rng.standard_normal((6, 9)), 12)
+    assert S.size == 6 and np.all(np.diff(S) <= 0)
+
+
+def test_auto_ladder_builds_a_lobe_only_when_reached(monkeypatch):
+    import clnlos.brdf.lobes as lobes
+    built = []
+    monkeypatch.setattr(lobes, "ladder_lobe",
+                        lambda a: built.append(a) or RetroLobe.lambert())
+    ladder = lobes.auto_ladder()
+    assert len(ladder) == 1 + len(lobes.AUTO_ALPHAS) and built == []
+    assert ladder[0] is ladder[0] and ladder[0].lambertian and built == []
+    ladder[1]
+    assert built == [max(lobes.AUTO_ALPHAS)]
+    assert len(ladder[:2]) == 2 and len(ladder + [ladder[0]]) == len(ladder) + 1
+    with pytest.raises(IndexError):
+        ladder[len(ladder)]
+
+
 # ------------------------------------------------------------------ the operator
 def _scene(nt=120, n=8, seed=1):
     rng = np.random.default_rng(seed)
