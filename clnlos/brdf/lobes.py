@@ -130,4 +130,5 @@ def auto_challengers() -> list[RetroLobe]:
     return [named_lobe(RETROREFLECTIVE)]
 
 
-__all__ = ["AUTO", "AutoLadder", "LAMBERTIAN", "auto_challengers", "auto_ladder", "check_brdf_spec", "lobe_by_name", "retro_lobe"]
+__all__ = ["AUTO", "AutoLadder", "LAMBERTIAN", "auto_challengers", "auto_ladder",
+           "check_brdf_spec", "lobe_by_name", "retro_lobe"]
