@@ -123,6 +123,8 @@ def test_leading_svd_is_the_full_svd_truncated():
             assert np.abs((U[:, :k] * S[:k]) @ Vt[:k] - ref).max() < 1e-8 * np.abs(A).max()
     U, S, Vt = leading_svd(rng.standard_normal((6, 9)), 12)
     assert S.size == 6 and np.all(np.diff(S) <= 0)
+    U, S, Vt = leading_svd(np.zeros((300, 400)), 12)  # ARPACK cannot start: the full SVD
+    assert U.shape == (300, 12) and np.all(S == 0)
 
 
 def test_auto_ladder_builds_a_lobe_only_when_reached(monkeypatch):

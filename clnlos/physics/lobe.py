@@ -52,7 +52,7 @@ import math
 from dataclasses import dataclass
 
 import numpy as np
-from scipy.sparse.linalg import svds
+from scipy.sparse.linalg import ArpackError, ArpackNoConvergence, svds
 from scipy.special import i0e
 
 from clnlos.errors import ParameterError
@@ -305,15 +305,20 @@ def leading_svd(A: np.ndarray, k: int) -> tuple[np.ndarray, np.ndarray, np.ndarr
     """(U [m, k'], S [k'], Vt [k', n]): the k' = min(k, min(m, n)) leading singular triplets
     of A, largest first. A truncated Lanczos SVD (ARPACK, from a fixed start vector) where k
     is well below the smaller side (its cost is a few dozen products with A, where the full
-    SVD of a 1024 x 1089 table took 0.5 s), the full SVD otherwise."""
+    SVD of a 1024 x 1089 table took 0.5 s), the full SVD otherwise and where ARPACK fails
+    (a table of zeros leaves it no Krylov space)."""
     m, n = A.shape
-    if k >= min(m, n) - 1:
-        U, S, Vt = np.linalg.svd(A, full_matrices=False)
-        k = min(k, S.size)
-        return U[:, :k], S[:k], Vt[:k]
-    U, S, Vt = svds(A, k=k, v0=np.ones(min(m, n)), solver="arpack")
-    order = np.argsort(S)[::-1]
-    return U[:, order], S[order], Vt[order]
+    if k < min(m, n) - 1:
+        try:
+            U, S, Vt = svds(A, k=k, v0=np.ones(min(m, n)), solver="arpack")
+        except (ArpackError, ArpackNoConvergence):  # e.g. a table of zeros: no Krylov space
+            pass
+        else:
+            order = np.argsort(S)[::-1]
+            return U[:, order], S[order], Vt[order]
+    U, S, Vt = np.linalg.svd(A, full_matrices=False)
+    k = min(k, S.size)
+    return U[:, :k], S[:k], Vt[:k]
 
 
 def separable_terms(G: np.ndarray, depths_m, pitch_m: float, *, name: str = "",
