@@ -114,3 +114,45 @@ def test_auto_chooses_on_the_search_grid(queue, monkeypatch):
     got, want = json.loads(direct["brdf_tried"]), json.loads(p["brdf_tried"])
     assert [n for n, _ in got] == [n for n, _ in want]
     assert [v for _, v in got] == pytest.approx([v for _, v in want], rel=1e-6)
+
+
+@pytest.mark.parametrize("slab", [False, True])
+def test_lobe_search_candidates_are_the_runs_of_their_half(queue, monkeypatch, slab):
+    """The lobe search prepares its training half once and reconstructs it per lobe: each
+    candidate's volume is the one a full ``run`` of that half with the lobe and the search's
+    iteration budget gives (with and without the slab's deconvolution)."""
+    from clnlos.bench.brdf_inversion import glyph_scene_dict
+    from clnlos.forward.model import ForwardModel
+    from clnlos.forward.scene import Scene
+    from clnlos.inverse.brdf_choice import LOBE_SEARCH_ITERATIONS
+
+    d = glyph_scene_dict("lambertian", points=8, bins=96, bin_width_s=60e-12,
+                         scan_width_m=0.5, density_per_m2=5e3, slab=slab)
+    d["detector"] = {"exposure_s": 0.05, "etendue_m2_sr": 1e-9, "dark_count_rate_hz": 1e3}
+    scene = Scene.from_dict(d)
+    cap = ForwardModel(scene, queue=queue).capture()
+    cfg = ReconstructionConfig(method="iterative", brdf="auto", iterations=8, snr_rule="gcv",
+                               slab=scene.slab).validate()
+    bw, start, sw = resolve_geometry(cap, cfg)
+    pipe = ReconstructionPipeline(cap.transient.shape, bin_width_s=bw, start_s=start,
+                                  scan_width_m=sw, config=cfg, queue=queue)
+    assert (pipe.deconv is not None) == slab
+    halves, volumes = [], []
+    split, rebuild = pipe._split, pipe._reconstruct
+    monkeypatch.setattr(pipe, "_split", lambda y: halves.append(split(y)) or halves[-1])
+
+    def recorded(*a, **kw):
+        rec = rebuild(*a, **kw)
+        volumes.append((pipe.invert.solver.lobe, rec.volume.copy()))
+        return rec
+
+    monkeypatch.setattr(pipe, "_reconstruct", recorded)
+    y = cap.transient
+    pipe.brdf_lobe(y, pipe.raw_noise(y), 1e4)
+    monkeypatch.setattr(pipe, "_reconstruct", rebuild)
+    assert len(halves) == 1 and len(volumes) >= 3  # the Lambertian, a GGX lobe, the retro
+    train = halves[0][0]
+    for lobe, vol in volumes:
+        with pipe.invert.iteration_budget(LOBE_SEARCH_ITERATIONS):
+            ref = pipe.run(train, model_snr=1e4, slab_snr_factor=1.0, lobe=lobe).volume
+        assert np.abs(vol - ref).max() <= 1e-5 * np.abs(ref).max(), lobe.name

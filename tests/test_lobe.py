@@ -127,6 +127,19 @@ def test_leading_svd_is_the_full_svd_truncated():
     assert U.shape == (300, 12) and np.all(S == 0)
 
 
+def test_leading_svd_falls_back_where_arpack_does_not_converge(monkeypatch):
+    import clnlos.physics.lobe as lobe_mod
+    from scipy.sparse.linalg import ArpackNoConvergence
+
+    def fails(*a, **kw):
+        raise ArpackNoConvergence("no convergence", np.zeros(0), np.zeros((0, 0)))
+
+    A = np.random.default_rng(5).standard_normal((200, 300))
+    monkeypatch.setattr(lobe_mod, "svds", fails)
+    U, S, Vt = lobe_mod.leading_svd(A, 12)
+    assert np.allclose(S, np.linalg.svd(A, compute_uv=False)[:12])
+
+
 def test_auto_ladder_builds_a_lobe_only_when_reached(monkeypatch):
     import clnlos.brdf.lobes as lobes
     built = []
@@ -255,8 +268,11 @@ def test_brdf_spec_checks(tmp_path):
 
 
 def test_auto_ladder_runs_from_lambertian_to_sharp():
+    from clnlos.brdf.lobes import AUTO_ALPHAS
     ladder = auto_ladder()
     assert ladder[0].lambertian
+    assert [lb.name for lb in ladder] == ["lambertian"] + [
+        f"ggx alpha {a:g}" for a in sorted(AUTO_ALPHAS, reverse=True)]
     widths = [lobe.halfwidth_rad() for lobe in ladder]
     assert all(a > b for a, b in zip(widths, widths[1:], strict=False))
 

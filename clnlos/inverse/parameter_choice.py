@@ -89,7 +89,8 @@ DECONVOLVED_KEPT = 4  # slab SNRs whose deconvolution a prepared capture keeps (
 class PreparedCapture:
     """A capture preprocessed once for every reconstruction made of it (the candidates of a
     split search: :meth:`ReconstructionPipeline.reproducibility_snrs`,
-    :meth:`ReconstructionPipeline.thinning_factor`): the raw counts and their noise
+    :meth:`ReconstructionPipeline.thinning_factor`, the lobes of
+    :meth:`ReconstructionPipeline.brdf_lobe`): the raw counts and their noise
     estimate, the preprocessed and normalised transient ``tau`` (device, guard bins kept;
     never changed), its scan-summed profile and the normalisation ``scale``; filled in as
     the candidates need them: the slab GCV pick, the deconvolutions by slab SNR (the last
@@ -201,6 +202,7 @@ class ParameterSearches:
         train, test = halves
         held, phi, noise_runs = self._held_out_prediction_target(test)
         prep = self.prepare(train)  # once: every lobe reconstructs the same half
+        resampled = self.resampling_snr(None)
         fits: dict[str, np.ndarray] = {}
         surface_fits: dict[str, np.ndarray] = {}
 
@@ -214,7 +216,7 @@ class ParameterSearches:
             self.invert.set_lobe(cand)
             with self.invert.iteration_budget(LOBE_SEARCH_ITERATIONS):  # predicted by the
                 rec = self._reconstruct(prep, {}, model_snr=model_snr, slab_snr_factor=1.0,
-                                        resampled=self.resampling_snr(None))
+                                        resampled=resampled)
                 fits[cand.name] = predicted(rec.volume)  # operator that reconstructed it
                 surface_fits[cand.name] = predicted(surface_of(rec.volume))
             return fitted_residual(fits[cand.name], held, scaled=True)

@@ -345,10 +345,10 @@ def separable_terms(G: np.ndarray, depths_m, pitch_m: float, *, name: str = "",
     kmax = S.size
     errors = []
     Gk = np.zeros_like(A)  # sum of the first k terms, in the weighted space
+    back = W / (w1[:, None] * w2[None, :])  # from that space to the error's weight W
     for k in range(kmax):
         Gk += np.outer(U[:, k] * S[k], Vt[k])
-        errors.append(float(np.linalg.norm((Gk - A) * (W / (w1[:, None] * w2[None, :])))
-                            / ref) if ref > 0 else 0.0)
+        errors.append(float(np.linalg.norm((Gk - A) * back) / ref) if ref > 0 else 0.0)
     if terms is None:
         ok = [k for k, e in enumerate(errors, 1) if e <= tolerance]
         terms = ok[0] if ok else kmax
