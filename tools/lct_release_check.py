@@ -80,6 +80,10 @@ def main(argv=None) -> int:
                        "depth_m": z, "published_depth_m": z_ref, "depth_error_m": z - z_ref,
                        "brdf_used": rec.params.get("brdf_used"),
                        "brdf_chosen": rec.params.get("brdf_chosen"),
+                       # the lobe search's held-out scores (whole volume; surface) and cost
+                       "brdf_tried": rec.params.get("brdf_tried"),
+                       "brdf_tried_surface": rec.params.get("brdf_tried_surface"),
+                       "brdf_choice_s": rec.params.get("brdf_choice_s"),
                        "falloff_used": rec.params.get("falloff_used"),
                        "iterations_stop": rec.params.get("iterations_stop"),
                        "iterations_run": (rec.solver or {}).get("iterations"),
