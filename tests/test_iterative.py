@@ -431,16 +431,22 @@ def test_kernel_support_and_fast_lengths():
     assert row_blocks((3, 100), 10) == [(0, 1), (1, 2), (2, 3)]
 
 
+def _sparse_blur_problem(n: int = 60):
+    """(A, x_true): a Gaussian blur of 3 samples (coherent columns) and three spikes."""
+    t = np.arange(n)
+    A = np.exp(-0.5 * ((t[:, None] - t[None, :]) / 3.0) ** 2)
+    x_true = np.zeros(n)
+    x_true[[12, 30, 44]] = [1.0, 0.6, 0.8]
+    return A, x_true
+
+
 @pytest.mark.fp64
 def test_working_set_solves_a_sparse_problem_in_fewer_steps(queue):
     """A sparse non-negative problem with coherent columns (a Gaussian blur, an L1
     weight): the working-set solver reaches L-BFGS-B's minimiser as plain FISTA does, in
     fewer iterations; both stop by the objective's relative decrease."""
-    n = 60
-    t = np.arange(n)
-    A = np.exp(-0.5 * ((t[:, None] - t[None, :]) / 3.0) ** 2)
-    x_true = np.zeros(n)
-    x_true[[12, 30, 44]] = [1.0, 0.6, 0.8]
+    A, x_true = _sparse_blur_problem()
+    n = A.shape[0]
     y = A @ x_true + 0.001 * np.random.default_rng(7).standard_normal(n)
     l1 = 0.01
 
@@ -465,11 +471,8 @@ def test_no_working_set_update_after_the_last_iteration(queue):
     """A solve capped where a working-set round would end (CHECK_EVERY + WORKING_SET_ROUND
     iterations) records no round there: no gradient or power iteration after the last step."""
     from clnlos.inverse.solvers import CHECK_EVERY, WORKING_SET_ROUND
-    n = 60
-    t = np.arange(n)
-    A = np.exp(-0.5 * ((t[:, None] - t[None, :]) / 3.0) ** 2)
-    x_true = np.zeros(n)
-    x_true[[12, 30, 44]] = [1.0, 0.6, 0.8]
+    A, x_true = _sparse_blur_problem()
+    n = A.shape[0]
     y = A @ x_true
     op = _matrix_operator(queue, A, np.float64)
     cap = CHECK_EVERY + WORKING_SET_ROUND
